@@ -1,0 +1,3 @@
+from nmtcheck.cli import main
+
+main()

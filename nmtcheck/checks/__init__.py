@@ -1,0 +1,52 @@
+"""The rule registry: one explicit table, in catalogue order. Adding a rule = a module + a line."""
+
+from __future__ import annotations
+
+from nmtcheck.checks.base import Rule
+from nmtcheck.checks.bootup import bootup_repeated, missing_bootup, unexpected_bootup
+from nmtcheck.checks.canid import (
+    malformed_error_control,
+    malformed_nmt_command,
+    restricted_can_id,
+    unknown_nmt_state,
+)
+from nmtcheck.checks.guarding import (
+    guard_interval_exceeded,
+    guard_no_response,
+    guard_toggle,
+    guarding_with_heartbeat,
+)
+from nmtcheck.checks.heartbeat import heartbeat_timeout, heartbeat_too_early
+from nmtcheck.checks.network import duplicate_node_id, missing_node
+from nmtcheck.checks.state import (
+    comm_while_stopped,
+    command_not_obeyed,
+    pdo_to_not_operational,
+    pdo_while_not_operational,
+    unexplained_state_change,
+)
+
+RULES: list[Rule] = [
+    missing_bootup,
+    unexpected_bootup,
+    bootup_repeated,
+    heartbeat_timeout,
+    heartbeat_too_early,
+    guard_toggle,
+    guard_no_response,
+    guard_interval_exceeded,
+    guarding_with_heartbeat,
+    pdo_while_not_operational,
+    pdo_to_not_operational,
+    comm_while_stopped,
+    command_not_obeyed,
+    unexplained_state_change,
+    restricted_can_id,
+    malformed_nmt_command,
+    malformed_error_control,
+    unknown_nmt_state,
+    missing_node,
+    duplicate_node_id,
+]
+
+BY_CODE: dict[str, Rule] = {r.code: r for r in RULES}

@@ -1,0 +1,139 @@
+"""CAN-ID and frame-format rules (C): reserved IDs and malformed NMT / error-control frames."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+from nmtcheck.checks.base import Param, Problem, count_note, rule, runs
+from nmtcheck.timeline import STATE_OF_CODE, ChannelModel, EcFrame, InputModel, NmtFrame
+
+
+@rule("C001", "restricted-can-id", "error",
+      Param("allow", list, "reserved CAN-IDs that legitimate CiA profiles use (LSS, flying "
+                           "master, global fail-safe command)"),
+      exempt_from_unknown=True)
+def restricted_can_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """An 11-bit frame uses a CAN-ID that CiA 301 reserves.
+
+    **What it checks.** Any 11-bit frame on 001h-07Fh, 101h-180h, 6E0h-6FFh or
+    780h-7FFh (780h is 1920 decimal), except the IDs in `allow`. One finding per
+    CAN-ID and channel, at its first use, with the number of frames.
+
+    **Why it matters.** Table 40 reserves these IDs so that configurable COBs
+    never collide with NMT, SYNC, LSS, SRDO or future services. A device using
+    one is misconfigured and may collide with a device that uses it correctly.
+
+    **Example.** `123#00` sits in the reserved 101h-180h range.
+    """
+    allow = {int(x) for x in p["allow"]}
+    names = [cm.name for cm in model.channels]
+    for (chan, can_id), use in sorted(model.decoded.restricted.items(),
+                                      key=lambda kv: kv[1].first_idx):
+        if can_id in allow or chan >= len(names):
+            continue
+        yield Problem(names[chan], None, use.first_ts,
+                      f"CAN-ID {can_id:03X}h is reserved by CiA 301{count_note(use.count)}",
+                      use.first_idx, use.first_line)
+
+
+@rule("C002", "malformed-nmt-command", "error")
+def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A frame on CAN-ID 000h is not a valid NMT module-control command.
+
+    **What it checks.** A frame on CAN-ID 0 is a remote frame, has DLC other than 2,
+    an unknown command specifier, or a node-ID above 127. Such a frame is not
+    applied to any node's state. Consecutive frames with the same defect for the
+    same node (within one of its timeline intervals) give one finding with their
+    count.
+
+    **Why it matters.** Stacks disagree on such frames: CANopenNode drops any DLC
+    other than 2, Lely accepts longer ones, python-canopen raises on shorter ones.
+    Part of the network obeys, the rest does not.
+
+    **Example.** `000#0105000000000000` (DLC 8).
+    """
+    def node_of(f: NmtFrame) -> int | None:
+        return f.target if 1 <= f.target <= 127 and not f.rtr else None
+
+    for cm in model.channels:
+        bad = [f for f in cm.nmt if f.problem is not None]
+
+        def same_run(a: NmtFrame, b: NmtFrame, cm: ChannelModel = cm) -> bool:
+            n = node_of(a)
+            if a.problem != b.problem or n != node_of(b):
+                return False
+            m = cm.nodes.get(n) if n is not None else None
+            return m is None or m.interval_index(a.ts) == m.interval_index(b.ts)
+
+        for run in runs(bad, same_run):
+            f = run[0]
+            node = node_of(f)
+            yield Problem(cm.name, node, f.ts,
+                          f"malformed NMT frame: {f.problem}{count_note(len(run))}",
+                          f.idx, f.line)
+
+
+def _ec_runs(model: InputModel, bad: Any) -> Iterator[tuple[str, int, list[EcFrame]]]:
+    """Runs of consecutive error-control frames of one node for which `bad` holds,
+    each within one timeline interval."""
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            frames = [f for f in m.ec if f.kind != "request"]
+            current: list[EcFrame] = []
+            for f in frames:
+                if current and (not bad(f) or m.interval_index(f.ts)
+                                != m.interval_index(current[-1].ts)):
+                    yield cm.name, m.node, current
+                    current = []
+                if bad(f):
+                    current.append(f)
+            if current:
+                yield cm.name, m.node, current
+
+
+@rule("C003", "malformed-error-control", "error", exempt_from_unknown=True)
+def malformed_error_control(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A frame on 701h-77Fh is not a valid boot-up, heartbeat or guarding response.
+
+    **What it checks.** A data frame on 701h-77Fh has DLC other than 1, or is a
+    heartbeat with bit 7 (reserved) set. Remote requests with DLC 0 or 1 are
+    normal. Malformed frames are not used as state evidence.
+
+    **Why it matters.** CANopenNode's consumer drops frames with DLC other than 1 and
+    Lely's drops heartbeats with bit 7 set: those consumers see a heartbeat
+    timeout although the producer is sending.
+
+    **Example.** `703#0500` (DLC 2).
+    """
+    def bad(f: EcFrame) -> bool:
+        return f.kind == "malformed" or (f.kind == "heartbeat" and bool(f.value & 0x80))
+
+    for channel, node, run in _ec_runs(model, bad):
+        f = run[0]
+        why = (f"DLC {f.dlc} (must be 1)" if f.kind == "malformed"
+               else f"heartbeat {f.value:02X}h has the reserved bit 7 set")
+        yield Problem(channel, node, f.ts, f"malformed error-control frame from node {node}: "
+                      f"{why}{count_note(len(run))}", f.idx, f.line)
+
+
+@rule("C004", "unknown-nmt-state", "warning", exempt_from_unknown=True)
+def unknown_nmt_state(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A heartbeat or guarding response reports a state CiA 301 does not define.
+
+    **What it checks.** The state (bits 0..6) of a heartbeat or guarding response is
+    not 00h, 04h, 05h or 7Fh. The node's timeline keeps its previous state.
+
+    **Why it matters.** Legacy DS301 v3 codes (01h-03h) and vendor codes (python
+    canopen's 50h/60h) are not understood by CiA 301 consumers, which may treat
+    the node as failed.
+
+    **Example.** `703#02` (legacy "pre-operational" of DS301 v3).
+    """
+    def bad(f: EcFrame) -> bool:
+        return f.kind in ("heartbeat", "guard") and f.code not in STATE_OF_CODE
+
+    for channel, node, run in _ec_runs(model, bad):
+        f = run[0]
+        yield Problem(channel, node, f.ts, f"node {node} reports unknown NMT state "
+                      f"{f.code:02X}h{count_note(len(run))}", f.idx, f.line)

@@ -1,0 +1,91 @@
+"""Heartbeat rules (H): the periodic 700h+N / state frame of CiA 301 §7.2.8.3.2.2."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+from nmtcheck.checks.base import Param, Problem, count_note, rule, runs
+from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, state_name
+
+
+@rule("H001", "heartbeat-timeout", "error",
+      Param("timeout_factor", float,
+            "timeout = factor x producer period when no consumer time is configured"))
+def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A heartbeat producer fell silent for longer than its consumers wait.
+
+    **What it checks.** N produces heartbeats (two or more seen, or a producer time
+    configured) and a gap after one of its heartbeats or its boot-up exceeds the
+    timeout: the consumer time if configured (the smallest non-zero one for N),
+    else `timeout_factor` x the producer period (configured, else the median of
+    N's heartbeat intervals). The gap ends at N's next heartbeat or boot-up; a
+    reset command to N ends it (waiting for the boot-up is B001's), so only a
+    timeout that expired before the reset counts. The trace continuing past the
+    timeout after N's last heartbeat counts too. One finding per gap, at the
+    moment the timeout expired; the node is OFFLINE from then until its next frame.
+
+    **Why it matters.** This is the heartbeat event of CiA 301: every consumer of
+    N raises EMCY 8130h and applies its error behaviour (1029h), CiA 302 masters
+    reset the node or stop the whole network.
+
+    **Example.** `703#05` every 100 ms, then nothing for 0.4 s: with the median
+    period 0.1 s and factor 1.5 the timeout expires 0.15 s after the last one.
+    """
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            for t in m.timeouts:
+                if t.rule != "H001":
+                    continue
+                if t.gap_s is None:
+                    what = f"no heartbeat from node {m.node} for the rest of the trace"
+                else:
+                    what = f"no heartbeat from node {m.node} for {t.gap_s:.3f} s"
+                yield Problem(cm.name, m.node, t.moment, f"{what} (timeout {t.limit_s:.3f} s)")
+
+
+@rule("H002", "heartbeat-too-early", "warning",
+      Param("early_factor", float, "heartbeats closer than factor x period are too early"))
+def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """Two heartbeats of a node come much closer together than its period.
+
+    **What it checks.** Two consecutive heartbeats of N are closer than
+    `early_factor` x the producer period, except the first heartbeat after a
+    boot-up, after an NMT command to N, or one that reports a different state
+    (stacks may send one at once on a state change).
+
+    **Why it matters.** A producer that sends too often wastes bus bandwidth and
+    usually means a misconfigured 1017h, two devices sharing the node-ID, or a
+    stack that re-triggers its timer.
+
+    **Example.** Period 100 ms, heartbeats at 0.000, 0.020, 0.100 s.
+    """
+    factor = p["early_factor"]
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            if not m.period_s:
+                continue
+            limit = factor * m.period_s
+            cmd_idx = [c.idx for c in m.commands]
+            early: list[tuple[EcFrame, EcFrame]] = []
+            prev: EcFrame | None = None
+            for f in m.ec:
+                if f.kind == "bootup":
+                    prev = None
+                elif f.kind == "heartbeat":
+                    if (prev is not None and f.code == prev.code
+                            and not any(prev.idx < i < f.idx for i in cmd_idx)
+                            and f.ts - prev.ts < limit - EPS):
+                        early.append((prev, f))
+                    prev = f
+            def chained(a: tuple[EcFrame, EcFrame], b: tuple[EcFrame, EcFrame],
+                        m: NodeModel = m) -> bool:
+                return a[1] is b[0] and m.interval_index(a[1].ts) == m.interval_index(b[1].ts)
+
+            for run in runs(early, chained):
+                prev_f, f = run[0]
+                yield Problem(cm.name, m.node, f.ts,
+                              f"heartbeat ({state_name(f.code)}) {f.ts - prev_f.ts:.3f} s after "
+                              f"the previous one (period {m.period_s:.3f} s, limit "
+                              f"{limit:.3f} s){count_note(len(run), 'heartbeats')}",
+                              f.idx, f.line)

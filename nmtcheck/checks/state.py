@@ -1,0 +1,243 @@
+"""State and communication rules (S): what a node may send in which NMT state (Table 37).
+
+S001-S003 run vectorised: the node frames kept by the decoder (TPDO, RPDO, SDO
+response, EMCY) are matched chunk by chunk against each node's finished
+timeline with `searchsorted`; only offending runs become Python objects.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from nmtcheck.checks.base import Param, Problem, count_note, rule
+from nmtcheck.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.timeline import (
+    EPS,
+    OFFLINE,
+    OPERATIONAL,
+    PRE_OPERATIONAL,
+    STATE_INDEX,
+    STATE_OF_CODE,
+    STOPPED,
+    EcFrame,
+    InputModel,
+    NodeModel,
+    state_name,
+)
+
+
+@dataclass
+class _Run:
+    """Offending frames of one node within one timeline interval."""
+
+    ts: float
+    idx: int
+    line: int
+    can_id: int
+    kind: int
+    count: int
+
+
+def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
+          grace_s: float, grace_from: str | None) -> list[tuple[NodeModel, int, _Run]]:
+    """Frames of `kinds` sent while the node is in one of `states`.
+
+    Frames at most `grace_s` after the node left `grace_from` are excused (S001);
+    with `grace_from` None, frames at most `grace_s` after the node entered its
+    current state (S003). Returning from OFFLINE to the state it had before is
+    not a new entry.
+    """
+    by_key = {m.key: m for cm in model.channels for m in cm.nodes.values()}
+    tables: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    offline = STATE_INDEX[OFFLINE]
+    grace_code = STATE_INDEX[grace_from] if grace_from else -2
+    for key, m in by_key.items():
+        starts = np.asarray([iv.start for iv in m.intervals], np.float64)
+        codes = np.asarray([STATE_INDEX[iv.state] for iv in m.intervals], np.int8)
+        since = np.full(len(codes), -np.inf)  # when the grace period of each interval began
+        for i in range(len(codes)):
+            if grace_from is None:
+                back = i >= 2 and codes[i - 1] == offline and codes[i - 2] == codes[i]
+                since[i] = since[i - 2] if back else starts[i]
+            elif i >= 1 and codes[i - 1] == grace_code:
+                since[i] = starts[i]
+            elif i >= 1 and codes[i - 1] != offline:
+                since[i] = since[i - 1]  # e.g. OPERATIONAL -> STOPPED -> PRE-OPERATIONAL
+        tables[key] = (starts, codes, since)
+    wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
+    found: dict[tuple[int, int], _Run] = {}
+    for chunk in model.decoded.node_frames:
+        sel = np.flatnonzero(np.isin(chunk["kind"], kinds))
+        if not sel.size:
+            continue
+        keys = chunk["key"][sel]
+        order = np.argsort(keys, kind="stable")
+        sk = keys[order]
+        bounds = np.flatnonzero(np.diff(sk)) + 1
+        for part in np.split(order, bounds):
+            key = int(keys[part[0]])
+            table = tables.get(key)
+            if table is None:
+                continue
+            starts, codes, since = table
+            rows = sel[part]
+            ts = chunk["ts"][rows]
+            iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
+            bad = np.isin(codes[iv], wanted)
+            bad &= ~((ts - since[iv]) <= grace_s + EPS)
+            for j in np.flatnonzero(bad):
+                row = rows[j]
+                k = (key, int(iv[j]))
+                run = found.get(k)
+                if run is None:
+                    found[k] = _Run(float(chunk["ts"][row]), int(chunk["idx"][row]),
+                                    int(chunk["line"][row]), int(chunk["can_id"][row]),
+                                    int(chunk["kind"][row]), 1)
+                else:
+                    run.count += 1
+    return [(by_key[key], iv, run) for (key, iv), run in sorted(
+        found.items(), key=lambda kv: kv[1].idx)]
+
+
+@rule("S001", "pdo-while-not-operational", "error",
+      Param("grace_ms", float, "PDOs this soon after leaving OPERATIONAL are still in flight"))
+def pdo_while_not_operational(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A node transmitted a PDO while not OPERATIONAL.
+
+    **What it checks.** N transmits a TPDO (default COB-IDs 180h/280h/380h/480h + N)
+    while its state is PRE-OPERATIONAL or STOPPED, unless N left OPERATIONAL at most
+    `grace_ms` before (frames already queued). Consecutive offending PDOs within
+    one timeline interval give one finding with their count.
+
+    **Why it matters.** CiA 301 Table 37: PDOs exist only in OPERATIONAL. Process
+    data sent before the master started the node (or after it stopped it) reaches
+    consumers that were told the producer is not running: outputs move while
+    the network is being configured or is meant to be halted.
+
+    **Example.** `702#00` (boot-up), then `182#0102` before any `000#01..`.
+    """
+    yield from _pdo_problems(model, (KIND_TPDO,), p["grace_ms"] / 1000.0, OPERATIONAL, "sent")
+
+
+@rule("S002", "pdo-to-not-operational", "info")
+def pdo_to_not_operational(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """An RPDO was sent to a node that is not OPERATIONAL and will ignore it.
+
+    **What it checks.** An RPDO of N (default 200h/300h/400h/500h + N) is on the bus
+    while N is PRE-OPERATIONAL or STOPPED.
+
+    **Why it matters.** N does not process PDOs outside OPERATIONAL (Table 37): the
+    command in that PDO is lost. Usually the master started sending set-points
+    before starting the node.
+
+    **Example.** `203#0000` while node 3's heartbeat says 7Fh.
+    """
+    yield from _pdo_problems(model, (KIND_RPDO,), 0.0, None, "on the bus for the node")
+
+
+def _pdo_problems(model: InputModel, kinds: tuple[int, ...], grace_s: float,
+                  grace_from: str | None, verb: str) -> Iterator[Problem]:
+    for m, iv, run in _scan(model, kinds, (PRE_OPERATIONAL, STOPPED), grace_s, grace_from):
+        state = m.intervals[iv].state
+        yield Problem(m.channel, m.node, run.ts,
+                      f"{KIND_NAMES[run.kind]} {run.can_id:03X}h {verb} while node {m.node} is "
+                      f"{state}{count_note(run.count)}", run.idx, run.line)
+
+
+@rule("S003", "comm-while-stopped", "error",
+      Param("grace_ms", float, "frames this soon after entering STOPPED are still in flight"))
+def comm_while_stopped(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A STOPPED node answered an SDO or sent an EMCY.
+
+    **What it checks.** N transmits an SDO response (580h+N) or an EMCY (80h+N) while
+    STOPPED, unless it entered STOPPED at most `grace_ms` before.
+
+    **Why it matters.** In STOPPED only NMT and error control are allowed (Table 37).
+    EMCYs are held pending and sent after leaving STOPPED. A node that keeps
+    talking was not really stopped.
+
+    **Example.** `000#0204` (stop node 4), then `584#4B00100000000000`.
+    """
+    grace = p["grace_ms"] / 1000.0
+    for m, iv, run in _scan(model, (KIND_SDO_TX, KIND_EMCY), (STOPPED,), grace, None):
+        yield Problem(m.channel, m.node, run.ts,
+                      f"{KIND_NAMES[run.kind]} {run.can_id:03X}h from node {m.node} while "
+                      f"{m.intervals[iv].state}{count_note(run.count)}", run.idx, run.line)
+
+
+@rule("S004", "command-not-obeyed", "error",
+      Param("obey_ms", float, "time a node has to carry out a command before its reports count"))
+def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A node kept reporting another state after an NMT command.
+
+    **What it checks.** After an NMT start, stop or enter-pre-operational command to
+    N (direct or broadcast), an error-control message from N more than `obey_ms`
+    after the command, with no newer command to N in between, reports a state
+    other than the commanded one. The command counts as obeyed once N reports the
+    commanded state; a boot-up or a newer command ends the check. One finding per
+    command.
+
+    **Why it matters.** NMT commands are unconfirmed: the master believes N changed
+    state. A node that ignores them runs outside the state the system relies on
+    (e.g. keeps driving outputs after a stop).
+
+    **Example.** `000#0104` (start node 4), then `704#7F` 0.5 s later.
+    """
+    obey = p["obey_ms"] / 1000.0
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            cmds = [c for c in m.commands if not c.is_reset]
+            all_cmd_idx = sorted(c.idx for c in m.commands)
+            for c in cmds:
+                target = {0x01: OPERATIONAL, 0x02: STOPPED, 0x80: PRE_OPERATIONAL}[c.cs]
+                newer = next((i for i in all_cmd_idx if i > c.idx), None)
+                for f in m.ec:
+                    if f.idx <= c.idx or not f.reports_state:
+                        continue
+                    if (newer is not None and f.idx > newer) or f.kind == "bootup":
+                        break
+                    state = STATE_OF_CODE.get(f.code)
+                    if state is None:
+                        continue
+                    if state == target:
+                        break
+                    if f.ts - c.ts > obey + EPS:
+                        yield Problem(cm.name, m.node, f.ts,
+                                      f"node {m.node} reports {state} {f.ts - c.ts:.3f} s after "
+                                      f"NMT {c.name} (expected {target})", f.idx, f.line)
+                        break
+
+
+@rule("S005", "unexplained-state-change", "info")
+def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A node changed its NMT state on its own.
+
+    **What it checks.** N's reported state changes between two of its error-control
+    messages with no NMT command to N in between and no boot-up.
+
+    **Why it matters.** Local control is allowed (self-start, 1029h error behaviour,
+    application events) but it is the first thing to look at when a node leaves
+    OPERATIONAL unexpectedly: it usually reacted to an error it saw.
+
+    **Example.** `703#05`, `703#05`, `703#7F` with no NMT command to node 3.
+    """
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            cmd_idx = [c.idx for c in m.commands]
+            prev: EcFrame | None = None
+            for f in m.ec:
+                if f.kind == "bootup":
+                    prev = None
+                    continue
+                if f.kind not in ("heartbeat", "guard") or f.code not in STATE_OF_CODE:
+                    continue
+                if (prev is not None and STATE_OF_CODE[f.code] != STATE_OF_CODE[prev.code]
+                        and not any(prev.idx < i < f.idx for i in cmd_idx)):
+                    yield Problem(cm.name, m.node, f.ts,
+                                  f"node {m.node} changed from {state_name(prev.code)} to "
+                                  f"{state_name(f.code)} without an NMT command", f.idx, f.line)
+                prev = f

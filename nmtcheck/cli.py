@@ -1,0 +1,198 @@
+"""Command line: `nmtcheck check`, `nmtcheck timeline`, `nmtcheck rules`.
+
+Exit codes: 0 no finding at or above --fail-on, 1 at least one, 2 usage or
+input error (one line on stderr, never a traceback unless --debug).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import sys
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from nmtcheck import __version__
+from nmtcheck.checks import BY_CODE, RULES
+from nmtcheck.engine import InputResult, check_input, select_rules, summary
+from nmtcheck.errors import NmtcheckError, UsageError
+from nmtcheck.network import Network, load_network
+from nmtcheck.profiles import DEFAULT_PROFILE, Profile, load_profile
+from nmtcheck.readers import FORMATS as INPUT_FORMATS
+from nmtcheck.reporters import format_for_path, renderer
+
+EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
+SEVERITY_ORDER = ["error", "warning", "info"]
+
+
+def _split(values: tuple[str, ...]) -> list[str]:
+    return [v.strip() for item in values for v in item.split(",") if v.strip()]
+
+
+def _common(f: Callable[..., Any]) -> Callable[..., Any]:
+    """Options shared by `check` and `timeline`."""
+    for opt in reversed([
+        click.option("--input-format", type=click.Choice(INPUT_FORMATS), default=None,
+                     help="Log format (default: detected from the content)."),
+        click.option("--rules", "rules_profile", default=DEFAULT_PROFILE, show_default=True,
+                     help="Rule profile: a name in rules/ or a TOML file."),
+        click.option("--network", "network_file", default=None,
+                     help="Network description (TOML): expected nodes and their timing."),
+        click.option("--strict", is_flag=True, help="The first unparseable record is fatal."),
+        click.option("--channel", default=None, help="Only this channel (e.g. can0, 1)."),
+    ]):
+        f = opt(f)
+    return f
+
+
+def _load(rules_profile: str, network_file: str | None) -> tuple[Profile, Network | None]:
+    profile = load_profile(rules_profile)
+    network = load_network(network_file) if network_file else None
+    return profile, network
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="nmtcheck")
+@click.option("--debug", is_flag=True, hidden=True, help="Show tracebacks.")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """Check recorded CAN logs against CANopen NMT (CiA 301)."""
+    ctx.obj = {"debug": debug}
+
+
+@cli.command()
+@click.argument("logs", nargs=-1, required=True)
+@_common
+@click.option("--format", "fmt", default="text", show_default=True,
+              help="text, json or csv (html, junit, sarif, github, markdown: planned).")
+@click.option("-o", "--output", "outputs", multiple=True,
+              help="Also write a report to PATH; the format follows the suffix. Repeatable.")
+@click.option("--select", multiple=True, help="Only these rule codes or letter prefixes.")
+@click.option("--ignore", multiple=True, help="Skip these rule codes or letter prefixes.")
+@click.option("--fail-on", type=click.Choice(["error", "warning", "info", "never"]),
+              default="error", show_default=True,
+              help="Exit 1 when a finding of this severity or higher exists.")
+@click.option("-q", "--quiet", is_flag=True, help="Only the findings and the verdict.")
+def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
+          network_file: str | None, strict: bool, channel: str | None, fmt: str,
+          outputs: tuple[str, ...], select: tuple[str, ...], ignore: tuple[str, ...],
+          fail_on: str, quiet: bool) -> None:
+    """Analyse each LOG, print the findings and set the exit code."""
+    profile, network = _load(rules_profile, network_file)
+    rules = select_rules(profile, _split(select), _split(ignore))
+    stdout_render = renderer(fmt)
+    files = [(path, renderer(format_for_path(path))) for path in outputs]
+    results = [check_input(path, i, profile, rules, network, input_format, strict, channel)
+               for i, path in enumerate(logs)]
+    options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet}
+    for path, render in files:
+        try:
+            Path(path).write_text(render(results, options), encoding="utf-8")
+        except OSError as exc:
+            raise UsageError(f"--output {path}: cannot write: {exc.strerror}") from None
+    click.echo(stdout_render(results, options), nl=False)
+    counts = summary(results)
+    if fail_on != "never" and any(
+            counts[s] for s in SEVERITY_ORDER[: SEVERITY_ORDER.index(fail_on) + 1]):
+        sys.exit(EXIT_FINDINGS)
+
+
+@cli.command()
+@click.argument("log")
+@_common
+@click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text",
+              show_default=True)
+def timeline(log: str, input_format: str | None, rules_profile: str, network_file: str | None,
+             strict: bool, channel: str | None, fmt: str) -> None:
+    """Print the per-node NMT state timeline of LOG."""
+    profile, network = _load(rules_profile, network_file)
+    res = check_input(log, 0, profile, [], network, input_format, strict, channel)
+    click.echo(render_timeline(res, fmt), nl=False)
+
+
+def render_timeline(res: InputResult, fmt: str) -> str:
+    start = res.stats.start or 0.0
+    rows = [(m.channel, m.node, iv.state, iv.start, iv.end, iv.source)
+            for m in res.nodes() for iv in m.intervals]
+    if fmt == "json":
+        return json.dumps([{"channel": c, "node": n, "state": s, "start": round(a, 6),
+                            "end": round(b, 6), "source": src}
+                           for c, n, s, a, b, src in rows], indent=2) + "\n"
+    if fmt == "csv":
+        out = io.StringIO()
+        w = csv.writer(out, lineterminator="\n")
+        w.writerow(["channel", "node", "state", "start", "end", "source"])
+        for c, n, s, a, b, src in rows:
+            w.writerow([c, n, s, f"{a:.6f}", f"{b:.6f}", src])
+        return out.getvalue()
+    lines = [f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
+    current = None
+    for c, n, s, a, b, src in rows:
+        if (c, n) != current:
+            current = (c, n)
+            lines.append(f"{c} node {n}:")
+        lines.append(f"  {a - start:12.6f} .. {b - start:12.6f}  {s:<16} ({src})")
+    return "\n".join(lines) + "\n"
+
+
+@cli.command(name="rules")
+@click.argument("code", required=False)
+@click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text",
+              show_default=True)
+def rules_cmd(code: str | None, fmt: str) -> None:
+    """List the rule catalogue, or document one rule (CODE)."""
+    defaults = load_profile(DEFAULT_PROFILE)
+    if code is None:
+        click.echo(rule_table(defaults) if fmt == "markdown" else "\n".join(
+            f"{r.code}  {r.name:<28} {defaults[r.code].severity:<8} {r.summary}" for r in RULES))
+        return
+    r = BY_CODE.get(code.upper())
+    if r is None:
+        raise UsageError(f"rules: unknown rule code {code!r} (known: {', '.join(BY_CODE)})")
+    lines = [f"{r.code} {r.name} (default severity: {defaults[r.code].severity})", "", r.doc]
+    if r.params:
+        lines += ["", "**Parameters** (rule profile `[rules." + r.code + "]`):"]
+        for p in r.params:
+            lines.append(f"- `{p.name}` = {defaults[r.code].params[p.name]!r}: {p.doc}")
+    lines += ["", "Also: `enabled = false` turns it off; "
+              "`severity = \"warning\"` changes its level."]
+    click.echo("\n".join(lines))
+
+
+def rule_table(defaults: Profile) -> str:
+    """The README rule table, generated from the registry."""
+    rows = ["| code | name | severity | what it flags |", "|---|---|---|---|"]
+    rows += [f"| {r.code} | {r.name} | {defaults[r.code].severity} | {r.summary} |"
+             for r in RULES]
+    return "\n".join(rows)
+
+
+def main() -> None:
+    """Entry point: one-line errors with exit code 2, never a traceback."""
+    debug = "--debug" in sys.argv[1:]
+    try:
+        cli.main(standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)
+    except click.exceptions.Abort:
+        click.echo("nmtcheck: aborted", err=True)
+        sys.exit(EXIT_ERROR)
+    except click.ClickException as exc:
+        click.echo(f"nmtcheck: {exc.format_message()}", err=True)
+        sys.exit(EXIT_ERROR)
+    except NmtcheckError as exc:
+        click.echo(f"nmtcheck: {exc}", err=True)
+        sys.exit(EXIT_ERROR)
+    except BrokenPipeError:
+        sys.exit(EXIT_OK)
+    except Exception as exc:  # noqa: BLE001 - a CI gate must fail cleanly
+        if debug:
+            traceback.print_exc()
+        click.echo(f"nmtcheck: internal error: {type(exc).__name__}: {exc} "
+                   f"(please report; --debug shows the traceback)", err=True)
+        sys.exit(EXIT_ERROR)

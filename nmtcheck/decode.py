@@ -1,0 +1,266 @@
+"""Batches -> sparse NMT events, a compact store of node frames, and per-ID aggregates.
+
+One streaming pass over the frame batches keeps:
+
+* `events`: the few frames the NMT state model needs one by one: NMT
+  commands (ID 000h) and error-control traffic (701h..77Fh).
+* `store`: per frame a timestamp and line (to find "the first frame at or
+  after a moment"), and for the frames that belong to a node but are not
+  events (TPDO, RPDO, SDO response, EMCY) their node key and kind. These are
+  checked vectorised against the finished timeline. Chunks go to a temporary
+  directory once they pass a memory budget, so memory stays bounded.
+* aggregates that need no timeline: restricted CAN-IDs (C001) and each
+  node's first and last transmitted frame.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from nmtcheck.frames import (
+    EMCY_BASE,
+    RPDO_BASES,
+    SDO_TX_BASE,
+    TPDO_BASES,
+    FrameBatch,
+    is_restricted_id,
+)
+
+KIND_TPDO = 1
+KIND_RPDO = 2
+KIND_SDO_TX = 3
+KIND_EMCY = 4
+KIND_EC = 5  # error-control data frame (only in first/last-seen bookkeeping)
+KIND_NAMES = {KIND_TPDO: "TPDO", KIND_RPDO: "RPDO", KIND_SDO_TX: "SDO response",
+              KIND_EMCY: "EMCY", KIND_EC: "error-control"}
+
+EVENT_DTYPE = np.dtype([
+    ("ts", "f8"), ("idx", "i8"), ("line", "i8"), ("chan", "i4"), ("can_id", "u4"),
+    ("rtr", "?"), ("dlc", "i2"), ("data", "u1", (8,)),
+])
+
+STORE_BUDGET_BYTES = 64 << 20
+
+
+def node_key(chan: np.ndarray | int, node: np.ndarray | int) -> np.ndarray | int:
+    """One integer per (channel, node-ID): channel * 128 + node."""
+    return chan * 128 + node
+
+
+class ChunkStore:
+    """Append-only columnar chunks, kept in memory up to a budget, then on disk."""
+
+    def __init__(self, budget: int = STORE_BUDGET_BYTES) -> None:
+        self._budget = budget
+        self._in_memory = 0
+        self._chunks: list[dict[str, np.ndarray] | str] = []
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    def append(self, **cols: np.ndarray) -> None:
+        size = sum(a.nbytes for a in cols.values())
+        if self._in_memory + size <= self._budget:
+            self._chunks.append(cols)
+            self._in_memory += size
+            return
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="nmtcheck-")
+        path = os.path.join(self._tmp.name, f"chunk{len(self._chunks)}.npz")
+        np.savez(path, **cols)  # type: ignore[arg-type]
+        self._chunks.append(path)
+
+    def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
+        for chunk in self._chunks:
+            if isinstance(chunk, str):
+                with np.load(chunk) as npz:
+                    yield {k: npz[k] for k in npz.files}
+            else:
+                yield chunk
+
+    def close(self) -> None:
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+        self._chunks.clear()
+
+
+@dataclass
+class IdUse:
+    """First use and count of one CAN-ID on one channel."""
+
+    first_idx: int
+    first_ts: float
+    first_line: int
+    count: int
+
+
+@dataclass
+class Decoded:
+    """Everything later stages need from one input."""
+
+    events: np.ndarray  # EVENT_DTYPE, file order
+    frame_times: ChunkStore  # per batch: ts, line, base index
+    node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, line
+    restricted: dict[tuple[int, int], IdUse] = field(default_factory=dict)
+    # node key -> (frame index, ts, kind) of the node's first transmitted frame
+    first_tx: dict[int, tuple[int, float, int]] = field(default_factory=dict)
+    last_tx: dict[int, float] = field(default_factory=dict)
+
+    def close(self) -> None:
+        self.frame_times.close()
+        self.node_frames.close()
+
+    def first_frame_at_or_after(self, moments: list[float]) -> list[tuple[int, int] | None]:
+        """(frame index, line) of the first frame whose time is >= each moment."""
+        result: list[tuple[int, int] | None] = [None] * len(moments)
+        if not moments:
+            return result
+        order = np.argsort(np.asarray(moments, np.float64), kind="stable")
+        pending = list(order)
+        for chunk in self.frame_times:
+            if not pending:
+                break
+            ts = chunk["ts"]
+            runmax = np.maximum.accumulate(ts)  # tolerate timestamps that go backwards
+            qs = np.asarray([moments[i] for i in pending], np.float64)
+            pos = np.searchsorted(runmax, qs, side="left")
+            still = []
+            for q, p in zip(pending, pos, strict=True):
+                if p < len(ts):
+                    result[q] = (int(chunk["base"][0]) + int(p), int(chunk["line"][p]))
+                else:
+                    still.append(q)
+            pending = still
+        return result
+
+
+    def first_node_frame_after(
+        self, queries: list[tuple[int, float]], strictly: bool = False
+    ) -> list[tuple[float, int, int, int] | None]:
+        """For each (node key, moment): (ts, idx, line, kind) of the node's first transmitted
+        non-event frame (TPDO, SDO response, EMCY) at or after the moment (after it if strictly)."""
+        result: list[tuple[float, int, int, int] | None] = [None] * len(queries)
+        if not queries:
+            return result
+        qkeys = np.asarray([k for k, _ in queries], np.int64)
+        qts = np.asarray([t for _, t in queries], np.float64)
+        side: Literal["left", "right"] = "right" if strictly else "left"
+        for chunk in self.node_frames:
+            tx = np.flatnonzero(chunk["kind"] != KIND_RPDO)
+            if not tx.size:
+                continue
+            key = chunk["key"][tx].astype(np.int64)
+            ts = chunk["ts"][tx]
+            order = np.lexsort((ts, key))
+            skey, sts = key[order], ts[order]
+            lo = np.searchsorted(skey, qkeys, side="left")
+            hi = np.searchsorted(skey, qkeys, side="right")
+            for q in np.flatnonzero(hi > lo):
+                a, b = int(lo[q]), int(hi[q])
+                p = a + int(np.searchsorted(sts[a:b], qts[q], side=side))
+                if p < b:
+                    row = tx[order[p]]
+                    cand = (float(chunk["ts"][row]), int(chunk["idx"][row]),
+                            int(chunk["line"][row]), int(chunk["kind"][row]))
+                    cur = result[q]
+                    if cur is None or cand[0] < cur[0]:
+                        result[q] = cand
+        return result
+
+
+def _node_of(can_id: np.ndarray, bases: Iterable[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Node-ID (1..127) and a match mask for IDs base+N of any of the bases."""
+    node = np.zeros(can_id.shape, np.int64)
+    mask = np.zeros(can_id.shape, bool)
+    cid = can_id.astype(np.int64)
+    for base in bases:
+        m = (cid > base) & (cid <= base + 127)
+        node = np.where(m, cid - base, node)
+        mask |= m
+    return node, mask
+
+
+def decode(batches: Iterable[FrameBatch]) -> Decoded:
+    """Stream the batches once; keep only sparse events, the compact store and aggregates."""
+    event_parts: list[np.ndarray] = []
+    frame_times = ChunkStore()
+    node_frames = ChunkStore()
+    restricted: dict[tuple[int, int], IdUse] = {}
+    first_tx: dict[int, tuple[int, float, int]] = {}
+    last_tx: dict[int, float] = {}
+
+    for b in batches:
+        frame_times.append(ts=b.ts, line=b.line, base=b.index[:1])
+        co = ~b.ext & ~b.err
+        cid = b.can_id.astype(np.int64)
+        ec = co & (cid >= 0x701) & (cid <= 0x77F)
+        ev_mask = co & ((cid == 0) | ec)
+        if ev_mask.any():
+            sel = np.flatnonzero(ev_mask)
+            ev = np.empty(sel.size, EVENT_DTYPE)
+            ev["ts"] = b.ts[sel]
+            ev["idx"] = b.index[sel]
+            ev["line"] = b.line[sel]
+            ev["chan"] = b.chan[sel]
+            ev["can_id"] = b.can_id[sel]
+            ev["rtr"] = b.rtr[sel]
+            ev["dlc"] = b.dlc[sel]
+            ev["data"] = b.data[sel]
+            event_parts.append(ev)
+
+        data_frame = co & ~b.rtr
+        kinds = np.zeros(len(b), np.int8)
+        nodes = np.zeros(len(b), np.int64)
+        for kind, bases in ((KIND_TPDO, TPDO_BASES), (KIND_RPDO, RPDO_BASES),
+                            (KIND_SDO_TX, (SDO_TX_BASE,)), (KIND_EMCY, (EMCY_BASE,))):
+            n, m = _node_of(b.can_id, bases)
+            m &= data_frame
+            kinds[m] = kind
+            nodes[m] = n[m]
+        sel = np.flatnonzero(kinds > 0)
+        if sel.size:
+            node_frames.append(
+                key=(b.chan[sel].astype(np.int64) * 128 + nodes[sel]).astype(np.int32),
+                kind=kinds[sel], can_id=b.can_id[sel].astype(np.uint16), ts=b.ts[sel],
+                idx=b.index[sel], line=b.line[sel],
+            )
+
+        # Each node's first and last transmitted frame (anything but RPDOs, which others send).
+        tx = (kinds > 0) & (kinds != KIND_RPDO)
+        ec_data = ec & ~b.rtr
+        tx_kind = np.where(ec_data, KIND_EC, kinds)
+        tx_node = np.where(ec_data, cid - 0x700, nodes)
+        tx_sel = np.flatnonzero(tx | ec_data)
+        if tx_sel.size:
+            keys = b.chan[tx_sel].astype(np.int64) * 128 + tx_node[tx_sel]
+            uniq, first_pos = np.unique(keys, return_index=True)
+            for k, p in zip(uniq.tolist(), first_pos.tolist(), strict=True):
+                if k not in first_tx:
+                    row = tx_sel[p]
+                    first_tx[k] = (int(b.index[row]), float(b.ts[row]), int(tx_kind[row]))
+            uniq_r, last_pos = np.unique(keys[::-1], return_index=True)
+            for k, p in zip(uniq_r.tolist(), last_pos.tolist(), strict=True):
+                last_tx[k] = float(b.ts[tx_sel[len(tx_sel) - 1 - p]])
+
+        res = co & is_restricted_id(b.can_id)
+        if res.any():
+            sel = np.flatnonzero(res)
+            keys = b.chan[sel].astype(np.int64) * 4096 + cid[sel]
+            uniq, first_pos, counts = np.unique(keys, return_index=True, return_counts=True)
+            for k, p, c in zip(uniq.tolist(), first_pos.tolist(), counts.tolist(), strict=True):
+                key = (k // 4096, k % 4096)
+                use = restricted.get(key)
+                if use is None:
+                    row = sel[p]
+                    restricted[key] = IdUse(int(b.index[row]), float(b.ts[row]),
+                                            int(b.line[row]), int(c))
+                else:
+                    use.count += int(c)
+
+    events = np.concatenate(event_parts) if event_parts else np.empty(0, EVENT_DTYPE)
+    return Decoded(events, frame_times, node_frames, restricted, first_tx, last_tx)

@@ -1,0 +1,132 @@
+"""Runs one input through read -> decode -> timeline -> rules and stamps the findings.
+
+Checks yield `Problem`s; here each gets its rule code, name and configured
+severity, moments get the first frame at or after them, and the SPEC's
+UNKNOWN exemption is applied in one place for every rule.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from nmtcheck.checks import RULES
+from nmtcheck.checks.base import SEVERITIES, Problem, Rule
+from nmtcheck.decode import decode
+from nmtcheck.errors import UsageError
+from nmtcheck.network import Network
+from nmtcheck.profiles import Profile, RuleSettings
+from nmtcheck.readers import InputStats, open_input
+from nmtcheck.timeline import UNKNOWN, InputModel, NodeModel, TimelineParams, build
+
+
+@dataclass
+class Finding:
+    input: int
+    rule: str
+    name: str
+    severity: str
+    channel: str
+    node: int | None
+    time: float
+    frame_index: int | None
+    line: int | None
+    message: str
+
+
+@dataclass
+class InputResult:
+    index: int
+    stats: InputStats
+    model: InputModel
+    findings: list[Finding] = field(default_factory=list)
+
+    def nodes(self) -> list[NodeModel]:
+        return [m for cm in self.model.channels for m in cm.nodes.values()]
+
+
+def select_rules(profile: Profile, select: list[str], ignore: list[str]) -> list[Rule]:
+    """Enabled rules after --select/--ignore (codes or letter prefixes)."""
+    def matches(code: str, patterns: list[str]) -> bool:
+        return any(code.startswith(pat.upper()) for pat in patterns)
+
+    for pat in select + ignore:
+        if not any(r.code.startswith(pat.upper()) for r in RULES):
+            raise UsageError(f"--select/--ignore: {pat!r} matches no rule code")
+    chosen = []
+    for r in RULES:
+        if not profile[r.code].enabled and not (select and matches(r.code, select)):
+            continue
+        if select and not matches(r.code, select):
+            continue
+        if matches(r.code, ignore):
+            continue
+        chosen.append(r)
+    return chosen
+
+
+def timeline_params(profile: Profile) -> TimelineParams:
+    """The timeline uses three rules' parameters: the timeouts define OFFLINE (SPEC §2)."""
+    return TimelineParams(
+        timeout_factor=profile["H001"].params["timeout_factor"],
+        early_factor=profile["H002"].params["early_factor"],
+        response_timeout_s=profile["G002"].params["response_timeout_ms"] / 1000.0,
+    )
+
+
+def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
+                network: Network | None = None, input_format: str | None = None,
+                strict: bool = False, channel: str | None = None) -> InputResult:
+    opened = open_input(path, input_format, strict)
+    decoded = decode(opened.batches)
+    stats = opened.stats
+    try:
+        if stats.frames == 0:
+            start = end = 0.0
+        else:
+            start, end = float(stats.start or 0.0), float(stats.end or 0.0)
+            if len(decoded.events):
+                end = max(end, float(decoded.events["ts"].max()))
+        configs = network.configs() if network else {}
+        model = build(decoded, stats.channels, start, end, timeline_params(profile), configs)
+        model.params = {code: s.params for code, s in profile.items()}
+        model.expected = network.expected() if network else []
+        if channel is not None:
+            if channel not in stats.channels:
+                raise UsageError(f"--channel {channel}: not in {stats.path} (channels: "
+                                 f"{', '.join(stats.channels) or 'none'})")
+            model.channels = [cm for cm in model.channels if cm.name == channel]
+        result = InputResult(index, stats, model)
+        problems: list[tuple[Rule, Problem]] = []
+        for r in rules:
+            problems.extend((r, p) for p in r.check(model, profile[r.code].params))
+        _locate(model, problems)
+        nodes = {(cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
+        for r, p in problems:
+            if p.node is not None and not r.exempt_from_unknown:
+                m = nodes.get((p.channel, p.node))
+                if m is None or m.state_at(p.time) == UNKNOWN:
+                    continue
+            settings: RuleSettings = profile[r.code]
+            result.findings.append(Finding(index, r.code, r.name, settings.severity, p.channel,
+                                           p.node, p.time, p.frame_index, p.line, p.message))
+        result.findings.sort(key=lambda f: (f.time, f.frame_index or 0, f.rule))
+        return result
+    finally:
+        decoded.close()
+
+
+def _locate(model: InputModel, problems: list[tuple[Rule, Problem]]) -> None:
+    """Give moment findings the first frame at or after their moment."""
+    moments = [p for _r, p in problems if p.frame_index is None]
+    found = model.decoded.first_frame_at_or_after([p.time for p in moments])
+    for p, hit in zip(moments, found, strict=True):
+        if hit is not None:
+            p.frame_index, p.line = hit
+
+
+def summary(results: list[InputResult]) -> dict[str, int]:
+    counts = dict.fromkeys(SEVERITIES, 0)
+    for res in results:
+        for f in res.findings:
+            counts[f.severity] += 1
+    return counts

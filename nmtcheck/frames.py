@@ -1,0 +1,139 @@
+"""The columnar frame batch every reader yields, and CANopen COB-ID classification.
+
+Frames never become one Python object each: a reader fills a `BatchBuilder`
+(preallocated numpy columns) and hands out `FrameBatch` objects of up to a
+few hundred thousand frames. Everything downstream works on whole columns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+BATCH_SIZE = 262_144
+
+# Pre-defined connection set (CiA 301 Tables 38/39), 11-bit IDs.
+NMT_ID = 0x000
+EMCY_BASE = 0x080
+TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
+RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
+SDO_TX_BASE = 0x580  # server -> client (the node's response)
+SDO_RX_BASE = 0x600  # client -> server (request to the node)
+EC_BASE = 0x700  # boot-up, heartbeat, node guarding
+
+
+@dataclass
+class FrameBatch:
+    """A run of consecutive frames of one input, as parallel numpy columns."""
+
+    ts: np.ndarray  # float64 seconds, trace time base
+    chan: np.ndarray  # int32 code into InputStats.channels
+    can_id: np.ndarray  # uint32, without flag bits
+    ext: np.ndarray  # bool: 29-bit identifier
+    rtr: np.ndarray  # bool: remote frame
+    err: np.ndarray  # bool: error frame
+    fd: np.ndarray  # bool: CAN FD frame
+    dlc: np.ndarray  # int16: data length in bytes (the DLC field for remote frames)
+    data: np.ndarray  # uint8 [n, 8]: the first 8 data bytes, zero padded
+    index: np.ndarray  # int64: 0-based frame index within the input
+    line: np.ndarray  # int64: 1-based line number (0 for binary formats)
+
+    def __len__(self) -> int:
+        return int(self.ts.shape[0])
+
+
+class BatchBuilder:
+    """Collects parsed rows of a line-oriented reader and hands them out as column batches.
+
+    Rows are appended to plain lists (far cheaper per row than numpy item
+    assignment) and turned into numpy columns once per batch.
+    """
+
+    def __init__(self, capacity: int = BATCH_SIZE) -> None:
+        self.capacity = capacity
+        self.next_index = 0
+        self._reset()
+
+    def _reset(self) -> None:
+        self._ts: list[float] = []
+        self._chan: list[int] = []
+        self._id: list[int] = []
+        self._flags: list[int] = []  # bit 0 ext, 1 rtr, 2 err, 3 fd
+        self._dlc: list[int] = []
+        self._data = bytearray()
+        self._line: list[int] = []
+
+    @property
+    def n(self) -> int:
+        return len(self._ts)
+
+    @property
+    def full(self) -> bool:
+        return len(self._ts) >= self.capacity
+
+    def add(
+        self,
+        ts: float,
+        chan: int,
+        can_id: int,
+        *,
+        ext: bool = False,
+        rtr: bool = False,
+        err: bool = False,
+        fd: bool = False,
+        dlc: int = 0,
+        data: bytes = b"",
+        line: int = 0,
+    ) -> None:
+        self._ts.append(ts)
+        self._chan.append(chan)
+        self._id.append(can_id)
+        self._flags.append(ext | rtr << 1 | err << 2 | fd << 3)
+        self._dlc.append(dlc)
+        self._data += data[:8].ljust(8, b"\0")
+        self._line.append(line)
+
+    def take(self) -> FrameBatch | None:
+        """Hand out the collected rows as a batch and start a fresh one."""
+        n = len(self._ts)
+        if n == 0:
+            return None
+        flags = np.asarray(self._flags, np.uint8)
+        batch = FrameBatch(
+            ts=np.asarray(self._ts, np.float64),
+            chan=np.asarray(self._chan, np.int32),
+            can_id=np.asarray(self._id, np.uint32),
+            ext=(flags & 1).astype(bool),
+            rtr=(flags & 2).astype(bool),
+            err=(flags & 4).astype(bool),
+            fd=(flags & 8).astype(bool),
+            dlc=np.asarray(self._dlc, np.int16),
+            data=np.frombuffer(bytes(self._data), np.uint8).reshape(n, 8).copy(),
+            index=np.arange(self.next_index, self.next_index + n, dtype=np.int64),
+            line=np.asarray(self._line, np.int64),
+        )
+        self.next_index += n
+        self._reset()
+        return batch
+
+
+def canopen_mask(batch: FrameBatch) -> np.ndarray:
+    """Frames that take part in CANopen decoding: 11-bit data and remote frames."""
+    return ~batch.ext & ~batch.err
+
+
+def is_restricted_id(can_id: np.ndarray) -> np.ndarray:
+    """CiA 301 Table 40 reserved ranges (780h = 1920, not 2020 as one source says).
+
+    Only the ranges no device may use are here; NMT (000h), the default SDO and
+    error-control IDs are in Table 40 too but are used as intended by CANopen
+    itself, so frames on them are checked by their own rules instead.
+    """
+    cid = can_id.astype(np.int64)
+    return (
+        ((cid >= 0x001) & (cid <= 0x07F))
+        | ((cid >= 0x101) & (cid <= 0x180))
+        | ((cid >= 0x6E0) & (cid <= 0x6FF))
+        | ((cid >= 0x780) & (cid <= 0x7FF))
+    )

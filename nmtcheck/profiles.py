@@ -1,0 +1,120 @@
+"""Rule profiles: TOML files in `rules/` (shipped in the wheel), `extends`, per-rule settings."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from nmtcheck.checks import BY_CODE
+from nmtcheck.checks.base import SEVERITIES
+from nmtcheck.errors import UsageError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+DEFAULT_PROFILE = "default"
+
+
+@dataclass
+class RuleSettings:
+    enabled: bool = True
+    severity: str = ""
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+Profile = dict[str, RuleSettings]
+
+
+def builtin_dir() -> Path:
+    """Where the shipped profiles are: package data when installed, `rules/` in a checkout."""
+    here = Path(__file__).resolve().parent
+    installed = here / "rules"
+    return installed if (installed / "default.toml").is_file() else here.parent / "rules"
+
+
+def builtin_profiles() -> list[str]:
+    return sorted(p.stem for p in builtin_dir().glob("*.toml"))
+
+
+def _resolve(name: str, relative_to: Path | None) -> Path:
+    candidates = []
+    if relative_to is not None:
+        candidates.append(relative_to / name)
+        candidates.append(relative_to / f"{name}.toml")
+    candidates.append(Path(name))
+    if "/" not in name and "\\" not in name:
+        candidates.append(builtin_dir() / (name if name.endswith(".toml") else f"{name}.toml"))
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise UsageError(f"{name}: no such rule profile (built in: {', '.join(builtin_profiles())})")
+
+
+def _check_value(where: str, value: Any, want: type) -> Any:
+    if want is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if want is list and isinstance(value, list):
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            raise UsageError(f"{where}: expected a list of integers (CAN-IDs, e.g. 0x7E4)")
+        return value
+    if isinstance(value, want) and not isinstance(value, bool) or (want is bool
+                                                                 and isinstance(value, bool)):
+        return value
+    raise UsageError(f"{where}: expected {want.__name__}, got {type(value).__name__} {value!r}")
+
+
+def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> Profile:
+    """Read a profile and everything it extends; errors name the file and key."""
+    path = _resolve(name, _seen[-1].parent if _seen else None)
+    if path.resolve() in _seen:
+        raise UsageError(f"{path}: 'extends' loops back to itself")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise UsageError(f"{path}: invalid TOML: {exc}") from None
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot read: {exc.strerror}") from None
+    for key in data:
+        if key not in ("extends", "rules"):
+            raise UsageError(f"{path}: unknown key {key!r} (expected 'extends' and [rules.CODE])")
+    profile: Profile = {}
+    if "extends" in data:
+        if not isinstance(data["extends"], str):
+            raise UsageError(f"{path}: extends: expected a profile name or path")
+        profile = load_profile(data["extends"], (*_seen, path.resolve()))
+    rules = data.get("rules", {})
+    if not isinstance(rules, dict):
+        raise UsageError(f"{path}: rules: expected tables [rules.CODE]")
+    for code, table in rules.items():
+        rule = BY_CODE.get(code)
+        if rule is None:
+            raise UsageError(f"{path}: [rules.{code}]: unknown rule code")
+        if not isinstance(table, dict):
+            raise UsageError(f"{path}: rules.{code}: expected a table")
+        settings = profile.setdefault(code, RuleSettings(severity=rule.severity))
+        params = {p.name: p for p in rule.params}
+        for key, value in table.items():
+            where = f"{path}: [rules.{code}] {key}"
+            if key == "enabled":
+                settings.enabled = _check_value(where, value, bool)
+            elif key == "severity":
+                if value not in SEVERITIES:
+                    raise UsageError(f"{where}: expected one of {', '.join(SEVERITIES)}")
+                settings.severity = value
+            elif key in params:
+                settings.params[key] = _check_value(where, value, params[key].type)
+            else:
+                known = ", ".join(["enabled", "severity", *params]) or "none"
+                raise UsageError(f"{where}: unknown parameter (known: {known})")
+    if not _seen:
+        for rule in BY_CODE.values():
+            settings = profile.setdefault(rule.code, RuleSettings(severity=rule.severity))
+            missing = [p.name for p in rule.params if p.name not in settings.params]
+            if missing:
+                raise UsageError(f"{path}: [rules.{rule.code}] no value for {', '.join(missing)} "
+                                 f"(extend 'default')")
+    return profile

@@ -1,0 +1,25 @@
+"""CSV: one row per finding, for spreadsheets and pandas."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+from nmtcheck.engine import InputResult
+
+COLUMNS = ["input", "path", "rule", "name", "severity", "channel", "node", "time", "offset",
+           "frame_index", "line", "message"]
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(COLUMNS)
+    for res in results:
+        start = res.stats.start or 0.0
+        for f in res.findings:
+            w.writerow([f.input, res.stats.path, f.rule, f.name, f.severity, f.channel,
+                        "" if f.node is None else f.node, f"{f.time:.6f}",
+                        f"{f.time - start:.6f}", "" if f.frame_index is None else f.frame_index,
+                        f.line or "", f.message])
+    return out.getvalue()

@@ -1,0 +1,55 @@
+"""The JSON report of SPEC §7 (plus a few extra input counters)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from nmtcheck import __version__
+from nmtcheck.engine import InputResult, summary
+
+REPORT_VERSION = 1
+
+
+def _r(x: float | None) -> float | None:
+    return None if x is None else round(float(x), 6)
+
+
+def report_dict(results: list[InputResult], options: dict[str, object] | None = None
+                ) -> dict[str, Any]:
+    inputs, nodes, timeline, findings = [], [], [], []
+    for res in results:
+        s = res.stats
+        inputs.append({
+            "path": s.path, "format": s.format, "frames": s.frames, "skipped": s.skipped,
+            "extended": s.extended, "error_frames": s.error_frames,
+            "start": _r(s.start if s.start is not None else 0.0),
+            "end": _r(s.end if s.end is not None else 0.0),
+            "remote_frames": s.remote_frames, "fd_frames": s.fd_frames, "ignored": s.ignored,
+            "dropped": s.dropped, "backwards_timestamps": s.backwards_timestamps,
+            "skipped_lines": s.skipped_lines, "channels": s.channels,
+        })
+        for m in res.nodes():
+            nodes.append({
+                "input": res.index, "channel": m.channel, "node": m.node,
+                "first_seen": _r(m.first_show_ts), "last_seen": _r(m.last_seen),
+                "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
+                "bootups": len(m.bootups), "error_control": m.error_control,
+                "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
+            })
+            for iv in m.intervals:
+                timeline.append({"input": res.index, "channel": m.channel, "node": m.node,
+                                 "state": iv.state, "start": _r(iv.start), "end": _r(iv.end),
+                                 "source": iv.source})
+        for f in res.findings:
+            findings.append({"input": f.input, "rule": f.rule, "name": f.name,
+                             "severity": f.severity, "channel": f.channel, "node": f.node,
+                             "time": _r(f.time), "frame_index": f.frame_index,
+                             "line": f.line or None, "message": f.message})
+    return {"tool": {"name": "nmtcheck", "version": __version__},
+            "report_version": REPORT_VERSION, "inputs": inputs, "nodes": nodes,
+            "timeline": timeline, "findings": findings, "summary": summary(results)}
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    return json.dumps(report_dict(results, options), indent=2) + "\n"

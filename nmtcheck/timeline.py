@@ -1,0 +1,508 @@
+"""Sparse events -> per (channel, node) NMT state timeline (SPEC §2).
+
+Per channel the events are walked in file order. Error-control data frames are
+classified (boot-up, heartbeat, guarding response), each node's heartbeat
+period is found (configured, else the median interval), heartbeat and
+guarding timeouts are computed, and finally the state intervals are built,
+with OFFLINE from each timeout to the node's next frame of any kind.
+"""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from nmtcheck.decode import Decoded
+
+UNKNOWN = "UNKNOWN"
+INITIALISING = "INITIALISING"
+PRE_OPERATIONAL = "PRE-OPERATIONAL"
+OPERATIONAL = "OPERATIONAL"
+STOPPED = "STOPPED"
+OFFLINE = "OFFLINE"
+STATES = (UNKNOWN, INITIALISING, PRE_OPERATIONAL, OPERATIONAL, STOPPED, OFFLINE)
+STATE_INDEX = {s: i for i, s in enumerate(STATES)}
+
+STATE_OF_CODE = {0x00: PRE_OPERATIONAL, 0x04: STOPPED, 0x05: OPERATIONAL, 0x7F: PRE_OPERATIONAL}
+CODE_NAMES = {0x00: "boot-up", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
+
+CS_START, CS_STOP, CS_PREOP, CS_RESET_NODE, CS_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+COMMAND_STATE = {CS_START: OPERATIONAL, CS_STOP: STOPPED, CS_PREOP: PRE_OPERATIONAL,
+                 CS_RESET_NODE: INITIALISING, CS_RESET_COMM: INITIALISING}
+COMMAND_NAMES = {CS_START: "start", CS_STOP: "stop", CS_PREOP: "enter pre-operational",
+                 CS_RESET_NODE: "reset node", CS_RESET_COMM: "reset communication"}
+RESETS = (CS_RESET_NODE, CS_RESET_COMM)
+EPS = 1e-7  # timestamps are microseconds at best: ignore float noise in comparisons
+
+
+def state_name(code: int) -> str:
+    return CODE_NAMES.get(code, f"{code:02X}h")
+
+
+@dataclass(frozen=True)
+class NmtFrame:
+    """A frame on CAN-ID 000h, valid or not."""
+
+    ts: float
+    idx: int
+    line: int
+    rtr: bool
+    dlc: int
+    cs: int
+    target: int
+    problem: str | None  # why it is malformed (C002), None if valid
+
+
+@dataclass(frozen=True)
+class Command:
+    """A valid NMT command as it applies to one node."""
+
+    ts: float
+    idx: int
+    line: int
+    cs: int
+    broadcast: bool
+
+    @property
+    def is_reset(self) -> bool:
+        return self.cs in RESETS
+
+    @property
+    def name(self) -> str:
+        return COMMAND_NAMES[self.cs] + (" (broadcast)" if self.broadcast else "")
+
+
+@dataclass
+class EcFrame:
+    """A frame on 700h+N: a remote request, or a data frame with its classification."""
+
+    ts: float
+    idx: int
+    line: int
+    rtr: bool
+    dlc: int
+    value: int  # data byte 0
+    kind: str = ""  # request | bootup | heartbeat | guard | malformed
+
+    @property
+    def code(self) -> int:
+        return self.value & 0x7F
+
+    @property
+    def toggle(self) -> int:
+        return self.value >> 7
+
+    @property
+    def reports_state(self) -> bool:
+        return self.kind in ("bootup", "heartbeat", "guard")
+
+
+@dataclass
+class Timeout:
+    """A heartbeat (H001) or guarding (G002) timeout: the node is OFFLINE from `moment`."""
+
+    rule: str
+    moment: float
+    after_ts: float  # the frame the wait started from
+    after_idx: int
+    limit_s: float
+    gap_s: float | None  # length of the gap if it closed, else None (trace ended it)
+    requests: int = 1  # G002: unanswered requests in the run
+    ended_by: float | None = None  # ts of the node's next frame (end of OFFLINE)
+
+
+@dataclass
+class Interval:
+    start: float
+    end: float
+    state: str
+    source: str
+
+
+@dataclass
+class NodeConfig:
+    """What is known of a node's configuration (network file for now)."""
+
+    heartbeat_ms: float | None = None
+    consumer_timeout_ms: float | None = None
+    guard_time_ms: float | None = None
+    life_time_factor: int | None = None
+    expected: bool = False
+
+
+@dataclass
+class NodeModel:
+    """Everything known about one node on one channel."""
+
+    chan: int
+    channel: str
+    node: int
+    config: NodeConfig
+    ec: list[EcFrame] = field(default_factory=list)
+    commands: list[Command] = field(default_factory=list)
+    first_show_idx: int | None = None
+    first_show_ts: float | None = None
+    first_tx: tuple[int, float, int] | None = None  # idx, ts, kind of N's first frame
+    last_seen: float | None = None
+    period_s: float | None = None
+    period_source: str = "none"  # configured | measured | none
+    timeouts: list[Timeout] = field(default_factory=list)
+    intervals: list[Interval] = field(default_factory=list)
+
+    @property
+    def key(self) -> int:
+        return self.chan * 128 + self.node
+
+    @property
+    def heartbeats(self) -> list[EcFrame]:
+        return [f for f in self.ec if f.kind == "heartbeat"]
+
+    @property
+    def bootups(self) -> list[EcFrame]:
+        return [f for f in self.ec if f.kind == "bootup"]
+
+    @property
+    def is_producer(self) -> bool:
+        if self.config.heartbeat_ms is not None and self.config.heartbeat_ms > 0:
+            return True
+        return len(self.heartbeats) >= 2
+
+    def hb_timeout_s(self, timeout_factor: float) -> float | None:
+        if self.config.consumer_timeout_ms:
+            return self.config.consumer_timeout_ms / 1000.0
+        if self.period_s:
+            return timeout_factor * self.period_s
+        return None
+
+    def state_at(self, ts: float) -> str:
+        """State after the evidence of a frame at `ts` (intervals starting at ts included)."""
+        starts = [iv.start for iv in self.intervals]
+        i = int(np.searchsorted(starts, ts, side="right")) - 1
+        return self.intervals[max(i, 0)].state
+
+    def interval_index(self, ts: float) -> int:
+        starts = [iv.start for iv in self.intervals]
+        return max(int(np.searchsorted(starts, ts, side="right")) - 1, 0)
+
+    @property
+    def error_control(self) -> str:
+        hb = any(f.kind == "heartbeat" for f in self.ec)
+        guard = any(f.kind == "guard" for f in self.ec)
+        return {(True, True): "both", (True, False): "heartbeat", (False, True): "guarding"}.get(
+            (hb, guard), "none")
+
+
+@dataclass
+class TimelineParams:
+    timeout_factor: float = 1.5
+    early_factor: float = 0.5
+    response_timeout_s: float = 1.0
+
+
+@dataclass
+class ChannelModel:
+    chan: int
+    name: str
+    nmt: list[NmtFrame]
+    nodes: dict[int, NodeModel]
+
+
+@dataclass
+class InputModel:
+    """The decoded input with its per-node models."""
+
+    decoded: Decoded
+    start: float
+    end: float
+    channels: list[ChannelModel]
+    params: dict[str, dict[str, Any]] = field(default_factory=dict)  # every rule's parameters
+    expected: list[tuple[int, str | None]] = field(default_factory=list)  # network file nodes
+
+
+def _nmt_problem(rtr: bool, dlc: int, cs: int, target: int) -> str | None:
+    if rtr:
+        return "remote frame on CAN-ID 000h (NMT commands are data frames)"
+    if dlc != 2:
+        return f"DLC {dlc} (an NMT command has DLC 2)"
+    if cs not in COMMAND_STATE:
+        return f"unknown command specifier {cs:02X}h"
+    if target > 127:
+        return f"node-ID {target} above 127"
+    return None
+
+
+def build(decoded: Decoded, channels: list[str], start: float, end: float,
+          params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig]) -> InputModel:
+    """Build every node's model and timeline from the decoded input."""
+    ev = decoded.events
+    models: list[ChannelModel] = []
+    timeouts_to_end: list[tuple[NodeModel, Timeout]] = []
+    for chan, name in enumerate(channels):
+        rows = ev[ev["chan"] == chan]
+        nmt: list[NmtFrame] = []
+        nodes: dict[int, NodeModel] = {}
+
+        def node_model(n: int, name: str = name, chan: int = chan,
+                       nodes: dict[int, NodeModel] = nodes) -> NodeModel:
+            m = nodes.get(n)
+            if m is None:
+                cfg = configs.get((name, n)) or configs.get((None, n)) or NodeConfig()
+                m = nodes[n] = NodeModel(chan, name, n, cfg)
+            return m
+
+        # Nodes that transmitted anything (TPDO, SDO, EMCY, error control) exist from their
+        # first frame.
+        for key, first in decoded.first_tx.items():
+            if key // 128 == chan and 1 <= key % 128 <= 127:
+                m = node_model(key % 128)
+                m.first_tx = first
+                m.first_show_idx, m.first_show_ts = first[0], first[1]
+                m.last_seen = decoded.last_tx.get(key)
+        requests_only: dict[int, list[EcFrame]] = {}
+        for r in rows.tolist():
+            ts, idx, line, _chan, can_id, rtr, dlc, data = r
+            if can_id == 0:
+                cs, target = int(data[0]), int(data[1])
+                frame = NmtFrame(ts, idx, line, rtr, dlc, cs, target,
+                                 _nmt_problem(rtr, dlc, cs, target))
+                nmt.append(frame)
+                if frame.problem is None and target != 0:
+                    m = node_model(target)
+                    if m.first_show_idx is None or idx < m.first_show_idx:
+                        m.first_show_idx, m.first_show_ts = idx, ts
+                continue
+            n = can_id - 0x700
+            f = EcFrame(ts, idx, line, rtr, dlc, int(data[0]) if dlc >= 1 and not rtr else 0)
+            if rtr:
+                f.kind = "request"
+                if n in nodes:
+                    nodes[n].ec.append(f)
+                else:
+                    requests_only.setdefault(n, []).append(f)
+            else:
+                node_model(n).ec.append(f)
+        for n, reqs in requests_only.items():
+            if n in nodes:  # node showed up through other traffic: keep its requests, in order
+                nodes[n].ec = sorted(nodes[n].ec + reqs, key=lambda f: f.idx)
+        # Commands per node, broadcasts only for nodes seen before the command.
+        for frame in nmt:
+            if frame.problem is not None:
+                continue
+            for n, m in nodes.items():
+                if frame.target == n or (
+                    frame.target == 0 and m.first_show_idx is not None
+                    and m.first_show_idx < frame.idx
+                ):
+                    m.commands.append(Command(frame.ts, frame.idx, frame.line, frame.cs,
+                                              frame.target == 0))
+        for m in nodes.values():
+            _classify(m, params, period_s=None)
+            _find_period(m)
+            _classify(m, params, period_s=m.period_s)
+            _find_period(m)
+            _heartbeat_timeouts(m, params, end)
+            _guard_timeouts(m, params, end)
+            for t in m.timeouts:
+                timeouts_to_end.append((m, t))
+        models.append(ChannelModel(chan, name, nmt, dict(sorted(nodes.items()))))
+
+    _offline_ends(decoded, timeouts_to_end)
+    for cm in models:
+        for m in cm.nodes.values():
+            m.intervals = _intervals(m, start, end)
+    return InputModel(decoded, start, end, models)
+
+
+def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> None:
+    """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2)."""
+    pending: EcFrame | None = None
+    hb_since_boot = 0
+    last_hb: EcFrame | None = None
+    for f in m.ec:
+        if f.rtr:
+            pending = f
+            continue
+        if f.dlc != 1:
+            f.kind = "malformed"
+            continue
+        answerable = (pending is not None
+                      and f.ts - pending.ts <= params.response_timeout_s + EPS)
+        is_guard = False
+        if answerable:
+            if hb_since_boot >= 2:
+                early = (period_s is not None and last_hb is not None
+                         and f.ts - last_hb.ts < params.early_factor * period_s - EPS)
+                is_guard = bool(f.value & 0x80) or early
+            else:
+                is_guard = True
+        if is_guard:
+            f.kind = "guard"
+            pending = None
+        elif f.value == 0x00:
+            f.kind = "bootup"
+            hb_since_boot = 0
+            last_hb = None
+        else:
+            f.kind = "heartbeat"
+            hb_since_boot += 1
+            last_hb = f
+
+
+def _find_period(m: NodeModel) -> None:
+    """Configured producer time, else the median heartbeat interval (no boot-up/reset inside)."""
+    if m.config.heartbeat_ms:
+        m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
+        return
+    resets = [c.ts for c in m.commands if c.is_reset]
+    intervals = []
+    prev: EcFrame | None = None
+    for f in m.ec:
+        if f.kind == "bootup":
+            prev = None
+        elif f.kind == "heartbeat":
+            if prev is not None and not any(prev.ts < r <= f.ts for r in resets):
+                intervals.append(f.ts - prev.ts)
+            prev = f
+    if intervals:
+        m.period_s, m.period_source = float(statistics.median(intervals)), "measured"
+    else:
+        m.period_s, m.period_source = None, "none"
+
+
+def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
+    """H001: each gap after a heartbeat or boot-up that exceeds the timeout."""
+    if not m.is_producer:
+        return
+    limit = m.hb_timeout_s(params.timeout_factor)
+    if not limit:
+        return
+    marks: list[tuple[float, int, str]] = [(f.ts, f.idx, "hb") for f in m.ec
+                                           if f.kind in ("heartbeat", "bootup")]
+    marks += [(c.ts, c.idx, "reset") for c in m.commands if c.is_reset]
+    marks.sort(key=lambda x: x[1])
+    open_gap: tuple[float, int] | None = None
+    for ts, idx, what in marks:
+        # A reset ends the gap: the wait for the boot-up is B001's, but a timeout that
+        # expired before the reset (often the reason for it) still counts.
+        if open_gap is not None:
+            gap = ts - open_gap[0]
+            if gap > limit + EPS:
+                m.timeouts.append(Timeout("H001", open_gap[0] + limit, open_gap[0], open_gap[1],
+                                          limit, gap))
+        open_gap = (ts, idx) if what == "hb" else None
+    if open_gap is not None and end - open_gap[0] > limit + EPS:
+        m.timeouts.append(Timeout("H001", open_gap[0] + limit, open_gap[0], open_gap[1], limit,
+                                  None))
+
+
+def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
+    """G002: runs of remote requests to N that got no guarding response in time."""
+    limit = params.response_timeout_s
+    run: Timeout | None = None
+    pending: EcFrame | None = None
+
+    def close(request: EcFrame, next_request: float | None) -> None:
+        nonlocal run
+        deadline = request.ts + limit
+        if next_request is None and deadline > end - EPS:
+            return  # the trace ended before the answer was due
+        moment = deadline if next_request is None else min(deadline, next_request)
+        if run is None:
+            run = Timeout("G002", moment, request.ts, request.idx, limit, None)
+            m.timeouts.append(run)
+        else:
+            run.requests += 1
+
+    for f in m.ec:
+        if f.kind == "request":
+            if pending is not None:
+                close(pending, f.ts)
+            pending = f
+        elif f.kind == "guard":  # classification only accepts answers to a pending request
+            pending = None
+            run = None
+    if pending is not None:
+        close(pending, None)
+
+
+def _offline_ends(decoded: Decoded, items: list[tuple[NodeModel, Timeout]]) -> None:
+    """Each timeout lasts until the node's next frame of any kind after its moment."""
+    if not items:
+        return
+    found = decoded.first_node_frame_after([(m.key, t.moment) for m, t in items])
+    for (m, t), hit in zip(items, found, strict=True):
+        best = hit[0] if hit is not None else None
+        for f in m.ec:
+            if f.kind != "request" and f.ts >= t.moment and f.idx > t.after_idx:
+                if best is None or f.ts < best:
+                    best = f.ts
+                break
+        t.ended_by = best
+
+
+def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
+    """Walk the node's evidence in order and cut the timeline into state intervals."""
+    steps: list[tuple[float, int, int, str, object]] = []
+    for f in m.ec:
+        if f.kind != "request":
+            steps.append((f.ts, f.idx, 1, "ec", f))
+    for c in m.commands:
+        steps.append((c.ts, c.idx, 1, "cmd", c))
+    for t in m.timeouts:
+        steps.append((t.moment, -1, 0, "timeout", t))
+        if t.ended_by is not None:
+            steps.append((t.ended_by, -1, 2, "back", t))
+    steps.sort(key=lambda s: (s[0], s[2], s[1]))
+
+    out: list[Interval] = [Interval(start, end, UNKNOWN, "start")]
+    saved: tuple[str, str] | None = None  # state to return to after OFFLINE
+
+    def go(ts: float, state: str, source: str) -> None:
+        cur = out[-1]
+        if cur.state == state:
+            return
+        if ts <= cur.start:  # the current interval would be empty: replace it
+            out.pop()
+            if out and out[-1].state == state:
+                return
+        out.append(Interval(max(ts, start), end, state, source))
+
+    offline_until: float | None = None
+    for ts, _idx, _order, what, obj in steps:
+        cur = out[-1].state
+        if what == "timeout":
+            assert isinstance(obj, Timeout)
+            if cur in (UNKNOWN, OFFLINE):
+                continue
+            saved = (cur, out[-1].source)
+            offline_until = obj.ended_by
+            go(ts, OFFLINE, "timeout")
+        elif what == "back":
+            if cur == OFFLINE and saved is not None and offline_until == ts:
+                go(ts, saved[0], saved[1])
+                saved = None
+        elif what == "cmd":
+            assert isinstance(obj, Command)
+            target = COMMAND_STATE[obj.cs]
+            if cur == OFFLINE:
+                saved = (target, "command")
+            else:
+                go(ts, target, "command")
+        else:
+            assert isinstance(obj, EcFrame)
+            f = obj
+            if f.reports_state and (f.kind == "bootup" or f.code in STATE_OF_CODE):
+                state = STATE_OF_CODE[0x00] if f.kind == "bootup" else STATE_OF_CODE[f.code]
+                source = {"bootup": "bootup", "heartbeat": "heartbeat", "guard": "guarding"}[f.kind]
+                go(ts, state, source)
+                saved = None
+            elif cur == OFFLINE and saved is not None:
+                go(ts, saved[0], saved[1])
+                saved = None
+    for a, b in zip(out, out[1:], strict=False):
+        a.end = b.start
+    out[-1].end = max(end, out[-1].start)
+    return out

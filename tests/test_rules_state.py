@@ -1,0 +1,349 @@
+"""State and communication rules S001 (pdo-while-not-operational), S002
+(pdo-to-not-operational), S003 (comm-while-stopped), S004 (command-not-obeyed),
+S005 (unexplained-state-change)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from conftest import candump
+
+# --- trace helpers (each rule test file carries its own copy) -------------------------
+
+START, STOP, PREOP, RESET4, END = 0.5, 3.0, 4.0, 4.5, 5.0
+
+HEALTHY_NET = "".join(f"[nodes.{n}]\nheartbeat_ms = 100\n" for n in (2, 3, 4, 5, 6)) + (
+    "[nodes.7]\nguard_time_ms = 200\nlife_time_factor = 3\n")
+
+
+def jitter(i: int, node: int) -> float:
+    """Deterministic heartbeat jitter, -2..+2 ms."""
+    return ((i * 3 + node) % 5 - 2) / 1000.0
+
+
+def hb(node: int, t0: float, t1: float, state: str = "7F", period: float = 0.1,
+       jit: bool = False) -> list[tuple[float, str]]:
+    """Heartbeats of `node` reporting `state` from t0 (inclusive) to t1 (exclusive)."""
+    out = []
+    i = 0
+    while (t := t0 + period * i + (jitter(i, node) if jit else 0.0)) < t1 - 1e-9:
+        out.append((round(t, 6), f"{0x700 + node:03X}#{state}"))
+        i += 1
+    return out
+
+
+def healthy() -> list[tuple[float, str]]:
+    """A realistic clean 5 s trace.
+
+    Nodes 2, 3, 4 boot at 0 / 10 / 20 ms, node 5 is already running when the recording
+    starts (heartbeat, no boot-up), node 6 is plugged in at 2.0 s and started directly,
+    node 7 uses node guarding (every 200 ms, toggling). Heartbeats every 100 ms +-2 ms.
+    SDO upload and LSS in PRE-OPERATIONAL, broadcast start at 0.5 s, TPDOs / RPDOs every
+    20 ms only while OPERATIONAL (one TPDO still in flight 2 ms after the stop), an EMCY
+    and its reset, SYNC and TIME, broadcast stop at 3.0 s, enter pre-operational at 4.0 s,
+    reset node 4 at 4.5 s with its boot-up 60 ms later.
+    """
+    fr: list[tuple[float, str]] = [
+        (START, "000#0100"), (2.2, "000#0106"), (STOP, "000#0200"), (PREOP, "000#8000"),
+        (RESET4, "000#8104"),
+    ]
+
+    def code(t: float, start: float) -> str:
+        return "7F" if t < start or t >= PREOP else "05" if t < STOP else "04"
+
+    for n, boot in ((2, 0.0), (3, 0.01), (4, 0.02), (5, None), (6, 2.0)):
+        start = 2.2 if n == 6 else START
+        if boot is not None:
+            fr.append((boot, f"{0x700 + n:03X}#00"))
+        t0 = 0.045 if boot is None else boot + 0.1
+        t1 = RESET4 if n == 4 else END
+        fr += [(t, f[:4] + code(t, start)) for t, f in hb(n, t0, t1, jit=True)]
+        t = start + 0.01 + n / 1000
+        while t + 0.005 < STOP:
+            fr.append((round(t, 6), f"{0x180 + n:03X}#{n:02X}00"))
+            fr.append((round(t + 0.005, 6), f"{0x200 + n:03X}#0000"))
+            t += 0.02
+    fr.append((STOP + 0.002, "182#0200"))  # queued before the stop: within S001 grace_ms
+    fr += [(RESET4 + 0.06, "704#00")] + hb(4, RESET4 + 0.16, END, jit=True)
+    # node 7: node guarding only
+    fr.append((0.03, "707#00"))
+    for i, t in enumerate(x / 1000 for x in range(150, 5000, 200)):
+        fr.append((t, "707#R"))
+        fr.append((t + 0.002, f"707#{(i % 2) << 7 | int(code(t, START), 16):02X}"))
+    fr += [(0.2, "602#4018100100000000"), (0.2005, "582#4318100143544D4E"),
+           (2.1, "606#4000100000000000"), (2.1005, "586#4300100091010000"),
+           (4.3, "604#2B17100064000000"), (4.3005, "584#6017100000000000"),
+           (0.25, "7E5#5A00000000000000"), (0.2505, "7E4#5A5A000000000000"),
+           (1.5, "083#1000010000000000"), (1.6, "083#0000000000000000"),
+           (1.0, "100#00000000A537")]
+    fr += [(x / 1000, "080#") for x in range(50, 5000, 50)]
+    return sorted(fr, key=lambda x: x[0])
+
+
+def every(t0: float, t1: float, frame: str, period: float = 0.02) -> list[tuple[float, str]]:
+    """`frame` every `period` from t0 (inclusive) to t1 (exclusive)."""
+    return [(round(t0 + i * period, 6), frame) for i in range(int((t1 - t0) / period) + 1)
+            if t0 + i * period < t1 - 1e-9]
+
+
+def node2(start: float | None = 0.45, stop: float | None = 1.45, end: float = 2.5
+          ) -> list[tuple[float, str]]:
+    """Node 2: boot-up, heartbeats every 100 ms that follow the start and stop commands."""
+    fr = [(0.0, "702#00")]
+    for t, f in hb(2, 0.1, end):
+        state = "7F"
+        if start is not None and t > start:
+            state = "05"
+        if stop is not None and t > stop:
+            state = "04"
+        fr.append((t, f[:4] + state))
+    fr += [(t, cmd) for t, cmd in ((start, "000#0102"), (stop, "000#0202")) if t is not None]
+    return sorted(fr)
+
+
+def profile(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "profile.toml"
+    path.write_text('extends = "default"\n' + text)
+    return str(path)
+
+
+def found(res) -> list[tuple[str, int | None, float]]:
+    return [(f.rule, f.node, round(f.time - 1000.0, 3)) for f in res.findings]
+
+
+def test_healthy_trace_is_clean(checker):
+    assert checker.findings(candump(healthy()), select="S") == []
+    assert checker.findings(candump(healthy()), select="S", network=HEALTHY_NET) == []
+
+
+def test_node2_helper_is_clean(checker):
+    fr = node2() + every(0.46, 1.45, "182#01") + every(0.465, 1.45, "202#01")
+    assert checker.findings(candump(sorted(fr))) == []
+
+
+# --- S001 -------------------------------------------------------------------------------
+
+def test_s001_tpdo_in_pre_operational_complete_list(checker):
+    fr = node2() + [(0.3, "182#01"), (0.32, "182#01"), (0.34, "182#01")]
+    res = checker.run(candump(sorted(fr)))
+    assert found(res) == [("S001", 2, 0.3)]
+    assert res.findings[0].message == (
+        "TPDO 182h sent while node 2 is PRE-OPERATIONAL (3 frames)")
+
+
+def test_s001_tpdo_in_stopped(checker):
+    fr = node2() + every(0.46, 1.45, "182#01") + [(1.8, "282#01"), (2.0, "182#01")]
+    res = checker.run(candump(sorted(fr)))
+    assert found(res) == [("S001", 2, 1.8)]
+    assert "while node 2 is STOPPED (2 frames)" in res.findings[0].message
+
+
+def test_s001_one_counted_run_per_interval(checker):
+    fr = (node2() + every(0.2, 0.3, "182#01") + every(0.46, 1.45, "182#01")
+          + every(1.6, 1.7, "182#01"))
+    res = checker.run(candump(sorted(fr)), select="S001")
+    assert found(res) == [("S001", 2, 0.2), ("S001", 2, 1.6)]
+    assert [f.message[-10:] for f in res.findings] == ["(5 frames)", "(5 frames)"]
+
+
+@pytest.mark.parametrize(("dt", "expected"), [(0.002, []), (0.005, []),
+                                               (0.006, [("S001", 2, 1.456)])])
+def test_s001_grace_after_leaving_operational(checker, dt, expected):
+    fr = node2() + every(0.46, 1.45, "182#01") + [(1.45 + dt, "182#01")]
+    assert checker.findings(candump(sorted(fr)), select="S") == expected
+
+
+def test_s001_grace_ms_from_profile(checker, tmp_path):
+    fr = node2() + every(0.46, 1.45, "182#01") + [(1.458, "182#01")]
+    prof = profile(tmp_path, "[rules.S001]\ngrace_ms = 10\n")
+    assert checker.findings(candump(sorted(fr)), select="S") == [("S001", 2, 1.458)]
+    assert checker.findings(candump(sorted(fr)), select="S", profile=prof) == []
+
+
+def test_s001_grace_when_leaving_operational_by_local_control(checker):
+    # the node itself drops to PRE-OPERATIONAL (heartbeat 7Fh); its last PDO follows 3 ms later
+    fr = node2(stop=None) + every(0.46, 1.0, "182#01") + [(1.003, "182#01")]
+    fr = [(t, "702#7F" if f.startswith("702") and t > 0.95 else f) for t, f in fr]
+    assert checker.findings(candump(sorted(fr)), select="S001") == []
+
+
+def test_s001_grace_after_stop_then_pre_operational(checker):
+    # stop and enter pre-operational 1 ms apart: N left OPERATIONAL 4 ms before the PDO
+    fr = node2() + every(0.46, 1.45, "182#01") + [(1.451, "000#8002"), (1.454, "182#01")]
+    fr = [(t, "702#7F" if f.startswith("702") and t > 1.45 else f) for t, f in fr]
+    assert checker.findings(candump(sorted(fr)), select="S001") == []
+
+
+def test_s001_no_grace_after_bootup(checker):
+    fr = node2() + [(0.002, "182#01")]
+    assert checker.findings(candump(sorted(fr)), select="S001") == [("S001", 2, 0.002)]
+
+
+def test_s001_not_while_unknown(checker):
+    # node 3 was never heard from on 703h: its state is UNKNOWN
+    fr = node2() + every(0.2, 2.0, "183#01", period=0.1)
+    assert checker.findings(candump(sorted(fr))) == []
+
+
+# --- S002 -------------------------------------------------------------------------------
+
+def test_s002_rpdo_to_pre_operational_node_complete_list(checker):
+    fr = node2() + [(0.3, "202#0000"), (0.35, "302#0000")] + every(0.46, 1.45, "202#01")
+    res = checker.run(candump(sorted(fr)))
+    assert found(res) == [("S002", 2, 0.3)]
+    assert res.findings[0].severity == "info"
+    assert "(2 frames)" in res.findings[0].message
+
+
+def test_s002_rpdo_to_stopped_node(checker):
+    fr = node2() + every(0.46, 1.45, "202#01") + [(1.7, "502#00")]
+    assert checker.findings(candump(sorted(fr))) == [("S002", 2, 1.7)]
+
+
+def test_s002_not_for_unknown_or_unseen_nodes(checker):
+    fr = node2() + [(0.3, "203#00"), (0.4, "184#00"), (0.5, "204#00")]
+    assert checker.findings(candump(sorted(fr))) == []
+
+
+# --- S003 -------------------------------------------------------------------------------
+
+def test_s003_sdo_and_emcy_while_stopped_complete_list(checker):
+    fr = node2() + [(1.7, "602#4000100000000000"), (1.7005, "582#4300100091010000"),
+                    (1.702, "082#0010010000000000")]
+    res = checker.run(candump(sorted(fr)))
+    assert found(res) == [("S003", 2, 1.701)]
+    assert "(2 frames)" in res.findings[0].message
+
+
+def test_s003_not_in_pre_operational_or_operational(checker):
+    fr = node2() + [(0.3, "582#4300100091010000"), (0.31, "082#0010010000000000"),
+                    (1.0, "582#4300100091010000"), (1.01, "082#0000000000000000")]
+    assert checker.findings(candump(sorted(fr))) == []
+
+
+@pytest.mark.parametrize(("dt", "expected"), [(0.003, []), (0.005, []),
+                                               (0.01, [("S003", 2, 1.46)])])
+def test_s003_grace_after_entering_stopped(checker, dt, expected):
+    fr = node2() + [(1.45 + dt, "582#4300100091010000")]
+    assert checker.findings(candump(sorted(fr))) == expected
+
+
+def test_s003_returning_from_offline_is_no_new_entry(checker):
+    # node 2 is STOPPED, falls silent (H001 -> OFFLINE) and then sends an EMCY: that EMCY
+    # ends OFFLINE, the node is back in STOPPED and the EMCY is not within the grace time
+    fr = node2(end=2.0) + [(2.5, "082#0010010000000000")]
+    assert checker.findings(candump(sorted(fr))) == [("H001", 2, 2.05), ("S003", 2, 2.5)]
+
+
+# --- S004 -------------------------------------------------------------------------------
+
+def test_s004_start_not_obeyed_complete_list(checker):
+    fr = node2(start=None, stop=None) + [(0.4, "000#0102")]
+    res = checker.run(candump(sorted(fr)))
+    # the heartbeat at 0.5 s is exactly obey_ms after the command: not counted yet
+    assert found(res) == [("S004", 2, 0.6)]
+    assert res.findings[0].message == (
+        "node 2 reports PRE-OPERATIONAL 0.200 s after NMT start (expected OPERATIONAL)")
+
+
+@pytest.mark.parametrize(("cmd", "expected"), [("000#0202", "STOPPED"),
+                                                ("000#0200", "STOPPED"),
+                                                ("000#8002", "PRE-OPERATIONAL"),
+                                                ("000#8000", "PRE-OPERATIONAL")])
+def test_s004_stop_and_preop_not_obeyed(checker, cmd, expected):
+    fr = node2(stop=None) + [(1.45, cmd)]
+    res = checker.run(candump(sorted(fr)), select="S004")
+    assert found(res) == [("S004", 2, 1.6)]
+    assert res.findings[0].message.endswith(f"(expected {expected})")
+
+
+def test_s004_obeyed(checker):
+    fr = node2()
+    assert checker.findings(candump(fr)) == []
+
+
+def test_s004_obeyed_once_then_left_is_not_s004(checker):
+    fr = node2(stop=None)
+    fr = [(t, "702#7F" if f.startswith("702") and t > 0.95 else f) for t, f in fr]
+    assert checker.findings(candump(fr)) == [("S005", 2, 1.0)]
+
+
+def test_s004_late_report_within_obey_ms(checker):
+    # the first heartbeat after the start still says 7Fh, 50 ms after the command
+    fr = node2() + [(0.5, "702#7F")]
+    fr = [x for x in fr if x != (0.5, "702#05")]
+    assert checker.findings(candump(sorted(fr)), select="S004") == []
+
+
+def test_s004_newer_command_ends_the_check(checker):
+    fr = node2(stop=0.47)
+    assert checker.findings(candump(fr)) == []
+
+
+def test_s004_bootup_ends_the_check(checker):
+    fr = node2(stop=None)
+    fr = [(t, "702#7F" if f.startswith("702") and t > 0.45 else f) for t, f in fr]
+    fr.append((0.5, "702#00"))
+    assert checker.findings(candump(sorted(fr)), select="S004") == []
+
+
+def test_s004_one_finding_per_command_and_per_node(checker):
+    # broadcast start: node 2 obeys, node 3 keeps reporting PRE-OPERATIONAL
+    fr = (node2(stop=None) + [(0.45, "000#0100"), (0.01, "703#00")] + hb(3, 0.11, 2.5))
+    fr.remove((0.45, "000#0102"))
+    assert checker.findings(candump(sorted(fr))) == [("S004", 3, 0.61)]
+
+
+def test_s004_guarding_response_counts(checker):
+    fr = [(0.0, "705#00"), (0.5, "000#0105")]
+    for i, t in enumerate(x / 10 for x in range(1, 15)):
+        fr += [(t, "705#R"), (t + 0.002, f"705#{(i % 2) << 7 | 0x7F:02X}")]
+    assert checker.findings(candump(sorted(fr)), select="S004") == [("S004", 5, 0.602)]
+
+
+def test_s004_obey_ms_from_profile(checker, tmp_path):
+    fr = node2(start=None, stop=None) + [(0.45, "000#0102")]
+    fr = [(t, "702#05" if f.startswith("702") and t > 0.75 else f) for t, f in fr]
+    prof = profile(tmp_path, "[rules.S004]\nobey_ms = 300\n")
+    assert checker.findings(candump(sorted(fr)), select="S004") == [("S004", 2, 0.6)]
+    assert checker.findings(candump(sorted(fr)), select="S004", profile=prof) == []
+
+
+# --- S005 -------------------------------------------------------------------------------
+
+def test_s005_unexplained_change_complete_list(checker):
+    fr = node2(stop=None)
+    fr = [(t, "702#04" if f.startswith("702") and t > 0.95 else f) for t, f in fr]
+    res = checker.run(candump(fr))
+    assert found(res) == [("S005", 2, 1.0)]
+    assert res.findings[0].severity == "info"
+    assert res.findings[0].message == (
+        "node 2 changed from OPERATIONAL to STOPPED without an NMT command")
+
+
+def test_s005_each_change_is_a_finding(checker):
+    fr = ([(0.0, "702#00")] + hb(2, 0.1, 0.5) + hb(2, 0.5, 1.0, "05") + hb(2, 1.0, 1.5)
+          + hb(2, 1.5, 2.0, "05"))
+    assert checker.findings(candump(fr), select="S005") == [
+        ("S005", 2, 0.5), ("S005", 2, 1.0), ("S005", 2, 1.5)]
+
+
+def test_s005_not_with_a_command_or_bootup_in_between(checker):
+    with_command = node2()
+    with_bootup = ([(0.0, "702#00")] + hb(2, 0.1, 0.5, "05") + [(0.5, "702#00")]
+                   + hb(2, 0.6, 1.0))
+    assert checker.findings(candump(with_command), select="S005") == []
+    assert checker.findings(candump(with_bootup), select="S005") == []
+
+
+def test_s005_self_start_after_bootup_is_clean(checker):
+    # CANopenNode's default NMT_CONTROL goes boot-up -> heartbeat 05h by itself
+    fr = [(0.0, "702#00")] + hb(2, 0.1, 2.0, "05") + every(0.11, 2.0, "182#01")
+    assert checker.findings(candump(sorted(fr))) == []
+
+
+def test_s005_unknown_state_codes_are_skipped(checker):
+    fr = [(0.0, "702#00")] + hb(2, 0.1, 0.5, "05") + [(0.5, "702#02")] + hb(2, 0.6, 1.0, "05")
+    assert checker.findings(candump(fr), select="S005") == []
