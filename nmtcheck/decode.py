@@ -19,7 +19,6 @@ import os
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 
@@ -140,29 +139,32 @@ class Decoded:
 
 
     def first_node_frame_after(
-        self, queries: list[tuple[int, float]], strictly: bool = False
+        self, queries: list[tuple[int, float, int]]
     ) -> list[tuple[float, int, int, int] | None]:
-        """For each (node key, moment): (ts, idx, line, kind) of the node's first transmitted
-        non-event frame (TPDO, SDO response, EMCY) at or after the moment (after it if strictly)."""
+        """For each (node key, moment, frame index): (ts, idx, line, kind) of the node's first
+        transmitted non-event frame (TPDO, SDO response, EMCY) at or after the moment and
+        after that frame in the file."""
         result: list[tuple[float, int, int, int] | None] = [None] * len(queries)
         if not queries:
             return result
-        qkeys = np.asarray([k for k, _ in queries], np.int64)
-        qts = np.asarray([t for _, t in queries], np.float64)
-        side: Literal["left", "right"] = "right" if strictly else "left"
+        qkeys = np.asarray([q[0] for q in queries], np.int64)
+        qts = np.asarray([q[1] for q in queries], np.float64)
         for chunk in self.node_frames:
             tx = np.flatnonzero(chunk["kind"] != KIND_RPDO)
             if not tx.size:
                 continue
             key = chunk["key"][tx].astype(np.int64)
             ts = chunk["ts"][tx]
-            order = np.lexsort((ts, key))
-            skey, sts = key[order], ts[order]
+            idx = chunk["idx"][tx]
+            order = np.lexsort((idx, ts, key))
+            skey, sts, sidx = key[order], ts[order], idx[order]
             lo = np.searchsorted(skey, qkeys, side="left")
             hi = np.searchsorted(skey, qkeys, side="right")
             for q in np.flatnonzero(hi > lo):
                 a, b = int(lo[q]), int(hi[q])
-                p = a + int(np.searchsorted(sts[a:b], qts[q], side=side))
+                p = a + int(np.searchsorted(sts[a:b], qts[q], side="left"))
+                while p < b and sidx[p] <= queries[q][2]:
+                    p += 1
                 if p < b:
                     row = tx[order[p]]
                     cand = (float(chunk["ts"][row]), int(chunk["idx"][row]),

@@ -328,6 +328,14 @@ def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> N
         if f.dlc != 1:
             f.kind = "malformed"
             continue
+        if f.value == 0x00:
+            # Always a boot-up, even with a request pending: a node in Initialisation does
+            # not answer guarding, and reading it as a response would raise false G001/B001.
+            f.kind = "bootup"
+            hb_since_boot = 0
+            last_hb = None
+            pending = None
+            continue
         answerable = (pending is not None
                       and f.ts - pending.ts <= params.response_timeout_s + EPS)
         is_guard = False
@@ -341,10 +349,6 @@ def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> N
         if is_guard:
             f.kind = "guard"
             pending = None
-        elif f.value == 0x00:
-            f.kind = "bootup"
-            hb_since_boot = 0
-            last_hb = None
         else:
             f.kind = "heartbeat"
             hb_since_boot += 1
@@ -424,6 +428,13 @@ def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
         elif f.kind == "guard":  # classification only accepts answers to a pending request
             pending = None
             run = None
+        elif f.kind == "bootup" and pending is not None:
+            # A request still within its wait when the node booted was lost to the restart,
+            # which B001/B002 judge; one that had already timed out is a real G002.
+            if f.ts - pending.ts > limit + EPS:
+                close(pending, None)
+            pending = None
+            run = None
     if pending is not None:
         close(pending, None)
 
@@ -432,7 +443,7 @@ def _offline_ends(decoded: Decoded, items: list[tuple[NodeModel, Timeout]]) -> N
     """Each timeout lasts until the node's next frame of any kind after its moment."""
     if not items:
         return
-    found = decoded.first_node_frame_after([(m.key, t.moment) for m, t in items])
+    found = decoded.first_node_frame_after([(m.key, t.moment, t.after_idx) for m, t in items])
     for (m, t), hit in zip(items, found, strict=True):
         best = hit[0] if hit is not None else None
         for f in m.ec:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from conftest import candump
 
 # --- trace helpers (each rule test file carries its own copy) -------------------------
@@ -238,14 +237,15 @@ def test_b002_never_for_a_b003_repeat(checker):
 # --- B003 -------------------------------------------------------------------------------
 
 def test_b003_heartbeat_00_complete_list(checker):
-    fr = [(0.0, "702#7F"), (0.1, "702#7F"), (0.5, "000#8102")] + hb(2, 0.6, 2.0, "00")
-    assert checker.findings(candump(fr)) == [("B003", 2, 0.7)]
+    fr = hb(2, 0.0, 0.5) + [(0.45, "000#8102")] + hb(2, 0.6, 2.0, "00")
+    assert checker.findings(candump(sorted(fr))) == [("B003", 2, 0.7)]
 
 
 def test_b003_one_finding_per_run_reset_splits_runs(checker):
-    fr = ([(0.0, "702#7F"), (0.1, "702#7F"), (0.5, "000#8102")] + hb(2, 0.6, 0.9, "00")
+    fr = (hb(2, 0.0, 0.5) + [(0.45, "000#8102")] + hb(2, 0.6, 0.9, "00")
           + [(0.85, "000#8102")] + hb(2, 0.9, 1.5, "00"))
-    assert checker.findings(candump(fr), select="B") == [("B003", 2, 0.7), ("B003", 2, 1.0)]
+    assert checker.findings(candump(sorted(fr)), select="B") == [("B003", 2, 0.7),
+                                                                 ("B003", 2, 1.0)]
 
 
 def test_b003_window_is_inclusive_and_at_least_one_second(checker):
@@ -266,3 +266,12 @@ def test_b003_repeat_window_ms_from_profile(checker, tmp_path):
     fr = [(0.0, "702#00")] + hb(2, 0.1, 1.0) + [(1.0, "702#00")] + hb(2, 1.1, 2.0)
     prof = profile(tmp_path, "[rules.B003]\nrepeat_window_ms = 500\n")
     assert checker.findings(candump(fr), select="B", profile=prof) == [("B002", 2, 1.0)]
+
+
+def test_b001_tpdo_logged_with_the_resets_timestamp_but_after_it(checker):
+    """Sign of life is judged in file order: a TPDO stamped with the reset's own time but
+    logged after it still comes before the boot-up."""
+    fr = [(0.0, "702#00"), (0.05, "000#0100")] + [(0.1 * i, "702#05") for i in range(1, 10)]
+    text = candump(fr) + "(1001.000000) can0 000#8102\n(1001.000000) can0 182#01\n"
+    text += candump([(1.05, "702#00")])
+    assert checker.findings(text, select="B001") == [("B001", 2, 1.0)]

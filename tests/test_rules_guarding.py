@@ -150,6 +150,12 @@ def test_g001_first_response_without_bootup_may_have_toggle_1(checker):
     assert checker.findings(candump(fr), select="G") == []
 
 
+def test_g001_bootup_separates_findings(checker):
+    fr = [(0.0, "705#00")] + guard(5, 0.1, "011") + [(0.35, "705#00")] + guard(5, 0.4, "10")
+    assert checker.findings(candump(fr), select="G") == [("G001", 5, 0.302),
+                                                         ("G001", 5, 0.402)]
+
+
 # --- G002 -------------------------------------------------------------------------------
 
 def test_g002_run_of_unanswered_requests_complete_list(checker):
@@ -252,3 +258,4 @@ def test_g004_not_for_one_method_only(checker):
     heartbeat = [(0.0, "705#00")] + hb(5, 0.1, 1.0)
     assert checker.findings(candump(guarding), select="G004") == []
     assert checker.findings(candump(heartbeat), select="G004") == []
+

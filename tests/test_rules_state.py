@@ -7,7 +7,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from conftest import candump
 
 # --- trace helpers (each rule test file carries its own copy) -------------------------

@@ -53,7 +53,7 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                                 if x is not None)
                 sign = next((f for f in m.ec if c.idx < f.idx < limit_idx
                              and f.kind in ("heartbeat", "guard", "malformed")), None)
-                other = model.decoded.first_node_frame_after([(m.key, c.ts)], strictly=True)[0]
+                other = model.decoded.first_node_frame_after([(m.key, c.ts, c.idx)])[0]
                 if other is not None and other[1] < limit_idx and (sign is None
                                                                    or other[1] < sign.idx):
                     yield Problem(cm.name, m.node, other[0],

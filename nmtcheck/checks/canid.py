@@ -43,9 +43,11 @@ def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Prob
 
     **What it checks.** A frame on CAN-ID 0 is a remote frame, has DLC other than 2,
     an unknown command specifier, or a node-ID above 127. Such a frame is not
-    applied to any node's state. Consecutive frames with the same defect for the
-    same node (within one of its timeline intervals) give one finding with their
-    count.
+    applied to any node's state. A 2-byte frame (unknown command specifier) is
+    attributed to the node its second byte names; frames of the wrong length or
+    remote frames belong to the network (node null). Consecutive frames with the
+    same defect for the same node (within one of its timeline intervals) give one
+    finding with their count.
 
     **Why it matters.** Stacks disagree on such frames: CANopenNode drops any DLC
     other than 2, Lely accepts longer ones, python-canopen raises on shorter ones.
@@ -54,7 +56,9 @@ def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Prob
     **Example.** `000#0105000000000000` (DLC 8).
     """
     def node_of(f: NmtFrame) -> int | None:
-        return f.target if 1 <= f.target <= 127 and not f.rtr else None
+        # Only a 2-byte data frame has a node-ID byte; in a frame of the wrong length the
+        # second byte addresses nobody, so the finding belongs to the network (node null).
+        return f.target if 1 <= f.target <= 127 and not f.rtr and f.dlc == 2 else None
 
     for cm in model.channels:
         bad = [f for f in cm.nmt if f.problem is not None]

@@ -28,7 +28,7 @@ def guard_toggle(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
             expected: int | None = None
             resets = sorted([c.idx for c in m.commands if c.is_reset])
             ri = 0
-            bad: list[tuple[int, EcFrame, str]] = []  # (n-th response, frame, why)
+            bad: list[tuple[int, EcFrame, str]] = []  # (position, frame, why)
             n = 0
             for f in m.ec:
                 while ri < len(resets) and resets[ri] < f.idx:
@@ -36,6 +36,7 @@ def guard_toggle(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                     ri += 1
                 if f.kind == "bootup":
                     expected = 0
+                    n += 1  # a boot-up separates runs
                 elif f.kind == "guard":
                     n += 1
                     if expected is not None and f.toggle != expected:

@@ -24,6 +24,8 @@ def missing_node(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     **Example.** `[nodes.8]` in the network file and no frame from node 8.
     """
     names = [cm.name for cm in model.channels]
+    first = model.decoded.first_frame_at_or_after([model.start])[0] if model.expected else None
+    line = first[1] if first is not None and first[0] == 0 else None  # frame 0's line
     for node, channel in model.expected:
         for name in [channel] if channel is not None else names:
             cm = next((c for c in model.channels if c.name == name), None)
@@ -31,7 +33,7 @@ def missing_node(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
             if m is None or m.first_tx is None:
                 yield Problem(name, node, model.start,
                               f"node {node} is in the network description but never transmits "
-                              f"on {name}", 0, None)
+                              f"on {name}", 0, line)
 
 
 def _segments(frames: list[EcFrame], cmd_idx: list[int]) -> Iterator[list[EcFrame]]:
