@@ -9,14 +9,15 @@ from __future__ import annotations
 import bz2
 import codecs
 import gzip
+import importlib
 import io
 import lzma
 import os
-import re
 import sys
 import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from types import ModuleType
 from typing import IO, cast
 
 import numpy as np
@@ -87,34 +88,31 @@ def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
     return batch
 
 
-Reader = Callable[[Iterable[bytes], InputStats], Iterator[FrameBatch]]
+# Format name -> module, in the order sniffing tries them (binary magic bytes first, then
+# text). A format module has `sniff(head: bytes) -> bool` (light, no heavy imports) and
+# `read(source: Source, stats: InputStats) -> Iterator[FrameBatch]`. Adding a format = a
+# module + a line here.
+FORMAT_MODULES: dict[str, str] = {
+    "candump": "nmtcheck.readers.candump",
+    "asc": "nmtcheck.readers.asc",
+}
+FORMATS = tuple(FORMAT_MODULES)
 
 
-def _readers() -> dict[str, Reader]:
-    from nmtcheck.readers import asc, candump
-
-    return {"candump": candump.read, "asc": asc.read}
+def format_module(name: str) -> ModuleType:
+    return importlib.import_module(FORMAT_MODULES[name])
 
 
-FORMATS = ("candump", "asc")
-
-_CANDUMP_LINE = re.compile(rb"^\s*\(\s*-?\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]+##?")
-_ASC_HEADER = re.compile(rb"^\s*(date\s|base\s+(hex|dec)|Begin Triggerblock|// version)", re.I)
-_ASC_FRAME = re.compile(rb"^\s*\d+\.\d+\s+(\d+|CANFD)\s+")
+def is_text(head: bytes) -> bool:
+    """Text formats never contain NUL bytes."""
+    return b"\x00" not in head[:4096]
 
 
 def detect_format(head: bytes) -> str | None:
     """Name the format of a log from its first bytes (after decompression)."""
-    if b"\x00" in head[:4096]:
-        return None
-    for raw in head.splitlines()[:50]:
-        line = raw.strip()
-        if not line:
-            continue
-        if _CANDUMP_LINE.match(line):
-            return "candump"
-        if _ASC_HEADER.match(line) or _ASC_FRAME.match(line):
-            return "asc"
+    for name in FORMAT_MODULES:
+        if format_module(name).sniff(head):
+            return name
     return None
 
 
@@ -190,6 +188,21 @@ def _lines(stream: IO[bytes], path: str, errors: tuple[type[Exception], ...]) ->
 
 
 @dataclass
+class Source:
+    """One decompressed input as a reader sees it."""
+
+    path: str  # the name to show in messages
+    stream: IO[bytes]  # buffered, from the first byte of the (decompressed) content
+    errors: tuple[type[Exception], ...]  # what a damaged stream raises while being read
+    compression: str = ""  # "", "gzip", "bzip2", "xz" or "zstd"
+    file_path: str | None = None  # the path on disk when uncompressed (for seeking libraries)
+
+    def lines(self) -> Iterator[bytes]:
+        """Raw lines (LF or CRLF endings); read errors become InputError."""
+        return _lines(self.stream, self.path, self.errors)
+
+
+@dataclass
 class OpenedInput:
     stats: InputStats
     batches: Iterator[FrameBatch]
@@ -232,22 +245,24 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False)
         raw.close()
         raise InputError(display, "empty file: no records to check")
     fmt = input_format or detect_format(head)
+    if fmt is not None and fmt not in FORMAT_MODULES:
+        raw.close()
+        raise InputError(display, f"unknown input format {fmt!r} (supported: {', '.join(FORMATS)})")
     if fmt is None:
         raw.close()
         raise InputError(
             display,
             "unknown log format (supported: " + ", ".join(FORMATS) + "; use --input-format NAME)",
         )
-    readers = _readers()
-    if fmt not in readers:
-        raw.close()
-        raise InputError(display, f"unknown input format {fmt!r} (supported: {', '.join(FORMATS)})")
+    reader = format_module(fmt).read
     stats = InputStats(path=display, format=fmt, strict=strict)
     buffered = io.BufferedReader(_Prefixed(head, stream), buffer_size=1 << 20)
 
     def batches() -> Iterator[FrameBatch]:
         try:
-            yield from readers[fmt](_lines(buffered, display, errors), stats)
+            source = Source(display, buffered, errors, compression,
+                            None if compression or path == "-" else path)
+            yield from reader(source, stats)
         finally:
             raw.close()
 

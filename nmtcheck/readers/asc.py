@@ -15,10 +15,11 @@ length 0 is remote only if its flags say so.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+import re
+from collections.abc import Iterator
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, account
+from nmtcheck.readers import InputStats, Source, account, is_text
 
 FLAG_REMOTE = 0x10  # <MessageFlags> bit 4
 FLAG_EDL = 0x1000  # bit 12: an FD frame
@@ -53,12 +54,27 @@ def _can_id(tok: bytes, base: int) -> tuple[int, bool]:
     return value, ext
 
 
-def read(lines: Iterable[bytes], stats: InputStats) -> Iterator[FrameBatch]:
+_HEADER = re.compile(rb"^\s*(date\s|base\s+(hex|dec)|Begin Triggerblock|// version)", re.I)
+_EVENT = re.compile(rb"^\s*\d+\.\d+\s+(\d+|CANFD)\s+")
+
+
+def sniff(head: bytes) -> bool:
+    """An ASC log starts with its `date`/`base`/trigger-block header or with event lines."""
+    if not is_text(head):
+        return False
+    for raw in head.splitlines()[:50]:
+        line = raw.strip()
+        if line:
+            return _HEADER.match(line) is not None or _EVENT.match(line) is not None
+    return False
+
+
+def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     builder = BatchBuilder()
     base = 16
     relative = False
     clock = 0.0  # running sum of deltas in relative mode
-    for lineno, raw in enumerate(lines, 1):
+    for lineno, raw in enumerate(source.lines(), 1):
         tokens = raw.split()
         if not tokens:
             continue

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import re
 from binascii import unhexlify
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, account
+from nmtcheck.readers import InputStats, Source, account, is_text
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -36,11 +36,25 @@ def _bad_raw_dlc(sep: bytes, raw_dlc: bytes) -> bool:
     return bool(sep) and (len(raw_dlc) != 1 or not _is_hex(raw_dlc))
 
 
-def read(lines: Iterable[bytes], stats: InputStats) -> Iterator[FrameBatch]:
+_SNIFF = re.compile(rb"^\s*\(\s*-?\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]+##?")
+
+
+def sniff(head: bytes) -> bool:
+    """A candump log starts (within its first 50 lines) with a `(ts) iface ID#` line."""
+    if not is_text(head):
+        return False
+    for raw in head.splitlines()[:50]:
+        line = raw.strip()
+        if line:
+            return _SNIFF.match(line) is not None
+    return False
+
+
+def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     builder = BatchBuilder()
     add = builder.add
     chan_of: dict[bytes, int] = {}
-    for lineno, raw in enumerate(lines, 1):
+    for lineno, raw in enumerate(source.lines(), 1):
         fast = _FAST.fullmatch(raw)
         if fast is not None:  # the common case: a classic 11-bit data frame
             iface = fast[2]
