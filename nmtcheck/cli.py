@@ -45,6 +45,8 @@ def _common(f: Callable[..., Any]) -> Callable[..., Any]:
                      help="Network description (TOML): expected nodes and their timing."),
         click.option("--strict", is_flag=True, help="The first unparseable record is fatal."),
         click.option("--channel", default=None, help="Only this channel (e.g. can0, 1)."),
+        click.option("--topic", "topics", multiple=True,
+                     help="MCAP: only these topics (each topic is a channel). Repeatable."),
     ]):
         f = opt(f)
     return f
@@ -79,7 +81,8 @@ def cli(ctx: click.Context, debug: bool) -> None:
               help="Exit 1 when a finding of this severity or higher exists.")
 @click.option("-q", "--quiet", is_flag=True, help="Only the findings and the verdict.")
 def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
-          network_file: str | None, strict: bool, channel: str | None, fmt: str,
+          network_file: str | None, strict: bool, channel: str | None, topics: tuple[str, ...],
+          fmt: str,
           outputs: tuple[str, ...], select: tuple[str, ...], ignore: tuple[str, ...],
           fail_on: str, quiet: bool) -> None:
     """Analyse each LOG, print the findings and set the exit code."""
@@ -87,8 +90,9 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
     rules = select_rules(profile, _split(select), _split(ignore))
     stdout_render = renderer(fmt)
     files = [(path, renderer(format_for_path(path))) for path in outputs]
-    results = [check_input(path, i, profile, rules, network, input_format, strict, channel)
-               for i, path in enumerate(logs)]
+    options = {"topics": list(topics)} if topics else {}
+    results = [check_input(path, i, profile, rules, network, input_format, strict, channel,
+                           options) for i, path in enumerate(logs)]
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet}
     for path, render in files:
         try:
@@ -108,10 +112,11 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text",
               show_default=True)
 def timeline(log: str, input_format: str | None, rules_profile: str, network_file: str | None,
-             strict: bool, channel: str | None, fmt: str) -> None:
+             strict: bool, channel: str | None, topics: tuple[str, ...], fmt: str) -> None:
     """Print the per-node NMT state timeline of LOG."""
     profile, network = _load(rules_profile, network_file)
-    res = check_input(log, 0, profile, [], network, input_format, strict, channel)
+    res = check_input(log, 0, profile, [], network, input_format, strict, channel,
+                      {"topics": list(topics)} if topics else {})
     click.echo(render_timeline(res, fmt), nl=False)
 
 

@@ -8,6 +8,7 @@ UNKNOWN exemption is applied in one place for every rule.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from nmtcheck.checks import RULES
 from nmtcheck.checks.base import SEVERITIES, Problem, Rule
@@ -75,8 +76,9 @@ def timeline_params(profile: Profile) -> TimelineParams:
 
 def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                 network: Network | None = None, input_format: str | None = None,
-                strict: bool = False, channel: str | None = None) -> InputResult:
-    opened = open_input(path, input_format, strict)
+                strict: bool = False, channel: str | None = None,
+                reader_options: dict[str, Any] | None = None) -> InputResult:
+    opened = open_input(path, input_format, strict, reader_options)
     decoded = decode(opened.batches)
     stats = opened.stats
     try:

@@ -18,7 +18,7 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import IO, cast
+from typing import IO, Any, cast
 
 import numpy as np
 
@@ -196,6 +196,7 @@ class Source:
     errors: tuple[type[Exception], ...]  # what a damaged stream raises while being read
     compression: str = ""  # "", "gzip", "bzip2", "xz" or "zstd"
     file_path: str | None = None  # the path on disk when uncompressed (for seeking libraries)
+    options: dict[str, Any] = field(default_factory=dict)  # e.g. {"topics": [...]} from --topic
 
     def lines(self) -> Iterator[bytes]:
         """Raw lines (LF or CRLF endings); read errors become InputError."""
@@ -208,7 +209,8 @@ class OpenedInput:
     batches: Iterator[FrameBatch]
 
 
-def open_input(path: str, input_format: str | None = None, strict: bool = False) -> OpenedInput:
+def open_input(path: str, input_format: str | None = None, strict: bool = False,
+               options: dict[str, Any] | None = None) -> OpenedInput:
     """Open, decompress and sniff one log; exit-2 errors name the file."""
     if path == "-":
         raw: IO[bytes] = sys.stdin.buffer
@@ -261,7 +263,7 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False)
     def batches() -> Iterator[FrameBatch]:
         try:
             source = Source(display, buffered, errors, compression,
-                            None if compression or path == "-" else path)
+                            None if compression or path == "-" else path, options or {})
             yield from reader(source, stats)
         finally:
             raw.close()
