@@ -90,9 +90,9 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
     rules = select_rules(profile, _split(select), _split(ignore))
     stdout_render = renderer(fmt)
     files = [(path, renderer(format_for_path(path))) for path in outputs]
-    options = {"topics": list(topics)} if topics else {}
+    reader_options: dict[str, object] = {"topics": list(topics)} if topics else {}
     results = [check_input(path, i, profile, rules, network, input_format, strict, channel,
-                           options) for i, path in enumerate(logs)]
+                           reader_options) for i, path in enumerate(logs)]
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet}
     for path, render in files:
         try:
