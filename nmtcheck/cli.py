@@ -43,6 +43,8 @@ def _common(f: Callable[..., Any]) -> Callable[..., Any]:
                      help="Rule profile: a name in rules/ or a TOML file."),
         click.option("--network", "network_file", default=None,
                      help="Network description (TOML): expected nodes and their timing."),
+        click.option("--dcf", multiple=True, metavar="NODE=PATH",
+                     help="EDS/DCF file of a node (adds it to the network). Repeatable."),
         click.option("--strict", is_flag=True, help="The first unparseable record is fatal."),
         click.option("--channel", default=None, help="Only this channel (e.g. can0, 1)."),
         click.option("--topic", "topics", multiple=True,
@@ -52,9 +54,16 @@ def _common(f: Callable[..., Any]) -> Callable[..., Any]:
     return f
 
 
-def _load(rules_profile: str, network_file: str | None) -> tuple[Profile, Network | None]:
+def _load(rules_profile: str, network_file: str | None,
+          dcf: tuple[str, ...] = ()) -> tuple[Profile, Network | None]:
     profile = load_profile(rules_profile)
-    network = load_network(network_file) if network_file else None
+    dcf_args: dict[int, str] = {}
+    for item in dcf:
+        node, sep, path = item.partition("=")
+        if not sep or not node.strip().isdigit() or not path:
+            raise UsageError(f"--dcf {item}: expected NODE=PATH, e.g. --dcf 3=node3.dcf")
+        dcf_args[int(node)] = path
+    network = load_network(network_file, dcf_args) if network_file or dcf_args else None
     return profile, network
 
 
@@ -71,7 +80,8 @@ def cli(ctx: click.Context, debug: bool) -> None:
 @click.argument("logs", nargs=-1, required=True)
 @_common
 @click.option("--format", "fmt", default="text", show_default=True,
-              help="text, json or csv (html, junit, sarif, github, markdown: planned).")
+              help="text, json, csv, html, junit, sarif, github, markdown, or auto "
+                   "(github under GitHub Actions, else text).")
 @click.option("-o", "--output", "outputs", multiple=True,
               help="Also write a report to PATH; the format follows the suffix. Repeatable.")
 @click.option("--select", multiple=True, help="Only these rule codes or letter prefixes.")
@@ -81,19 +91,19 @@ def cli(ctx: click.Context, debug: bool) -> None:
               help="Exit 1 when a finding of this severity or higher exists.")
 @click.option("-q", "--quiet", is_flag=True, help="Only the findings and the verdict.")
 def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
-          network_file: str | None, strict: bool, channel: str | None, topics: tuple[str, ...],
-          fmt: str,
-          outputs: tuple[str, ...], select: tuple[str, ...], ignore: tuple[str, ...],
-          fail_on: str, quiet: bool) -> None:
+          network_file: str | None, dcf: tuple[str, ...], strict: bool, channel: str | None,
+          topics: tuple[str, ...], fmt: str, outputs: tuple[str, ...], select: tuple[str, ...],
+          ignore: tuple[str, ...], fail_on: str, quiet: bool) -> None:
     """Analyse each LOG, print the findings and set the exit code."""
-    profile, network = _load(rules_profile, network_file)
+    profile, network = _load(rules_profile, network_file, dcf)
     rules = select_rules(profile, _split(select), _split(ignore))
     stdout_render = renderer(fmt)
     files = [(path, renderer(format_for_path(path))) for path in outputs]
     reader_options: dict[str, object] = {"topics": list(topics)} if topics else {}
     results = [check_input(path, i, profile, rules, network, input_format, strict, channel,
                            reader_options) for i, path in enumerate(logs)]
-    options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet}
+    options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet,
+                                  "rules": {r.code: profile[r.code].severity for r in rules}}
     for path, render in files:
         try:
             Path(path).write_text(render(results, options), encoding="utf-8")
@@ -112,9 +122,10 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text",
               show_default=True)
 def timeline(log: str, input_format: str | None, rules_profile: str, network_file: str | None,
-             strict: bool, channel: str | None, topics: tuple[str, ...], fmt: str) -> None:
+             dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
+             fmt: str) -> None:
     """Print the per-node NMT state timeline of LOG."""
-    profile, network = _load(rules_profile, network_file)
+    profile, network = _load(rules_profile, network_file, dcf)
     res = check_input(log, 0, profile, [], network, input_format, strict, channel,
                       {"topics": list(topics)} if topics else {})
     click.echo(render_timeline(res, fmt), nl=False)

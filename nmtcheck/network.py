@@ -1,4 +1,11 @@
-"""The network description (`--network FILE`, SPEC §6): expected nodes and their configuration."""
+"""The network description (`--network FILE`, SPEC §6): expected nodes and their configuration.
+
+Per node: explicit keys, else the values of the node's EDS/DCF (`dcf`/`eds`,
+paths relative to the network file, or `--dcf NODE=PATH`). A consumer entry
+(1016h) in any node's device file sets the consumer time of the producer it
+names; a 1F81h slave assignment (CiA 302, in the master's DCF) adds the nodes
+it lists to the expected ones.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from nmtcheck.devicefile import DeviceValues, load_device_file
 from nmtcheck.errors import UsageError
 from nmtcheck.profiles import tomllib
 from nmtcheck.timeline import NodeConfig
@@ -17,12 +25,15 @@ _KEYS = {"heartbeat_ms": float, "consumer_timeout_ms": float, "guard_time_ms": f
 @dataclass
 class Network:
     nodes: dict[int, tuple[NodeConfig, str | None]] = field(default_factory=dict)
+    devices: dict[int, DeviceValues] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # what could not be read from device files
 
     def configs(self) -> dict[tuple[str | None, int], NodeConfig]:
         return {(channel, n): cfg for n, (cfg, channel) in self.nodes.items()}
 
     def expected(self) -> list[tuple[int, str | None]]:
-        return [(n, channel) for n, (_cfg, channel) in sorted(self.nodes.items())]
+        return [(n, channel) for n, (cfg, channel) in sorted(self.nodes.items())
+                if cfg.expected]
 
 
 def _value(where: str, value: Any, want: type) -> Any:
@@ -33,43 +44,89 @@ def _value(where: str, value: Any, want: type) -> Any:
     raise UsageError(f"{where}: expected {want.__name__}, got {value!r}")
 
 
-def load_network(path: str) -> Network:
-    """Read and validate a network file; errors name the file and key."""
+def _read_toml(path: str) -> dict[str, Any]:
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise UsageError(f"{path}: no such network file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise UsageError(f"{path}: cannot read network file: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise UsageError(f"{path}: invalid TOML: {exc}") from None
-    for key in data:
-        if key != "nodes":
-            raise UsageError(f"{path}: unknown key {key!r} (expected [nodes.N] tables)")
+
+
+def load_network(path: str | None, dcf_args: dict[int, str] | None = None) -> Network:
+    """Read and validate a network file (and --dcf NODE=PATH); errors name the file and key."""
+    tables: dict[int, dict[str, Any]] = {}
+    base = Path(".")
+    if path is not None:
+        data = _read_toml(path)
+        base = Path(path).resolve().parent
+        for key in data:
+            if key != "nodes":
+                raise UsageError(f"{path}: unknown key {key!r} (expected [nodes.N] tables)")
+        nodes = data.get("nodes", {})
+        if not isinstance(nodes, dict):
+            raise UsageError(f"{path}: nodes: expected [nodes.N] tables")
+        for name, table in nodes.items():
+            where = f"{path}: [nodes.{name}]"
+            if not name.isdigit() or not 1 <= int(name) <= 127:
+                raise UsageError(f"{where}: node-ID must be 1..127")
+            if not isinstance(table, dict):
+                raise UsageError(f"{where}: expected a table")
+            values: dict[str, Any] = {}
+            for key, value in table.items():
+                if key not in _KEYS:
+                    raise UsageError(f"{where} {key}: unknown key (known: {', '.join(_KEYS)})")
+                values[key] = _value(f"{where} {key}", value, _KEYS[key])
+            for key in ("dcf", "eds"):
+                if key in values:
+                    values[key] = str(base / values[key])
+            tables[int(name)] = values
+    for node, dcf in (dcf_args or {}).items():
+        if not 1 <= node <= 127:
+            raise UsageError(f"--dcf {node}={dcf}: node-ID must be 1..127")
+        tables.setdefault(node, {})["dcf"] = dcf
+
     net = Network()
-    for name, table in data.get("nodes", {}).items():
-        where = f"{path}: [nodes.{name}]"
-        if not name.isdigit() or not 1 <= int(name) <= 127:
-            raise UsageError(f"{where}: node-ID must be 1..127")
-        if not isinstance(table, dict):
-            raise UsageError(f"{where}: expected a table")
-        values: dict[str, Any] = {}
-        for key, value in table.items():
-            if key not in _KEYS:
-                raise UsageError(f"{where} {key}: unknown key (known: {', '.join(_KEYS)})")
-            values[key] = _value(f"{where} {key}", value, _KEYS[key])
-        if "dcf" in values or "eds" in values:
-            raise UsageError(f"{where} dcf: EDS/DCF files are not supported yet; give "
-                             f"heartbeat_ms, consumer_timeout_ms, guard_time_ms and "
-                             f"life_time_factor directly")
-        hb = values.get("heartbeat_ms")
+    for node, values in sorted(tables.items()):
+        dev_path = values.get("dcf") or values.get("eds")
+        dev = load_device_file(dev_path, node) if dev_path else None
+        if dev is not None:
+            net.devices[node] = dev
+            net.notes += [f"node {node} {dev.path}: {note}" for note in dev.notes]
+
+        def pick(key: str, from_dev: float | None,
+                 values: dict[str, Any] = values) -> float | None:
+            explicit = values.get(key)
+            if explicit is not None:
+                return explicit or None  # 0 read from a file means "not configured"
+            return from_dev
+
         cfg = NodeConfig(
-            heartbeat_ms=hb if hb else None,  # 0 read from a file means "not configured"
-            consumer_timeout_ms=values.get("consumer_timeout_ms") or None,
-            guard_time_ms=values.get("guard_time_ms") or None,
-            life_time_factor=values.get("life_time_factor") or None,
+            heartbeat_ms=pick("heartbeat_ms", dev.heartbeat_ms if dev else None),
+            consumer_timeout_ms=pick("consumer_timeout_ms", None),
+            guard_time_ms=pick("guard_time_ms", dev.guard_time_ms if dev else None),
             expected=True,
         )
-        net.nodes[int(name)] = (cfg, values.get("channel"))
+        ltf = pick("life_time_factor", dev.life_time_factor if dev else None)
+        cfg.life_time_factor = int(ltf) if ltf else None
+        if dev is not None:
+            cfg.tpdo_cob_ids = dict(dev.tpdo_cob_ids)
+            cfg.rpdo_cob_ids = dict(dev.rpdo_cob_ids)
+        net.nodes[node] = (cfg, values.get("channel"))
+    # 1016h entries of every device file set their producers' consumer times.
+    for consumer, dev in net.devices.items():
+        for producer, time_ms in dev.consumers.items():
+            cfg, channel = net.nodes.setdefault(producer, (NodeConfig(), None))
+            if "consumer_timeout_ms" in tables.get(producer, {}):
+                continue  # the explicit key wins
+            if cfg.consumer_timeout_ms is None or time_ms < cfg.consumer_timeout_ms:
+                cfg.consumer_timeout_ms, cfg.consumer_node = time_ms, consumer
+    # 1F81h slave assignment: the master's list of expected slaves.
+    for dev in net.devices.values():
+        for slave in dev.slaves or []:
+            cfg, channel = net.nodes.setdefault(slave, (NodeConfig(), None))
+            cfg.expected = True
     return net

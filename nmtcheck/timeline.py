@@ -10,11 +10,12 @@ with OFFLINE from each timeout to the node's next frame of any kind.
 from __future__ import annotations
 
 import statistics
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from nmtcheck import emcy, sdo
 from nmtcheck.decode import Decoded
 
 UNKNOWN = "UNKNOWN"
@@ -115,6 +116,32 @@ class Timeout:
 
 
 @dataclass
+class ConfigWrite:
+    """A confirmed SDO expedited download to a configuration object of `node`."""
+
+    ts: float  # the server's confirmation (60h)
+    idx: int
+    line: int
+    node: int  # the SDO server whose object was written
+    index: int
+    sub: int
+    value: int
+    until: float = float("inf")  # the node's next boot-up or reset: power-on values again
+
+
+@dataclass
+class NodeEvent:
+    """Something a node said that is not a finding: EMCY, SDO abort, configuration write."""
+
+    ts: float
+    idx: int
+    line: int
+    kind: str  # emcy | sdo-abort | sdo-write | sdo-segmented
+    text: str
+    code: int | None = None
+
+
+@dataclass
 class Interval:
     start: float
     end: float
@@ -128,8 +155,11 @@ class NodeConfig:
 
     heartbeat_ms: float | None = None
     consumer_timeout_ms: float | None = None
+    consumer_node: int | None = None  # whose 1016h entry set consumer_timeout_ms, if known
     guard_time_ms: float | None = None
     life_time_factor: int | None = None
+    tpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # PDO 1..4 -> COB-ID
+    rpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # None: not valid
     expected: bool = False
 
 
@@ -151,6 +181,33 @@ class NodeModel:
     period_source: str = "none"  # configured | measured | none
     timeouts: list[Timeout] = field(default_factory=list)
     intervals: list[Interval] = field(default_factory=list)
+    writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
+    consumer_writes: list[ConfigWrite] = field(default_factory=list)  # 1016h entries naming N
+    events: list[NodeEvent] = field(default_factory=list)
+
+    def config_at(self, ts: float) -> NodeConfig:
+        """The configuration in force at `ts`: files, then SDO writes confirmed before it."""
+        active = [w for w in self.writes if w.ts <= ts < w.until]
+        consumers = [w for w in self.consumer_writes if w.ts <= ts < w.until]
+        if not active and not consumers:
+            return self.config
+        cfg = replace(self.config, tpdo_cob_ids=dict(self.config.tpdo_cob_ids),
+                      rpdo_cob_ids=dict(self.config.rpdo_cob_ids))
+        for w in active:
+            if w.index == 0x1017:
+                cfg.heartbeat_ms = float(w.value)  # 0 written by SDO: heartbeat disabled
+            elif w.index == 0x100C:
+                cfg.guard_time_ms = float(w.value) or None
+            elif w.index == 0x100D:
+                cfg.life_time_factor = w.value or None
+            elif 0x1800 <= w.index <= 0x1803 or 0x1400 <= w.index <= 0x1403:
+                table = cfg.tpdo_cob_ids if w.index >= 0x1800 else cfg.rpdo_cob_ids
+                table[(w.index & 0x3) + 1] = None if w.value & 0x80000000 else w.value & 0x7FF
+        for w in consumers:
+            time_ms = float(w.value & 0xFFFF)
+            if time_ms and (cfg.consumer_timeout_ms is None or time_ms < cfg.consumer_timeout_ms):
+                cfg.consumer_timeout_ms, cfg.consumer_node = time_ms, w.node
+        return cfg
 
     @property
     def key(self) -> int:
@@ -168,14 +225,22 @@ class NodeModel:
     def is_producer(self) -> bool:
         if self.config.heartbeat_ms is not None and self.config.heartbeat_ms > 0:
             return True
+        if any(w.index == 0x1017 and w.value for w in self.writes):
+            return True
         return len(self.heartbeats) >= 2
 
-    def hb_timeout_s(self, timeout_factor: float) -> float | None:
-        if self.config.consumer_timeout_ms:
-            return self.config.consumer_timeout_ms / 1000.0
-        if self.period_s:
-            return timeout_factor * self.period_s
-        return None
+    def hb_timeout_s(self, timeout_factor: float, at: float | None = None) -> float | None:
+        """The heartbeat timeout in force at `at`: consumer time, else factor x period.
+
+        None when there is none, or when 1017h was set to 0 by SDO (heartbeat disabled).
+        """
+        cfg = self.config if at is None else self.config_at(at)
+        if cfg.heartbeat_ms == 0.0:
+            return None
+        if cfg.consumer_timeout_ms:
+            return cfg.consumer_timeout_ms / 1000.0
+        period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
+        return timeout_factor * period if period else None
 
     def state_at(self, ts: float) -> str:
         """State after the evidence of a frame at `ts` (intervals starting at ts included)."""
@@ -262,8 +327,17 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                 m.first_show_idx, m.first_show_ts = first[0], first[1]
                 m.last_seen = decoded.last_tx.get(key)
         requests_only: dict[int, list[EcFrame]] = {}
+        sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
         for r in rows.tolist():
             ts, idx, line, _chan, can_id, rtr, dlc, data = r
+            if 0x081 <= can_id <= 0x0FF:
+                code, text = emcy.describe(data, dlc)
+                node_model(can_id - 0x080).events.append(
+                    NodeEvent(ts, idx, line, "emcy", text, code))
+                continue
+            if 0x581 <= can_id <= 0x67F:
+                sdo_rows.append((ts, idx, line, can_id, dlc, data))
+                continue
             if can_id == 0:
                 cs, target = int(data[0]), int(data[1])
                 frame = NmtFrame(ts, idx, line, rtr, dlc, cs, target,
@@ -298,11 +372,14 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                 ):
                     m.commands.append(Command(frame.ts, frame.idx, frame.line, frame.cs,
                                               frame.target == 0))
+        _sdo_config(sdo_rows, nodes, node_model)
         for m in nodes.values():
             _classify(m, params, period_s=None)
             _find_period(m)
             _classify(m, params, period_s=m.period_s)
             _find_period(m)
+        _write_validity(nodes)
+        for m in nodes.values():
             _heartbeat_timeouts(m, params, end)
             _guard_timeouts(m, params, end)
             for t in m.timeouts:
@@ -314,6 +391,61 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         for m in cm.nodes.values():
             m.intervals = _intervals(m, start, end)
     return InputModel(decoded, start, end, models)
+
+
+def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
+                nodes: dict[int, NodeModel], node_model: Any) -> None:
+    """Pair SDO requests with the server's answer: confirmed writes, aborts, segmented ones."""
+    pending: dict[int, tuple[int, int, int | None, float]] = {}  # node -> index, sub, value, ts
+    for ts, idx, line, can_id, dlc, data in rows:
+        if dlc < 4:
+            continue
+        cmd, index, sub = data[0], data[1] | data[2] << 8, data[3]
+        if can_id >= 0x601:  # request to server N
+            n = can_id - 0x600
+            if cmd & 0xE0 == 0x20 and sdo.is_config_index(index, sub):
+                pending[n] = (index, sub, sdo.expedited_value(data), ts)
+            else:
+                pending.pop(n, None)
+            continue
+        n = can_id - 0x580
+        m = node_model(n)
+        req = pending.get(n)
+        matches = req is not None and req[:2] == (index, sub)
+        if cmd == 0x80:
+            code = int.from_bytes(bytes(data[4:8]), "little")
+            what = f" to {sdo.object_name(index, sub)}" if matches else f" ({index:04X}h sub {sub})"
+            m.events.append(NodeEvent(ts, idx, line, "sdo-abort",
+                                      f"SDO abort{what}: {code:08X}h {sdo.abort_text(code)}",
+                                      code))
+            if matches:
+                pending.pop(n, None)
+        elif cmd == 0x60 and req is not None and matches:
+            pending.pop(n, None)
+            value = req[2]
+            if value is None:
+                m.events.append(NodeEvent(ts, idx, line, "sdo-segmented",
+                                          f"segmented download to {sdo.object_name(index, sub)}"
+                                          f" confirmed; its value is not applied"))
+                continue
+            m.writes.append(ConfigWrite(ts, idx, line, n, index, sub, value))
+            m.events.append(NodeEvent(ts, idx, line, "sdo-write",
+                                      f"{sdo.object_name(index, sub)} = {value} "
+                                      f"({value:X}h) written by SDO"))
+
+
+def _write_validity(nodes: dict[int, NodeModel]) -> None:
+    """A written value holds until the node's next boot-up or reset; 1016h entries also
+    count for the producer they name."""
+    for m in nodes.values():
+        ends = sorted([f.ts for f in m.ec if f.kind == "bootup"]
+                      + [c.ts for c in m.commands if c.is_reset])
+        for w in m.writes:
+            w.until = next((t for t in ends if t > w.ts), float("inf"))
+            if w.index == 0x1016:
+                producer = nodes.get((w.value >> 16) & 0xFF)
+                if producer is not None and producer is not m:
+                    producer.consumer_writes.append(w)
 
 
 def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> None:
@@ -380,9 +512,6 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     """H001: each gap after a heartbeat or boot-up that exceeds the timeout."""
     if not m.is_producer:
         return
-    limit = m.hb_timeout_s(params.timeout_factor)
-    if not limit:
-        return
     marks: list[tuple[float, int, str]] = [(f.ts, f.idx, "hb") for f in m.ec
                                            if f.kind in ("heartbeat", "bootup")]
     marks += [(c.ts, c.idx, "reset") for c in m.commands if c.is_reset]
@@ -393,13 +522,16 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
         # expired before the reset (often the reason for it) still counts.
         if open_gap is not None:
             gap = ts - open_gap[0]
-            if gap > limit + EPS:
+            limit = m.hb_timeout_s(params.timeout_factor, open_gap[0])
+            if limit and gap > limit + EPS:
                 m.timeouts.append(Timeout("H001", open_gap[0] + limit, open_gap[0], open_gap[1],
                                           limit, gap))
         open_gap = (ts, idx) if what == "hb" else None
-    if open_gap is not None and end - open_gap[0] > limit + EPS:
-        m.timeouts.append(Timeout("H001", open_gap[0] + limit, open_gap[0], open_gap[1], limit,
-                                  None))
+    if open_gap is not None:
+        limit = m.hb_timeout_s(params.timeout_factor, open_gap[0])
+        if limit and end - open_gap[0] > limit + EPS:
+            m.timeouts.append(Timeout("H001", open_gap[0] + limit, open_gap[0], open_gap[1],
+                                      limit, None))
 
 
 def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:

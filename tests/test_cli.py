@@ -116,7 +116,7 @@ def test_timeline_formats(tmp_path: Path) -> None:
 def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
     res = run("rules", cwd=tmp_path)
     assert res.returncode == 0
-    assert len(res.stdout.strip().splitlines()) == 20
+    assert len(res.stdout.strip().splitlines()) == 21  # the SPEC §3 catalogue
     doc = run("rules", "H001", cwd=tmp_path)
     assert "heartbeat-timeout" in doc.stdout and "timeout_factor" in doc.stdout
     assert "Why it matters" in doc.stdout and "Example" in doc.stdout
@@ -182,7 +182,7 @@ def test_network_file_missing_node_and_errors(tmp_path: Path) -> None:
 
 
 def test_unavailable_format_and_usage_errors(tmp_path: Path) -> None:
-    assert_one_line_error(run("check", str(HEALTHY), "--format", "html", cwd=tmp_path), "html")
+    assert_one_line_error(run("check", str(HEALTHY), "--format", "pdf", cwd=tmp_path), "pdf")
     assert_one_line_error(run("check", str(HEALTHY), "--select", "Q", cwd=tmp_path), "Q")
     assert_one_line_error(run("check", cwd=tmp_path), "LOGS")
     assert_one_line_error(run("check", str(HEALTHY), "--channel", "can9", cwd=tmp_path), "can9")

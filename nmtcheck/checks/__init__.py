@@ -16,7 +16,11 @@ from nmtcheck.checks.guarding import (
     guard_toggle,
     guarding_with_heartbeat,
 )
-from nmtcheck.checks.heartbeat import heartbeat_timeout, heartbeat_too_early
+from nmtcheck.checks.heartbeat import (
+    heartbeat_period_mismatch,
+    heartbeat_timeout,
+    heartbeat_too_early,
+)
 from nmtcheck.checks.network import duplicate_node_id, missing_node
 from nmtcheck.checks.state import (
     comm_while_stopped,
@@ -32,6 +36,7 @@ RULES: list[Rule] = [
     bootup_repeated,
     heartbeat_timeout,
     heartbeat_too_early,
+    heartbeat_period_mismatch,
     guard_toggle,
     guard_no_response,
     guard_interval_exceeded,

@@ -92,8 +92,8 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
     """The master guarded a node less often than the node's life time allows.
 
     **What it checks.** Guard time (100Ch) and life time factor (100Dh) of N are
-    known (network file) and the interval between two guarding requests to N
-    exceeds guard time x life time factor.
+    known (network file, EDS/DCF, or written by SDO in the trace) and the interval
+    between two guarding requests to N exceeds guard time x life time factor.
 
     **Why it matters.** N runs its life-guarding timer from the requests: past the
     node life time it raises a life-guarding event (EMCY 8130h, 1029h behaviour)
@@ -103,14 +103,22 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
     """
     for cm in model.channels:
         for m in cm.nodes.values():
-            gt, ltf = m.config.guard_time_ms, m.config.life_time_factor
-            if not gt or not ltf:
-                continue
-            life = gt * ltf / 1000.0
             resets = [c.idx for c in m.commands if c.is_reset] + [b.idx for b in m.bootups]
             reqs = [f for f in m.ec if f.kind == "request"]
-            late = [(i, a, b) for i, (a, b) in enumerate(zip(reqs, reqs[1:], strict=False))
-                    if b.ts - a.ts > life + EPS and not any(a.idx < r < b.idx for r in resets)]
+
+            def life_s(at: float, m: NodeModel = m) -> float | None:
+                """Node life time in force at `at` (files, or 100Ch/100Dh written by SDO)."""
+                cfg = m.config_at(at)
+                if not cfg.guard_time_ms or not cfg.life_time_factor:
+                    return None
+                return cfg.guard_time_ms * cfg.life_time_factor / 1000.0
+
+            late = []
+            for i, (a, b) in enumerate(zip(reqs, reqs[1:], strict=False)):
+                life = life_s(a.ts)
+                if (life is not None and b.ts - a.ts > life + EPS
+                        and not any(a.idx < r < b.idx for r in resets)):
+                    late.append((i, a, b))
             # consecutive late requests within one timeline interval: one finding
             def next_gap(x: tuple[int, EcFrame, EcFrame], y: tuple[int, EcFrame, EcFrame],
                          m: NodeModel = m) -> bool:
@@ -118,9 +126,11 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
 
             for run in runs(late, next_gap):
                 _i, a, b = run[0]
+                cfg = m.config_at(a.ts)
+                gt, ltf = cfg.guard_time_ms or 0.0, cfg.life_time_factor or 0
                 yield Problem(cm.name, m.node, b.ts,
                               f"guarding requests to node {m.node} {b.ts - a.ts:.3f} s apart "
-                              f"(node life time {life:.3f} s = {gt:g} ms x {ltf})"
+                              f"(node life time {gt * ltf / 1000.0:.3f} s = {gt:g} ms x {ltf})"
                               f"{count_note(len(run), 'requests')}", b.idx, b.line)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import statistics
 from collections.abc import Iterator
 from typing import Any
 
@@ -41,7 +42,14 @@ def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
                     what = f"no heartbeat from node {m.node} for the rest of the trace"
                 else:
                     what = f"no heartbeat from node {m.node} for {t.gap_s:.3f} s"
-                yield Problem(cm.name, m.node, t.moment, f"{what} (timeout {t.limit_s:.3f} s)")
+                cfg = m.config_at(t.after_ts)
+                if cfg.consumer_timeout_ms:
+                    whose = (f" of node {cfg.consumer_node}" if cfg.consumer_node is not None
+                             else "")
+                    limit = f"consumer time {t.limit_s:.3f} s{whose}"
+                else:
+                    limit = f"timeout {t.limit_s:.3f} s"
+                yield Problem(cm.name, m.node, t.moment, f"{what} ({limit})")
 
 
 @rule("H002", "heartbeat-too-early", "warning",
@@ -89,3 +97,51 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
                               f"the previous one (period {m.period_s:.3f} s, limit "
                               f"{limit:.3f} s){count_note(len(run), 'heartbeats')}",
                               f.idx, f.line)
+
+
+@rule("H003", "heartbeat-period-mismatch", "warning",
+      Param("tolerance", float, "allowed relative difference of the median interval"))
+def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """A node's heartbeat period differs from its configured producer time.
+
+    **What it checks.** N's producer time (1017h) is known (network file, EDS/DCF,
+    or an SDO write of 1017h confirmed in the trace) and, over at least 5
+    heartbeat intervals while that value holds, the median interval differs from
+    it by more than `tolerance` (a fraction). Intervals containing a boot-up or a
+    reset are left out. One finding per configured value, at the last heartbeat
+    counted.
+
+    **Why it matters.** Consumers are configured from the producer time: a node
+    that ignores its 1017h (or whose DCF is stale) either floods the bus or trips
+    its consumers' heartbeat timeouts under load.
+
+    **Example.** 1017h = 100 ms written by the master at boot, heartbeats every
+    500 ms afterwards.
+    """
+    tolerance = p["tolerance"]
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            breaks = [c.idx for c in m.commands if c.is_reset]
+            by_value: dict[float, list[tuple[float, EcFrame]]] = {}
+            prev: EcFrame | None = None
+            for f in m.ec:
+                if f.kind == "bootup":
+                    prev = None
+                elif f.kind == "heartbeat":
+                    if prev is not None and not any(prev.idx < i < f.idx for i in breaks):
+                        value = m.config_at(prev.ts).heartbeat_ms
+                        if value:
+                            by_value.setdefault(value, []).append((f.ts - prev.ts, f))
+                    prev = f
+            for value, items in by_value.items():
+                if len(items) < 5:
+                    continue
+                median = statistics.median(d for d, _ in items)
+                configured = value / 1000.0
+                if abs(median - configured) > tolerance * configured + EPS:
+                    last = items[-1][1]
+                    yield Problem(cm.name, m.node, last.ts,
+                                  f"node {m.node} heartbeats every {median:.3f} s (median of "
+                                  f"{len(items)} intervals) but its producer time is "
+                                  f"{configured:.3f} s (tolerance {tolerance:.0%})",
+                                  last.idx, last.line)
