@@ -147,12 +147,13 @@ def render_timeline(res: InputResult, fmt: str) -> str:
             w.writerow([c, n, s, f"{a:.6f}", f"{b:.6f}", src])
         return out.getvalue()
     lines = [f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
-    current = None
-    for c, n, s, a, b, src in rows:
-        if (c, n) != current:
-            current = (c, n)
-            lines.append(f"{c} node {n}:")
-        lines.append(f"  {a - start:12.6f} .. {b - start:12.6f}  {s:<16} ({src})")
+    for m in res.nodes():
+        lines.append(f"{m.channel} node {m.node}:")
+        for iv in m.intervals:
+            lines.append(f"  {iv.start - start:12.6f} .. {iv.end - start:12.6f}  {iv.state:<16} "
+                         f"({iv.source})")
+        for e in m.events:  # EMCY, SDO aborts, configuration written: next to the states
+            lines.append(f"  {e.ts - start:12.6f}     event: {e.text}")
     return "\n".join(lines) + "\n"
 
 

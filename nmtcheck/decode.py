@@ -187,6 +187,26 @@ def _node_of(can_id: np.ndarray, bases: Iterable[int]) -> tuple[np.ndarray, np.n
     return node, mask
 
 
+_CONFIG_INDICES = np.array([0x1016, 0x1017, 0x100C, 0x100D, 0x1400, 0x1401, 0x1402, 0x1403,
+                            0x1800, 0x1801, 0x1802, 0x1803])
+
+
+def node_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
+    """EMCYs, SDO downloads to the objects that configure error control and PDOs, their
+    confirmations, and every SDO abort: sparse frames the timeline decodes one by one."""
+    data_frame = ~b.rtr & (b.dlc >= 4)
+    emcy = ~b.rtr & (cid >= 0x081) & (cid <= 0x0FF)
+    sdo = data_frame & (cid >= 0x581) & (cid <= 0x67F) & (cid != 0x600)
+    if not sdo.any():
+        return emcy
+    index = b.data[:, 1].astype(np.int64) | (b.data[:, 2].astype(np.int64) << 8)
+    config = np.isin(index, _CONFIG_INDICES)
+    cmd = b.data[:, 0]
+    request = (cid >= 0x601) & ((cmd & 0xE0) == 0x20) & config
+    response = (cid <= 0x5FF) & (((cmd == 0x60) & config) | (cmd == 0x80))
+    return emcy | (sdo & (request | response))
+
+
 def decode(batches: Iterable[FrameBatch]) -> Decoded:
     """Stream the batches once; keep only sparse events, the compact store and aggregates."""
     event_parts: list[np.ndarray] = []
@@ -201,7 +221,7 @@ def decode(batches: Iterable[FrameBatch]) -> Decoded:
         co = ~b.ext & ~b.err
         cid = b.can_id.astype(np.int64)
         ec = co & (cid >= 0x701) & (cid <= 0x77F)
-        ev_mask = co & ((cid == 0) | ec)
+        ev_mask = co & ((cid == 0) | ec | node_events(cid, b))
         if ev_mask.any():
             sel = np.flatnonzero(ev_mask)
             ev = np.empty(sel.size, EVENT_DTYPE)

@@ -330,6 +330,7 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
         for r in rows.tolist():
             ts, idx, line, _chan, can_id, rtr, dlc, data = r
+            data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
             if 0x081 <= can_id <= 0x0FF:
                 code, text = emcy.describe(data, dlc)
                 node_model(can_id - 0x080).events.append(
@@ -515,23 +516,41 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     marks: list[tuple[float, int, str]] = [(f.ts, f.idx, "hb") for f in m.ec
                                            if f.kind in ("heartbeat", "bootup")]
     marks += [(c.ts, c.idx, "reset") for c in m.commands if c.is_reset]
+    # A confirmed 1017h write ends the gap too; a non-zero one starts the heartbeat anew.
+    marks += [(w.ts, w.idx, "hb" if w.value else "reset") for w in m.writes
+              if w.index == 0x1017]
     marks.sort(key=lambda x: x[1])
+    changes = sorted({w.ts for w in m.writes + m.consumer_writes})
     open_gap: tuple[float, int] | None = None
     for ts, idx, what in marks:
         # A reset ends the gap: the wait for the boot-up is B001's, but a timeout that
         # expired before the reset (often the reason for it) still counts.
         if open_gap is not None:
-            gap = ts - open_gap[0]
-            limit = m.hb_timeout_s(params.timeout_factor, open_gap[0])
-            if limit and gap > limit + EPS:
-                m.timeouts.append(Timeout("H001", open_gap[0] + limit, open_gap[0], open_gap[1],
-                                          limit, gap))
+            _gap_timeout(m, params, open_gap, ts, changes, closed=True)
         open_gap = (ts, idx) if what == "hb" else None
     if open_gap is not None:
-        limit = m.hb_timeout_s(params.timeout_factor, open_gap[0])
-        if limit and end - open_gap[0] > limit + EPS:
-            m.timeouts.append(Timeout("H001", open_gap[0] + limit, open_gap[0], open_gap[1],
-                                      limit, None))
+        _gap_timeout(m, params, open_gap, end, changes, closed=False)
+
+
+def _gap_timeout(m: NodeModel, params: TimelineParams, gap: tuple[float, int], until: float,
+                 changes: list[float], closed: bool) -> None:
+    """Record an H001 timeout if the gap [gap start, until] outlasts the timeout in force.
+
+    The timeout follows configuration confirmed during the gap (a consumer entry or
+    1017h written by SDO): it expires at the first moment the silence exceeds the
+    limit valid at that moment.
+    """
+    start, start_idx = gap
+    limit = m.hb_timeout_s(params.timeout_factor, start)
+    for c in changes:
+        if not start < c < until:
+            continue
+        if limit is not None and c >= start + limit + EPS:
+            break  # already expired under the old configuration
+        limit = m.hb_timeout_s(params.timeout_factor, c)
+    if limit and until - start > limit + EPS:
+        m.timeouts.append(Timeout("H001", start + limit, start, start_idx, limit,
+                                  until - start if closed else None))
 
 
 def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:

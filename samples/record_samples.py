@@ -24,10 +24,18 @@ are read back with ``can.LogReader``. The script prints a per-CAN-ID summary
 and checks that the intended fault really is in the frames. If a check
 fails, the exit status is 1.
 
+A full run (no ``--only``) also exports one DCF per slave of ``healthy``
+(``devices/node2.dcf`` ... ``node4.dcf``) with canopen's own exporter,
+``canopen.export_od(od, path, doc_type="dcf")``, from the object dictionary
+:func:`build_od` gives that slave, and writes ``network.toml`` (SPEC section
+6) naming them. Each DCF is imported back with ``canopen.import_od`` and
+must hold the same objects and values, with 1017h = 100.
+
 Usage::
 
     python samples/record_samples.py [--outdir DIR] [--only NAME ...] [--quiet]
     python samples/record_samples.py --check-only   # verify existing files only
+    python samples/record_samples.py --dcf-only     # only devices/*.dcf, network.toml
 
 Timing and determinism
 ----------------------
@@ -38,6 +46,9 @@ Each scenario runs on a fixed schedule, measured from its start (t0).
   drift).
 * The script's TPDO scheduler ticks at 35 ms and 85 ms modulo 100 ms.
 * The master acts at about 60 ms modulo 100 ms.
+* In ``sdo_config`` and ``ignored_1017`` the master writes 1017h at t0+200
+  ms and t0+210 ms. canopen starts the heartbeat at the write, so the
+  phases are the same 0 ms and 10 ms modulo 100 ms.
 
 Periodic frames and commands are therefore always tens of milliseconds
 apart. Every run gives the same frames in the same order; only the
@@ -86,6 +97,20 @@ What canopen 2.4.1 does (seen in these recordings)
 * python-can 4.6.1's ``CanutilsLogWriter`` appends the direction flag
   (`` R``: every frame is received from the recorder's point of view) and
   writes a remote frame as ``705#R`` with no DLC digit.
+* An SDO write of 1017h to a ``LocalNode`` **does** change its heartbeat:
+  ``LocalNode.__init__`` registers ``NmtSlave.on_write`` as a write
+  callback, and it calls ``start_heartbeat(value)`` (``stop_heartbeat()``
+  for 0) in any NMT state. The SDO server runs the write callbacks before
+  it sends its 60h confirmation, and python-can's cyclic task sends the
+  first heartbeat at once, so the first 7Fh heartbeat is on the bus about
+  0.1-0.3 ms *before* the confirmation. The new period's phase is the
+  moment of the write. ``LocalNode`` has no heartbeat consumer: a written
+  1016h entry is only stored.
+* canopen's ``export_od(..., doc_type="dcf")`` writes the object
+  dictionary's defaults as ``DefaultValue`` (no ``ParameterValue``, since
+  the script sets no values) and the node-ID as ``[DeviceComissioning]
+  NodeID``. Its ``[FileInfo]`` dates are the export time (and the
+  "time" fields use the month for minutes: ``%I:%m%p``).
 
 Scenarios (file stems) and the nmtcheck findings expected (SPEC section 3)
 --------------------------------------------------------------------------
@@ -145,6 +170,31 @@ Scenarios (file stems) and the nmtcheck findings expected (SPEC section 3)
     The first 00h frame after the reset is a boot-up by definition (a data
     frame on 700h+N with 00h), and no other frame of node 3 comes between
     the reset and that 00h.
+``sdo_config``
+    Nodes 2 and 3 boot with 1017h = 0 in their object dictionaries, so
+    after the boot-up they send no heartbeat. The master configures them at
+    boot with expedited SDO downloads through canopen's SDO client
+    (``node.sdo[0x1017].raw = 100``): ``602#2B17100064000000``, answered
+    ``582#6017100000000000`` by the LocalNode's SDO server, 100 ms after
+    node 2's boot-up; the same to node 3 at +10 ms. canopen's LocalNode
+    starts heart-beating at once, every 100 ms (7Fh, then 05h). Then
+    node 2's consumer entry 1016h:01 = 000300FAh (node 3, 250 ms):
+    ``602#23161001FA000300`` / ``582#6016100100000000``. Then NMT start
+    all; TPDO1 every 50 ms while OPERATIONAL.
+    Expected: **no findings**.
+``ignored_1017``
+    Like ``sdo_config``, but node 3's firmware has a fixed 500 ms heartbeat
+    (1017h = 500 in its dictionary, heart-beating from the boot-up). It
+    accepts the master's 1017h = 100 download (confirms with 60h, and an
+    SDO upload of 1017h then answers 100), but its stack ignores the value
+    (the script removes canopen's ``NmtSlave.on_write`` callback) and it
+    keeps heart-beating every 500 ms, for 4.4 s after the write. Node 2's
+    consumer entry names node 3 with 1000 ms (000303E8h), longer than node
+    3's real period, so no consumer times out: with 250 ms, or with no
+    entry (1.5 x the written 100 ms), every 500 ms gap would also be an
+    H001.
+    Expected: **H003** (heartbeat-period-mismatch) for node 3, once (median
+    0.5 s vs 0.1 s written by SDO). Nothing for node 2.
 """
 
 from __future__ import annotations
@@ -153,6 +203,7 @@ import argparse
 import collections
 import logging
 import os
+import statistics
 import sys
 import threading
 import time
@@ -165,6 +216,11 @@ import can
 import canopen
 from canopen import objectdictionary as od_mod
 from canopen.nmt import NMT_STATES
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10
+    import tomli as tomllib
 
 LOG_CHANNEL = "can0"  # interface name written into the candump logs
 HEARTBEAT_MS = 100  # 1017h of heartbeat producers
@@ -201,18 +257,31 @@ def _var(
     return var
 
 
-def build_od(node_id: int, heartbeat_ms: int) -> od_mod.ObjectDictionary:
+def build_od(node_id: int, heartbeat_ms: int, consumer_entries: int = 0) -> od_mod.ObjectDictionary:
     """A minimal CiA 301 object dictionary for one slave.
 
     1000h device type, 100Ch/100Dh guard time / life time factor, 1017h
     producer heartbeat time, 1018h identity, TPDO1 (1800h communication,
-    1A00h mapping of 6000h counter + 6001h analogue value).
+    1A00h mapping of 6000h counter + 6001h analogue value). With
+    ``consumer_entries=n`` it also has 1016h (consumer heartbeat time, an
+    ARRAY with n UNSIGNED32 entries, all 0 = unused) so that a master can
+    write consumer entries over SDO. Without it there is no 1016h at all.
     """
     od = od_mod.ObjectDictionary()
     od.node_id = node_id
     od.add_object(_var("Device type", 0x1000, 0, od_mod.UNSIGNED32, 0x00000191))
     od.add_object(_var("Guard time", 0x100C, 0, od_mod.UNSIGNED16, 100, "rw"))
     od.add_object(_var("Life time factor", 0x100D, 0, od_mod.UNSIGNED8, 3, "rw"))
+    if consumer_entries:
+        consumer = od_mod.ODArray("Consumer heartbeat time", 0x1016)
+        consumer.add_member(
+            _var("Highest sub-index supported", 0x1016, 0, od_mod.UNSIGNED8, consumer_entries)
+        )
+        for sub in range(1, consumer_entries + 1):
+            consumer.add_member(
+                _var(f"Consumer heartbeat time {sub}", 0x1016, sub, od_mod.UNSIGNED32, 0, "rw")
+            )
+        od.add_object(consumer)
     od.add_object(_var("Producer heartbeat time", 0x1017, 0, od_mod.UNSIGNED16, heartbeat_ms, "rw"))
 
     ident = od_mod.ODRecord("Identity object", 0x1018)
@@ -325,6 +394,7 @@ class Slave:
     cond: threading.Condition = field(default_factory=threading.Condition)
     counter: int = 0
     responder: _GuardResponder | None = None
+    writes: list[str] = field(default_factory=list)  # SDO writes the server accepted
 
 
 class Bench:
@@ -380,11 +450,32 @@ class Bench:
         ignore_cs=(),
         guard_responder: bool = False,
         repeat_toggle_at: int | None = None,
+        consumer_entries: int = 0,
+        ignore_1017_write: bool = False,
     ) -> Slave:
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.1
-        node = canopen.LocalNode(node_id, build_od(node_id, heartbeat_ms))
+        node = canopen.LocalNode(node_id, build_od(node_id, heartbeat_ms, consumer_entries))
         slave = Slave(node_id, node, network, gated_pdo=gated_pdo, ignore_cs=frozenset(ignore_cs))
+
+        # canopen's LocalNode registers NmtSlave.on_write as a write callback:
+        # an SDO write of 1017h (re)starts its heartbeat at the new period.
+        # A faulty firmware that ignores the written value: take it out. The
+        # SDO server still stores the value and confirms the download (60h).
+        if ignore_1017_write:
+            node._write_callbacks.remove(node.nmt.on_write)
+
+        def on_write(index: int, subindex: int, od, data: bytes) -> None:
+            """Runs after canopen's own callbacks: note what the stack did."""
+            task = node.nmt._send_task
+            slave.writes.append(
+                f"node {node_id} SDO server: write {index:04X}h:{subindex:02X} = "
+                f"{bytes(data).hex(' ')} at t0+{time.perf_counter() - self.t0:.3f}s; "
+                f"heartbeat task now "
+                + (f"{task.period * 1000:.0f} ms" if task is not None else "none")
+            )
+
+        node.add_write_callback(on_write)
 
         # Wrap the NMT command handler *before* add_node() subscribes it:
         # counts processed commands, and lets a faulty firmware drop some.
@@ -408,7 +499,7 @@ class Bench:
         self._count_sends(network.bus, f"node{node_id}")
         node.tpdo.read(from_od=True)
         self.slaves[node_id] = slave
-        self.master.add_node(node_id, build_od(node_id, heartbeat_ms))
+        self.master.add_node(node_id, build_od(node_id, heartbeat_ms, consumer_entries))
         return slave
 
     def boot(self, node_id: int) -> None:
@@ -446,6 +537,21 @@ class Bench:
             f"SDO upload {index:04X}h:{subindex:02X} from node {node_id} -> {data.hex(' ')}"
         )
         return data
+
+    def sdo_write(self, node_id: int, index: int, subindex: int | None, value: int) -> None:
+        """Expedited SDO download through canopen's SDO client (``.raw = value``).
+
+        The master's object dictionary has the object's data type, so canopen
+        sends e.g. ``2B 17 10 00 64 00 00 00`` for 1017h = 100 (UNSIGNED16)
+        and waits for the server's ``60 ...`` confirmation."""
+        obj = self.master[node_id].sdo[index]
+        if subindex is not None:
+            obj = obj[subindex]
+        obj.raw = value
+        self.notes.append(
+            f"SDO download {index:04X}h:{subindex or 0:02X} = 0x{value:X} to node "
+            f"{node_id} confirmed at t0+{time.perf_counter() - self.t0:.3f}s"
+        )
 
     # -- PDO scheduler -----------------------------------------------------
     def start_pdo_scheduler(self) -> None:
@@ -489,6 +595,8 @@ class Bench:
         self.rec_notifier.stop()
         self.rec_bus.shutdown()
 
+        for s in self.slaves.values():
+            self.notes.extend(s.writes)
         frames = list(self.collector.frames)
         out_of_order = sum(1 for a, b in pairwise(frames) if b.timestamp < a.timestamp)
         frames.sort(key=lambda m: m.timestamp)  # stable: bus order = send time
@@ -652,6 +760,50 @@ def scenario_reset_no_bootup(b: Bench) -> None:
     b.at(3.560)
 
 
+def _configure_at_boot(b: Bench, consumer_ms: int) -> None:
+    """Boot nodes 2 and 3, then the master configures them over SDO.
+
+    Node 2 gets 1017h = 100 at 0.200 (its heartbeat phase becomes 0 ms,
+    like a boot at 0.100 would give), node 3 at 0.210 (phase 10 ms). Then
+    node 2's consumer entry 1016h:01 = node 3, ``consumer_ms``."""
+    for i, nid in enumerate((2, 3)):
+        b.at(BOOT_AT + 0.010 * i)
+        b.boot(nid)
+    b.at(0.200)
+    b.sdo_write(2, 0x1017, None, HEARTBEAT_MS)  # 2B 17 10 00 64 00 00 00
+    b.at(0.210)
+    b.sdo_write(3, 0x1017, None, HEARTBEAT_MS)
+    b.at(0.260)
+    b.sdo_write(2, 0x1016, 1, (3 << 16) | consumer_ms)  # 23 16 10 01 .. .. 03 00
+
+
+SDO_CONSUMER_MS = 250  # sdo_config: node 2 watches node 3 with 250 ms
+IGNORED_CONSUMER_MS = 1000  # ignored_1017: longer than node 3's real 500 ms
+IGNORED_HB_MS = 500  # ignored_1017: node 3's fixed firmware period
+
+
+def scenario_sdo_config(b: Bench) -> None:
+    b.add_slave(2, heartbeat_ms=0, consumer_entries=1)
+    b.add_slave(3, heartbeat_ms=0)
+    b.start_pdo_scheduler()
+    _configure_at_boot(b, SDO_CONSUMER_MS)
+    b.at(1.060)
+    b.nmt(CS_START, 0)  # 01 00
+    b.at(3.060)
+
+
+def scenario_ignored_1017(b: Bench) -> None:
+    b.add_slave(2, heartbeat_ms=0, consumer_entries=1)
+    b.add_slave(3, heartbeat_ms=IGNORED_HB_MS, ignore_1017_write=True)
+    b.start_pdo_scheduler()
+    _configure_at_boot(b, IGNORED_CONSUMER_MS)
+    b.at(0.560)
+    b.sdo_read(3, 0x1017, 0)  # node 3 reports the written 100 ms
+    b.at(1.060)
+    b.nmt(CS_START, 0)  # 01 00
+    b.at(5.060)
+
+
 SCENARIOS: dict[str, Callable[[Bench], None]] = {
     "healthy": scenario_healthy,
     "heartbeat_loss": scenario_heartbeat_loss,
@@ -659,6 +811,8 @@ SCENARIOS: dict[str, Callable[[Bench], None]] = {
     "guard_toggle": scenario_guard_toggle,
     "ignored_command": scenario_ignored_command,
     "reset_no_bootup": scenario_reset_no_bootup,
+    "sdo_config": scenario_sdo_config,
+    "ignored_1017": scenario_ignored_1017,
 }
 
 
@@ -700,6 +854,52 @@ def _ec(frames, nid):
 
 def _tpdo(frames, nid):
     return [m for m in frames if m.arbitration_id == 0x180 + nid]
+
+
+def _sdo_exchange(frames, nid, request: bytes):
+    """The SDO request on 600h+N with exactly these bytes and the server's
+    next frame on 580h+N (its confirmation)."""
+    req = next(m for m in frames if m.arbitration_id == 0x600 + nid and bytes(m.data) == request)
+    resp = next(
+        m for m in frames if m.arbitration_id == 0x580 + nid and m.timestamp >= req.timestamp
+    )
+    return req, resp
+
+
+def _intervals(ms) -> list[float]:
+    return [b.timestamp - a.timestamp for a, b in pairwise(ms)]
+
+
+def _hb_config_evidence(frames, nid, req, resp, rel) -> tuple[list, list[float], str]:
+    """Node nid's heartbeats (not the boot-up) around its 1017h download.
+
+    Returns the heartbeats after the request, their intervals, and one line
+    of evidence: heartbeats before the write, the first one after it (and
+    its offset from request and confirmation), intervals after."""
+    ec = _ec(frames, nid)
+    boot, hbs = ec[0], ec[1:]
+    before = [m for m in hbs if m.timestamp < req.timestamp]
+    after = [m for m in hbs if m.timestamp >= req.timestamp]
+    iv_b, iv_a = _intervals([boot, *before]), _intervals(after)
+    first = after[0]
+    med = statistics.median(iv_a)
+    line = (
+        f"node {nid}: boot-up @{rel(boot):.4f}; before the write "
+        + (
+            f"{len(before)} heartbeat(s), intervals from boot-up "
+            + ", ".join(f"{x * 1000:.0f}" for x in iv_b)
+            + " ms"
+            if before
+            else "no heartbeat"
+        )
+        + f"; first heartbeat after the request {first.data[0]:02X}h @{rel(first):.4f} "
+        f"({(first.timestamp - req.timestamp) * 1000:+.2f} ms from the request, "
+        f"{(first.timestamp - resp.timestamp) * 1000:+.2f} ms from the confirmation); "
+        f"then {len(iv_a)} intervals min/median/max "
+        f"{min(iv_a) * 1000:.1f}/{med * 1000:.1f}/{max(iv_a) * 1000:.1f} ms "
+        f"until {rel(after[-1]):.3f}"
+    )
+    return after, iv_a, line
 
 
 def check_pdo_gating(frames, nids, t0) -> list[str]:
@@ -887,6 +1087,62 @@ def verify(name: str, frames: list[can.Message]) -> list[str]:
             f"{(after[0].timestamp - rst.timestamp) * 1000:.0f} ms"
         )
         assert not check_pdo_gating(frames, (2,), t0)
+
+    elif name in ("sdo_config", "ignored_1017"):
+        consumer_ms = SDO_CONSUMER_MS if name == "sdo_config" else IGNORED_CONSUMER_MS
+        aborts = [m for m in frames if 0x580 < m.arbitration_id < 0x600 and m.data[0] == 0x80]
+        assert not aborts, f"SDO aborts {[m.data.hex(' ') for m in aborts]}"
+        hb_1017 = bytes([0x2B, 0x17, 0x10, 0x00, HEARTBEAT_MS & 0xFF, HEARTBEAT_MS >> 8, 0, 0])
+        entry = (3 << 16) | consumer_ms
+        c_1016 = bytes([0x23, 0x16, 0x10, 0x01]) + entry.to_bytes(4, "little")
+        exchanges = {}
+        for nid, request in ((2, hb_1017), (3, hb_1017), (2, c_1016)):
+            req, resp = _sdo_exchange(frames, nid, request)
+            assert bytes(resp.data) == bytes([0x60]) + request[1:4] + bytes(4), (
+                f"node {nid}: confirmation {resp.data.hex(' ')}"
+            )
+            assert resp.timestamp - req.timestamp < 0.010
+            exchanges[(nid, request[1])] = (req, resp)
+            ev.append(
+                f"SDO node {nid}: {req.arbitration_id:03X} {req.data.hex(' ')} @{rel(req):.4f}"
+                f" -> {resp.arbitration_id:03X} {resp.data.hex(' ')} @{rel(resp):.4f}"
+                f" (+{(resp.timestamp - req.timestamp) * 1000:.2f} ms)"
+            )
+        producers = (2, 3) if name == "sdo_config" else (2,)
+        for nid in producers:  # 1017h = 0 at boot, heartbeat from the write on
+            req, resp = exchanges[(nid, 0x17)]
+            after, iv, line = _hb_config_evidence(frames, nid, req, resp, rel)
+            ev.append(line)
+            ec = _ec(frames, nid)
+            assert ec[1] is after[0], f"node {nid}: heartbeat before the 1017h write"
+            assert abs(after[0].timestamp - resp.timestamp) < 0.005
+            assert after[0].timestamp - ec[0].timestamp < 0.150, "boot-up to heartbeat gap"
+            assert all(0.070 < x < 0.130 for x in iv), f"node {nid} intervals {iv}"
+        if name == "ignored_1017":
+            req, resp = exchanges[(3, 0x17)]
+            after, iv, line = _hb_config_evidence(frames, nid=3, req=req, resp=resp, rel=rel)
+            ev.append(line)
+            iv_all = _intervals(_ec(frames, 3)[1:])
+            assert all(0.450 < x < 0.550 for x in iv_all), f"node 3 intervals {iv_all}"
+            held = [m for m in after if m.timestamp > resp.timestamp]
+            assert len(held) >= 6 and held[-1].timestamp - resp.timestamp >= 4.0, (
+                len(held),
+                held[-1].timestamp - resp.timestamp,
+            )
+            med = statistics.median(_intervals(held))
+            up = [m for m in frames if m.arbitration_id == 0x583 and m.data[0] == 0x4B]
+            assert up and bytes(up[0].data[:6]) == bytes.fromhex("4b1710006400")
+            ev.append(
+                f"node 3 after the confirmed 1017h = {HEARTBEAT_MS} ms: {len(held)} heartbeats "
+                f"over {held[-1].timestamp - resp.timestamp:.3f} s, median interval "
+                f"{med * 1000:.1f} ms; SDO upload of 1017h answers "
+                f"{up[0].data.hex(' ')} @{rel(up[0]):.4f} (the written value)"
+            )
+        assert not check_pdo_gating(frames, (2, 3), t0)
+        ev.append(
+            f"TPDOs: 182h {len(_tpdo(frames, 2))}, 183h {len(_tpdo(frames, 3))}, all "
+            f"after 01 00 at {rel(_nmt(frames, CS_START, 0)[0]):.3f}"
+        )
     return ev
 
 
@@ -924,6 +1180,85 @@ def check_files(
         say("   OK: intended behaviour present")
     except AssertionError as exc:
         say(f"   FAIL: {exc!r}")
+        failures += 1
+    return failures
+
+
+# --------------------------------------------------------------------------
+# Device files: DCFs of the healthy network's slaves, and network.toml
+# --------------------------------------------------------------------------
+
+DCF_NODES = (2, 3, 4)  # the slaves of ``healthy``
+
+NETWORK_TOML = """\
+# nmtcheck network description (SPEC section 6) for healthy.log / healthy.asc.
+# Written by record_samples.py. Each node's values (1017h = 100 ms heartbeat,
+# 100Ch/100Dh, TPDO1 COB-ID 180h+N) come from its DCF, which canopen's
+# export_od() wrote from the object dictionary the script gives that slave.
+#
+#   nmtcheck check samples/healthy.log --network samples/network.toml
+""" + "".join(f'\n[nodes.{nid}]\ndcf = "devices/node{nid}.dcf"\n' for nid in DCF_NODES)
+
+
+def _od_entries(od: od_mod.ObjectDictionary) -> dict[tuple[int, int], tuple]:
+    """(index, subindex) -> (data type, access, value) of every variable.
+    The value is the DCF's ParameterValue if it has one, else DefaultValue."""
+    out = {}
+    for index in od:
+        obj = od[index]
+        members = [obj] if isinstance(obj, od_mod.ODVariable) else [obj[s] for s in obj]
+        for var in members:
+            value = var.value if getattr(var, "value", None) is not None else var.default
+            out[(index, var.subindex)] = (var.data_type, var.access_type, value)
+    return out
+
+
+def export_dcfs(outdir: Path, say: Callable[[str], None]) -> int:
+    """Export one DCF per slave of ``healthy`` with canopen's own exporter,
+    write network.toml, then check them (:func:`check_dcfs`)."""
+    devdir = outdir / "devices"
+    devdir.mkdir(parents=True, exist_ok=True)
+    for nid in DCF_NODES:
+        path = devdir / f"node{nid}.dcf"
+        canopen.export_od(build_od(nid, HEARTBEAT_MS), str(path), doc_type="dcf")
+    (outdir / "network.toml").write_text(NETWORK_TOML)
+    return check_dcfs(outdir, say)
+
+
+def check_dcfs(outdir: Path, say: Callable[[str], None]) -> int:
+    """Import every DCF back with ``canopen.import_od``: same objects, data
+    types, access and values as :func:`build_od`, node-ID from
+    [DeviceComissioning], 1017h = 100. network.toml must name them all."""
+    say("== devices (DCF) and network.toml")
+    failures = 0
+    for nid in DCF_NODES:
+        path = outdir / "devices" / f"node{nid}.dcf"
+        try:
+            od = canopen.import_od(str(path))
+            got, want = _od_entries(od), _od_entries(build_od(nid, HEARTBEAT_MS))
+            diff = sorted(k for k in set(got) | set(want) if got.get(k) != want.get(k))
+            assert not diff, [
+                (f"{i:04X}:{s:02X}", got.get((i, s)), want.get((i, s))) for i, s in diff
+            ]
+            assert od.node_id == nid, f"NodeID {od.node_id}"
+            hb = got[(0x1017, 0)][2]
+            assert hb == HEARTBEAT_MS, f"1017h = {hb}"
+            say(
+                f"   {path.parent.name}/{path.name}: {path.stat().st_size} bytes, "
+                f"{len(got)} entries as built, NodeID {od.node_id}, "
+                f"1017h = {hb} ms, TPDO1 COB-ID {got[(0x1800, 1)][2]:03X}h"
+            )
+        except (AssertionError, OSError, canopen.ObjectDictionaryError, KeyError) as exc:
+            say(f"   FAIL: {path.name}: {exc!r}")
+            failures += 1
+    try:
+        with open(outdir / "network.toml", "rb") as fh:
+            nodes = tomllib.load(fh)["nodes"]
+        want = {str(nid): {"dcf": f"devices/node{nid}.dcf"} for nid in DCF_NODES}
+        assert nodes == want, nodes
+        say(f"   network.toml: nodes {', '.join(nodes)}, each with its DCF")
+    except (AssertionError, OSError, KeyError, tomllib.TOMLDecodeError) as exc:
+        say(f"   FAIL: network.toml: {exc!r}")
         failures += 1
     return failures
 
@@ -973,10 +1308,25 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="do not record: re-read and verify the existing files",
     )
+    parser.add_argument(
+        "--dcf-only",
+        action="store_true",
+        help="do not record: export devices/node2..4.dcf and write network.toml",
+    )
     parser.add_argument("--quiet", action="store_true", help="print nothing")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
-    return run(args.only or list(SCENARIOS), args.outdir, args.quiet, args.check_only)
+    say = (lambda s: None) if args.quiet else print
+    if args.dcf_only:
+        failures = export_dcfs(args.outdir, say)
+        say(f"{failures} failure(s)")
+        return 1 if failures else 0
+    status = run(args.only or list(SCENARIOS), args.outdir, args.quiet, args.check_only)
+    if args.only is None:  # a full run also (re)writes or checks the device files
+        dcf = check_dcfs if args.check_only else export_dcfs
+        if dcf(args.outdir, say):
+            status = 1
+    return status
 
 
 if __name__ == "__main__":

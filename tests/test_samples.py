@@ -18,6 +18,8 @@ EXPECTED = {
     "guard_toggle": [("G001", 5)],
     "ignored_command": [("S004", 4)],
     "reset_no_bootup": [("B003", 3)],
+    "sdo_config": [],  # 1017h and a 1016h entry written by SDO at boot, all obeyed
+    "ignored_1017": [("H003", 3)],  # node 3 confirms 1017h = 100 ms, heartbeats every 500 ms
 }
 
 

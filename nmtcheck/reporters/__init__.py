@@ -1,36 +1,40 @@
-"""One module per output format behind one function: `render(results) -> str`."""
+"""One module per output format behind one function: `render(results, options) -> str`."""
 
 from __future__ import annotations
 
+import importlib
+import os
 from collections.abc import Callable
+from typing import cast
 
 from nmtcheck.engine import InputResult
 from nmtcheck.errors import UsageError
 
 Renderer = Callable[[list[InputResult], dict[str, object]], str]
-FORMATS = ("text", "json", "csv")
-PLANNED = ("html", "junit", "sarif", "github", "markdown")
-SUFFIXES = {".txt": "text", ".json": "json", ".csv": "csv", ".html": "html", ".htm": "html",
-            ".xml": "junit", ".sarif": "sarif", ".md": "markdown"}
+# format name -> module in this package (imported only when the format is used)
+MODULES = {"text": "text", "json": "json", "csv": "csv", "html": "html", "junit": "junit",
+           "sarif": "sarif", "github": "github", "markdown": "markdown"}
+FORMATS = (*MODULES, "auto")
+PLANNED: tuple[str, ...] = ()
+# Longest first where one suffix ends another (".sarif.json" before ".json").
+SUFFIXES = {".txt": "text", ".sarif.json": "sarif", ".json": "json", ".csv": "csv",
+            ".html": "html", ".htm": "html", ".xml": "junit", ".sarif": "sarif",
+            ".md": "markdown", ".markdown": "markdown"}
+
+
+def auto_format(environ: dict[str, str] | None = None) -> str:
+    """`--format auto`: GitHub annotations when running under GitHub Actions, else text."""
+    env = os.environ if environ is None else environ
+    return "github" if env.get("GITHUB_ACTIONS") == "true" else "text"
 
 
 def renderer(name: str) -> Renderer:
-    if name in PLANNED:
-        raise UsageError(f"--format {name}: not available in this version yet "
-                         f"(available: {', '.join(FORMATS)})")
-    if name == "text":
-        from nmtcheck.reporters import text
-
-        return text.render
-    if name == "json":
-        from nmtcheck.reporters import json as json_reporter
-
-        return json_reporter.render
-    if name == "csv":
-        from nmtcheck.reporters import csv as csv_reporter
-
-        return csv_reporter.render
-    raise UsageError(f"--format {name}: unknown format (available: {', '.join(FORMATS)})")
+    if name == "auto":
+        name = auto_format()
+    module = MODULES.get(name)
+    if module is None:
+        raise UsageError(f"--format {name}: unknown format (available: {', '.join(FORMATS)})")
+    return cast(Renderer, importlib.import_module(f"nmtcheck.reporters.{module}").render)
 
 
 def format_for_path(path: str) -> str:

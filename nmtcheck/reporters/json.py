@@ -7,6 +7,8 @@ from typing import Any
 
 from nmtcheck import __version__
 from nmtcheck.engine import InputResult, summary
+from nmtcheck.reporters.common import configured_vs_measured
+from nmtcheck.timeline import NodeModel
 
 REPORT_VERSION = 1
 
@@ -15,9 +17,22 @@ def _r(x: float | None) -> float | None:
     return None if x is None else round(float(x), 6)
 
 
+def _configured_vs_measured(m: NodeModel, end: float) -> dict[str, Any]:
+    c = configured_vs_measured(m, end)
+    return {"configured": {"heartbeat_ms": c.producer_ms, "consumer_timeout_ms": c.consumer_ms,
+                           "consumer_node": c.consumer_node, "guard_time_ms": c.guard_time_ms,
+                           "life_time_factor": c.life_time_factor},
+            "measured": {"heartbeat_median_ms": c.median_ms, "heartbeat_jitter_ms": c.jitter_ms,
+                         "worst_heartbeat_gap_ms": c.worst_gap_ms}}
+
+
 def report_dict(results: list[InputResult], options: dict[str, object] | None = None
                 ) -> dict[str, Any]:
-    inputs, nodes, timeline, findings = [], [], [], []
+    inputs: list[dict[str, Any]] = []
+    nodes: list[dict[str, Any]] = []
+    timeline: list[dict[str, Any]] = []
+    findings: list[dict[str, Any]] = []
+    events: list[dict[str, Any]] = []
     for res in results:
         s = res.stats
         inputs.append({
@@ -36,7 +51,12 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
                 "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
                 "bootups": len(m.bootups), "error_control": m.error_control,
                 "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
+                **_configured_vs_measured(m, res.model.end),
             })
+            for e in m.events:
+                events.append({"input": res.index, "channel": m.channel, "node": m.node,
+                               "kind": e.kind, "time": _r(e.ts), "frame_index": e.idx,
+                               "line": e.line or None, "code": e.code, "message": e.text})
             for iv in m.intervals:
                 timeline.append({"input": res.index, "channel": m.channel, "node": m.node,
                                  "state": iv.state, "start": _r(iv.start), "end": _r(iv.end),
@@ -48,7 +68,9 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
                              "line": f.line or None, "message": f.message})
     return {"tool": {"name": "nmtcheck", "version": __version__},
             "report_version": REPORT_VERSION, "inputs": inputs, "nodes": nodes,
-            "timeline": timeline, "findings": findings, "summary": summary(results)}
+            "timeline": timeline, "findings": findings,
+            "events": sorted(events, key=lambda e: (e["input"], e["frame_index"])),
+            "summary": summary(results)}
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:

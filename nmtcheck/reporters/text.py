@@ -5,6 +5,9 @@ from __future__ import annotations
 from itertools import groupby
 
 from nmtcheck.engine import InputResult, summary
+from nmtcheck.reporters.common import configured_vs_measured, final_state, is_failing
+
+MAX_EVENTS_SHOWN = 50
 
 
 def _input_line(res: InputResult) -> list[str]:
@@ -24,6 +27,40 @@ def _input_line(res: InputResult) -> list[str]:
     return lines
 
 
+def _ms(x: float | None) -> str:
+    return "-" if x is None else f"{x:g}"
+
+
+def _node_table(res: InputResult) -> list[str]:
+    """Per node: final state, error control, configured vs measured heartbeat timing."""
+    nodes = res.nodes()
+    if not nodes:
+        return []
+    rows = [("node", "final state", "control", "boot-ups", "1017h ms", "median ms", "jitter ms",
+             "consumer ms", "worst gap ms")]
+    for m in nodes:
+        c = configured_vs_measured(m, res.model.end)
+        consumer = _ms(c.consumer_ms) + (f" (node {c.consumer_node})"
+                                         if c.consumer_node is not None else "")
+        rows.append((f"{m.channel}/{m.node}", final_state(m), m.error_control,
+                     str(len(m.bootups)), _ms(c.producer_ms), _ms(c.median_ms),
+                     _ms(c.jitter_ms), consumer, _ms(c.worst_gap_ms)))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return ["  " + "  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip()
+            for r in rows]
+
+
+def _node_events(res: InputResult) -> list[str]:
+    """EMCYs, SDO aborts and configuration written in the trace: context, not findings."""
+    start = res.stats.start or 0.0
+    events = sorted(((m, e) for m in res.nodes() for e in m.events), key=lambda me: me[1].idx)
+    out = [f"    {e.ts - start:10.6f} s  line {e.line or '-':<7} {m.channel} node {m.node}: "
+           f"{e.text}" for m, e in events[:MAX_EVENTS_SHOWN]]
+    if len(events) > MAX_EVENTS_SHOWN:
+        out.append(f"    … {len(events) - MAX_EVENTS_SHOWN} more (see --format json)")
+    return ["  node events (not findings):", *out] if out else []
+
+
 def render(results: list[InputResult], options: dict[str, object]) -> str:
     fail_on = str(options.get("fail_on", "error"))
     quiet = bool(options.get("quiet", False))
@@ -32,12 +69,8 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
         out += _input_line(res)
         start = res.stats.start or 0.0
         if not quiet:
-            nodes = res.nodes()
-            if nodes:
-                out.append("  nodes: " + "; ".join(
-                    f"{m.channel}/{m.node} {m.intervals[-1].state} ({m.error_control}"
-                    + (f", {m.period_s * 1000:.0f} ms" if m.period_s else "") + ")"
-                    for m in nodes))
+            out += _node_table(res)
+            out += _node_events(res)
         key = lambda f: (f.channel, -1 if f.node is None else f.node)  # noqa: E731
         for (channel, node), group in groupby(sorted(res.findings, key=key), key=key):
             out.append(f"  {channel} " + ("network" if node == -1 else f"node {node}") + ":")
@@ -48,15 +81,9 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
         out.append("")
     counts = summary(results)
     total = sum(counts.values())
-    failing = _failing(counts, fail_on)
+    failing = is_failing(results, fail_on)
     verdict = "FAIL" if failing else "PASS"
     out.append(f"{verdict}: {counts['error']} error(s), {counts['warning']} warning(s), "
                f"{counts['info']} info in {total} finding(s) (--fail-on {fail_on})")
     return "\n".join(out) + "\n"
 
-
-def _failing(counts: dict[str, int], fail_on: str) -> bool:
-    order = ["error", "warning", "info"]
-    if fail_on == "never":
-        return False
-    return any(counts[s] for s in order[: order.index(fail_on) + 1])

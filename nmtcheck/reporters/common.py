@@ -1,0 +1,200 @@
+"""What several reporters need alike: the verdict, the checked rules, grouped findings and
+per-node heartbeat statistics, computed once here so every format tells the same story."""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+from nmtcheck.checks import RULES
+from nmtcheck.checks.base import Rule
+from nmtcheck.engine import Finding, InputResult, summary
+from nmtcheck.timeline import NodeModel
+
+SEVERITY_ORDER = ("error", "warning", "info")
+# Rules whose findings may name no node (a CAN-ID or a frame on 000h belongs to the network):
+# their per-channel "network" test cases exist even when nothing fired. C001 never names one.
+NETWORK_RULES = ("C001", "C002")
+NETWORK_ONLY_RULES = ("C001",)
+
+
+def fail_on(options: dict[str, object]) -> str:
+    return str(options.get("fail_on", "error"))
+
+
+def is_failing_severity(severity: str, threshold: str) -> bool:
+    """True when a finding of `severity` makes the run fail under `--fail-on threshold`."""
+    if threshold == "never":
+        return False
+    return SEVERITY_ORDER.index(severity) <= SEVERITY_ORDER.index(threshold)
+
+
+def is_failing(results: list[InputResult], threshold: str) -> bool:
+    """The verdict the exit code gives: any finding at or above `--fail-on`."""
+    counts = summary(results)
+    return any(counts[s] for s in SEVERITY_ORDER if is_failing_severity(s, threshold))
+
+
+def checked_rules(options: dict[str, object]) -> list[tuple[Rule, str]]:
+    """The rules that ran, with their configured severity, in catalogue order.
+
+    The CLI passes `options["rules"]` ({code: severity}); without it (a library caller)
+    every rule at its default severity is assumed.
+    """
+    configured = options.get("rules")
+    if not isinstance(configured, dict):
+        return [(r, r.severity) for r in RULES]
+    return [(r, str(configured[r.code])) for r in RULES if r.code in configured]
+
+
+def duration(result: InputResult) -> float:
+    s = result.stats
+    return max((s.end or 0.0) - (s.start or 0.0), 0.0)
+
+
+def offset(result: InputResult, t: float) -> float:
+    """Seconds from the first frame of the recording: what people read on a time axis."""
+    return t - (result.stats.start or 0.0)
+
+
+def node_label(node: int | None) -> str:
+    return "network" if node is None else f"node {node}"
+
+
+@dataclass
+class FindingGroup:
+    """Repeated findings of one rule on one node of one channel: one row with a count."""
+
+    input: int
+    rule: str
+    name: str
+    severity: str
+    channel: str
+    node: int | None
+    findings: list[Finding] = field(default_factory=list)
+
+    @property
+    def count(self) -> int:
+        return len(self.findings)
+
+    @property
+    def first(self) -> Finding:
+        return self.findings[0]
+
+
+def group_findings(findings: Iterable[Finding]) -> list[FindingGroup]:
+    """Group by (input, channel, node, rule), in order of each group's first finding."""
+    groups: dict[tuple[int, str, int | None, str], FindingGroup] = {}
+    for f in findings:
+        key = (f.input, f.channel, f.node, f.rule)
+        g = groups.get(key)
+        if g is None:
+            g = groups[key] = FindingGroup(f.input, f.rule, f.name, f.severity, f.channel, f.node)
+        g.findings.append(f)
+    return sorted(groups.values(), key=lambda g: (g.input, g.first.time, g.rule))
+
+
+@dataclass
+class HeartbeatStats:
+    """Heartbeat intervals of one node in seconds (no interval across a boot-up or reset)."""
+
+    intervals: list[float]
+
+    @property
+    def count(self) -> int:
+        return len(self.intervals)
+
+    @property
+    def minimum(self) -> float | None:
+        return min(self.intervals) if self.intervals else None
+
+    @property
+    def median(self) -> float | None:
+        return float(statistics.median(self.intervals)) if self.intervals else None
+
+    @property
+    def maximum(self) -> float | None:
+        return max(self.intervals) if self.intervals else None
+
+    @property
+    def jitter(self) -> float | None:
+        """Population standard deviation: how far a typical interval strays from the mean."""
+        return float(statistics.pstdev(self.intervals)) if len(self.intervals) > 1 else None
+
+
+def heartbeat_stats(m: NodeModel) -> HeartbeatStats:
+    """The same intervals the timeline measures the period from (SPEC §2)."""
+    resets = sorted(c.ts for c in m.commands if c.is_reset)
+    intervals: list[float] = []
+    prev_ts: float | None = None
+    for f in m.ec:
+        if f.kind == "bootup":
+            prev_ts = None
+        elif f.kind == "heartbeat":
+            if prev_ts is not None and not any(prev_ts < r <= f.ts for r in resets):
+                intervals.append(f.ts - prev_ts)
+            prev_ts = f.ts
+    return HeartbeatStats(intervals)
+
+
+@dataclass
+class ConfiguredVsMeasured:
+    """What the network description / SDO writes configured, next to what the trace shows."""
+
+    producer_ms: float | None  # 1017h in force at the end of the trace (0: disabled by SDO)
+    consumer_ms: float | None  # smallest consumer time for this node
+    consumer_node: int | None
+    guard_time_ms: float | None
+    life_time_factor: int | None
+    median_ms: float | None
+    jitter_ms: float | None
+    worst_gap_ms: float | None
+
+
+def configured_vs_measured(m: NodeModel, end: float) -> ConfiguredVsMeasured:
+    cfg = m.config_at(end)
+    stats = heartbeat_stats(m)
+
+    def ms(x: float | None) -> float | None:
+        return None if x is None else round(x * 1000.0, 3)
+
+    return ConfiguredVsMeasured(cfg.heartbeat_ms, cfg.consumer_timeout_ms, cfg.consumer_node,
+                                cfg.guard_time_ms, cfg.life_time_factor, ms(stats.median),
+                                ms(stats.jitter), ms(stats.maximum))
+
+
+def resets(m: NodeModel) -> int:
+    """Reset node / reset communication commands that reached the node (direct or broadcast)."""
+    return sum(1 for c in m.commands if c.is_reset)
+
+
+def final_state(m: NodeModel) -> str:
+    return m.intervals[-1].state if m.intervals else "UNKNOWN"
+
+
+def nodes_by_channel(result: InputResult, always_network: bool = False
+                     ) -> dict[str, list[int | None]]:
+    """Every node of each channel that has a model or a finding, in order; `None` (the
+    network) last when the channel has node-less findings, or always if asked."""
+    out: dict[str, set[int]] = {name: set() for name in result.stats.channels}
+    network: set[str] = set()
+    for m in result.nodes():
+        out.setdefault(m.channel, set()).add(m.node)
+    for f in result.findings:
+        if f.node is None:
+            network.add(f.channel)
+        else:
+            out.setdefault(f.channel, set()).add(f.node)
+    return {ch: [*sorted(nodes), *([None] if always_network or ch in network else [])]
+            for ch, nodes in out.items()}
+
+
+def plural(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
+def counts_phrase(counts: dict[str, int]) -> str:
+    """'1 error, 2 warnings, 0 info' — the summary line every format shares."""
+    return (f"{plural(counts['error'], 'error')}, {plural(counts['warning'], 'warning')}, "
+            f"{counts['info']} info")

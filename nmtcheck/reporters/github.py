@@ -1,0 +1,41 @@
+"""GitHub Actions workflow commands: each finding becomes an annotation on the log's line.
+
+`--format auto` picks this under Actions (GITHUB_ACTIONS=true). A plain verdict
+line follows so the job log still reads on its own.
+"""
+
+from __future__ import annotations
+
+from nmtcheck.engine import InputResult, summary
+from nmtcheck.reporters.common import counts_phrase, fail_on, is_failing, node_label, offset
+
+COMMANDS = {"error": "error", "warning": "warning", "info": "notice"}
+
+
+def escape_data(text: str) -> str:
+    """The message part of a workflow command (GitHub's toolkit escaping)."""
+    return text.replace("%", "%25").replace("\r", "%0D").replace("\n", "%0A")
+
+
+def escape_property(text: str) -> str:
+    """A `key=value` property: also `:` and `,`, which would end the value."""
+    return escape_data(text).replace(":", "%3A").replace(",", "%2C")
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    lines = []
+    for res in results:
+        for f in res.findings:
+            props = [f"file={escape_property(res.stats.path)}"]
+            if f.line:
+                props.append(f"line={f.line}")
+            title = f"{f.rule} {f.name} ({f.channel} {node_label(f.node)})"
+            props.append(f"title={escape_property(title)}")
+            message = f"{f.message} [at {offset(res, f.time):.3f} s]"
+            lines.append(f"::{COMMANDS[f.severity]} {','.join(props)}::{escape_data(message)}")
+    threshold = fail_on(options)
+    verdict = "FAIL" if is_failing(results, threshold) else "PASS"
+    inputs = len(results)
+    lines.append(f"nmtcheck {verdict}: {counts_phrase(summary(results))} in "
+                 f"{inputs} input{'s' if inputs != 1 else ''} (--fail-on {threshold})")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,232 @@
+"""A self-contained HTML report for people who never run the tool.
+
+One file with inline CSS, JavaScript and SVG (a Content-Security-Policy forbids
+any network access, so it opens the same on an offline field laptop). It
+carries the state intervals and findings, never frames, so it stays small for
+huge logs: repeated findings of one rule on one node are one table row with a
+count, and at most `MAX_OCCURRENCES` of them become timeline markers.
+Rendered from the Jinja2 template `templates/report.html.j2` (package data).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+import statistics
+from datetime import datetime, timezone
+from functools import cache
+from importlib import resources
+from typing import Any
+
+import jinja2
+from markupsafe import Markup
+
+from nmtcheck import __version__
+from nmtcheck.engine import InputResult
+from nmtcheck.reporters.common import (
+    SEVERITY_ORDER,
+    FindingGroup,
+    checked_rules,
+    duration,
+    fail_on,
+    group_findings,
+    heartbeat_stats,
+    is_failing,
+    node_label,
+    nodes_by_channel,
+    offset,
+    resets,
+)
+from nmtcheck.reporters.json import report_dict
+from nmtcheck.timeline import STATES, NodeModel
+
+# Colours of the NMT states on the timeline and in the legend (colour-blind safe-ish:
+# the fault states are the dark/saturated ones, and wide intervals carry their name).
+STATE_COLORS = {
+    "UNKNOWN": "#d9d9d9",
+    "INITIALISING": "#f1c232",
+    "PRE-OPERATIONAL": "#6fa8dc",
+    "OPERATIONAL": "#6aa84f",
+    "STOPPED": "#8e7cc3",
+    "OFFLINE": "#cc4125",
+}
+SEVERITY_COLORS = {"error": "#b3261e", "warning": "#e69138", "info": "#3d85c6"}
+SOURCES = ("start", "bootup", "heartbeat", "guarding", "command", "timeout")
+MAX_OCCURRENCES = 200  # per finding group: markers and listed messages; the count says the rest
+HISTOGRAM_BINS = 24
+TEMPLATE = "report.html.j2"
+
+
+@cache
+def _environment() -> jinja2.Environment:
+    return jinja2.Environment(loader=jinja2.PackageLoader("nmtcheck.reporters", "templates"),
+                              autoescape=True, trim_blocks=True, lstrip_blocks=True,
+                              undefined=jinja2.StrictUndefined)
+
+
+def _asset(name: str) -> str:
+    return (resources.files("nmtcheck.reporters") / "templates" / name).read_text("utf-8")
+
+
+def script_json(data: object) -> Markup:
+    """JSON safe inside <script>: no `</script>`, `<!--` or `&` can end or confuse it."""
+    text = json.dumps(data, separators=(",", ":"), ensure_ascii=False)
+    return Markup(text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
+
+
+_INLINE = [(re.compile(r"\*\*(.+?)\*\*"), r"<strong>\1</strong>"),
+           (re.compile(r"`([^`]+)`"), r"<code>\1</code>")]
+
+
+def doc_html(doc: str) -> Markup:
+    """The rule docs' small Markdown subset (paragraphs, `- ` lists, **bold**, `code`)."""
+    parts = []
+    for block in re.split(r"\n\s*\n", doc.strip()):
+        lines = block.splitlines()
+        if all(line.lstrip().startswith("- ") for line in lines):
+            items = [_inline(line.lstrip()[2:]) for line in lines]
+            parts.append("<ul>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>")
+        else:
+            parts.append(f"<p>{_inline(' '.join(line.strip() for line in lines))}</p>")
+    return Markup("\n".join(parts))
+
+
+def _inline(text: str) -> str:
+    text = html.escape(text, quote=False)
+    for pattern, repl in _INLINE:
+        text = pattern.sub(repl, text)
+    return text
+
+
+def _r(x: float) -> float:
+    return round(float(x), 6)
+
+
+def timeline_id(res: InputResult, channel: str) -> str:
+    """An HTML id safe for any channel name (MCAP topics have slashes): numbers only."""
+    channels = res.stats.channels
+    return f"tl-{res.index}-{channels.index(channel) if channel in channels else channel}"
+
+
+def _group_view(res: InputResult, g: FindingGroup, gid: str) -> dict[str, Any]:
+    shown = g.findings[:MAX_OCCURRENCES]
+    f = g.first
+    return {
+        "id": gid, "input": g.input, "path": res.stats.path, "rule": g.rule, "name": g.name,
+        "severity": g.severity, "severity_rank": SEVERITY_ORDER.index(g.severity),
+        "channel": g.channel, "node": g.node, "where": node_label(g.node),
+        "node_key": f"{g.input}/{g.channel}/{'' if g.node is None else g.node}",
+        "count": g.count, "time": _r(offset(res, f.time)), "line": f.line or None,
+        "message": f.message, "timeline": timeline_id(res, g.channel),
+        "occurrences": [{"time": _r(offset(res, o.time)), "line": o.line or None,
+                         "message": o.message} for o in shown],
+        "hidden": g.count - len(shown),
+    }
+
+
+def _histogram(intervals: list[float]) -> dict[str, Any] | None:
+    """Bin heartbeat intervals for a small inline SVG bar chart (ms on the x axis).
+
+    Gaps longer than twice the median (a lost heartbeat) would squash every normal
+    interval into one bar: they are counted in a separate overflow bar instead.
+    """
+    if not intervals:
+        return None
+    lo = min(intervals)
+    limit = 2 * float(statistics.median(intervals))
+    hi = min(max(intervals), limit)
+    normal = [x for x in intervals if x <= hi]
+    overflow = len(intervals) - len(normal)
+    span = hi - lo
+    bins = [0] * (HISTOGRAM_BINS if span > 1e-9 else 1)
+    for x in normal:
+        i = 0 if span <= 1e-9 else min(int((x - lo) / span * len(bins)), len(bins) - 1)
+        bins[i] += 1
+    peak = max(*bins, overflow)
+    return {"lo_ms": lo * 1000, "hi_ms": hi * 1000, "bins": bins, "peak": peak,
+            "heights": [b / peak for b in bins], "overflow": overflow,
+            "overflow_height": overflow / peak, "max_ms": max(intervals) * 1000}
+
+
+def _node_view(entry: dict[str, Any], m: NodeModel) -> dict[str, Any]:
+    """The JSON report's node entry plus what a person wants to see of its heartbeats."""
+    hb = heartbeat_stats(m)
+
+    def ms(seconds: float | None) -> float | None:
+        return None if seconds is None else seconds * 1000
+
+    return {
+        **entry, "period_ms": entry["heartbeat_period_ms"], "period_source": m.period_source,
+        "heartbeats": len(m.heartbeats), "intervals": hb.count, "min_ms": ms(hb.minimum),
+        "median_ms": ms(hb.median), "max_ms": ms(hb.maximum), "jitter_ms": ms(hb.jitter),
+        "resets": resets(m), "histogram": _histogram(hb.intervals),
+    }
+
+
+def report_context(results: list[InputResult], options: dict[str, object]) -> dict[str, Any]:
+    """Everything the template shows; the timeline part also goes to the page as JSON.
+
+    Inputs, nodes and state intervals come from the JSON report (`report_dict`), so the
+    page and `--format json` can never disagree.
+    """
+    threshold = fail_on(options)
+    report = report_dict(results, options)
+    inputs = [{**entry, "index": i, "duration": duration(res), "findings": len(res.findings)}
+              for i, (entry, res) in enumerate(zip(report["inputs"], results, strict=True))]
+    intervals: dict[tuple[int, str, int], list[list[float | int]]] = {}
+    for iv in report["timeline"]:
+        begin = inputs[iv["input"]]["start"]
+        intervals.setdefault((iv["input"], iv["channel"], iv["node"]), []).append(
+            [_r(iv["start"] - begin), _r(iv["end"] - begin), STATES.index(iv["state"]),
+             SOURCES.index(iv["source"])])
+    models = {(res.index, m.channel, m.node): m for res in results for m in res.nodes()}
+    nodes = [_node_view(entry, models[(entry["input"], entry["channel"], entry["node"])])
+             for entry in report["nodes"]]
+    groups: list[dict[str, Any]] = []
+    timelines = []
+    for res in results:
+        res_groups = [_group_view(res, g, f"g{len(groups) + i}")
+                      for i, g in enumerate(group_findings(res.findings))]
+        groups += res_groups
+        for channel, channel_nodes in nodes_by_channel(res).items():
+            rows = []
+            for node in channel_nodes:
+                marks = [[o["time"], g["id"], k] for g in res_groups
+                         if g["channel"] == channel and g["node"] == node
+                         for k, o in enumerate(g["occurrences"])]
+                rows.append({"node": node, "label": node_label(node), "marks": sorted(marks),
+                             "iv": [] if node is None
+                             else intervals.get((res.index, channel, node), [])})
+            timelines.append({"id": timeline_id(res, channel), "input": res.index,
+                              "path": res.stats.path, "channel": channel,
+                              "duration": _r(duration(res)), "rows": rows})
+    rules = [{"code": r.code, "name": r.name, "severity": sev, "summary": r.summary,
+              "doc": doc_html(r.doc), "findings": sum(1 for res in results
+                                                      for f in res.findings if f.rule == r.code)}
+             for r, sev in checked_rules(options)]
+    page_data = {
+        "states": list(STATES), "sources": list(SOURCES), "stateColors": STATE_COLORS,
+        "severityColors": SEVERITY_COLORS, "timelines": timelines,
+        "groups": {g["id"]: {k: g[k] for k in ("rule", "name", "severity", "where", "channel",
+                                               "count", "occurrences", "timeline")}
+                   for g in groups},
+    }
+    return {
+        "version": __version__,
+        "generated": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
+        "fail_on": threshold, "failing": is_failing(results, threshold),
+        "counts": report["summary"],
+        "inputs": inputs, "timelines": timelines, "groups": groups, "nodes": nodes,
+        "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
+        "several_inputs": len(results) > 1,
+        "rule_options": sorted({g["rule"] for g in groups}),
+        "node_options": sorted({(g["input"], g["channel"], -1 if g["node"] is None else g["node"],
+                                 g["node_key"], g["where"]) for g in groups}),
+        "page_data": script_json(page_data),
+        "css": Markup(_asset("report.css")), "js": Markup(_asset("report.js")),
+    }
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    return _environment().get_template(TEMPLATE).render(report_context(results, options))

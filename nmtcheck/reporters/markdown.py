@@ -1,0 +1,81 @@
+"""A Markdown summary for `$GITHUB_STEP_SUMMARY` or a merge-request comment.
+
+Short on purpose: the verdict, one line per input, the findings grouped per
+rule and node (with a count), and the nodes folded away in `<details>`.
+"""
+
+from __future__ import annotations
+
+from nmtcheck.engine import InputResult, summary
+from nmtcheck.reporters.common import (
+    counts_phrase,
+    duration,
+    fail_on,
+    final_state,
+    group_findings,
+    heartbeat_stats,
+    is_failing,
+    node_label,
+    offset,
+    resets,
+)
+
+MAX_GROUPS = 50  # a comment people read, not the full report: the rest is counted
+
+
+def cell(text: object) -> str:
+    """Table cell text: a pipe or a newline would break the row, `<` could start HTML."""
+    return (str(text).replace("\\", "\\\\").replace("|", "\\|").replace("<", "&lt;")
+            .replace("\r", " ").replace("\n", " "))
+
+
+def _ms(seconds: float | None) -> str:
+    return "–" if seconds is None else f"{seconds * 1000:.1f}"
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    threshold = fail_on(options)
+    failing = is_failing(results, threshold)
+    counts = summary(results)
+    out = [f"## nmtcheck: {'❌ FAIL' if failing else '✅ PASS'}", "",
+           f"**{counts_phrase(counts)}** (`--fail-on {threshold}`)", "",
+           "| input | format | frames | duration | skipped records | error frames | findings |",
+           "|---|---|---:|---:|---:|---:|---:|"]
+    for res in results:
+        s = res.stats
+        out.append(f"| `{cell(s.path)}` | {s.format} | {s.frames} | {duration(res):.3f} s | "
+                   f"{s.skipped} | {s.error_frames} | {len(res.findings)} |")
+    groups = [g for res in results for g in group_findings(res.findings)]
+    out += ["", "### Findings", ""]
+    if not groups:
+        out.append("No findings.")
+    else:
+        several = len(results) > 1
+        out += ["| severity | rule | " + ("input | " if several else "")
+                + "where | first at | line | count | message |",
+                "|---|---|" + ("---|" if several else "") + "---|---:|---:|---:|---|"]
+        for g in groups[:MAX_GROUPS]:
+            res = results[g.input]
+            f = g.first
+            out.append(f"| {g.severity} | {g.rule} {g.name} | "
+                       + (f"`{cell(res.stats.path)}` | " if several else "")
+                       + f"{cell(g.channel)} {node_label(g.node)} | "
+                       f"{offset(res, f.time):.3f} s | {f.line or '–'} | {g.count} | "
+                       f"{cell(f.message)} |")
+        if len(groups) > MAX_GROUPS:
+            rest = sum(g.count for g in groups[MAX_GROUPS:])
+            out += ["", f"… and {rest} more finding(s) in {len(groups) - MAX_GROUPS} more "
+                        "group(s): see the full report."]
+    out += ["", "<details><summary>Nodes</summary>", "",
+            "| input | channel | node | error control | heartbeat median (ms) | min | max "
+            "| boot-ups | resets | final state |",
+            "|---|---|---:|---|---:|---:|---:|---:|---:|---|"]
+    for res in results:
+        for m in res.nodes():
+            hb = heartbeat_stats(m)
+            out.append(f"| `{cell(res.stats.path)}` | {cell(m.channel)} | {m.node} | "
+                       f"{m.error_control} | {_ms(hb.median)} | {_ms(hb.minimum)} | "
+                       f"{_ms(hb.maximum)} | {len(m.bootups)} | {resets(m)} | "
+                       f"{final_state(m)} |")
+    out += ["", "</details>", ""]
+    return "\n".join(out)

@@ -1,0 +1,102 @@
+"""SARIF 2.1.0 for code-scanning tools: one result per finding, the log file as the artifact.
+
+Text logs (candump, ASC) point each result at the frame's line, so GitHub code
+scanning and IDE SARIF viewers open the log at the spot. Rules carry their full
+documentation as help text.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import PurePath
+from typing import Any
+
+from nmtcheck import __version__
+from nmtcheck.checks.base import Rule
+from nmtcheck.engine import InputResult
+from nmtcheck.reporters.common import checked_rules, offset
+
+SCHEMA_URI = "https://json.schemastore.org/sarif-2.1.0.json"
+LEVELS = {"error": "error", "warning": "warning", "info": "note"}
+SRCROOT = "%SRCROOT%"
+
+
+def artifact_location(path: str) -> dict[str, Any]:
+    """Relative paths stay relative to the checkout (code scanning needs that); absolute
+    ones become file URIs."""
+    p = PurePath(path)
+    if p.is_absolute():
+        return {"uri": p.as_uri()}
+    return {"uri": p.as_posix(), "uriBaseId": SRCROOT}
+
+
+def rule_descriptor(rule: Rule, severity: str) -> dict[str, Any]:
+    return {
+        "id": rule.code,
+        "name": rule.name,
+        "shortDescription": {"text": rule.summary},
+        "fullDescription": {"text": rule.doc},
+        "help": {"text": rule.doc, "markdown": rule.doc},
+        "defaultConfiguration": {"level": LEVELS[severity]},
+        "properties": {"tags": ["canopen", "nmt", "cia301"], "nmtcheckSeverity": severity},
+    }
+
+
+def sarif_log(results: list[InputResult], options: dict[str, object]) -> dict[str, Any]:
+    rules = checked_rules(options)
+    rule_index = {r.code: i for i, (r, _s) in enumerate(rules)}
+    descriptors = [rule_descriptor(r, s) for r, s in rules]
+    artifacts = []
+    for res in results:
+        s = res.stats
+        artifacts.append({
+            "location": artifact_location(s.path),
+            "roles": ["analysisTarget"],
+            "properties": {"format": s.format, "frames": s.frames, "skipped": s.skipped,
+                           "errorFrames": s.error_frames, "channels": s.channels,
+                           "start": s.start, "end": s.end},
+        })
+    out_results = []
+    for res in results:
+        for f in res.findings:
+            physical: dict[str, Any] = {
+                "artifactLocation": {**artifact_location(res.stats.path), "index": res.index}}
+            if f.line:
+                physical["region"] = {"startLine": f.line}
+            result: dict[str, Any] = {
+                "ruleId": f.rule,
+                "level": LEVELS[f.severity],
+                "message": {"text": f.message},
+                "locations": [{
+                    "physicalLocation": physical,
+                    "logicalLocations": [{
+                        "name": "network" if f.node is None else f"node {f.node}",
+                        "fullyQualifiedName": f"{f.channel}/"
+                                              + ("network" if f.node is None else f"{f.node}"),
+                        "kind": "module",
+                    }],
+                }],
+                "properties": {"channel": f.channel, "node": f.node, "time": f.time,
+                               "offsetSeconds": round(offset(res, f.time), 6),
+                               "frameIndex": f.frame_index, "severity": f.severity},
+            }
+            if f.rule in rule_index:
+                result["ruleIndex"] = rule_index[f.rule]
+            out_results.append(result)
+    return {
+        "$schema": SCHEMA_URI,
+        "version": "2.1.0",
+        "runs": [{
+            "tool": {"driver": {"name": "nmtcheck", "version": __version__,
+                                "semanticVersion": __version__, "rules": descriptors}},
+            "originalUriBaseIds": {SRCROOT: {"description": {
+                "text": "The directory nmtcheck was run from."}}},
+            "artifacts": artifacts,
+            "results": out_results,
+            "columnKind": "unicodeCodePoints",
+        }],
+    }
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    return json.dumps(sarif_log(results, options), indent=2) + "\n"

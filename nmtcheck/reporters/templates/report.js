@@ -1,0 +1,317 @@
+/* nmtcheck report: timelines (SVG, zoom and pan), sortable and filterable findings.
+   No dependencies and no network: everything comes from the JSON in #report-data. */
+(function () {
+  "use strict";
+  var data = JSON.parse(document.getElementById("report-data").textContent);
+  var SVGNS = "http://www.w3.org/2000/svg";
+  // Row layout: a marker lane above each state bar; the time axis on top.
+  var LABEL_W = 110, PAD_R = 16, AXIS_H = 26, ROW_H = 32, MARK_H = 9, BAR_H = 18, BOTTOM = 4;
+  var MIN_SPAN = 1e-4;  // 0.1 ms: below the resolution of any CAN log
+  var DARK_STATES = { "OFFLINE": true, "STOPPED": true };
+  var timelines = {};
+
+  function el(name, attrs, parent, text) {
+    var node = document.createElementNS(SVGNS, name);
+    for (var key in attrs) {
+      if (Object.prototype.hasOwnProperty.call(attrs, key)) { node.setAttribute(key, attrs[key]); }
+    }
+    if (text !== undefined) { node.textContent = text; }
+    if (parent) { parent.appendChild(node); }
+    return node;
+  }
+
+  function niceStep(span, count) {
+    var raw = span / Math.max(count, 1);
+    var power = Math.pow(10, Math.floor(Math.log10(raw)));
+    var steps = [1, 2, 5, 10];
+    for (var i = 0; i < steps.length; i++) {
+      if (steps[i] * power >= raw) { return steps[i] * power; }
+    }
+    return 10 * power;
+  }
+
+  function decimalsFor(step) {
+    return Math.max(0, Math.min(6, -Math.floor(Math.log10(step) + 1e-9)));
+  }
+
+  function Timeline(figure, spec) {
+    this.figure = figure;
+    this.spec = spec;
+    this.svg = figure.querySelector("svg.tl-svg");
+    this.total = Math.max(spec.duration, 1e-3);
+    this.v0 = 0;
+    this.v1 = this.total;
+    this.focus = null;
+    this.bind();
+    this.render();
+  }
+
+  Timeline.prototype.plotWidth = function () {
+    var width = this.svg.getBoundingClientRect().width || 900;
+    return Math.max(width, 360) - LABEL_W - PAD_R;
+  };
+
+  Timeline.prototype.x = function (t) {
+    return LABEL_W + (t - this.v0) / (this.v1 - this.v0) * this.plotW;
+  };
+
+  Timeline.prototype.timeAt = function (clientX) {
+    var left = this.svg.getBoundingClientRect().left;
+    return this.v0 + (clientX - left - LABEL_W) / this.plotW * (this.v1 - this.v0);
+  };
+
+  Timeline.prototype.setView = function (v0, v1) {
+    var span = Math.min(Math.max(v1 - v0, MIN_SPAN), this.total);
+    v0 = Math.min(Math.max(v0, 0), this.total - span);
+    this.v0 = v0;
+    this.v1 = v0 + span;
+    this.scheduleRender();
+  };
+
+  Timeline.prototype.zoom = function (factor, center) {
+    if (center === undefined) { center = (this.v0 + this.v1) / 2; }
+    this.setView(center - (center - this.v0) * factor, center + (this.v1 - center) * factor);
+  };
+
+  Timeline.prototype.scheduleRender = function () {
+    var self = this;
+    if (this.pending) { return; }
+    this.pending = true;
+    window.requestAnimationFrame(function () { self.pending = false; self.render(); });
+  };
+
+  Timeline.prototype.render = function () {
+    var spec = this.spec, svg = this.svg, self = this;
+    this.plotW = this.plotWidth();
+    var width = LABEL_W + this.plotW + PAD_R;
+    var height = AXIS_H + spec.rows.length * ROW_H + BOTTOM;
+    while (svg.firstChild) { svg.removeChild(svg.firstChild); }
+    svg.setAttribute("viewBox", "0 0 " + width + " " + height);
+    svg.setAttribute("height", height);
+    svg.dataset.viewStart = this.v0;
+    svg.dataset.viewEnd = this.v1;
+    svg.dataset.plotX = LABEL_W;
+    svg.dataset.plotWidth = this.plotW;
+    var clipId = spec.id + "-clip";
+    var defs = el("defs", {}, svg);
+    el("rect", { x: LABEL_W, y: 0, width: this.plotW, height: height }, el("clipPath", { id: clipId }, defs));
+
+    // Time axis: "nice" steps of 1, 2 or 5 x 10^k seconds, about one label per 90 px.
+    var step = niceStep(this.v1 - this.v0, this.plotW / 90);
+    var decimals = decimalsFor(step);
+    var axis = el("g", { "class": "axis" }, svg);
+    for (var t = Math.ceil(this.v0 / step - 1e-9) * step; t <= this.v1 + 1e-12; t += step) {
+      var tx = this.x(t);
+      el("line", { "class": "grid", x1: tx, x2: tx, y1: AXIS_H, y2: height - BOTTOM }, axis);
+      el("text", { "class": "tick-label", x: tx, y: AXIS_H - 9, "text-anchor": "middle" }, axis,
+         t.toFixed(decimals));
+    }
+    el("text", { "class": "tick-label", x: 8, y: AXIS_H - 9 }, axis, "time (s)");
+    el("line", { "class": "axis-line", x1: LABEL_W, x2: LABEL_W + this.plotW, y1: AXIS_H - 0.5,
+                 y2: AXIS_H - 0.5 }, axis);
+
+    spec.rows.forEach(function (row, i) {
+      var y0 = AXIS_H + i * ROW_H;
+      var barY = y0 + MARK_H + 2;
+      var g = el("g", { "class": "tl-row", "data-channel": spec.channel,
+                        "data-node": row.node === null ? "network" : row.node,
+                        "data-bar-y": barY, "data-bar-h": BAR_H }, svg);
+      el("rect", { "class": "row-bg" + (i % 2 ? " alt" : ""), x: 0, y: y0, width: width,
+                   height: ROW_H }, g);
+      el("text", { "class": "row-label", x: 10, y: barY + 13 }, g, row.label);
+      var bars = el("g", { "clip-path": "url(#" + clipId + ")" }, g);
+      var lastEnd = -Infinity;
+      row.iv.forEach(function (iv) {
+        if (iv[1] < self.v0 || iv[0] > self.v1) { return; }
+        var x0 = Math.max(self.x(iv[0]), LABEL_W - 1);
+        var x1 = Math.min(self.x(iv[1]), LABEL_W + self.plotW + 1);
+        if (x1 - x0 < 0.5 && x0 < lastEnd + 0.5) { return; }  // sub-pixel: one per pixel
+        lastEnd = x1;
+        var state = data.states[iv[2]];
+        var rect = el("rect", { "class": "iv", x: x0, y: barY, width: Math.max(x1 - x0, 0.5),
+                                height: BAR_H, fill: data.stateColors[state], "data-state": state,
+                                "data-start": iv[0], "data-end": iv[1] }, bars);
+        el("title", {}, rect, state + "  " + iv[0].toFixed(6) + " – " + iv[1].toFixed(6) +
+           " s (" + data.sources[iv[3]] + ")");
+        if (x1 - x0 > state.length * 6.3 + 10) {
+          var lx = (Math.max(x0, LABEL_W) + Math.min(x1, LABEL_W + self.plotW)) / 2;
+          el("text", { "class": "iv-label" + (DARK_STATES[state] ? " dark" : ""), x: lx,
+                       y: barY + 13, "text-anchor": "middle" }, bars, state);
+        }
+      });
+      row.marks.forEach(function (mark) {
+        var t = mark[0], group = data.groups[mark[1]], k = mark[2];
+        if (t < self.v0 || t > self.v1) { return; }
+        var mx = self.x(t);
+        var color = data.severityColors[group.severity];
+        var focused = self.focus && self.focus.group === mark[1] && self.focus.k === k;
+        el("line", { x1: mx, x2: mx, y1: y0 + MARK_H, y2: barY + BAR_H, stroke: color,
+                     "stroke-width": focused ? 2 : 1.2, "pointer-events": "none" }, g);
+        var tri = el("polygon", { "class": "marker" + (focused ? " focus" : ""),
+                                  points: (mx - 5.5) + "," + (y0 + 1) + " " + (mx + 5.5) + "," +
+                                          (y0 + 1) + " " + mx + "," + (y0 + MARK_H + 1),
+                                  fill: color, "data-group": mark[1], "data-occurrence": k }, g);
+        var occ = group.occurrences[k];
+        el("title", {}, tri, group.rule + " " + group.name + " (" + group.severity + ") · " +
+           group.where + " · " + t.toFixed(6) + " s" +
+           (group.count > 1 ? " · " + (k + 1) + " of " + group.count : "") +
+           (occ.line ? " · line " + occ.line : "") + "\n" + occ.message);
+      });
+    });
+    var range = this.figure.querySelector(".tl-range");
+    if (range) {
+      range.textContent = this.v0.toFixed(decimals) + " – " + this.v1.toFixed(decimals) + " s of " +
+                          this.total.toFixed(3) + " s";
+    }
+  };
+
+  Timeline.prototype.bind = function () {
+    var self = this, svg = this.svg, drag = null;
+    svg.addEventListener("wheel", function (e) {
+      var t = self.timeAt(e.clientX);
+      if (t < self.v0 || t > self.v1) { return; }  // over the labels: let the page scroll
+      e.preventDefault();
+      self.zoom(e.deltaY < 0 ? 1 / 1.3 : 1.3, t);
+    }, { passive: false });
+    svg.addEventListener("pointerdown", function (e) {
+      drag = { x: e.clientX, v0: self.v0, v1: self.v1, moved: false, id: e.pointerId };
+    });
+    svg.addEventListener("pointermove", function (e) {
+      if (!drag) { return; }
+      var dx = e.clientX - drag.x;
+      if (!drag.moved && Math.abs(dx) > 3) {
+        drag.moved = true;
+        svg.setPointerCapture(drag.id);
+        svg.classList.add("dragging");
+      }
+      if (drag.moved) {
+        var dt = -dx / self.plotW * (drag.v1 - drag.v0);
+        self.setView(drag.v0 + dt, drag.v1 + dt);
+      }
+    });
+    function endDrag() {
+      if (drag && drag.moved) { svg.classList.remove("dragging"); }
+      window.setTimeout(function () { drag = null; }, 0);
+    }
+    svg.addEventListener("pointerup", endDrag);
+    svg.addEventListener("pointercancel", endDrag);
+    svg.addEventListener("dblclick", function () { self.setView(0, self.total); });
+    svg.addEventListener("click", function (e) {
+      if (drag && drag.moved) { return; }
+      var marker = e.target.closest ? e.target.closest(".marker") : null;
+      if (marker) { showFinding(marker.getAttribute("data-group")); }
+    });
+    this.figure.querySelectorAll("button[data-zoom]").forEach(function (button) {
+      button.addEventListener("click", function () {
+        var how = button.getAttribute("data-zoom");
+        if (how === "fit") { self.setView(0, self.total); } else { self.zoom(how === "in" ? 0.5 : 2); }
+      });
+    });
+  };
+
+  /* Zoom to a finding's moment (a window of an eighth of the recording, or the current
+     one if that is narrower) and mark it. */
+  Timeline.prototype.showMoment = function (groupId, k) {
+    var t = data.groups[groupId].occurrences[k].time;
+    var span = Math.min(this.v1 - this.v0, Math.max(this.total / 8, 0.01));
+    this.focus = { group: groupId, k: k };
+    this.setView(t - span / 2, t + span / 2);
+    this.figure.scrollIntoView({ block: "center" });
+  };
+
+  function showFinding(groupId) {
+    var row = document.getElementById("finding-" + groupId);
+    if (!row) { return; }
+    if (row.hidden) { resetFilters(); }
+    row.scrollIntoView({ block: "center" });
+    row.classList.add("flash");
+    window.setTimeout(function () { row.classList.remove("flash"); }, 1600);
+  }
+
+  /* Findings table: filters by rule, node, severity and text; sort by any header. */
+  var table = document.getElementById("findings-table");
+  var filterIds = ["filter-rule", "filter-node", "filter-severity", "filter-text"];
+
+  function applyFilters() {
+    if (!table) { return; }
+    var rule = document.getElementById("filter-rule").value;
+    var node = document.getElementById("filter-node").value;
+    var severity = document.getElementById("filter-severity").value;
+    var text = document.getElementById("filter-text").value.trim().toLowerCase();
+    var rows = table.tBodies[0].rows, shown = 0;
+    for (var i = 0; i < rows.length; i++) {
+      var r = rows[i];
+      var ok = (!rule || r.dataset.rule === rule) && (!node || r.dataset.node === node) &&
+               (!severity || r.dataset.severity === severity) &&
+               (!text || r.textContent.toLowerCase().indexOf(text) >= 0);
+      r.hidden = !ok;
+      if (ok) { shown++; }
+    }
+    document.getElementById("filter-count").textContent = shown + " of " + rows.length + " rows";
+  }
+
+  function resetFilters() {
+    filterIds.forEach(function (id) { document.getElementById(id).value = ""; });
+    applyFilters();
+  }
+
+  function sortBy(th) {
+    var key = "sort" + th.dataset.sort.charAt(0).toUpperCase() + th.dataset.sort.slice(1);
+    var ascending = th.getAttribute("aria-sort") !== "ascending";
+    table.querySelectorAll("th.sort").forEach(function (h) { h.removeAttribute("aria-sort"); });
+    th.setAttribute("aria-sort", ascending ? "ascending" : "descending");
+    var body = table.tBodies[0];
+    var rows = Array.prototype.slice.call(body.rows);
+    var numeric = rows.every(function (r) { return r.dataset[key] !== "" && !isNaN(Number(r.dataset[key])); });
+    rows.sort(function (a, b) {
+      var x = a.dataset[key], y = b.dataset[key];
+      var c = numeric ? Number(x) - Number(y) : x.localeCompare(y);
+      return ascending ? c : -c;
+    });
+    rows.forEach(function (r) { body.appendChild(r); });
+  }
+
+  if (table) {
+    filterIds.forEach(function (id) {
+      var input = document.getElementById(id);
+      input.addEventListener(input.tagName === "SELECT" ? "change" : "input", applyFilters);
+    });
+    table.querySelectorAll("th.sort").forEach(function (th) {
+      th.addEventListener("click", function () { sortBy(th); });
+    });
+  }
+
+  document.addEventListener("click", function (e) {
+    var link = e.target.closest ? e.target.closest("a.jump, a.rule-link") : null;
+    if (!link) { return; }
+    if (link.classList.contains("rule-link")) {
+      var details = document.getElementById(link.getAttribute("href").slice(1));
+      if (details) { details.open = true; }
+      return;
+    }
+    var groupId = link.getAttribute("data-jump");
+    var timeline = timelines[data.groups[groupId].timeline];
+    if (timeline) {
+      e.preventDefault();
+      timeline.showMoment(groupId, Number(link.getAttribute("data-occurrence")));
+    }
+  });
+
+  function openRuleFromHash() {
+    if (location.hash.indexOf("#rule-") === 0) {
+      var details = document.getElementById(location.hash.slice(1));
+      if (details) { details.open = true; }
+    }
+  }
+
+  data.timelines.forEach(function (spec) {
+    var figure = document.getElementById(spec.id);
+    if (figure && figure.querySelector("svg.tl-svg")) { timelines[spec.id] = new Timeline(figure, spec); }
+  });
+  window.addEventListener("resize", function () {
+    Object.keys(timelines).forEach(function (id) { timelines[id].scheduleRender(); });
+  });
+  window.addEventListener("hashchange", openRuleFromHash);
+  openRuleFromHash();
+  window.nmtReport = { timelines: timelines, applyFilters: applyFilters, data: data };
+}());
