@@ -115,3 +115,23 @@ def test_emcy_and_segmented_download_are_node_events(checker) -> None:  # type: 
     assert events[0].text.startswith("EMCY 8130h life guard error or heartbeat error")
     assert "error register 11h (generic, communication)" in events[0].text
     assert "not applied" in events[2].text
+
+
+def test_pdo_moved_by_sdo_is_attributed_to_its_node(checker) -> None:  # type: ignore[no-untyped-def]
+    """Node 2's TPDO1 moved to 1A2h (the default TPDO1 ID of node 34): frames on 1A2h while
+    node 2 is pre-operational are its S001; frames on its old 182h are nobody's."""
+    fr = [(0.0, "702#00")] + write(2, 0.05, 0x1800, 1, 0x1A2, size=4)
+    fr += hb(2, 0.1, 2.0, 0.1)
+    fr += [(0.5, "1A2#0102"), (0.6, "1A2#0102"), (0.7, "182#0102")]
+    assert checker.findings(candump(sorted(fr)), select="S001") == [("S001", 2, 0.5)]
+    res = checker.run(candump(sorted(fr)), select="S001")
+    assert res.findings[0].message == "TPDO 1A2h sent while node 2 is PRE-OPERATIONAL (2 frames)"
+
+
+def test_pdo_made_invalid_by_sdo_is_nobodys(checker) -> None:  # type: ignore[no-untyped-def]
+    fr = [(0.0, "702#00")] + write(2, 0.05, 0x1800, 1, 0x80000182, size=4)
+    fr += hb(2, 0.1, 2.0, 0.1) + [(0.5, "182#0102")]
+    assert checker.findings(candump(sorted(fr)), select="S001") == []
+    # without the write the same frame is node 2's PDO while pre-operational
+    fr2 = [(0.0, "702#00")] + hb(2, 0.1, 2.0, 0.1) + [(0.5, "182#0102")]
+    assert checker.findings(candump(sorted(fr2)), select="S001") == [("S001", 2, 0.5)]

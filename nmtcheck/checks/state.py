@@ -15,6 +15,7 @@ import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, count_note, rule
 from nmtcheck.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.frames import RPDO_BASES, TPDO_BASES
 from nmtcheck.timeline import (
     EPS,
     OFFLINE,
@@ -40,6 +41,63 @@ class _Run:
     can_id: int
     kind: int
     count: int
+
+
+@dataclass
+class _PdoOverride:
+    """Frames on `can_id` of channel `chan` within [start, until) belong to `key` as `kind`
+    (kind 0: the default COB-ID of a PDO that was moved or made invalid: nobody's)."""
+
+    chan: int
+    can_id: int
+    key: int
+    kind: int
+    start: float
+    until: float
+
+
+def _pdo_overrides(model: InputModel) -> list[_PdoOverride]:
+    """Where configured PDO COB-IDs (network file, EDS/DCF, SDO writes) differ from the
+    pre-defined connection set."""
+    out: list[_PdoOverride] = []
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            for kind, table, bases, index in (
+                    (KIND_TPDO, m.config.tpdo_cob_ids, TPDO_BASES, 0x1800),
+                    (KIND_RPDO, m.config.rpdo_cob_ids, RPDO_BASES, 0x1400)):
+                spans: list[tuple[int, int | None, float, float]] = [
+                    (n, cob, -np.inf, np.inf) for n, cob in table.items()]
+                for w in m.writes:  # SDO-written COB-IDs hold until the next boot-up/reset
+                    if index <= w.index <= index + 3:
+                        cob = None if w.value & 0x80000000 else w.value & 0x7FF
+                        spans.append(((w.index & 3) + 1, cob, w.ts, w.until))
+                for n, cob, start, until in spans:
+                    default = bases[n - 1] + m.node
+                    if cob != default:
+                        out.append(_PdoOverride(m.chan, default, -1, 0, start, until))
+                        if cob is not None:
+                            out.append(_PdoOverride(m.chan, cob, m.key, kind, start, until))
+    # later (SDO-written) spans are applied after the static ones and win
+    out.sort(key=lambda o: o.start)
+    return out
+
+
+def _attribute(chunk: dict[str, np.ndarray], overrides: list[_PdoOverride]
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Each stored frame's (node key, kind), with the configured PDO COB-IDs applied."""
+    if not overrides:
+        return chunk["key"], chunk["kind"]
+    key = chunk["key"].astype(np.int64).copy()
+    kind = chunk["kind"].copy()
+    chan = key // 128
+    for o in overrides:
+        hit = ((chunk["can_id"] == o.can_id) & (chan == o.chan) & (chunk["ts"] >= o.start)
+               & (chunk["ts"] < o.until))
+        if o.kind == 0:
+            hit &= np.isin(kind, (KIND_TPDO, KIND_RPDO))
+        key[hit] = o.key
+        kind[hit] = o.kind
+    return key, kind
 
 
 def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
@@ -70,11 +128,13 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
         tables[key] = (starts, codes, since)
     wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
     found: dict[tuple[int, int], _Run] = {}
+    overrides = _pdo_overrides(model)
     for chunk in model.decoded.node_frames:
-        sel = np.flatnonzero(np.isin(chunk["kind"], kinds))
+        chunk_key, chunk_kind = _attribute(chunk, overrides)
+        sel = np.flatnonzero(np.isin(chunk_kind, kinds))
         if not sel.size:
             continue
-        keys = chunk["key"][sel]
+        keys = chunk_key[sel]
         order = np.argsort(keys, kind="stable")
         sk = keys[order]
         bounds = np.flatnonzero(np.diff(sk)) + 1
@@ -96,7 +156,7 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
                 if run is None:
                     found[k] = _Run(float(chunk["ts"][row]), int(chunk["idx"][row]),
                                     int(chunk["line"][row]), int(chunk["can_id"][row]),
-                                    int(chunk["kind"][row]), 1)
+                                    int(chunk_kind[row]), 1)
                 else:
                     run.count += 1
     return [(by_key[key], iv, run) for (key, iv), run in sorted(
