@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nmtcheck.frames import (
+    EC_BASE,
     EMCY_BASE,
     RPDO_BASES,
     SDO_TX_BASE,
@@ -53,13 +54,22 @@ def node_key(chan: np.ndarray | int, node: np.ndarray | int) -> np.ndarray | int
 
 
 class ChunkStore:
-    """Append-only columnar chunks, kept in memory up to a budget, then on disk."""
+    """Append-only columnar chunks, kept in memory up to a budget, then on disk.
+
+    A spilled chunk is one raw file per column (`ndarray.tofile`): no archive,
+    no checksum, read back with `np.fromfile` at disk-cache speed.
+    """
 
     def __init__(self, budget: int = STORE_BUDGET_BYTES) -> None:
         self._budget = budget
         self._in_memory = 0
-        self._chunks: list[dict[str, np.ndarray] | str] = []
+        self._chunks: list[dict[str, np.ndarray] | dict[str, tuple[str, np.dtype, tuple]]] = []
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    @property
+    def spilled(self) -> int:
+        """How many chunks live on disk."""
+        return sum(1 for c in self._chunks if isinstance(next(iter(c.values())), tuple))
 
     def append(self, **cols: np.ndarray) -> None:
         size = sum(a.nbytes for a in cols.values())
@@ -69,17 +79,17 @@ class ChunkStore:
             return
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="nmtcheck-")
-        path = os.path.join(self._tmp.name, f"chunk{len(self._chunks)}.npz")
-        np.savez(path, **cols)  # type: ignore[arg-type]
-        self._chunks.append(path)
+        spilled: dict[str, tuple[str, np.dtype, tuple]] = {}
+        for name, col in cols.items():
+            path = os.path.join(self._tmp.name, f"chunk{len(self._chunks)}.{name}")
+            np.ascontiguousarray(col).tofile(path)
+            spilled[name] = (path, col.dtype, col.shape)
+        self._chunks.append(spilled)
 
     def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
         for chunk in self._chunks:
-            if isinstance(chunk, str):
-                with np.load(chunk) as npz:
-                    yield {k: npz[k] for k in npz.files}
-            else:
-                yield chunk
+            yield {name: np.fromfile(col[0], col[1]).reshape(col[2])
+                   if isinstance(col, tuple) else col for name, col in chunk.items()}
 
     def close(self) -> None:
         if self._tmp is not None:
@@ -187,6 +197,28 @@ def _node_of(can_id: np.ndarray, bases: Iterable[int]) -> tuple[np.ndarray, np.n
     return node, mask
 
 
+def _id_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per 11-bit CAN-ID (index 2048: any other ID): the frame kind (KIND_*, error control
+    included), the node-ID, and whether CiA 301 reserves the ID. One gather per batch
+    replaces a dozen range comparisons per frame."""
+    ids = np.arange(2049, dtype=np.uint32)
+    kind = np.zeros(2049, np.int8)
+    node = np.zeros(2049, np.int16)
+    for k, bases in ((KIND_TPDO, TPDO_BASES), (KIND_RPDO, RPDO_BASES),
+                     (KIND_SDO_TX, (SDO_TX_BASE,)), (KIND_EMCY, (EMCY_BASE,)),
+                     (KIND_EC, (EC_BASE,))):
+            n, m = _node_of(ids, bases)
+            m[2048] = False
+            kind[m] = k
+            node[m] = n[m]
+    restricted = is_restricted_id(ids)
+    restricted[2048] = False
+    return kind, node, restricted
+
+
+_KIND_OF_ID, _NODE_OF_ID, _RESTRICTED_ID = _id_tables()
+
+
 _CONFIG_INDICES = np.array([0x1016, 0x1017, 0x100C, 0x100D, 0x1400, 0x1401, 0x1402, 0x1403,
                             0x1800, 0x1801, 0x1802, 0x1803])
 
@@ -197,14 +229,39 @@ def node_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
     data_frame = ~b.rtr & (b.dlc >= 4)
     emcy = ~b.rtr & (cid >= 0x081) & (cid <= 0x0FF)
     sdo = data_frame & (cid >= 0x581) & (cid <= 0x67F) & (cid != 0x600)
-    if not sdo.any():
+    rows = np.flatnonzero(sdo)
+    if not rows.size:
         return emcy
-    index = b.data[:, 1].astype(np.int64) | (b.data[:, 2].astype(np.int64) << 8)
+    # Only the SDO frames' payloads are looked at (a few per thousand frames).
+    data = b.data[rows]
+    scid = cid[rows]
+    index = data[:, 1].astype(np.int64) | (data[:, 2].astype(np.int64) << 8)
     config = np.isin(index, _CONFIG_INDICES)
-    cmd = b.data[:, 0]
-    request = (cid >= 0x601) & ((cmd & 0xE0) == 0x20) & config
-    response = (cid <= 0x5FF) & (((cmd == 0x60) & config) | (cmd == 0x80))
-    return emcy | (sdo & (request | response))
+    cmd = data[:, 0]
+    request = (scid >= 0x601) & ((cmd & 0xE0) == 0x20) & config
+    response = (scid <= 0x5FF) & (((cmd == 0x60) & config) | (cmd == 0x80))
+    emcy[rows[request | response]] = True
+    return emcy
+
+
+def _first_last(keys: np.ndarray, rows: np.ndarray, kinds: np.ndarray, b: FrameBatch,
+                first_tx: dict[int, tuple[int, float, int]], last_tx: dict[int, float]) -> None:
+    """Update each node key's first (index, ts, kind) and last ts from one batch's transmitted
+    frames (`rows`, with their `keys`); ufunc.at instead of sorting."""
+    size = int(keys.max()) + 1
+    pos = np.arange(keys.shape[0])
+    last = np.full(size, -1)
+    np.maximum.at(last, keys, pos)
+    present = np.flatnonzero(last >= 0)
+    new = [k for k in present.tolist() if k not in first_tx]
+    if new:
+        first = np.full(size, keys.shape[0])
+        np.minimum.at(first, keys, pos)
+        for k in new:
+            row = rows[first[k]]
+            first_tx[k] = (int(b.index[row]), float(b.ts[row]), int(kinds[row]))
+    for k, p in zip(present.tolist(), b.ts[rows[last[present]]].tolist(), strict=True):
+        last_tx[k] = p
 
 
 def decode(batches: Iterable[FrameBatch]) -> Decoded:
@@ -235,41 +292,33 @@ def decode(batches: Iterable[FrameBatch]) -> Decoded:
             ev["data"] = b.data[sel]
             event_parts.append(ev)
 
-        data_frame = co & ~b.rtr
-        kinds = np.zeros(len(b), np.int8)
-        nodes = np.zeros(len(b), np.int64)
-        for kind, bases in ((KIND_TPDO, TPDO_BASES), (KIND_RPDO, RPDO_BASES),
-                            (KIND_SDO_TX, (SDO_TX_BASE,)), (KIND_EMCY, (EMCY_BASE,))):
-            n, m = _node_of(b.can_id, bases)
-            m &= data_frame
-            kinds[m] = kind
-            nodes[m] = n[m]
-        sel = np.flatnonzero(kinds > 0)
+        # Kind and node of every 11-bit data frame, by table lookup on the CAN-ID.
+        id11 = np.minimum(b.can_id, 2048)
+        kinds = _KIND_OF_ID[id11]
+        kinds[~(co & ~b.rtr)] = 0
+        nodes = _NODE_OF_ID[id11]
+        keys = (b.chan.astype(np.int32) << 7) | nodes  # node key: channel * 128 + node
+        sel = np.flatnonzero((kinds > 0) & (kinds != KIND_EC))
         if sel.size:
+            # Sorted by node key (stable: file order within a node), so that the rules that
+            # group each chunk by node (checks/state.py) sort an already sorted array. 16-bit
+            # keys sort by radix, in linear time.
+            sel_keys = keys[sel]
+            if int(sel_keys.max()) < 1 << 15:
+                sel_keys = sel_keys.astype(np.int16)
+            sel = sel[np.argsort(sel_keys, kind="stable")]
             node_frames.append(
-                key=(b.chan[sel].astype(np.int64) * 128 + nodes[sel]).astype(np.int32),
-                kind=kinds[sel], can_id=b.can_id[sel].astype(np.uint16), ts=b.ts[sel],
+                key=keys[sel].astype(np.int32), kind=kinds[sel],
+                can_id=b.can_id[sel].astype(np.uint16), ts=b.ts[sel],
                 idx=b.index[sel], line=b.line[sel],
             )
 
         # Each node's first and last transmitted frame (anything but RPDOs, which others send).
-        tx = (kinds > 0) & (kinds != KIND_RPDO)
-        ec_data = ec & ~b.rtr
-        tx_kind = np.where(ec_data, KIND_EC, kinds)
-        tx_node = np.where(ec_data, cid - 0x700, nodes)
-        tx_sel = np.flatnonzero(tx | ec_data)
+        tx_sel = np.flatnonzero((kinds > 0) & (kinds != KIND_RPDO))
         if tx_sel.size:
-            keys = b.chan[tx_sel].astype(np.int64) * 128 + tx_node[tx_sel]
-            uniq, first_pos = np.unique(keys, return_index=True)
-            for k, p in zip(uniq.tolist(), first_pos.tolist(), strict=True):
-                if k not in first_tx:
-                    row = tx_sel[p]
-                    first_tx[k] = (int(b.index[row]), float(b.ts[row]), int(tx_kind[row]))
-            uniq_r, last_pos = np.unique(keys[::-1], return_index=True)
-            for k, p in zip(uniq_r.tolist(), last_pos.tolist(), strict=True):
-                last_tx[k] = float(b.ts[tx_sel[len(tx_sel) - 1 - p]])
+            _first_last(keys[tx_sel], tx_sel, kinds, b, first_tx, last_tx)
 
-        res = co & is_restricted_id(b.can_id)
+        res = co & _RESTRICTED_ID[id11]
         if res.any():
             sel = np.flatnonzero(res)
             keys = b.chan[sel].astype(np.int64) * 4096 + cid[sel]

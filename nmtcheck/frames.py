@@ -7,6 +7,7 @@ few hundred thousand frames. Everything downstream works on whole columns.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,12 +48,16 @@ class BatchBuilder:
     """Collects parsed rows of a line-oriented reader and hands them out as column batches.
 
     Rows are appended to plain lists (far cheaper per row than numpy item
-    assignment) and turned into numpy columns once per batch.
+    assignment) and turned into numpy columns once per batch. A vectorised
+    reader appends whole columns instead (`add_columns`) and cuts batches of
+    exactly `capacity` frames from them, so both paths yield the same batches.
     """
 
     def __init__(self, capacity: int = BATCH_SIZE) -> None:
         self.capacity = capacity
         self.next_index = 0
+        self._parts: list[tuple[np.ndarray, ...]] = []  # column chunks from add_columns
+        self._pending = 0
         self._reset()
 
     def _reset(self) -> None:
@@ -94,8 +99,40 @@ class BatchBuilder:
         self._data += data[:8].ljust(8, b"\0")
         self._line.append(line)
 
+    def add_columns(self, ts: np.ndarray, chan: np.ndarray, can_id: np.ndarray,
+                    flags: np.ndarray, dlc: np.ndarray, data: np.ndarray,
+                    line: np.ndarray) -> Iterator[FrameBatch]:
+        """Append frames as columns (flags: bit 0 ext, 1 rtr, 2 err, 3 fd); yield every batch
+        of `capacity` frames that is complete."""
+        if ts.shape[0]:
+            self._parts.append((ts, chan, can_id, flags, dlc, data, line))
+            self._pending += int(ts.shape[0])
+        while self._pending >= self.capacity:
+            yield self._cut(self.capacity)
+
+    def _cut(self, n: int) -> FrameBatch:
+        """The first n frames of the column chunks as one batch."""
+        cols = [np.concatenate(c) if len(self._parts) > 1 else c[0]
+                for c in zip(*self._parts, strict=True)]
+        if cols[0].shape[0] == n:
+            head, rest = cols, [c[n:] for c in cols]
+        else:  # copies: a view would keep the whole chunk alive in the decoder's store
+            head, rest = [c[:n].copy() for c in cols], [c[n:].copy() for c in cols]
+        self._parts = [tuple(rest)] if rest[0].shape[0] else []
+        self._pending -= n
+        ts, chan, can_id, flags, dlc, data, line = head
+        batch = FrameBatch(
+            ts=ts, chan=chan, can_id=can_id, ext=(flags & 1).astype(bool),
+            rtr=(flags & 2).astype(bool), err=(flags & 4).astype(bool),
+            fd=(flags & 8).astype(bool), dlc=dlc, data=data,
+            index=np.arange(self.next_index, self.next_index + n, dtype=np.int64), line=line)
+        self.next_index += n
+        return batch
+
     def take(self) -> FrameBatch | None:
         """Hand out the collected rows as a batch and start a fresh one."""
+        if self._pending:
+            return self._cut(self._pending)
         n = len(self._ts)
         if n == 0:
             return None

@@ -57,6 +57,39 @@ ASC = [
     "python-can/test_CanRemoteMessage.asc",
 ]
 
+# Read by the BLF, TRC, CSV and CLX000 readers; pinned and compared with python-can in
+# test_readers_blf.py, test_readers_trc.py and test_readers_csv.py. CarBusAnalyzer.trc (a
+# different tool's format with PEAK's suffix) stays an "unknown log format".
+BLF_TRC_CSV = [
+    "python-can/issue_1905.blf",
+    "python-can/test_CanErrorFrameExt.blf",
+    "python-can/test_CanFdMessage.blf",
+    "python-can/test_CanFdMessage64.blf",
+    "python-can/test_CanMessage.blf",
+    "python-can/test_CanMessage2.blf",
+    "python-can/test_CanMessage.trc",
+    "python-can/test_CanMessage_V1_0_BUS1.trc",
+    "python-can/test_CanMessage_V1_1.trc",
+    "python-can/test_CanMessage_V1_3.trc",
+    "python-can/test_CanMessage_V2_0_BUS1.trc",
+    "python-can/test_CanMessage_V2_1.trc",
+    "savvycan/GVRET_Log.csv",
+    "wireshark/canlogger-cl2000.txt",
+]
+
+# Read by the MF4 and pcap readers; pinned and compared with python-can (MF4) or a plain
+# struct reading (pcap: python-can has no pcap reader) in test_readers_mf4.py and
+# test_readers_pcap.py.
+MF4_PCAP = [
+    "css-electronics/17BD1DB7_00000006_00000170.MF4",
+    "css-electronics/2F6913DB_00000004_00000001.MF4",
+    "css-electronics/FCBF0606_00003482_00000001-60B621D9.MF4",
+    "scapy/candump_gmlan_scanner.pcap.gz",
+    "scapy/candump_uds_scanner.pcap.gz",
+    "scapy/canfd.pcap.gz",
+    "scapy/gmlan_trace.pcap.gz",
+]
+
 # Pinned from this reader's output (nmtcheck, this commit), cross-checked as noted:
 # (frames, extended, error_frames, remote_frames, fd_frames, ignored, skipped, channels,
 #  start, end). "PROV" = the frame count given in PROVENANCE.md (python-can 4.6.1).
@@ -140,7 +173,7 @@ def test_corpus_file_lists_are_complete() -> None:
         for _ in opened.batches:
             pass
         readable.add(rel)
-    assert readable == set(CANDUMP) | set(ASC)
+    assert readable == set(CANDUMP) | set(ASC) | set(BLF_TRC_CSV) | set(MF4_PCAP)
 
 
 @pytest.mark.parametrize("rel", CANDUMP + ASC)

@@ -93,8 +93,16 @@ def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
 # `read(source: Source, stats: InputStats) -> Iterator[FrameBatch]`. Adding a format = a
 # module + a line here.
 FORMAT_MODULES: dict[str, str] = {
+    "mcap": "nmtcheck.readers.mcaplog",
+    "mf4": "nmtcheck.readers.mf4",
+    "pcap": "nmtcheck.readers.pcap",
+    "blf": "nmtcheck.readers.blf",
     "candump": "nmtcheck.readers.candump",
     "asc": "nmtcheck.readers.asc",
+    "trc": "nmtcheck.readers.trc",
+    "candump-screen": "nmtcheck.readers.candump_screen",
+    "csv": "nmtcheck.readers.csvlog",
+    "cl2000": "nmtcheck.readers.cl2000",
 }
 FORMATS = tuple(FORMAT_MODULES)
 

@@ -1,0 +1,534 @@
+"""Vector BLF (binary logging format) as written by CANoe/CANalyzer, python-can and TSMaster.
+
+A `LOGG` file header, then objects (`LOBJ`), normally log containers whose
+payload (zlib-compressed or plain) is a stream of objects that may straddle
+container boundaries. Read: CAN_MESSAGE (1), CAN_MESSAGE2 (86), CAN_FD_MESSAGE
+(100), CAN_FD_MESSAGE_64 (101) with their RTR/extended/direction flags and
+1-based channel numbers, and the error objects CAN_ERROR (2), CAN_ERROR_EXT (73)
+and CAN_FD_ERROR_64 (104), counted as error frames. DATA_LOST_END (126) adds its
+count of lost events to the dropped frames; every other object is a non-frame
+record (ignored). Object header versions 1 and 2 are read; a frame object with
+any other version is reported as skipped, never silently dropped.
+
+Speed: containers are decompressed in C (zlib) and a few MB of object stream are
+parsed at once with numpy (signature search, header and field gathers by object
+type); Python touches single objects only for the unusual ones (lost-data
+records, corrupt or unsupported objects). Timestamps are the file header's start
+time (SYSTEMTIME, read as UTC, as python-can does; 0 when the header has none)
+plus each object's offset, so they match python-can's numbers.
+
+Damage is reported, not fatal (unless --strict): an object with a size below its
+header (size 0 hangs python-can's BLFReader forever), a bad signature, a damaged
+container or a truncated file are counted as skipped and the reader resynchronises
+at the next `LOBJ` signature. Skip locations are 1-based object numbers in the
+object stream (a binary file has no lines).
+
+Where python-can 4.6.1 differs: its channels are 0-based (`channel - 1`), nmtcheck
+keeps the number in the file; a CAN_FD_MESSAGE(_64) without the EDL flag is a
+classic frame whose DLC stays as written (python-can applies the FD length table:
+DLC 13 becomes 32); an FD frame is never remote (python-can reports objects with
+both EDL and RTR set as remote FD frames); error frames are never extended.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import datetime, timezone
+
+import numpy as np
+
+from nmtcheck.errors import InputError
+from nmtcheck.frames import FrameBatch
+from nmtcheck.readers import InputStats, Source, account
+
+SIGNATURE = b"LOBJ"
+FILE_SIGNATURE = b"LOGG"
+FILE_HEADER_MIN = 72  # signature … start/stop SYSTEMTIME; the file says how long it really is
+BASE_HEADER = struct.Struct("<4sHHLL")  # signature, header size, header version, object size, type
+CONTAINER_HEADER = struct.Struct("<H6xL4x")  # compression method, uncompressed size
+
+LOG_CONTAINER = 10
+CAN_MESSAGE = 1
+CAN_ERROR = 2
+CAN_ERROR_EXT = 73
+CAN_MESSAGE2 = 86
+CAN_FD_MESSAGE = 100
+CAN_FD_MESSAGE_64 = 101
+CAN_FD_ERROR_64 = 104
+DATA_LOST_END = 126
+
+NO_COMPRESSION = 0
+ZLIB_DEFLATE = 2
+
+HEADER_SIZE_BY_VERSION = {1: 32, 2: 40}  # base header + ObjectHeader / ObjectHeader2
+TIME_TEN_MICS = 1  # object header flag: timestamp in 10 µs units (else ns)
+
+# Bytes an object needs after its header for the fields read here.
+MIN_BODY = {CAN_MESSAGE: 16, CAN_MESSAGE2: 16, CAN_FD_MESSAGE: 20, CAN_FD_MESSAGE_64: 40,
+            CAN_ERROR: 2, CAN_ERROR_EXT: 20, CAN_FD_ERROR_64: 16}
+FRAME_TYPES = np.array(sorted(MIN_BODY), np.uint32)
+
+CAN_MSG_EXT = 0x80000000
+CAN_ID_MASK = 0x1FFFFFFF
+MSG_FLAG_RTR = 0x80  # CAN_MESSAGE / CAN_FD_MESSAGE flags
+FD_FLAG_EDL = 0x01  # CAN_FD_MESSAGE canFdFlags
+FD64_FLAG_RTR = 0x0010  # CAN_FD_MESSAGE_64 flags
+FD64_FLAG_EDL = 0x1000
+
+# The padding after an object is `size % 4` bytes in python-can's and Vector's files;
+# the next signature is looked for this far past the end of the previous object.
+MAX_GAP = 8
+# An object claiming more than this is taken as a corrupt size, not waited for.
+MAX_OBJECT_SIZE = 64 << 20
+PARSE_CHUNK = 4 << 20  # decompressed bytes parsed per numpy pass
+RAW_READ = 1 << 20
+
+_DLC_TO_LEN = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64] + [64] * 240,
+                       np.int16)
+_BYTE8 = np.arange(8, dtype=np.int64)
+
+
+def sniff(head: bytes) -> bool:
+    """A BLF file starts with the `LOGG` signature."""
+    return head.startswith(FILE_SIGNATURE)
+
+
+def systemtime_to_epoch(fields: tuple[int, ...]) -> float:
+    """A Windows SYSTEMTIME (year, month, weekday, day, h, m, s, ms) as UTC epoch seconds.
+
+    Read as UTC like python-can, so both tools give the same timestamps; 0 when
+    the header has no (valid) start time.
+    """
+    year, month, _weekday, day, hour, minute, second, ms = fields
+    try:
+        return datetime(year, month, day, hour, minute, second, ms * 1000,
+                        tzinfo=timezone.utc).timestamp()
+    except ValueError:
+        return 0.0
+
+
+class _RawObjects:
+    """The top-level object stream of the file, with resynchronisation after damage."""
+
+    def __init__(self, source: Source, offset: int) -> None:
+        self._stream = source.stream
+        self._source = source
+        self._pending = b""
+        self.offset = offset  # file offset of the next unread byte
+
+    def read(self, n: int) -> bytes:
+        """Up to n bytes (fewer only at the end of the file)."""
+        parts = []
+        if self._pending:
+            parts.append(self._pending[:n])
+            self._pending = self._pending[n:]
+        got = sum(len(p) for p in parts)
+        try:
+            while got < n:
+                chunk = self._stream.read(n - got)
+                if not chunk:
+                    break
+                parts.append(chunk)
+                got += len(chunk)
+        except self._source.errors as exc:
+            raise InputError(self._source.path,
+                             f"read error (truncated or corrupt file?): {exc}") from None
+        data = b"".join(parts)
+        self.offset += len(data)
+        return data
+
+    def unread(self, data: bytes) -> None:
+        self._pending = data + self._pending
+        self.offset -= len(data)
+
+    def next_header(self, resync: bool) -> bytes:
+        """The next object's 16 header bytes, or b"" if there is none.
+
+        Without `resync` at most MAX_GAP filler bytes may precede the signature;
+        with it the rest of the file is searched.
+        """
+        window = self.read(BASE_HEADER.size + MAX_GAP)
+        while True:
+            at = window.find(SIGNATURE)
+            if 0 <= at < (len(window) if resync else MAX_GAP):
+                self.unread(window[at:])
+                return self.read(BASE_HEADER.size)
+            if not resync or len(window) < len(SIGNATURE):
+                self.unread(window)
+                return b""
+            keep = len(SIGNATURE) - 1  # a signature may straddle two reads
+            more = self.read(RAW_READ)
+            if not more:
+                return b""
+            window = window[-keep:] + more
+
+
+@dataclass
+class _Parsed:
+    """The frames found in one stretch of the object stream, as columns."""
+
+    ts: np.ndarray
+    chan: np.ndarray  # channel numbers as written
+    can_id: np.ndarray
+    ext: np.ndarray
+    rtr: np.ndarray
+    err: np.ndarray
+    fd: np.ndarray
+    dlc: np.ndarray
+    data: np.ndarray
+
+
+def _u16(a: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    return a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
+
+
+def _u32(a: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    return (a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
+            | (a[pos + 2].astype(np.uint32) << 16) | (a[pos + 3].astype(np.uint32) << 24))
+
+
+class _ObjectParser:
+    """Parses the object stream in chunks; keeps the unfinished last object for the next chunk."""
+
+    def __init__(self, stats: InputStats, start_time: float) -> None:
+        self.stats = stats
+        self.start_time = start_time
+        self.tail = b""
+        self.tail_is_mid_object = False  # after damage: resynchronise silently at the next object
+        self.objects_seen = 0  # for skip locations
+
+    def _skip(self, why: str, extra_objects: int = 0) -> None:
+        self.stats.skip(self.objects_seen + extra_objects + 1, why)
+
+    def drop_tail(self, why: str) -> None:
+        """Give up on the object stream so far (a damaged container cut it)."""
+        if self.tail.strip(b"\0"):
+            self._skip(why)
+        self.tail = b""
+        self.tail_is_mid_object = True
+
+    def finish(self) -> bool:
+        """End of file: what is left is a truncated object. True if there was one."""
+        cut = bool(self.tail.strip(b"\0"))
+        if cut:
+            self._skip("the file ends inside an object")
+        self.tail = b""
+        return cut
+
+    def parse(self, chunks: list[bytes]) -> _Parsed | None:
+        buf = b"".join([self.tail, *chunks])
+        starts, self.tail = self._object_starts(buf)
+        return self._frames(buf, starts)
+
+    def _object_starts(self, buf: bytes) -> tuple[np.ndarray, bytes]:
+        """Start offsets of the complete objects in buf, and the unfinished rest."""
+        a = np.frombuffer(buf, np.uint8)
+        n = len(a)
+        if n < BASE_HEADER.size:
+            return np.empty(0, np.int64), buf
+        hit = a[:-3] == 0x4C
+        hit &= a[1:-2] == 0x4F
+        hit &= a[2:-1] == 0x42
+        hit &= a[3:] == 0x4A
+        cand = np.flatnonzero(hit).astype(np.int64)
+        whole = cand[cand + BASE_HEADER.size <= n]
+        cut = cand[len(whole):]  # a signature whose header the buffer ends in
+        if len(whole) and len(cut) <= 1 and not self.tail_is_mid_object:
+            size = _u32(a, whole + 8).astype(np.int64)
+            ends = whole + size
+            gaps = whole[1:] - ends[:-1]
+            regular = (
+                whole[0] < MAX_GAP
+                and bool(np.all((gaps >= 0) & (gaps < MAX_GAP)))
+                and bool(np.all(size >= BASE_HEADER.size))
+                and bool(np.all(size <= MAX_OBJECT_SIZE))
+            )
+            if regular:  # the usual case: every signature found starts an object
+                last_end = int(ends[-1])
+                if last_end > n:  # the last object goes on in the next container
+                    if not len(cut):
+                        return whole[:-1], buf[int(whole[-1]):]
+                elif not len(cut):
+                    return whole, buf[last_end:]
+                elif 0 <= int(cut[0]) - last_end < MAX_GAP:
+                    return whole, buf[int(cut[0]):]
+        return self._walk(buf, cand, n)
+
+    def _walk(self, buf: bytes, cand: np.ndarray, n: int) -> tuple[np.ndarray, bytes]:
+        """Object by object, for stretches with damage or a signature inside an object's data."""
+        a = np.frombuffer(buf, np.uint8)
+        found: list[int] = []
+        pos = 0
+        while True:
+            j = int(np.searchsorted(cand, pos))
+            if j == len(cand):
+                rest = buf[pos:]
+                if len(rest) > MAX_OBJECT_SIZE:  # garbage that will never become an object
+                    self._skip("bytes without an object signature", len(found))
+                    rest = b""
+                return np.array(found, np.int64), rest
+            c = int(cand[j])
+            if c - pos >= MAX_GAP and not self.tail_is_mid_object:
+                self._skip(f"{c - pos} bytes that are not an object", len(found))
+            self.tail_is_mid_object = False
+            if c + BASE_HEADER.size > n:
+                return np.array(found, np.int64), buf[c:]
+            size = int(_u32(a, np.array([c + 8]))[0])
+            if size < BASE_HEADER.size or size > MAX_OBJECT_SIZE:
+                self._skip(f"object size {size} is impossible", len(found))
+                pos = c + len(SIGNATURE)
+                self.tail_is_mid_object = True  # what follows is the broken object's body
+                continue
+            if c + size > n:
+                return np.array(found, np.int64), buf[c:]
+            found.append(c)
+            pos = c + size
+
+    def _frames(self, buf: bytes, starts: np.ndarray) -> _Parsed | None:
+        stats = self.stats
+        first_object = self.objects_seen
+        self.objects_seen += len(starts)
+        if len(starts) == 0:
+            return None
+        a = np.frombuffer(buf, np.uint8)
+        hsize = _u16(a, starts + 4).astype(np.int64)
+        hver = _u16(a, starts + 6)
+        size = _u32(a, starts + 8).astype(np.int64)
+        otype = _u32(a, starts + 12)
+        is_frame = np.isin(otype, FRAME_TYPES)
+        others = np.flatnonzero(~is_frame)
+        stats.ignored += len(others)
+        for i in others[otype[others] == DATA_LOST_END]:
+            body = int(starts[i] + hsize[i])
+            if hsize[i] >= BASE_HEADER.size and body + 16 <= starts[i] + size[i]:
+                stats.dropped += int(_u32(a, np.array([body + 12]))[0])
+        frames = np.flatnonzero(is_frame)
+        if len(frames) == 0:
+            return None
+        s, hs, hv, sz, ty = starts[frames], hsize[frames], hver[frames], size[frames], otype[frames]
+        expected_hs = np.where(hv == 1, 32, np.where(hv == 2, 40, -1))
+        min_body = np.zeros(len(ty), np.int64)
+        for t, need in MIN_BODY.items():
+            min_body[ty == t] = need
+        good = (hs == expected_hs) & (sz >= hs + min_body)
+        for i in np.flatnonzero(~good):
+            where = first_object + int(frames[i])
+            if expected_hs[i] < 0:
+                why = (f"object type {int(ty[i])} with header version {int(hv[i])} "
+                       "(only versions 1 and 2 are known)")
+            elif hs[i] != expected_hs[i]:
+                why = f"object header size {int(hs[i])} does not match header version {int(hv[i])}"
+            else:
+                why = f"object type {int(ty[i])} of {int(sz[i])} bytes is too short"
+            stats.skip(where + 1, why)
+        if not good.all():
+            s, hs, sz, ty = s[good], hs[good], sz[good], ty[good]
+        n = len(s)
+        if n == 0:
+            return None
+
+        flags = _u32(a, s + 16)
+        stamp = (_u32(a, s + 24).astype(np.uint64)
+                 | (_u32(a, s + 28).astype(np.uint64) << np.uint64(32))).astype(np.float64)
+        ts = np.where(flags == TIME_TEN_MICS, stamp / 1e5, stamp / 1e9) + self.start_time
+        b = s + hs  # object bodies
+
+        chan = np.zeros(n, np.int64)
+        raw_id = np.zeros(n, np.uint32)
+        rtr = np.zeros(n, bool)
+        err = np.zeros(n, bool)
+        fd = np.zeros(n, bool)
+        dlc = np.zeros(n, np.int16)
+        data_at = np.zeros(n, np.int64)
+        data_len = np.zeros(n, np.int64)
+
+        classic = np.flatnonzero((ty == CAN_MESSAGE) | (ty == CAN_MESSAGE2))
+        if len(classic):
+            bb = b[classic]
+            chan[classic] = _u16(a, bb)
+            classic_dlc = a[bb + 3].astype(np.int16)
+            raw_id[classic] = _u32(a, bb + 4)
+            rtr[classic] = (a[bb + 2] & MSG_FLAG_RTR) != 0
+            dlc[classic] = classic_dlc
+            data_at[classic] = bb + 8
+            data_len[classic] = np.minimum(classic_dlc, 8)
+
+        fd100 = np.flatnonzero(ty == CAN_FD_MESSAGE)
+        if len(fd100):
+            bb = b[fd100]
+            chan[fd100] = _u16(a, bb)
+            raw_dlc = a[bb + 3]
+            edl = (a[bb + 13] & FD_FLAG_EDL) != 0
+            raw_id[fd100] = _u32(a, bb + 4)
+            fd[fd100] = edl
+            rtr[fd100] = ((a[bb + 2] & MSG_FLAG_RTR) != 0) & ~edl
+            dlc[fd100] = np.where(edl, _DLC_TO_LEN[raw_dlc], raw_dlc)
+            data_at[fd100] = bb + 20
+            data_len[fd100] = np.minimum(a[bb + 14], 64)
+
+        fd64 = np.flatnonzero(ty == CAN_FD_MESSAGE_64)
+        if len(fd64):
+            bb = b[fd64]
+            chan[fd64] = a[bb]
+            raw_dlc = a[bb + 1]
+            valid = a[bb + 2].astype(np.int64)
+            raw_id[fd64] = _u32(a, bb + 4)
+            fd_flags = _u32(a, bb + 12)
+            edl = (fd_flags & FD64_FLAG_EDL) != 0
+            fd[fd64] = edl
+            rtr[fd64] = ((fd_flags & FD64_FLAG_RTR) != 0) & ~edl
+            dlc[fd64] = np.where(edl, _DLC_TO_LEN[raw_dlc], raw_dlc)
+            ext_offset = a[bb + 35].astype(np.int64)
+            # TSMaster writes valid_bytes larger than the data stored (python-can issue 1905):
+            # the missing bytes are zeros, as in CANoe
+            stored = np.where(ext_offset > 0, ext_offset, sz[fd64]) - hs[fd64] - 40
+            data_at[fd64] = bb + 40
+            data_len[fd64] = np.clip(np.minimum(valid, stored), 0, 64)
+
+        errors = np.flatnonzero((ty == CAN_ERROR) | (ty == CAN_ERROR_EXT))
+        if len(errors):
+            chan[errors] = _u16(a, b[errors])
+            err[errors] = True
+            ext_err = errors[ty[errors] == CAN_ERROR_EXT]
+            raw_id[ext_err] = _u32(a, b[ext_err] + 16)
+        fd_errors = np.flatnonzero(ty == CAN_FD_ERROR_64)
+        if len(fd_errors):
+            chan[fd_errors] = a[b[fd_errors]]
+            err[fd_errors] = True
+            fd[fd_errors] = True
+            raw_id[fd_errors] = _u32(a, b[fd_errors] + 12)
+
+        ext = ((raw_id & CAN_MSG_EXT) != 0) & ~err
+        shown = np.where(rtr | err, 0, np.minimum(data_len, 8))
+        idx = np.minimum(data_at[:, None] + _BYTE8, len(a) - 1)
+        data = np.where(shown[:, None] > _BYTE8, a[idx], 0).astype(np.uint8)
+        return _Parsed(ts=ts, chan=chan, can_id=raw_id & CAN_ID_MASK, ext=ext, rtr=rtr,
+                       err=err, fd=fd, dlc=dlc, data=data)
+
+
+class _BatchMaker:
+    """Turns parsed columns into FrameBatches with input-wide frame indices and channel codes."""
+
+    def __init__(self, stats: InputStats) -> None:
+        self.stats = stats
+        self.next_index = 0
+        self._codes: dict[int, int] = {}
+
+    def batch(self, p: _Parsed) -> FrameBatch | None:
+        numbers, inverse = np.unique(p.chan, return_inverse=True)
+        codes = np.array([self._code(int(c)) for c in numbers], np.int32)
+        n = len(p.ts)
+        out = FrameBatch(
+            ts=p.ts, chan=codes[inverse.reshape(-1)], can_id=p.can_id.astype(np.uint32),
+            ext=p.ext, rtr=p.rtr, err=p.err, fd=p.fd, dlc=p.dlc.astype(np.int16), data=p.data,
+            index=np.arange(self.next_index, self.next_index + n, dtype=np.int64),
+            line=np.zeros(n, np.int64),
+        )
+        self.next_index += n
+        return account(self.stats, out)
+
+    def _code(self, number: int) -> int:
+        code = self._codes.get(number)
+        if code is None:
+            code = self._codes[number] = self.stats.channel_code(str(number))
+        return code
+
+
+def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
+    head = source.stream.read(FILE_HEADER_MIN)
+    if not head.startswith(FILE_SIGNATURE):
+        raise InputError(source.path, "not a BLF file (no LOGG signature)")
+    if len(head) < FILE_HEADER_MIN:
+        raise InputError(source.path, "BLF file header is truncated")
+    header_size = struct.unpack_from("<L", head, 4)[0]
+    start = systemtime_to_epoch(struct.unpack_from("<8H", head, 40))
+    if header_size > FILE_HEADER_MIN:
+        source.stream.read(header_size - FILE_HEADER_MIN)
+    raw = _RawObjects(source, max(header_size, FILE_HEADER_MIN))
+    parser = _ObjectParser(stats, start)
+    maker = _BatchMaker(stats)
+    pending: list[bytes] = []
+    pending_size = 0
+    resync = False
+    cut_container = False
+
+    def flush() -> Iterator[FrameBatch]:
+        nonlocal pending, pending_size
+        parsed = parser.parse(pending)
+        pending, pending_size = [], 0
+        if parsed is not None and (batch := maker.batch(parsed)) is not None:
+            yield batch
+
+    def damaged(why: str) -> None:
+        stats.skip(parser.objects_seen + 1, why)
+
+    while True:
+        header = raw.next_header(resync)
+        if not header:
+            if resync:
+                break  # searched to the end of the file; the damage is already reported
+            rest = raw.read(RAW_READ)
+            if not rest.strip(b"\0"):
+                break  # the end of the file (zero padding after the last object)
+            damaged(f"bytes at {raw.offset - len(rest)} are not a log object")
+            raw.unread(rest)
+            resync = True
+            continue
+        resync = False
+        if len(header) < BASE_HEADER.size:
+            damaged("the file ends inside an object header")
+            break
+        _sig, _hsize, _hver, size, otype = BASE_HEADER.unpack(header)
+        if size < BASE_HEADER.size or size > MAX_OBJECT_SIZE:
+            damaged(f"log object at byte {raw.offset - BASE_HEADER.size} has an impossible "
+                    f"size ({size})")
+            resync = True
+            continue
+        body = raw.read(size - BASE_HEADER.size)
+        truncated = len(body) < size - BASE_HEADER.size
+        if otype != LOG_CONTAINER:
+            if truncated:
+                damaged("the file ends inside an object")
+                break
+            # an object outside any container: parsed on its own, after what came before it
+            yield from flush()
+            single = _ObjectParser(stats, start)
+            single.objects_seen = parser.objects_seen
+            parsed = single.parse([header + body])
+            parser.objects_seen = single.objects_seen
+            if parsed is not None and (batch := maker.batch(parsed)) is not None:
+                yield batch
+            continue
+        if len(body) < CONTAINER_HEADER.size:
+            damaged("the file ends inside a log container header")
+            break
+        method, _usize = CONTAINER_HEADER.unpack_from(body)
+        payload = body[CONTAINER_HEADER.size:]
+        if method == NO_COMPRESSION:
+            data = payload
+        elif method == ZLIB_DEFLATE:
+            try:
+                data = zlib.decompressobj().decompress(payload)
+            except zlib.error as exc:
+                yield from flush()
+                parser.drop_tail("an object cut short by a damaged log container")
+                damaged(f"log container data is corrupt ({exc})")
+                continue
+        else:
+            yield from flush()
+            parser.drop_tail("an object cut short by an unreadable log container")
+            damaged(f"log container with unknown compression method {method}")
+            continue
+        pending.append(data)
+        pending_size += len(data)
+        if truncated:
+            cut_container = True
+            break
+        if pending_size >= PARSE_CHUNK:
+            yield from flush()
+    yield from flush()
+    if not parser.finish() and cut_container:
+        damaged("the file ends inside a log container")

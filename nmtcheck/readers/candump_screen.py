@@ -1,0 +1,223 @@
+"""candump's screen output (what `candump can0 | tee file` saves), not its `-l`/`-L` log format.
+
+    (1700000000.123456)  can0  123   [8]  11 22 33 44 55 66 77 88
+      can0  12345678   [2]  remote request
+      can0  RX B -  123  [12]  00 11 22 33 44 55 66 77 88 99 AA BB
+      can0  20000004   [8]  00 04 00 00 00 00 00 00   ERRORFRAME
+
+Covers no timestamp, `-ta` (epoch), `-tA` (local date and time, read as UTC),
+`-td` (delta to the previous frame) and `-tz` (since the first frame); `-x`
+(`RX`/`TX` and the BRS/ESI flags), `-a` (ASCII column), `-i` (binary bytes),
+`-S` (swapped bytes, joined by a backtick), CAN FD (`[12]` two-digit lengths),
+`{x}` raw DLCs, error frames (`ERRORFRAME`, CAN_ERR_FLAG in the ID, `-e`
+explanations on tab-indented continuation lines), remote requests and the ANSI
+colour escapes of `-c`. `DROPCOUNT:` lines add to the dropped frames.
+
+`-td` and `-tz` print the same `(000.123456)` form: a file whose relative stamps
+ever decrease within its first DETECT_LINES frames is read as deltas (summed),
+otherwise as offsets from the first frame. Output without timestamps has no
+time: every frame is at 0 s, so only rules that need no time can be trusted
+(record with `-ta` or `candump -L`). python-can has no reader for this format.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from datetime import datetime, timezone
+from itertools import chain, islice
+
+from nmtcheck.frames import BatchBuilder, FrameBatch
+from nmtcheck.readers import InputStats, Source, account, is_text
+
+CAN_ERR_FLAG = 0x20000000
+CAN_EFF_MASK = 0x1FFFFFFF
+DETECT_LINES = 2000  # frames looked at to tell -td from -tz
+
+_ANSI = re.compile(rb"\x1b\[[0-9;]*[A-Za-z]")
+_STAMP = re.compile(rb"^\s*\(([^)]*)\)\s*")
+_ABS_DATE = re.compile(rb"^(\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2})\.(\d{1,9})$")
+_NUMBER = re.compile(rb"^(\d+)\.(\d+)$")
+_LENGTH = re.compile(rb"^(\[(\d{1,2})\]|\{([0-9A-Fa-f])\})$")
+_DROP = re.compile(rb"DROPCOUNT:\s*dropped\s+(\d+)")
+_SNIFF = re.compile(
+    rb"^\s*(\([^)]*\)\s+)?\S+\s+((RX|TX)(\s+[-BEX])+\s+)?[0-9A-Fa-f]{3,8}\s+(\[\d{1,2}\]|\{[0-9A-Fa-f]\})"
+)
+_FLAG_TOKENS = {b"-", b"B", b"E", b"X"}
+
+
+class _Bad(Exception):
+    """A frame line that does not parse."""
+
+
+def sniff(head: bytes) -> bool:
+    """The first non-empty lines look like `[(time)] iface ID  [len]  data`."""
+    if not is_text(head):
+        return False
+    for raw in head.splitlines()[:50]:
+        line = _ANSI.sub(b"", raw).strip()
+        if line and not line.startswith(b"DROPCOUNT"):
+            return _SNIFF.match(line) is not None
+    return False
+
+
+def _data(tokens: list[bytes], n: int) -> bytes:
+    """n data bytes from hex (`11`) or binary (`-i`: `00010001`) tokens."""
+    if len(tokens) < n:
+        raise _Bad(f"expected {n} data bytes, found {len(tokens)}")
+    out = bytearray()
+    for tok in tokens[:n]:
+        if len(tok) == 2:
+            base = 16
+        elif len(tok) == 8 and not tok.strip(b"01"):
+            base = 2
+        else:
+            raise _Bad(f"data byte {tok.decode('latin-1')!r} is not hex or binary")
+        try:
+            out.append(int(tok, base))
+        except ValueError:
+            raise _Bad(f"data byte {tok.decode('latin-1')!r} is not hex") from None
+    return bytes(out)
+
+
+Frame = tuple[str, int, bool, bool, bool, bool, int, bytes]  # iface id ext rtr err fd dlc data
+
+
+def _frame(tokens: list[bytes]) -> Frame:
+    """`iface [RX|TX flags] ID [len] data… [ERRORFRAME | remote request]`."""
+    if len(tokens) < 3:
+        raise _Bad("expected 'interface ID [length]'")
+    iface = tokens[0].decode("latin-1")
+    rest = tokens[1:]
+    if rest[0] in (b"RX", b"TX"):  # -x: direction, then BRS/ESI (and XL) flags
+        rest = rest[1:]
+        while rest and rest[0] in _FLAG_TOKENS:
+            rest = rest[1:]
+    if len(rest) < 2:
+        raise _Bad("expected 'ID [length]'")
+    id_text, length = rest[0], _LENGTH.match(rest[1])
+    if len(id_text) not in (3, 8) or length is None:
+        raise _Bad("expected a 3 or 8 digit hex ID and a [length]")
+    try:
+        can_id = int(id_text, 16)
+    except ValueError:
+        raise _Bad("CAN-ID is not hex") from None
+    ext = len(id_text) == 8
+    err = ext and bool(can_id & CAN_ERR_FLAG)
+    if err:
+        ext = False
+    can_id &= CAN_EFF_MASK & ~(CAN_ERR_FLAG if err else 0)
+    body = rest[2:]
+    if length[2] is not None:  # [len]: one digit for classic CAN, two (`%02d`) for CAN FD
+        dlc = n = int(length[2])
+        fd = len(length[2]) == 2
+        if not fd and dlc > 8:
+            raise _Bad("classic frame longer than 8 bytes")
+    else:  # {x}: a classic frame's raw DLC above 8 (`-8`), with 8 data bytes
+        dlc = int(length[3], 16)
+        fd = False
+        n = min(dlc, 8)
+    if dlc > 64:
+        raise _Bad("length above 64")
+    if body[:2] == [b"remote", b"request"]:
+        return iface, can_id, ext, True, False, False, dlc, b""
+    if b"ERRORFRAME" in body:
+        body = body[:body.index(b"ERRORFRAME")]
+        err = True
+    if body and b"`" in body[0] and not body[0].startswith(b"`"):  # -S: swapped byte order
+        body = body[0].split(b"`")[::-1] + body[1:]
+    data = _data(body, n)
+    extra = body[n:]
+    if extra and not extra[0].startswith((b"'", b"`")):  # -a: the ASCII column may follow
+        raise _Bad("unexpected text after the data")
+    return iface, can_id, ext, False, err, fd, dlc, data[:8]
+
+
+class _Clock:
+    """Turns the stamp in parentheses into seconds: absolute, date, delta or zero-based."""
+
+    def __init__(self, deltas: bool) -> None:
+        self.deltas = deltas
+        self.total = 0.0
+
+    def __call__(self, stamp: bytes | None) -> float:
+        if stamp is None:
+            return 0.0
+        dated = _ABS_DATE.match(stamp)
+        if dated is not None:
+            when = datetime.strptime(dated[1].decode(), "%Y-%m-%d %H:%M:%S")
+            fraction = int(dated[2]) / 10 ** len(dated[2])
+            return when.replace(tzinfo=timezone.utc).timestamp() + fraction
+        number = _NUMBER.match(stamp)
+        if number is None:
+            raise _Bad("timestamp is not a number")
+        value = float(stamp)
+        if self.deltas and _is_relative(number[1]):
+            self.total += value
+            return self.total
+        return value
+
+
+def _is_relative(seconds: bytes) -> bool:
+    """-td/-tz print `%03ld` seconds, -ta `%010ld`: ten digits mean an epoch time."""
+    return len(seconds) < 10
+
+
+def _split(raw: bytes) -> tuple[bytes | None, list[bytes]]:
+    line = _ANSI.sub(b"", raw)
+    m = _STAMP.match(line)
+    if m is None:
+        return None, line.split()
+    return m[1].strip(), line[m.end():].split()
+
+
+def _looks_like_deltas(lines: list[bytes]) -> bool:
+    """True when relative stamps go down somewhere: deltas (-td), not offsets (-tz)."""
+    previous = None
+    for raw in lines:
+        stamp, _tokens = _split(raw)
+        if stamp is None:
+            continue
+        number = _NUMBER.match(stamp)
+        if number is None or not _is_relative(number[1]):
+            continue
+        value = float(stamp)
+        if previous is not None and value < previous:
+            return True
+        previous = value
+    return False
+
+
+def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
+    builder = BatchBuilder()
+    lines = source.lines()
+    head = list(islice(lines, DETECT_LINES))
+    clock = _Clock(deltas=_looks_like_deltas(head))
+    chan_of: dict[str, int] = {}
+    for lineno, raw in enumerate(chain(head, lines), 1):
+        if raw[:1] == b"\t" or not raw.strip():
+            continue  # -e: the explanation of the error frame above
+        stamp, tokens = _split(raw)
+        if tokens and tokens[0].startswith(b"DROPCOUNT"):
+            m = _DROP.search(raw)
+            if m is None:
+                stats.skip(lineno, "DROPCOUNT line without a count")
+            else:
+                stats.dropped += int(m[1])
+                stats.ignored += 1
+            continue
+        try:
+            ts = clock(stamp)
+            iface, can_id, ext, rtr, err, fd, dlc, data = _frame(tokens)
+        except _Bad as exc:
+            stats.skip(lineno, str(exc))
+            continue
+        chan = chan_of.get(iface)
+        if chan is None:
+            chan = chan_of[iface] = stats.channel_code(iface)
+        builder.add(ts, chan, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc, data=data,
+                    line=lineno)
+        if builder.full and (batch := account(stats, builder.take())) is not None:
+            yield batch
+    if (batch := account(stats, builder.take())) is not None:
+        yield batch

@@ -1,0 +1,168 @@
+"""The vectorised text readers against the per-line reference path (NMTCHECK_REFERENCE=1).
+
+Both paths must give the same frames (every column), the same input statistics
+(skips with their line numbers, ignored, dropped, channels…) and so the same
+findings: on the samples, on the third-party corpus, and on fuzzed lines that
+sit next to the fast path's common shape (so that every near miss is handed to
+the reference parser, not misread).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import CORPUS, SAMPLES
+
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.frames import FrameBatch
+from nmtcheck.profiles import load_profile
+from nmtcheck.readers import InputStats, blocks, open_input
+from nmtcheck.readers.blocks import REFERENCE_ENV
+
+THIRD = CORPUS / "third_party"
+TEXT_LOGS = sorted(SAMPLES.glob("*.log")) + sorted(SAMPLES.glob("*.asc")) + (
+    sorted(p for p in THIRD.rglob("*") if p.name.endswith((".log", ".asc", ".asc.gz"))
+           or p.name in ("candump.gz", "gmlan_trace.candump.gz")) if THIRD.is_dir() else [])
+
+
+def _read(path: Path, reference: bool, mp: pytest.MonkeyPatch,
+          fmt: str | None = None) -> tuple[InputStats, list[FrameBatch]]:
+    with mp.context() as m:
+        if reference:
+            m.setenv(REFERENCE_ENV, "1")
+        else:
+            m.delenv(REFERENCE_ENV, raising=False)
+        opened = open_input(str(path), fmt)
+        return opened.stats, list(opened.batches)
+
+
+def assert_same_reading(path: Path, mp: pytest.MonkeyPatch, fmt: str | None = None) -> None:
+    fast_stats, fast = _read(path, False, mp, fmt)
+    ref_stats, ref = _read(path, True, mp, fmt)
+    assert dataclasses.asdict(fast_stats) == dataclasses.asdict(ref_stats)
+    assert [len(b) for b in fast] == [len(b) for b in ref]  # same batch boundaries
+    for name in (f.name for f in dataclasses.fields(FrameBatch)):
+        for a, b in zip(fast, ref, strict=True):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+@pytest.mark.parametrize("path", TEXT_LOGS, ids=lambda p: p.name)
+def test_samples_and_corpus_read_identically(path: Path, monkeypatch: pytest.MonkeyPatch
+                                             ) -> None:
+    assert_same_reading(path, monkeypatch)
+
+
+@pytest.mark.parametrize("path", TEXT_LOGS, ids=lambda p: p.name)
+def test_samples_and_corpus_give_identical_findings(path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    profile = load_profile("default")
+    rules = select_rules(profile, [], [])
+
+    def findings(reference: bool) -> list[tuple[object, ...]]:
+        with monkeypatch.context() as m:
+            if reference:
+                m.setenv(REFERENCE_ENV, "1")
+            res = check_input(str(path), 0, profile, rules)
+            return [dataclasses.astuple(f) for f in res.findings] + [
+                (iv.state, iv.start, iv.end, iv.source) for n in res.nodes() for iv in n.intervals]
+
+    assert findings(False) == findings(True)
+
+
+# --- fuzzing around the candump fast path's shape ----------------------------------------
+
+_CHARS = "()#. \t\r0123456789abcdefABCDEFRTxg_-+e\x0b\xff"
+
+
+def _candump_line(rnd: random.Random) -> str:
+    int_digits = rnd.choice((1, 1, 3, 8, 9, 10, 10, 10, 12, 13))
+    frac_digits = rnd.choice((0, 1, 3, 6, 6, 6, 8, 9, 10))
+    ts = "".join(rnd.choice("0123456789") for _ in range(int_digits))
+    if frac_digits:
+        ts += "." + "".join(rnd.choice("0123456789") for _ in range(frac_digits))
+    iface = rnd.choice(("can0", "can0", "vcan12", "c", "slcan0", "can_with_long_nm",
+                        "a17charsinterface"))
+    cid = "".join(rnd.choice("0123456789abcdefABCDEF") for _ in range(rnd.choice((3, 3, 3, 8))))
+    data = "".join(rnd.choice("0123456789abcdefABCDEF")
+                   for _ in range(rnd.choice((0, 2, 4, 8, 16, 16, 15, 18))))
+    suffix = rnd.choice(("", "", " R", " T", " X", "  R"))
+    return f"({ts}) {iface} {cid}#{data}{suffix}"
+
+
+def _mutate(line: str, rnd: random.Random) -> str:
+    chars = list(line)
+    for _ in range(rnd.choice((1, 1, 2))):
+        i = rnd.randrange(len(chars) + 1)
+        op = rnd.random()
+        if op < 0.4 and i < len(chars):
+            chars[i] = rnd.choice(_CHARS)
+        elif op < 0.7:
+            chars.insert(i, rnd.choice(_CHARS))
+        elif i < len(chars):
+            del chars[i]
+    return "".join(chars)
+
+
+@pytest.mark.parametrize("seed", range(int(__import__("os").environ.get("FUZZ_SEEDS", "4"))))
+def test_fuzzed_candump_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int) -> None:
+    rnd = random.Random(seed)
+    lines = []
+    for _ in range(3000):
+        line = _candump_line(rnd)
+        if rnd.random() < 0.3:
+            line = _mutate(line, rnd)
+        lines.append(line + rnd.choice(("\n", "\n", "\r\n")))
+    lines += ["\n", "DROPCOUNT: dropped 3\n", "   \n", "(1.5) can0 123#R\n",
+              "(1.5) can9 12345678#00"]
+    path = tmp_path / "fuzz.log"
+    path.write_bytes("".join(lines).encode("latin-1"))
+    monkeypatch.setattr(blocks, "BLOCK_BYTES", 4096)  # many blocks: lines cut at block ends
+    assert_same_reading(path, monkeypatch, "candump")
+
+
+# --- fuzzing around the ASC fast path's shape --------------------------------------------
+
+_ASC_HEADERS = ["date Tue Nov 14 22:13:20.000 2023", "base hex  timestamps absolute",
+                "internal events logged", "// version 13.0.0",
+                "Begin Triggerblock Tue Nov 14 22:13:20.000 2023",
+                "   0.000000 Start of measurement"]
+
+
+def _asc_line(rnd: random.Random, t: float) -> str:
+    ts = f"{t:{rnd.choice(('11', '11', '11', '9', '1', '14'))}.{rnd.choice((6, 6, 6, 3, 9))}f}"
+    chan = rnd.choice(("1", "1", "2", "12", "0"))
+    cid = f"{rnd.choice((0x181, 0x701, 0x5, 0x7FF, 0x800, 0x1ABCDEF)):X}"
+    if rnd.random() < 0.05:
+        cid += "x"
+    dlc = rnd.choice((0, 1, 2, 8, 8, 8, 9, 12))
+    data = " ".join(f"{rnd.randrange(256):02X}" for _ in range(min(dlc, 8)))
+    kind = rnd.choice(("d", "d", "d", "D", "r"))
+    direction = rnd.choice(("Rx", "Rx", "Tx", "TxRq"))
+    tail = rnd.choice(("", "", "  Length = 240000 BitCount = 120 ID = 385", " x"))
+    return f"{ts} {chan}  {cid:<15} {direction}   {kind} {dlc:x} {data}{tail}".rstrip(" ") \
+        if rnd.random() < 0.9 else f"{ts} {chan}  {cid:<15} {direction}   {kind} {dlc:x} {data}"
+
+
+@pytest.mark.parametrize("seed", range(int(__import__("os").environ.get("FUZZ_SEEDS", "4"))))
+def test_fuzzed_asc_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int) -> None:
+    rnd = random.Random(seed)
+    lines = [h + "\n" for h in _ASC_HEADERS]
+    t = 0.0
+    for _ in range(3000):
+        t += rnd.choice((0.0, 0.000123, 0.01, 3.5, 250.0))
+        line = _asc_line(rnd, t)
+        if rnd.random() < 0.3:
+            line = _mutate(line, rnd)
+        if rnd.random() < 0.003:  # the header can change the number base or the time mode
+            line = rnd.choice(("base dec  timestamps absolute", "base hex  timestamps relative",
+                               "base hex  timestamps absolute", "Begin Triggerblock",
+                               "End TriggerBlock"))
+        lines.append(line + rnd.choice(("\n", "\n", "\r\n")))
+    path = tmp_path / "fuzz.asc"
+    path.write_bytes("".join(lines).encode("latin-1"))
+    monkeypatch.setattr(blocks, "BLOCK_BYTES", 8192)
+    assert_same_reading(path, monkeypatch, "asc")
