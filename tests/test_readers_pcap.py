@@ -196,13 +196,14 @@ def test_cooked_captures(tmp_path: Path) -> None:
     packets = [(f.t_us, sll(socketcan(f, "<"), 0x000D if f.fd else 0x000C, pkttype=4))
                for f in FRAMES]
     packets.insert(3, (T0_US + 2500, sll(b"\x45" + bytes(19), 0x0800)))  # IPv4
+    packets.insert(4, (T0_US + 2600, sll(b"\x00\x01", 0x0806)))  # shorter than a CAN header
     xl = struct.pack("<IBBHI", 0x7FF, 0x80, 0, 4, 0) + b"\x01\x02\x03\x04"
-    packets.insert(5, (T0_US + 3500, sll(xl, 0x000E)))
+    packets.insert(6, (T0_US + 3500, sll(xl, 0x000E)))
     path = tmp_path / "sll.pcap"
     path.write_bytes(pcap_file(packets, linktype=113))
     stats, cols = read(path)
     assert rows(stats, cols) == expect(FRAMES)
-    assert (stats.ignored, stats.skipped) == (2, 0)
+    assert (stats.ignored, stats.skipped) == (3, 0)
 
 
 def test_sll2_channels_by_interface_index(tmp_path: Path) -> None:
@@ -214,6 +215,18 @@ def test_sll2_channels_by_interface_index(tmp_path: Path) -> None:
     assert stats.channels == ["ifindex3", "ifindex4"]
     assert rows(stats, cols) == [
         (r[0], f"ifindex{3 + i % 2}", *r[2:]) for i, r in enumerate(expect(FRAMES))]
+
+
+def test_a_lone_ambiguous_id_follows_the_link_type_default(tmp_path: Path) -> None:
+    """181h reads as a plausible 29-bit ID in the other byte order too; with no other
+    evidence the link type's own order decides."""
+    frame = Frame(T0_US, 0x181, b"\x01")
+    for linktype, packet, order in ((227, socketcan(frame, ">"), ">"),
+                                    (113, sll(socketcan(frame, "<")), "<")):
+        path = tmp_path / f"one{linktype}.pcap"
+        path.write_bytes(pcap_file([(T0_US, packet)], linktype=linktype))
+        stats, cols = read(path)
+        assert rows(stats, cols) == expect([frame]), order
 
 
 def test_can_xl_flag_on_socketcan_linktype_is_ignored(tmp_path: Path) -> None:

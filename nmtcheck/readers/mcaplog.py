@@ -366,46 +366,46 @@ class _McapFrames:
         except (struct.error, UnicodeDecodeError, ValueError) as exc:
             self.stats.skip(0, f"malformed chunk: {exc}")
             return None
+        if compression == "":
+            return data
+        if compression not in ("zstd", "lz4"):
+            raise InputError(self.source.path, f"chunk compression {compression!r} is not "
+                             "supported (zstd, lz4 or none)")
         try:
-            if compression == "":
-                return data
             if compression == "zstd":
                 import zstandard
 
                 out = zstandard.ZstdDecompressor().decompress(data, max_output_size=usize)
-            elif compression == "lz4":
+            else:
                 import lz4.frame
 
                 out = lz4.frame.decompress(data)
-            else:
-                raise InputError(self.source.path, f"chunk compression {compression!r} is not "
-                                 "supported (zstd, lz4 or none)")
-        except InputError:
-            raise
-        except Exception as exc:  # the codecs raise their own error types
+        except Exception as exc:  # each codec raises its own error types
             self.stats.skip(0, f"corrupt {compression} chunk: {exc}")
             return None
         if len(out) != usize:
             self.stats.skip(0, "chunk decompresses to the wrong size")
             return None
-        return bytes(out)
+        return out
 
     def _schema(self, body: bytes) -> None:
         from mcap.data_stream import ReadDataStream
+        from mcap.exceptions import McapError
 
         try:
             schema = self._schema_cls.read(ReadDataStream(io.BytesIO(body)))
-        except Exception as exc:
+        except (struct.error, UnicodeDecodeError, McapError) as exc:
             self.stats.skip(0, f"malformed schema record: {exc}")
             return
         self.schemas[schema.id] = schema
 
     def _channel(self, body: bytes) -> None:
         from mcap.data_stream import ReadDataStream
+        from mcap.exceptions import McapError
 
         try:
             channel = self._channel_cls.read(ReadDataStream(io.BytesIO(body)))
-        except Exception as exc:
+        except (struct.error, UnicodeDecodeError, McapError) as exc:
             self.stats.skip(0, f"malformed channel record: {exc}")
             return
         if channel.id in self.topics:

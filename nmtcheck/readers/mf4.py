@@ -54,7 +54,7 @@ def _payload(raw: np.ndarray, n: int) -> np.ndarray:
             head = bytes(value)[:8]
             data[i, : len(head)] = np.frombuffer(head, np.uint8)
         return data
-    flat = raw.reshape(n, -1).view(np.uint8) if raw.dtype.itemsize == 1 else raw.reshape(n, -1)
+    flat = raw.reshape(n, -1).astype(np.uint8, copy=False)
     width = min(8, flat.shape[1])
     data[:, :width] = flat[:, :width]
     return data

@@ -116,10 +116,10 @@ class _Capture:
                  | b[:, 1].astype(np.uint32) << 8 | b[:, 0])
         be_ok = int(np.count_nonzero(_plausible(as_be)))
         le_ok = int(np.count_nonzero(_plausible(as_le)))
-        # the link-type spec says network order; cooked captures carry the host's (x86: little)
-        big = be_ok > le_ok if cooked else be_ok >= le_ok
-        self.big_endian_id[cooked] = big
-        return big
+        if be_ok == le_ok:  # no evidence yet: the link-type spec's network order, or the
+            return not cooked  # capturing host's order for cooked captures (x86: little)
+        self.big_endian_id[cooked] = be_ok > le_ok
+        return be_ok > le_ok
 
     def decode(self, pkt: np.ndarray, caplen: np.ndarray, ts: np.ndarray, iface: _Interface,
                out: np.ndarray, frames: Frames) -> None:
@@ -130,11 +130,8 @@ class _Capture:
         cooked = hdr > 0
         proto = np.full(n, ETH_P_CAN, np.int64)
         ifindex: np.ndarray | None = None
-        usable = caplen >= hdr + 8
-        if pkt.shape[1] < hdr + 8:
-            for _ in range(n):
-                self.stats.skip(0, "packet shorter than a CAN frame header")
-            return
+        if pkt.shape[1] < hdr + 16:  # short packets: zero columns, never read past caplen
+            pkt = np.pad(pkt, ((0, 0), (0, hdr + 16 - pkt.shape[1])))
         if link == LINKTYPE_LINUX_SLL:
             proto = pkt[:, 14].astype(np.int64) << 8 | pkt[:, 15]
         elif link == LINKTYPE_LINUX_SLL2:
@@ -146,9 +143,10 @@ class _Capture:
         fd_flags = can[:, 5]
         is_can = (proto == ETH_P_CAN) | (proto == ETH_P_CANFD)
         xl = (proto == ETH_P_CANXL) | (is_can & ((can[:, 4] & CANXL_XLF) != 0))
-        ignored = usable & (~is_can | xl)  # other protocols, CAN XL: not CAN CC/FD frames
-        short = ~usable
-        cand = usable & ~ignored
+        # other protocols of a cooked capture and CAN XL are not CAN CC/FD frames
+        ignored = (caplen >= hdr) & (~is_can | xl)
+        short = ~ignored & (caplen < hdr + 8)
+        cand = ~ignored & ~short
         self.stats.ignored += int(np.count_nonzero(ignored))
         for _ in range(int(np.count_nonzero(short))):
             self.stats.skip(0, "packet shorter than a CAN frame header")
@@ -179,10 +177,7 @@ class _Capture:
             good &= ~hit
         rtr &= ~fd  # CAN FD has no remote frames; the flag bit means nothing there
         dlc = np.where(fd, length, np.minimum(length, 8)).astype(np.int16)
-        data = np.zeros((n, 8), np.uint8)
-        width = min(8, can.shape[1] - 8)
-        if width > 0:
-            data[:, :width] = can[:, 8 : 8 + width]
+        data = np.array(can[:, 8:16])
         zero_beyond(data, np.where(rtr, 0, np.minimum(dlc, 8)))
         rows = out[good]
         if not len(rows):
