@@ -7,8 +7,10 @@ input error (one line on stderr, never a traceback unless --debug).
 from __future__ import annotations
 
 import csv
+import glob
 import io
 import json
+import os
 import sys
 import traceback
 from collections.abc import Callable
@@ -19,7 +21,7 @@ import click
 
 from nmtcheck import __version__
 from nmtcheck.checks import BY_CODE, RULES
-from nmtcheck.engine import InputResult, check_input, select_rules, summary
+from nmtcheck.engine import InputResult, check_input, check_inputs, select_rules, summary
 from nmtcheck.errors import NmtcheckError, UsageError
 from nmtcheck.network import Network, load_network
 from nmtcheck.profiles import DEFAULT_PROFILE, Profile, load_profile
@@ -90,18 +92,30 @@ def cli(ctx: click.Context, debug: bool) -> None:
               default="error", show_default=True,
               help="Exit 1 when a finding of this severity or higher exists.")
 @click.option("-q", "--quiet", is_flag=True, help="Only the findings and the verdict.")
+@click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
+              help="Check this many logs at once, in separate processes (0: one per core).")
 def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
           network_file: str | None, dcf: tuple[str, ...], strict: bool, channel: str | None,
           topics: tuple[str, ...], fmt: str, outputs: tuple[str, ...], select: tuple[str, ...],
-          ignore: tuple[str, ...], fail_on: str, quiet: bool) -> None:
-    """Analyse each LOG, print the findings and set the exit code."""
+          ignore: tuple[str, ...], fail_on: str, quiet: bool, jobs: int) -> None:
+    """Analyse each LOG (`-`: standard input; quoted globs are expanded), print the findings
+    and set the exit code."""
+    logs = expand_logs(logs)
+    if "-" in logs:
+        jobs = 1  # worker processes do not share this process's standard input
     profile, network = _load(rules_profile, network_file, dcf)
     rules = select_rules(profile, _split(select), _split(ignore))
     stdout_render = renderer(fmt)
     files = [(path, renderer(format_for_path(path))) for path in outputs]
     reader_options: dict[str, object] = {"topics": list(topics)} if topics else {}
-    results = [check_input(path, i, profile, rules, network, input_format, strict, channel,
-                           reader_options) for i, path in enumerate(logs)]
+    progress = ProgressBar(len(logs)) if sys.stderr.isatty() and not quiet else None
+    try:
+        results = check_inputs(logs, jobs or os.cpu_count() or 1, profile, rules,
+                               progress=progress, network=network, input_format=input_format,
+                               strict=strict, channel=channel, reader_options=reader_options)
+    finally:
+        if progress:
+            progress.close()
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet,
                                   "rules": {r.code: profile[r.code].severity for r in rules}}
     for path, render in files:
@@ -129,6 +143,48 @@ def timeline(log: str, input_format: str | None, rules_profile: str, network_fil
     res = check_input(log, 0, profile, [], network, input_format, strict, channel,
                       {"topics": list(topics)} if topics else {})
     click.echo(render_timeline(res, fmt), nl=False)
+
+
+def expand_logs(logs: tuple[str, ...]) -> tuple[str, ...]:
+    """LOG arguments with the glob patterns the shell left alone (quoted, or from a CI
+    config) expanded, sorted; a pattern's matches are the files it names, not directories.
+    `-` (standard input) may come once."""
+    out: list[str] = []
+    for arg in logs:
+        if arg == "-" or os.path.lexists(arg) or not glob.has_magic(arg):
+            out.append(arg)
+            continue
+        matches = sorted(m for m in glob.glob(arg, recursive=True) if not os.path.isdir(m))
+        if not matches:
+            raise UsageError(f"{arg}: no log file matches this pattern")
+        out.extend(matches)
+    if out.count("-") > 1:
+        raise UsageError("-: standard input can be read only once")
+    return tuple(out)
+
+
+class ProgressBar:
+    """Frames checked so far, on stderr (tqdm), shown only once a run takes over a second."""
+
+    def __init__(self, inputs: int) -> None:
+        from tqdm import tqdm
+
+        self._bar = tqdm(unit=" frames", unit_scale=True, file=sys.stderr, leave=False,
+                         delay=1.0, mininterval=0.5, dynamic_ncols=True,
+                         bar_format="{desc}{n_fmt} frames [{elapsed}, {rate_fmt}]")
+        self._inputs = inputs
+        self._started = 0
+
+    def start_input(self, path: str) -> None:
+        self._started += 1
+        self._bar.set_description(f"[{self._started}/{self._inputs}] {Path(path).name}",
+                                  refresh=False)
+
+    def frames(self, n: int) -> None:
+        self._bar.update(n)
+
+    def close(self) -> None:
+        self._bar.close()
 
 
 def render_timeline(res: InputResult, fmt: str) -> str:

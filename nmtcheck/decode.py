@@ -45,7 +45,7 @@ EVENT_DTYPE = np.dtype([
     ("rtr", "?"), ("dlc", "i2"), ("data", "u1", (8,)),
 ])
 
-STORE_BUDGET_BYTES = 64 << 20
+STORE_BUDGET_BYTES = 16 << 20  # per store; past it chunks go to a temporary directory
 
 
 def node_key(chan: np.ndarray | int, node: np.ndarray | int) -> np.ndarray | int:
@@ -113,7 +113,7 @@ class Decoded:
     """Everything later stages need from one input."""
 
     events: np.ndarray  # EVENT_DTYPE, file order
-    frame_times: ChunkStore  # per batch: ts, line, base index
+    frame_times: ChunkStore  # per batch: ts, base index, lines (see _lines)
     node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, line
     restricted: dict[tuple[int, int], IdUse] = field(default_factory=dict)
     # node key -> (frame index, ts, kind) of the node's first transmitted frame
@@ -141,7 +141,7 @@ class Decoded:
             still = []
             for q, p in zip(pending, pos, strict=True):
                 if p < len(ts):
-                    result[q] = (int(chunk["base"][0]) + int(p), int(chunk["line"][p]))
+                    result[q] = (int(chunk["base"][0]) + int(p), _line_at(chunk, int(p)))
                 else:
                     still.append(q)
             pending = still
@@ -207,10 +207,10 @@ def _id_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for k, bases in ((KIND_TPDO, TPDO_BASES), (KIND_RPDO, RPDO_BASES),
                      (KIND_SDO_TX, (SDO_TX_BASE,)), (KIND_EMCY, (EMCY_BASE,)),
                      (KIND_EC, (EC_BASE,))):
-            n, m = _node_of(ids, bases)
-            m[2048] = False
-            kind[m] = k
-            node[m] = n[m]
+        n, m = _node_of(ids, bases)
+        m[2048] = False
+        kind[m] = k
+        node[m] = n[m]
     restricted = is_restricted_id(ids)
     restricted[2048] = False
     return kind, node, restricted
@@ -244,6 +244,23 @@ def node_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
     return emcy
 
 
+def _lines(line: np.ndarray) -> dict[str, np.ndarray]:
+    """A batch's line numbers for the frame-time store: usually consecutive (text logs
+    without junk lines) or all 0 (binary logs), then two numbers instead of a column."""
+    first = line[:1].copy()
+    if line.shape[0] and line[0] == 0 and not line.any():
+        return {"line_first": first, "line_step": np.zeros(1, np.int64)}
+    if line.shape[0] and bool((np.diff(line) == 1).all()):
+        return {"line_first": first, "line_step": np.ones(1, np.int64)}
+    return {"line": line}
+
+
+def _line_at(chunk: dict[str, np.ndarray], pos: int) -> int:
+    if "line" in chunk:
+        return int(chunk["line"][pos])
+    return int(chunk["line_first"][0]) + int(chunk["line_step"][0]) * pos
+
+
 def _first_last(keys: np.ndarray, rows: np.ndarray, kinds: np.ndarray, b: FrameBatch,
                 first_tx: dict[int, tuple[int, float, int]], last_tx: dict[int, float]) -> None:
     """Update each node key's first (index, ts, kind) and last ts from one batch's transmitted
@@ -274,7 +291,8 @@ def decode(batches: Iterable[FrameBatch]) -> Decoded:
     last_tx: dict[int, float] = {}
 
     for b in batches:
-        frame_times.append(ts=b.ts, line=b.line, base=b.index[:1])
+        # (copies of one-element slices: a view would keep the whole column alive)
+        frame_times.append(ts=b.ts, base=b.index[:1].copy(), **_lines(b.line))
         co = ~b.ext & ~b.err
         cid = b.can_id.astype(np.int64)
         ec = co & (cid >= 0x701) & (cid <= 0x77F)
@@ -299,14 +317,7 @@ def decode(batches: Iterable[FrameBatch]) -> Decoded:
         nodes = _NODE_OF_ID[id11]
         keys = (b.chan.astype(np.int32) << 7) | nodes  # node key: channel * 128 + node
         sel = np.flatnonzero((kinds > 0) & (kinds != KIND_EC))
-        if sel.size:
-            # Sorted by node key (stable: file order within a node), so that the rules that
-            # group each chunk by node (checks/state.py) sort an already sorted array. 16-bit
-            # keys sort by radix, in linear time.
-            sel_keys = keys[sel]
-            if int(sel_keys.max()) < 1 << 15:
-                sel_keys = sel_keys.astype(np.int16)
-            sel = sel[np.argsort(sel_keys, kind="stable")]
+        if sel.size:  # in file order: the rules take the first offending frame of each run
             node_frames.append(
                 key=keys[sel].astype(np.int32), kind=kinds[sel],
                 can_id=b.can_id[sel].astype(np.uint16), ts=b.ts[sel],

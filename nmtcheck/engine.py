@@ -7,13 +7,16 @@ UNKNOWN exemption is applied in one place for every rule.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
-from nmtcheck.checks import RULES
+from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import SEVERITIES, Problem, Rule
 from nmtcheck.decode import decode
-from nmtcheck.errors import UsageError
+from nmtcheck.errors import InputError, NmtcheckError, UsageError
+from nmtcheck.frames import FrameBatch
 from nmtcheck.network import Network
 from nmtcheck.profiles import Profile, RuleSettings
 from nmtcheck.readers import InputStats, open_input
@@ -77,9 +80,10 @@ def timeline_params(profile: Profile) -> TimelineParams:
 def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                 network: Network | None = None, input_format: str | None = None,
                 strict: bool = False, channel: str | None = None,
-                reader_options: dict[str, Any] | None = None) -> InputResult:
+                reader_options: dict[str, Any] | None = None,
+                progress: Callable[[int], object] | None = None) -> InputResult:
     opened = open_input(path, input_format, strict, reader_options)
-    decoded = decode(opened.batches)
+    decoded = decode(_counted(opened.batches, progress) if progress else opened.batches)
     stats = opened.stats
     try:
         if stats.frames == 0:
@@ -115,6 +119,76 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         return result
     finally:
         decoded.close()
+
+
+def _counted(batches: Iterator[FrameBatch], progress: Callable[[int], object]
+             ) -> Iterator[FrameBatch]:
+    """The batches, telling `progress` how many frames each one has (for a progress bar)."""
+    for batch in batches:
+        progress(len(batch))
+        yield batch
+
+
+def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[Rule],
+                 progress: Progress | None = None, **options: Any) -> list[InputResult]:
+    """`check_input` for each path (index = position; `options` are its keyword arguments),
+    results in order. With jobs > 1 the inputs are checked in that many processes: checking
+    many logs is CPU-bound and scales with the cores. The first input that fails (in order)
+    raises, as in a serial run."""
+    if jobs <= 1 or len(paths) <= 1:
+        results = []
+        for i, path in enumerate(paths):
+            kw = dict(options)
+            if progress:
+                progress.start_input(path)
+                kw["progress"] = progress.frames
+            results.append(check_input(path, i, profile, rules, **kw))
+        return results
+    with ProcessPoolExecutor(min(jobs, len(paths))) as pool:
+        # Rules travel as codes: their decorated check functions do not pickle.
+        codes = [r.code for r in rules]
+        futures = [pool.submit(_check_in_worker, path, i, profile, codes, options)
+                   for i, path in enumerate(paths)]
+        results = []
+        for path, future in zip(paths, futures, strict=True):
+            outcome = future.result()
+            if isinstance(outcome, _Failure):
+                for f in futures:
+                    f.cancel()
+                raise outcome.error()
+            if progress:
+                progress.start_input(path)
+                progress.frames(outcome.stats.frames)
+            results.append(outcome)
+        return results
+
+
+class Progress(Protocol):
+    """What check_inputs tells a progress display."""
+
+    def start_input(self, path: str) -> object: ...
+    def frames(self, n: int) -> object: ...
+
+
+@dataclass
+class _Failure:
+    """An exit-2 error from a worker process, carried back in picklable form."""
+
+    kind: str  # "input" or "usage"
+    args: tuple[Any, ...]
+
+    def error(self) -> NmtcheckError:
+        return InputError(*self.args) if self.kind == "input" else UsageError(*self.args)
+
+
+def _check_in_worker(path: str, index: int, profile: Profile, codes: list[str],
+                     options: dict[str, Any]) -> InputResult | _Failure:
+    try:
+        return check_input(path, index, profile, [BY_CODE[c] for c in codes], **options)
+    except InputError as exc:
+        return _Failure("input", (exc.path, exc.message, exc.line))
+    except UsageError as exc:
+        return _Failure("usage", (str(exc),))
 
 
 def _locate(model: InputModel, problems: list[tuple[Rule, Problem]]) -> None:

@@ -4,18 +4,21 @@ Both paths must give the same frames (every column), the same input statistics
 (skips with their line numbers, ignored, dropped, channels…) and so the same
 findings: on the samples, on the third-party corpus, and on fuzzed lines that
 sit next to the fast path's common shape (so that every near miss is handed to
-the reference parser, not misread).
+the reference parser, not misread). `FUZZ_SEEDS=400` fuzzes longer than CI does.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import random
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import CORPUS, SAMPLES
+from conftest import CORPUS, REPO, SAMPLES
 
 from nmtcheck.engine import check_input, select_rules
 from nmtcheck.frames import FrameBatch
@@ -107,7 +110,7 @@ def _mutate(line: str, rnd: random.Random) -> str:
     return "".join(chars)
 
 
-@pytest.mark.parametrize("seed", range(int(__import__("os").environ.get("FUZZ_SEEDS", "4"))))
+@pytest.mark.parametrize("seed", range(int(os.environ.get("FUZZ_SEEDS", "4"))))
 def test_fuzzed_candump_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int) -> None:
     rnd = random.Random(seed)
     lines = []
@@ -147,7 +150,7 @@ def _asc_line(rnd: random.Random, t: float) -> str:
         if rnd.random() < 0.9 else f"{ts} {chan}  {cid:<15} {direction}   {kind} {dlc:x} {data}"
 
 
-@pytest.mark.parametrize("seed", range(int(__import__("os").environ.get("FUZZ_SEEDS", "4"))))
+@pytest.mark.parametrize("seed", range(int(os.environ.get("FUZZ_SEEDS", "4"))))
 def test_fuzzed_asc_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int) -> None:
     rnd = random.Random(seed)
     lines = [h + "\n" for h in _ASC_HEADERS]
@@ -166,3 +169,53 @@ def test_fuzzed_asc_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed:
     path.write_bytes("".join(lines).encode("latin-1"))
     monkeypatch.setattr(blocks, "BLOCK_BYTES", 8192)
     assert_same_reading(path, monkeypatch, "asc")
+
+
+# --- several logs at once, and what stderr shows ------------------------------------------
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "nmtcheck", *args], capture_output=True,
+                          text=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
+
+
+def test_jobs_give_the_same_report_in_the_same_order() -> None:
+    logs = [str(SAMPLES / n) for n in ("healthy.log", "guard_toggle.asc", "pdo_preop.log")]
+    serial = _cli("check", *logs, "--format", "json", "--fail-on", "never")
+    parallel = _cli("check", "-j", "2", *logs, "--format", "json", "--fail-on", "never")
+    assert serial.returncode == parallel.returncode == 0
+    assert parallel.stdout == serial.stdout
+    assert parallel.stderr == ""  # no progress bar when stderr is not a terminal
+
+
+def test_jobs_report_the_first_failing_input_in_order(tmp_path: Path) -> None:
+    bad = tmp_path / "empty.log"
+    bad.write_bytes(b"")
+    res = _cli("check", "-j", "2", str(SAMPLES / "healthy.log"), str(bad), str(tmp_path / "x"))
+    assert res.returncode == 2
+    assert res.stderr.strip() == f"nmtcheck: {bad}: empty file: no records to check"
+
+
+@pytest.mark.parametrize("block_bytes", [7, 64, 1000])
+def test_blocks_smaller_than_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                   block_bytes: int) -> None:
+    """Lines cut by reads of any size (a line longer than a block is carried over)."""
+    monkeypatch.setattr(blocks, "BLOCK_BYTES", block_bytes)
+    for name in ("healthy.log", "healthy.asc"):
+        text = (SAMPLES / name).read_bytes()
+        path = tmp_path / name
+        path.write_bytes(text[:4000].rstrip(b"\n"))  # and a last line without newline
+        assert_same_reading(path, monkeypatch)
+
+
+def test_overlong_lines_are_one_skipped_record_each(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Lines of 1 MiB or more, inside a block or longer than one, as Source.lines() has them."""
+    mib = 1 << 20
+    good = "(1700000000.000100) can0 701#05\n"
+    path = tmp_path / "long.log"
+    path.write_bytes((good * 3 + "7" * (mib - 1) + "\n" + good + "7 " * (mib // 2) + "\n"
+                      + good + "x" * (3 * mib) + "\r\n" + good + "y" * (mib + 5)).encode())
+    assert_same_reading(path, monkeypatch)
+    stats, _ = _read(path, False, monkeypatch)
+    assert (stats.frames, stats.skipped, stats.skipped_lines) == (6, 4, [4, 6, 8, 10])

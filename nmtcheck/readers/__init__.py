@@ -27,6 +27,12 @@ from nmtcheck.frames import FrameBatch
 
 MAX_SKIPPED_LINES_KEPT = 10
 HEAD_BYTES = 65536
+# No format has records anywhere near this long; a longer "line" (a binary file read as
+# text, a log whose newlines were lost) is one unparseable record, never held in memory whole.
+MAX_LINE_BYTES = 1 << 20
+# What `Source.lines()` yields in place of an overlong line: one token that no reader parses
+# (and no format takes for a comment or a header), so it counts as one skipped record.
+OVERLONG_LINE = b"<line-longer-than-1-MiB>\n"
 
 
 @dataclass
@@ -45,6 +51,7 @@ class InputStats:
     fd_frames: int = 0
     dropped: int = 0  # frames the logger says it lost (candump DROPCOUNT)
     backwards_timestamps: int = 0
+    truncated: bool = False  # the input ends early (cut off, or a damaged compressed stream)
     start: float | None = None
     end: float | None = None
     channels: list[str] = field(default_factory=list)
@@ -66,6 +73,21 @@ class InputStats:
         self.skipped += 1
         if len(self.skipped_lines) < MAX_SKIPPED_LINES_KEPT:
             self.skipped_lines.append(line)
+
+
+_DECIMAL_DIGITS = b"0123456789"
+_HEX_DIGITS = b"0123456789abcdefABCDEF"
+MAX_NUMBER_DIGITS = 40  # no field of any log format is longer; int() of 5000 digits is an error
+
+
+def unsigned(tok: bytes, base: int = 10) -> int | None:
+    """The value of a field of plain digits, else None. Python's int() also takes `-5`, `+5`,
+    `1_0` and surrounding spaces, which in a log field mean damage, not a number (a negative
+    CAN-ID would not even fit the frame columns)."""
+    if not tok or len(tok) > MAX_NUMBER_DIGITS or tok.translate(
+            None, _HEX_DIGITS if base == 16 else _DECIMAL_DIGITS):
+        return None
+    return int(tok, base)
 
 
 def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
@@ -188,11 +210,55 @@ def _stream_errors(compression: str) -> tuple[type[Exception], ...]:
 
 
 def _lines(stream: IO[bytes], path: str, errors: tuple[type[Exception], ...]) -> Iterator[bytes]:
-    """Raw lines (LF or CRLF endings); read errors of damaged files become InputError."""
+    """Raw lines (LF or CRLF endings), each at most MAX_LINE_BYTES (a longer one becomes
+    OVERLONG_LINE); read errors of damaged files become InputError."""
     try:
-        yield from stream
+        while line := stream.readline(MAX_LINE_BYTES):
+            if len(line) == MAX_LINE_BYTES and not line.endswith(b"\n"):
+                while (rest := stream.readline(MAX_LINE_BYTES)) and not rest.endswith(b"\n"):
+                    pass  # the rest of the overlong line, read and dropped piece by piece
+                line = OVERLONG_LINE
+            yield line
     except errors as exc:
         raise InputError(path, f"read error (truncated or corrupt file?): {exc}") from None
+
+
+class _UpToDamage(io.RawIOBase):
+    """A decompressed stream that ends where its compressed data is cut off or corrupt.
+
+    A log whose `.gz` was cut when the power went is read up to the damage, and the damage
+    is remembered (`damage`) so the report can say the input was truncated; under --strict
+    the damage is an input error.
+    """
+
+    def __init__(self, stream: IO[bytes], errors: tuple[type[Exception], ...], path: str,
+                 strict: bool) -> None:
+        self._stream = stream
+        self._errors = errors
+        self._path = path
+        self._strict = strict
+        self._read = getattr(stream, "read1", stream.read)
+        self.damage: str | None = None
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: bytearray | memoryview) -> int:  # type: ignore[override]
+        if self.damage is not None:
+            return 0
+        try:
+            # read1: one step of the decompressor, so the data decompressed before the
+            # damage is returned before the step that meets the damage raises
+            data = self._read(len(b))
+        except self._errors as exc:
+            self.damage = str(exc) or type(exc).__name__
+            if self._strict:
+                raise InputError(self._path, f"compressed data is cut off or corrupt: "
+                                 f"{self.damage}") from None
+            return 0
+        n = len(data)
+        b[:n] = data
+        return n
 
 
 @dataclass
@@ -211,6 +277,12 @@ class Source:
         return _lines(self.stream, self.path, self.errors)
 
 
+def printable_path(path: str) -> str:
+    """The path as reports show it: bytes of a file name that are not UTF-8 (kept by Python
+    as surrogates, which no report can write) become `\\xNN` escapes."""
+    return path.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 @dataclass
 class OpenedInput:
     stats: InputStats
@@ -221,18 +293,21 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
                options: dict[str, Any] | None = None) -> OpenedInput:
     """Open, decompress and sniff one log; exit-2 errors name the file."""
     if path == "-":
+        if sys.stdin is None:  # started without a standard input (fd 0 closed)
+            raise InputError("<stdin>", "no standard input to read")
         raw: IO[bytes] = sys.stdin.buffer
         display = "<stdin>"
     else:
-        display = path
+        display = printable_path(path)
         if os.path.isdir(path):
-            raise InputError(path, "is a directory, not a log file")
+            raise InputError(display, "is a directory, not a log file")
         try:
             raw = open(path, "rb")  # noqa: SIM115 - closed when the batches are exhausted
         except FileNotFoundError:
-            raise InputError(path, "no such file") from None
+            raise InputError(display, "no such file" if not os.path.islink(path)
+                             else "a symbolic link to a file that does not exist") from None
         except OSError as exc:
-            raise InputError(path, f"cannot open: {exc.strerror or exc}") from None
+            raise InputError(display, f"cannot open: {exc.strerror or exc}") from None
     try:
         magic = raw.read(6)
         try:
@@ -242,10 +317,14 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
                 display, "zstd-compressed, but the 'zstandard' module is not installed"
             ) from None
         errors = _stream_errors(compression)
-        try:
-            head = _read_up_to(stream, HEAD_BYTES)
-        except errors as exc:
-            raise InputError(display, f"cannot decompress: {exc}") from None
+        damage: _UpToDamage | None = None
+        if compression:
+            damage = _UpToDamage(stream, errors, display, strict)
+            stream = io.BufferedReader(damage)
+        head = _read_up_to(stream, HEAD_BYTES)
+    except OSError as exc:  # reading a path that opened: an I/O error of the device
+        raw.close()
+        raise InputError(display, f"cannot read: {exc.strerror or exc}") from None
     except BaseException:
         raw.close()
         raise
@@ -253,6 +332,8 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
         head = head[len(codecs.BOM_UTF8) :]
     if not head:
         raw.close()
+        if damage is not None and damage.damage is not None:
+            raise InputError(display, f"cannot decompress ({compression}): {damage.damage}")
         raise InputError(display, "empty file: no records to check")
     fmt = input_format or detect_format(head)
     if fmt is not None and fmt not in FORMAT_MODULES:
@@ -273,6 +354,11 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
             source = Source(display, buffered, errors, compression,
                             None if compression or path == "-" else path, options or {})
             yield from reader(source, stats)
+            if damage is not None and damage.damage is not None:
+                stats.truncated = True  # read up to the damage of the compressed stream
+            if stats.truncated and strict:
+                raise InputError(display, "the input ends early (cut off or damaged); "
+                                 "without --strict it is read up to there")
         finally:
             raw.close()
 

@@ -29,15 +29,23 @@ import numpy as np
 from nmtcheck.frames import BatchBuilder, FrameBatch
 from nmtcheck.readers import InputStats, Source, account, is_text
 from nmtcheck.readers.blocks import (
+    HIGH,
     MAX_EXACT,
     POW10,
     Block,
     all_digits,
-    blocks,
+    byte_flags,
+    byte_mask,
+    count_flags,
+    digit_flags,
     fill_high,
     fill_low,
     find_byte,
+    hex_flags,
+    high_flags,
+    merged_batches,
     parse_digits,
+    parsed_blocks,
     reference_path,
 )
 
@@ -192,13 +200,10 @@ def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 # and then exactly dlc ` XX` bytes, followed by whitespace or the end of the line. The
 # spacing is learned from one such line (CANoe and python-can pad to fixed columns after
 # the timestamp); lines spaced otherwise go through `_parse_line`.
-_COMMON = re.compile(rb" *(\d{1,8})\.(\d{1,9})( +)(\d{1,3})( +)([0-9A-Fa-f]{1,3}) +([RT]x) +([dD]) ([0-8])"
-                     rb"(?:(?: [0-9A-Fa-f]{2})*)(?=[ \t\r\n\x0b\x0c]|$)")
+_COMMON = re.compile(rb" *(\d{1,8})\.(\d{1,9})( +)(\d{1,3})( +)([0-9A-Fa-f]{1,3}) +([RT]x) +"
+                     rb"([dD]) ([0-8])(?:(?: [0-9A-Fa-f]{2})*)(?=[ \t\r\n\x0b\x0c]|$)")
 _WS = np.zeros(256, bool)
 _WS[list(b" \t\r\n\x0b\x0c")] = True
-_HEX = np.full(256, 255, np.uint8)
-for _i, _c in enumerate(b"0123456789abcdef"):
-    _HEX[_c] = _HEX[bytes([_c]).upper()[0]] = _i
 
 
 @dataclass
@@ -236,29 +241,62 @@ class _Parsed:
     data: np.ndarray
 
 
-def _columns(block: Block, pos: np.ndarray, width: int) -> np.ndarray:
-    """uint8 [n, width]: the bytes at pos .. pos+width of each row."""
-    words = -(-width // 8)
-    gathered = np.empty((pos.shape[0], words), np.uint64)
-    for k in range(words):
-        gathered[:, k] = block.words[pos + 8 * k]
-    return gathered.view(np.uint8)[:, :width]
+_SPACES = np.uint64(0x2020202020202020)
+
+
+def _data_tables() -> tuple[np.ndarray, np.ndarray]:
+    """Per DLC 0..8 and per word of the data field (` XX` × 8 = 24 bytes): the flags of the
+    bytes that must be spaces, and of those that must be hex digits."""
+    space = np.zeros((9, 3), np.uint64)
+    digit = np.zeros((9, 3), np.uint64)
+    for dlc in range(9):
+        for k in range(dlc):
+            for pos, table in ((3 * k, space), (3 * k + 1, digit), (3 * k + 2, digit)):
+                table[dlc, pos // 8] |= np.uint64(0x80 << (8 * (pos % 8)))
+    return space, digit
+
+
+_DATA_SPACES, _DATA_DIGITS = _data_tables()
+
+
+def _fixed_words(layout: _Layout) -> list[tuple[int, np.uint64, np.uint64]]:
+    """(offset, mask, value) words that check the template's fixed bytes after the
+    timestamp: the spaces between the fields and the `x` of Rx/Tx."""
+    fixed = {c: 0x20 for c in range(layout.chan)}
+    fixed.update({c: 0x20 for c in range(layout.chan + layout.chan_w, layout.ident)})
+    fixed.update({c: 0x20 for c in range(layout.direction + 2, layout.dtype)})
+    fixed[layout.dtype + 1] = 0x20
+    fixed[layout.direction + 1] = ord("x")
+    out = []
+    for start in range(0, layout.width, 8):
+        mask = value = 0
+        for c, byte in fixed.items():
+            if start <= c < start + 8:
+                mask |= 0xFF << (8 * (c - start))
+                value |= byte << (8 * (c - start))
+        if mask:
+            out.append((start, np.uint64(mask), np.uint64(value)))
+    return out
+
+
+_LEADING = np.asarray([0 if not b & 1 else 1 if not b & 2 else 2 if not b & 4 else 3
+                       for b in range(16)], np.int64)
 
 
 def _parse_block(block: Block, layout: _Layout, rows: np.ndarray) -> _Parsed:
     """Vectorised parse of the given rows of `block` that have the common shape."""
-    buf = block.buf
+    buf, words = block.buf, block.words
     s = block.starts[rows]
-    j, ok = find_byte(buf, s, 0x2E, layout_dot_guess(block, s), 1, 9, np.arange(rows.size))
+    j, ok = find_byte(buf, s, 0x2E, _dot_guess(block, s), 1, 9)
     dot = s + j
     # Before the dot: spaces, then 1..8 digits (bytes of the previous line count as spaces).
-    head = _columns(block, dot - 8, 8).copy()
-    head[np.arange(8)[None, :] < (8 - j)[:, None]] = 0x20
-    digit = (head >= 0x30) & (head <= 0x39)
-    ok &= digit[:, 7] & ((head == 0x20) | digit).all(1) & (~digit[:, :7] | digit[:, 1:]).all(1)
-    n_int = digit.sum(1)
-    whole = parse_digits(fill_high(head.view(np.uint64).ravel(), n_int))
-    frac_word = fill_low(block.words[dot + 1], layout.frac)
+    head = fill_high(words[dot - 8], j, _SPACES)
+    digits = digit_flags(head)
+    n_int = count_flags(digits)
+    ok &= (n_int >= 1) & ((digits | byte_flags(head, 0x20)) == HIGH) & (
+        digits == high_flags(n_int))
+    whole = parse_digits(fill_high(head, n_int))
+    frac_word = fill_low(words[dot + 1], layout.frac)
     ok &= all_digits(frac_word)
     frac = parse_digits(frac_word) // np.uint64(10 ** max(8 - layout.frac, 0))
     if layout.frac > 8:
@@ -268,50 +306,62 @@ def _parse_block(block: Block, layout: _Layout, rows: np.ndarray) -> _Parsed:
     end = dot + 1 + layout.frac  # the space after the timestamp
     total = whole * np.uint64(10 ** layout.frac) + frac
     ts = total.astype(np.float64) / POW10[layout.frac]
-    cols = _columns(block, end, layout.width)
-    spaces = [c for c in range(layout.chan)] + list(
-        range(layout.chan + layout.chan_w, layout.ident)) + list(
-        range(layout.direction + 2, layout.dtype)) + [layout.dtype + 1]
-    ok &= (cols[:, spaces] == 0x20).all(1)
-    chan_digits = cols[:, layout.chan:layout.chan + layout.chan_w].astype(np.int64) - 0x30
-    ok &= ((chan_digits >= 0) & (chan_digits <= 9)).all(1)
+    for off, mask, value in _fixed_words(layout):
+        ok &= (words[end + off] & mask) == value
     chan = np.zeros(rows.size, np.int64)
     for k in range(layout.chan_w):
-        chan = chan * 10 + chan_digits[:, k]
-    field = cols[:, layout.ident:layout.direction]
-    hexv = _HEX[field[:, :3]].astype(np.int64)
-    is_hex = hexv < 16
-    id_len = is_hex[:, 0] * (1 + is_hex[:, 1] * (1 + is_hex[:, 2]))
-    pad = field == 0x20
-    ok &= (id_len > 0) & (pad | (np.arange(field.shape[1])[None, :] < id_len[:, None])).all(1)
-    hexv = np.where(is_hex, hexv, 0)
-    can_id = np.select([id_len == 3, id_len == 2],
-                       [hexv[:, 0] << 8 | hexv[:, 1] << 4 | hexv[:, 2], hexv[:, 0] << 4 | hexv[:, 1]],
-                       hexv[:, 0])
+        digit = buf[end + layout.chan + k].astype(np.int64) - 0x30
+        ok &= (digit >= 0) & (digit <= 9)
+        chan = chan * 10 + digit
+    # CAN-ID field: 1..3 hex digits, then spaces up to the direction column.
+    field = end + layout.ident
+    width = layout.direction - layout.ident
+    first = words[field]
+    flags, nib = hex_flags(first)
+    id_len = _LEADING[((((flags >> np.uint64(7)) * np.uint64(0x0102040810204080))
+                        >> np.uint64(56)) & np.uint64(15)).astype(np.int64)]
+    ok &= (id_len >= 1) & (id_len < width)
+    need = HIGH & ~byte_mask(id_len) & byte_mask(min(width, 8))
+    ok &= (byte_flags(first, 0x20) & need) == need
+    for off in range(8, width, 8):
+        need_more = byte_mask(min(width - off, 8)) & HIGH
+        ok &= (byte_flags(words[field + off], 0x20) & need_more) == need_more
+    n0 = (nib & np.uint64(15)).astype(np.int64)
+    n1 = ((nib >> np.uint64(8)) & np.uint64(15)).astype(np.int64)
+    n2 = ((nib >> np.uint64(16)) & np.uint64(15)).astype(np.int64)
+    can_id = np.where(id_len == 3, n0 << 8 | n1 << 4 | n2, np.where(id_len == 2, n0 << 4 | n1, n0))
     ok &= can_id <= 0x7FF
-    direction = cols[:, layout.direction]
-    ok &= ((direction == 0x52) | (direction == 0x54)) & (cols[:, layout.direction + 1] == 0x78)
-    dtype = cols[:, layout.dtype]
+    direction = buf[end + layout.direction]
+    ok &= (direction == 0x52) | (direction == 0x54)
+    dtype = buf[end + layout.dtype]
     ok &= (dtype == 0x64) | (dtype == 0x44)
-    dlc = cols[:, layout.dtype + 2].astype(np.int64) - 0x30
+    dlc = buf[end + layout.dtype + 2].astype(np.int64) - 0x30
     ok &= (dlc >= 0) & (dlc <= 8)
     dlc = np.clip(dlc, 0, 8)
-    body = _columns(block, end + layout.width, 25)  # up to 8 ` XX` and what follows
-    used = np.arange(8)[None, :] < dlc[:, None]
-    ok &= ((body[:, 0:24:3] == 0x20) | ~used).all(1)
-    nib = _HEX[body[:, [1 + 3 * k + h for k in range(8) for h in (0, 1)]]].reshape(-1, 8, 2)
-    ok &= ((nib < 16).all(2) | ~used).all(1)
-    ok &= _WS[body[np.arange(rows.size), 3 * dlc]]
-    data = np.where(used, (nib[:, :, 0] << 4) | (nib[:, :, 1] & 15), 0).astype(np.uint8)
+    # Data: ` XX` per byte, then whitespace or the end of the line.
+    body = end + layout.width
+    nibs = np.empty((rows.size, 3), np.uint64)
+    for k in range(3):
+        word = words[body + 8 * k]
+        flags, nibs[:, k] = hex_flags(word)
+        need_sp = _DATA_SPACES[dlc, k]
+        need_hex = _DATA_DIGITS[dlc, k]
+        ok &= ((byte_flags(word, 0x20) & need_sp) == need_sp) & ((flags & need_hex) == need_hex)
+    ok &= _WS[buf[body + 3 * dlc]]
+    chars = nibs.view(np.uint8)
+    data = ((chars[:, 1::3] << 4) | chars[:, 2::3]).copy()
+    data.view(np.uint64)[:, 0] &= byte_mask(dlc)
     inexact = ok & (total >= np.uint64(MAX_EXACT))
     for i in np.flatnonzero(inexact):  # more digits than a double holds
         ts[i] = float(block.buf[dot[i] - n_int[i]:end[i]].tobytes())
+    if bool(ok.all()):
+        return _Parsed(rows, ts, chan, can_id.astype(np.uint32), dlc.astype(np.int16), data)
     good = np.flatnonzero(ok)
     return _Parsed(rows[good], ts[good], chan[good], can_id[good].astype(np.uint32),
                    dlc[good].astype(np.int16), data[good])
 
 
-def layout_dot_guess(block: Block, s: np.ndarray) -> int:
+def _dot_guess(block: Block, s: np.ndarray) -> int:
     """Where the first line's dot is (timestamps of one file mostly have the same width)."""
     if not s.size:
         return 4
@@ -324,19 +374,22 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     """The fast path: common lines vectorised per block, the rest line by line, in order."""
     builder = BatchBuilder()
     state = _State()
-    layout: _Layout | None = None
-    for block in blocks(source):
-        n = len(block)
-        if layout is None:
-            for row in range(n):
-                layout = _Layout.learn(block.line(row))
-                if layout is not None:
-                    break
-        parsed = None
-        if layout is not None and state.plain:
-            candidates = np.flatnonzero(block.buf[block.starts] != 0x62)  # not `base`
-            parsed = _parse_block(block, layout, candidates)
-        yield from _merge(block, parsed, stats, state, builder)
+    layouts: list[_Layout] = []
+
+    def learn(block: Block) -> None:
+        for row in range(len(block)):
+            if (layout := _Layout.learn(block.line(row))) is not None:
+                layouts.append(layout)
+                return
+
+    def parse(block: Block) -> _Parsed | None:
+        """Parsed ahead as if the state were plain; `_merge` drops it if it is not."""
+        if not layouts:
+            return None
+        return _parse_block(block, layouts[0], np.arange(len(block)))
+
+    for block, parsed in parsed_blocks(source, parse, learn):
+        yield from _merge(block, parsed if state.plain else None, stats, state, builder)
     if (last := account(stats, builder.take())) is not None:
         yield last
 
@@ -349,72 +402,47 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
     is_fast = np.zeros(n, bool)
     if parsed is not None:
         is_fast[parsed.fast] = True
-    slow = np.flatnonzero(~is_fast).tolist()
     slow_rows: list[int] = []
     slow_vals: list[_Row] = []
-    cut = n  # rows from here on are not taken from the fast parse
-    i = 0
-    while i < len(slow):
-        row = slow[i]
-        i += 1
-        if row >= cut:
-            break
-        was_plain = state.plain
+
+    def parse_line(row: int) -> None:
         vals = _parse_line(block.line(row), block.first_line + row, stats, state)
         if vals is not None:
             slow_rows.append(row)
             slow_vals.append(vals)
-        if was_plain and not state.plain:
+
+    cut = n  # rows from here on are not taken from the fast parse
+    for row in np.flatnonzero(~is_fast).tolist():
+        parse_line(row)
+        if not state.plain:
             cut = row + 1
-    if cut < n:  # every later line through the per-line parser, fast ones included
-        for row in range(cut, n):
-            vals = _parse_line(block.line(row), block.first_line + row, stats, state)
-            if vals is not None:
-                slow_rows.append(row)
-                slow_vals.append(vals)
-    if parsed is not None and cut < n:
-        keep = parsed.fast < cut
-        parsed = _Parsed(parsed.fast[keep], parsed.ts[keep], parsed.chan[keep],
-                         parsed.can_id[keep], parsed.dlc[keep], parsed.data[keep])
+            break
+    for row in range(cut, n):
+        parse_line(row)
+    fast_rows = np.empty(0, np.int64) if parsed is None else parsed.fast
+    keep = fast_rows < cut
     # Channel names in order of first appearance, as the reference registers them.
     firsts: dict[str, int] = {}
-    fast_names: dict[int, str] = {}
-    if parsed is not None and parsed.fast.size:
-        values = np.unique(parsed.chan)
-        for v in values.tolist():
-            fast_names[v] = name = str(v)
-            firsts[name] = int(parsed.fast[int(np.argmax(parsed.chan == v))])
+    chan_values = np.empty(0, np.int64) if parsed is None else parsed.chan[keep]
+    for v in np.unique(chan_values).tolist():
+        firsts[str(v)] = int(fast_rows[keep][int(np.argmax(chan_values == v))])
     for row, vals in zip(slow_rows, slow_vals, strict=True):
         if row < firsts.get(vals[1], row + 1):
             firsts[vals[1]] = row
     for name, _row in sorted(firsts.items(), key=lambda kv: kv[1]):
         stats.channel_code(name)
-    nf = 0 if parsed is None else parsed.fast.shape[0]
-    ns = len(slow_rows)
-    if nf + ns == 0:
-        return
-    flags = np.zeros(nf + ns, np.uint8)
-    if parsed is not None:
-        code_of = np.zeros(max(fast_names) + 1 if fast_names else 1, np.int32)
-        for v, name in fast_names.items():
-            code_of[v] = stats.channel_code(name)
-        fast_cols = (parsed.ts, code_of[parsed.chan], parsed.can_id, parsed.dlc, parsed.data,
-                     parsed.fast)
+    code_of = np.zeros(int(chan_values.max(initial=0)) + 1, np.int32)
+    for v in np.unique(chan_values).tolist():
+        code_of[v] = stats.channel_code(str(v))
+    if parsed is None:
+        fast_cols: tuple[np.ndarray, ...] = (
+            np.empty(0), np.empty(0, np.int32), np.empty(0, np.uint32), np.empty(0, np.int16),
+            np.empty((0, 8), np.uint8))
     else:
-        fast_cols = (np.empty(0), np.empty(0, np.int32), np.empty(0, np.uint32),
-                     np.empty(0, np.int16), np.empty((0, 8), np.uint8), np.empty(0, np.int64))
-    rows = np.concatenate([fast_cols[5], np.asarray(slow_rows, np.int64)])
-    ts = np.concatenate([fast_cols[0], np.asarray([v[0] for v in slow_vals], np.float64)])
-    chan = np.concatenate([fast_cols[1], np.asarray([stats.channel_code(v[1])
-                                                     for v in slow_vals], np.int32)])
-    can_id = np.concatenate([fast_cols[2], np.asarray([v[2] for v in slow_vals], np.uint32)])
-    flags[nf:] = [v[3] | v[4] << 1 | v[5] << 2 | v[6] << 3 for v in slow_vals]
-    dlc = np.concatenate([fast_cols[3], np.asarray([v[7] for v in slow_vals], np.int16)])
-    data = np.concatenate([fast_cols[4], np.frombuffer(
-        b"".join(v[8][:8].ljust(8, b"\0") for v in slow_vals), np.uint8).reshape(ns, 8)])
-    order = np.argsort(rows, kind="stable") if ns else slice(None)
-    for batch in builder.add_columns(ts[order], chan[order], can_id[order], flags[order],
-                                     dlc[order], data[order], rows[order] + block.first_line):
+        fast_cols = (parsed.ts[keep], code_of[chan_values], parsed.can_id[keep],
+                     parsed.dlc[keep], parsed.data[keep])
+    slow = [(v[0], stats.channel_code(v[1]), *v[2:]) for v in slow_vals]
+    for batch in merged_batches(builder, block, fast_rows[keep], fast_cols, slow_rows, slow):
         account(stats, batch)
         yield batch
 

@@ -445,8 +445,12 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         raise InputError(source.path, "BLF file header is truncated")
     header_size = struct.unpack_from("<L", head, 4)[0]
     start = systemtime_to_epoch(struct.unpack_from("<8H", head, 40))
-    if header_size > FILE_HEADER_MIN:
-        source.stream.read(header_size - FILE_HEADER_MIN)
+    to_skip = header_size - FILE_HEADER_MIN
+    while to_skip > 0:  # in pieces: a damaged header size must not allocate gigabytes
+        piece = source.stream.read(min(to_skip, RAW_READ))
+        if not piece:
+            raise InputError(source.path, "BLF file header is truncated")
+        to_skip -= len(piece)
     raw = _RawObjects(source, max(header_size, FILE_HEADER_MIN))
     parser = _ObjectParser(stats, start)
     maker = _BatchMaker(stats)
@@ -465,6 +469,11 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     def damaged(why: str) -> None:
         stats.skip(parser.objects_seen + 1, why)
 
+    def cut(why: str) -> None:
+        """The file ends inside an object: read up to there, report the input truncated."""
+        stats.truncated = True
+        damaged(why)
+
     while True:
         header = raw.next_header(resync)
         if not header:
@@ -479,7 +488,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
             continue
         resync = False
         if len(header) < BASE_HEADER.size:
-            damaged("the file ends inside an object header")
+            cut("the file ends inside an object header")
             break
         _sig, _hsize, _hver, size, otype = BASE_HEADER.unpack(header)
         if size < BASE_HEADER.size or size > MAX_OBJECT_SIZE:
@@ -491,7 +500,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         truncated = len(body) < size - BASE_HEADER.size
         if otype != LOG_CONTAINER:
             if truncated:
-                damaged("the file ends inside an object")
+                cut("the file ends inside an object")
                 break
             # an object outside any container: parsed on its own, after what came before it
             yield from flush()
@@ -503,7 +512,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
                 yield batch
             continue
         if len(body) < CONTAINER_HEADER.size:
-            damaged("the file ends inside a log container header")
+            cut("the file ends inside a log container header")
             break
         method, _usize = CONTAINER_HEADER.unpack_from(body)
         payload = body[CONTAINER_HEADER.size:]
@@ -530,5 +539,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         if pending_size >= PARSE_CHUNK:
             yield from flush()
     yield from flush()
-    if not parser.finish() and cut_container:
-        damaged("the file ends inside a log container")
+    if parser.finish():
+        stats.truncated = True
+    elif cut_container:
+        cut("the file ends inside a log container")

@@ -29,13 +29,14 @@ from nmtcheck.readers.blocks import (
     POW10,
     Block,
     all_digits,
-    blocks,
     fill_high,
     fill_low,
     find_byte,
     hex_nibbles,
+    merged_batches,
     pack_nibbles,
     parse_digits,
+    parsed_blocks,
     reference_path,
 )
 
@@ -233,8 +234,8 @@ def _parse_block(block: Block, layout: _Layout) -> _Parsed:
     n = len(block)
     rows = np.flatnonzero(buf[block.starts] == 0x28)  # "("
     s = block.starts[rows]
-    k, ok = find_byte(buf, s, 0x29, layout.close, 4, 24, np.arange(rows.size))
-    j, ok_dot = find_byte(buf, s, 0x2E, layout.dot, 2, 14, np.arange(rows.size))
+    k, ok = find_byte(buf, s, 0x29, layout.close, 4, 24)
+    j, ok_dot = find_byte(buf, s, 0x2E, layout.dot, 2, 14)
     ok &= ok_dot
     close = s + k
     dot = s + j
@@ -245,7 +246,7 @@ def _parse_block(block: Block, layout: _Layout) -> _Parsed:
     frac_w = np.clip(frac_w, 1, 9)
     ok &= buf[close + 1] == 0x20
     name = close + 2
-    m, ok_sp = find_byte(buf, name, 0x20, layout.iface_len, 1, 17, np.arange(rows.size))
+    m, ok_sp = find_byte(buf, name, 0x20, layout.iface_len, 1, 17)
     ok &= ok_sp
     space = name + m
     head = words[space + 1]  # 3 ID digits, "#", 4 data digits
@@ -267,16 +268,11 @@ def _parse_block(block: Block, layout: _Layout) -> _Parsed:
         whole += parse_digits(high) * np.uint64(10**8)
     frac_word = fill_low(words[dot + 1], frac_w)
     ok &= all_digits(frac_word)
-    frac = parse_digits(frac_word)  # the fraction's first 8 digits, zero filled
-    nine = frac_w == 9
-    if nine.any():
-        ninth = buf[dot + 9].astype(np.int64) - 0x30
-        ok &= ~nine | ((ninth >= 0) & (ninth <= 9))
-        frac = np.where(nine, frac * np.uint64(10) + np.clip(ninth, 0, 9).astype(np.uint64),
-                        frac // (np.uint64(10) ** (np.uint64(8) - np.minimum(frac_w, 8)
-                                                   .astype(np.uint64))))
-    else:
-        frac = frac // (np.uint64(10) ** (np.uint64(8) - frac_w.astype(np.uint64)))
+    ninth = np.where(frac_w == 9, buf[dot + 9].astype(np.int64) - 0x30, 0)
+    ok &= (ninth >= 0) & (ninth <= 9)
+    # The first 8 fraction digits (zero filled) and the 9th: the fraction in nanoseconds.
+    nanos = parse_digits(frac_word) * np.uint64(10) + np.clip(ninth, 0, 9).astype(np.uint64)
+    frac = nanos // (np.uint64(10) ** (np.uint64(9) - frac_w.astype(np.uint64)))
     scale = np.uint64(10) ** frac_w.astype(np.uint64)
     total = whole * scale + frac  # the decimal's digits as one exact integer
     # float(total) / 10**frac_w is the correctly rounded value, as float() of the text is.
@@ -323,41 +319,44 @@ def _parse_block(block: Block, layout: _Layout) -> _Parsed:
 _WHITESPACE = frozenset(b" \t\n\r\x0b\x0c")
 
 
+_NameKey = tuple[int, int, int]  # an interface name as two zero-padded words and its length
+
+
 class _Channels:
     """Interface names of fast lines (as zero-padded words) -> channel codes."""
 
     def __init__(self) -> None:
-        self.codes: dict[tuple[int, int, int], int] = {}
+        self.codes: dict[_NameKey, int] = {}
 
-    def resolve(self, p: _Parsed) -> tuple[np.ndarray, list[tuple[int, bytes, np.ndarray]],
-                                           np.ndarray]:
+    def resolve(self, p: _Parsed
+                ) -> tuple[np.ndarray, list[tuple[int, bytes, _NameKey, np.ndarray]], np.ndarray]:
         """(code per fast row, -1 where the name is new; the new names, each with its first
-        row and its rows; rows whose "name" has whitespace in it: not fast lines after all)."""
+        row, key and rows; rows whose "name" has whitespace in it: not fast lines after all)."""
         code = np.full(p.fast.shape[0], -1, np.int32)
         pending = np.ones(p.fast.shape[0], bool)
-        for (lo, hi, length), c in self.codes.items():
-            hit = ((p.iface[:, 0] == np.uint64(lo)) & (p.iface[:, 1] == np.uint64(hi))
-                   & (p.iface_len == length))
+
+        def rows_of(key: _NameKey) -> np.ndarray:
+            lo, hi, length = key
+            return ((p.iface[:, 0] == np.uint64(lo)) & (p.iface[:, 1] == np.uint64(hi))
+                    & (p.iface_len == length))
+
+        for key, c in self.codes.items():
+            hit = rows_of(key)
             code[hit] = c
             pending &= ~hit
-        new: list[tuple[int, bytes, np.ndarray]] = []
+        new: list[tuple[int, bytes, _NameKey, np.ndarray]] = []
         bad = np.zeros(p.fast.shape[0], bool)
         while pending.any():
             i = int(np.argmax(pending))
-            lo, hi, length = int(p.iface[i, 0]), int(p.iface[i, 1]), int(p.iface_len[i])
-            hit = pending & (p.iface[:, 0] == np.uint64(lo)) & (p.iface[:, 1] == np.uint64(hi)) \
-                & (p.iface_len == length)
+            key = (int(p.iface[i, 0]), int(p.iface[i, 1]), int(p.iface_len[i]))
+            hit = pending & rows_of(key)
             pending &= ~hit
-            name = (lo.to_bytes(8, "little") + hi.to_bytes(8, "little"))[:length]
+            name = (key[0].to_bytes(8, "little") + key[1].to_bytes(8, "little"))[:key[2]]
             if _WHITESPACE.intersection(name):
                 bad |= hit
             else:
-                new.append((int(p.fast[i]), name, hit))
+                new.append((int(p.fast[i]), name, key, hit))
         return code, new, bad
-
-    def learn(self, p: _Parsed, name: bytes, rows: np.ndarray, code: int) -> None:
-        i = int(np.argmax(rows))
-        self.codes[(int(p.iface[i, 0]), int(p.iface[i, 1]), int(p.iface_len[i]))] = code
 
 
 def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
@@ -366,16 +365,13 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     channels = _Channels()
     chan_of: dict[bytes, int] = {}
     builder = BatchBuilder()
-    for block in blocks(source):
-        if block.first_line == 1:
-            layout.learn(block)
-        p = _parse_block(block, layout)
+    for block, p in parsed_blocks(source, lambda b: _parse_block(b, layout), layout.learn):
         code, new, bad = channels.resolve(p)
         if bad.any():  # an interface name with odd whitespace: let the reference decide
             keep = ~bad
             p = _demote(p, bad)
             code = code[keep]
-            new = [(row, name, hit[keep]) for row, name, hit in new]
+            new = [(row, name, key, hit[keep]) for row, name, key, hit in new]
         # The other lines, in file order (they count skips and may name channels too).
         slow_rows: list[int] = []
         slow_vals: list[_Row] = []
@@ -385,17 +381,18 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
                 slow_rows.append(row)
                 slow_vals.append(parsed)
         # Register new channel names in order of first appearance, as the reference does.
-        firsts: dict[bytes, int] = {name: row for row, name, _hit in new}
+        firsts: dict[bytes, int] = {name: row for row, name, _key, _hit in new}
         for row, vals in zip(slow_rows, slow_vals, strict=True):
             if vals[1] not in chan_of and row < firsts.get(vals[1], row + 1):
                 firsts[vals[1]] = row
         for name, _row in sorted(firsts.items(), key=lambda kv: kv[1]):
             if name not in chan_of:
                 chan_of[name] = stats.channel_code(name.decode("latin-1"))
-        for _row, name, hit in new:
-            code[hit] = chan_of[name]
-            channels.learn(p, name, hit, chan_of[name])
-        for batch in _assemble(p, code, slow_rows, slow_vals, chan_of, block, builder):
+        for _row, name, key, hit in new:
+            code[hit] = channels.codes[key] = chan_of[name]
+        slow = [(v[0], chan_of[v[1]], *v[2:]) for v in slow_vals]
+        for batch in merged_batches(builder, block, p.fast, (p.ts, code, p.can_id, p.dlc, p.data),
+                                    slow_rows, slow):
             account(stats, batch)
             yield batch
     if (last := account(stats, builder.take())) is not None:
@@ -407,29 +404,3 @@ def _demote(p: _Parsed, bad: np.ndarray) -> _Parsed:
     slow = np.union1d(p.slow, p.fast[bad])
     return _Parsed(p.fast[keep], slow, p.ts[keep], p.can_id[keep], p.dlc[keep], p.data[keep],
                    p.iface[keep], p.iface_len[keep])
-
-
-def _assemble(p: _Parsed, code: np.ndarray, slow_rows: list[int], slow_vals: list[_Row],
-              chan_of: dict[bytes, int], block: Block,
-              builder: BatchBuilder) -> Iterator[FrameBatch]:
-    """The block's frames in file order (fast rows and per-line parsed rows merged), handed
-    to the builder; yields the batches it completes."""
-    nf, ns = p.fast.shape[0], len(slow_rows)
-    n = nf + ns
-    flags = np.zeros(n, np.uint8)
-    if ns == 0:
-        yield from builder.add_columns(p.ts, code, p.can_id, flags, p.dlc, p.data,
-                                       p.fast + block.first_line)
-        return
-    rows = np.concatenate([p.fast, np.asarray(slow_rows, np.int64)])
-    order = np.argsort(rows, kind="stable")
-    ts = np.concatenate([p.ts, np.asarray([v[0] for v in slow_vals], np.float64)])
-    chan = np.concatenate([code, np.asarray([chan_of[v[1]] for v in slow_vals], np.int32)])
-    can_id = np.concatenate([p.can_id, np.asarray([v[2] for v in slow_vals], np.uint32)])
-    flags[nf:] = [v[3] | v[4] << 1 | v[5] << 2 | v[6] << 3 for v in slow_vals]
-    dlc = np.concatenate([p.dlc, np.asarray([v[7] for v in slow_vals], np.int16)])
-    slow_data = np.frombuffer(b"".join(v[8][:8].ljust(8, b"\0") for v in slow_vals),
-                              np.uint8).reshape(ns, 8)
-    data = np.concatenate([p.data, slow_data])
-    yield from builder.add_columns(ts[order], chan[order], can_id[order], flags[order],
-                                   dlc[order], data[order], rows[order] + block.first_line)

@@ -28,7 +28,7 @@ from datetime import datetime, timezone
 from itertools import chain, islice
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text
+from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -67,16 +67,12 @@ def _data(tokens: list[bytes], n: int) -> bytes:
         raise _Bad(f"expected {n} data bytes, found {len(tokens)}")
     out = bytearray()
     for tok in tokens[:n]:
-        if len(tok) == 2:
-            base = 16
+        if len(tok) == 2 and (value := unsigned(tok, 16)) is not None:
+            out.append(value)
         elif len(tok) == 8 and not tok.strip(b"01"):
-            base = 2
+            out.append(int(tok, 2))
         else:
             raise _Bad(f"data byte {tok.decode('latin-1')!r} is not hex or binary")
-        try:
-            out.append(int(tok, base))
-        except ValueError:
-            raise _Bad(f"data byte {tok.decode('latin-1')!r} is not hex") from None
     return bytes(out)
 
 
@@ -98,10 +94,9 @@ def _frame(tokens: list[bytes]) -> Frame:
     id_text, length = rest[0], _LENGTH.match(rest[1])
     if len(id_text) not in (3, 8) or length is None:
         raise _Bad("expected a 3 or 8 digit hex ID and a [length]")
-    try:
-        can_id = int(id_text, 16)
-    except ValueError:
-        raise _Bad("CAN-ID is not hex") from None
+    can_id = unsigned(id_text, 16)
+    if can_id is None:
+        raise _Bad("CAN-ID is not hex")
     ext = len(id_text) == 8
     err = ext and bool(can_id & CAN_ERR_FLAG)
     if err:
@@ -145,13 +140,18 @@ class _Clock:
             return 0.0
         dated = _ABS_DATE.match(stamp)
         if dated is not None:
-            when = datetime.strptime(dated[1].decode(), "%Y-%m-%d %H:%M:%S")
+            try:
+                when = datetime.strptime(dated[1].decode(), "%Y-%m-%d %H:%M:%S")
+            except ValueError:  # digits in the right places, but month 13 or hour 25
+                raise _Bad("timestamp is not a date") from None
             fraction = int(dated[2]) / 10 ** len(dated[2])
             return when.replace(tzinfo=timezone.utc).timestamp() + fraction
         number = _NUMBER.match(stamp)
         if number is None:
             raise _Bad("timestamp is not a number")
         value = float(stamp)
+        if value == float("inf"):
+            raise _Bad("timestamp is not a finite number")
         if self.deltas and _is_relative(number[1]):
             self.total += value
             return self.total
@@ -200,10 +200,11 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         stamp, tokens = _split(raw)
         if tokens and tokens[0].startswith(b"DROPCOUNT"):
             m = _DROP.search(raw)
-            if m is None:
+            count = None if m is None else unsigned(m[1])
+            if count is None:
                 stats.skip(lineno, "DROPCOUNT line without a count")
             else:
-                stats.dropped += int(m[1])
+                stats.dropped += count
                 stats.ignored += 1
             continue
         try:

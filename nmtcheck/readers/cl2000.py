@@ -21,7 +21,7 @@ from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text
+from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
 
 CHANNEL = "1"
 FULL_TIME_DIGITS = 17  # YYYYMMDDhhmmsskkk
@@ -141,10 +141,9 @@ def _record(fields: list[bytes], layout: _Layout) -> tuple[float, int, bool, int
         if kind is None:
             raise _Bad("unknown message type")
         ext = kind[0]
-    try:
-        can_id = int(fields[cols[b"ID"]], 16)
-    except ValueError:
-        raise _Bad("ID is not hex") from None
+    can_id = unsigned(fields[cols[b"ID"]].strip(), 16)
+    if can_id is None:
+        raise _Bad("ID is not hex")
     ext = ext or can_id > 0x7FF  # without a Type column only the value tells
     if can_id > 0x1FFFFFFF:
         raise _Bad("ID out of range")
@@ -157,16 +156,16 @@ def _record(fields: list[bytes], layout: _Layout) -> tuple[float, int, bool, int
         raise _Bad("more than 8 data bytes")
     dlc = len(data)
     if b"Length" in cols:
-        try:
-            dlc = int(fields[cols[b"Length"]])
-        except ValueError:
-            raise _Bad("length is not a number") from None
+        length = unsigned(fields[cols[b"Length"]].strip())
+        if length is None:
+            raise _Bad("length is not a number")
+        dlc = length
         if dlc != len(data):
             raise _Bad(f"length {dlc} does not match the {len(data)} data bytes")
     lost = 0
     if b"Lost" in cols:
-        try:
-            lost = int(fields[cols[b"Lost"]])
-        except ValueError:
-            raise _Bad("lost count is not a number") from None
+        count = unsigned(fields[cols[b"Lost"]].strip())
+        if count is None:
+            raise _Bad("lost count is not a number")
+        lost = count
     return ts, can_id, ext, dlc, data, lost

@@ -23,7 +23,7 @@ from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text
+from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
 
 PYTHON_CAN_HEADER = b"timestamp,arbitration_id,extended,remote,error,dlc,data"
 DEFAULT_CHANNEL = "1"  # python-can's CSV has no channel column
@@ -68,10 +68,13 @@ def _flag(tok: bytes, true: bytes, false: bytes) -> bool:
 
 
 def _int(tok: bytes, what: str, base: int = 10) -> int:
-    try:
-        return int(tok.strip(), base)
-    except ValueError:
-        raise _Bad(f"{what} {tok.decode('latin-1')!r} is not a number") from None
+    text = tok.strip()
+    if base == 16 and text[:2] in (b"0x", b"0X"):
+        text = text[2:]
+    value = unsigned(text, base)
+    if value is None:
+        raise _Bad(f"{what} {tok.decode('latin-1')!r} is not a number")
+    return value
 
 
 def _python_can_row(fields: list[bytes]) -> tuple[float, int, bool, bool, bool, bool, int, bytes]:
@@ -113,19 +116,17 @@ class _SavvyCan:
         if len(fields) < self.min_fields:
             raise _Bad(f"expected at least {self.min_fields} columns, found {len(fields)}")
         ts = _int(fields[self.time], "timestamp") / US_PER_S
-        can_id = _int(fields[self.id].removeprefix(b"0x"), "CAN-ID", 16)
+        can_id = _int(fields[self.id], "CAN-ID", 16)
         ext = _flag(fields[self.ext], b"true", b"false")
         bus = str(_int(fields[self.bus], "bus"))
         length = _int(fields[self.len], "LEN")
         if can_id > (0x1FFFFFFF if ext else 0x7FF) or length > 64:
             raise _Bad("CAN-ID or LEN out of range")
-        cells = fields[self.d1:self.d1 + length]
-        if len(cells) < length or any(len(c.strip()) not in (1, 2) for c in cells):
-            raise _Bad(f"expected {length} data bytes")
-        try:
-            data = bytes(int(c, 16) for c in cells)
-        except ValueError:
-            raise _Bad("data bytes must be hex") from None
+        cells = [unsigned(c.strip(), 16) if len(c.strip()) in (1, 2) else None
+                 for c in fields[self.d1:self.d1 + length]]
+        if len(cells) < length or None in cells:
+            raise _Bad(f"expected {length} data bytes of 1 or 2 hex digits")
+        data = bytes(cells)  # type: ignore[arg-type]  # no None: checked above
         return ts, bus, can_id, ext, length > 8, length, data[:8]
 
 

@@ -21,6 +21,7 @@ stream, record by record, so compressed inputs work too.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import struct
@@ -159,7 +160,7 @@ def _integer(value: Any, what: str) -> int:
             raise _Bad(f"{what} {value!r} is not an integer") from None
     try:
         return int(value)  # numpy integers
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: a JSON `Infinity`
         raise _Bad(f"{what} is not an integer") from None
 
 
@@ -201,6 +202,8 @@ def _stamp(msg: Any) -> float | None:
         return None
     sec = _integer(sec or 0, "header.stamp seconds")
     nsec = _integer(nsec or 0, "header.stamp nanoseconds")
+    if abs(sec) >= 1 << 63 or abs(nsec) >= 1 << 63:  # JSON integers have no limit
+        raise _Bad("header.stamp out of range")
     if sec == 0 and nsec == 0:
         return None
     return sec + nsec * 1e-9
@@ -253,11 +256,16 @@ def _json_is_can(value: Any) -> bool:
     return isinstance(value, dict) and any(k in value for k in _ID_FIELDS) and "data" in value
 
 
+READ_PIECE = 16 << 20  # a damaged length field must not make one read allocate gigabytes
+
+
 def _read_exact(stream: Any, n: int) -> bytes:
+    """n bytes, or fewer at the end of the input; read in pieces, so memory follows the
+    bytes that are really there, not the length a damaged record claims."""
     parts = []
     got = 0
     while got < n:
-        chunk = stream.read(n - got)
+        chunk = stream.read(min(n - got, READ_PIECE))
         if not chunk:
             break
         parts.append(chunk)
@@ -297,17 +305,22 @@ class _McapFrames:
             while True:
                 head = _read_exact(stream, 9)
                 if not head:
-                    break  # no footer: a recording that was not closed; what is there counts
+                    # no footer: a recording that was not closed; what is there counts
+                    self.stats.truncated = True
+                    break
                 if len(head) < 9:
+                    self.stats.truncated = True
                     self.stats.skip(0, "truncated record at the end of the file")
                     break
                 opcode, length = struct.unpack("<BQ", head)
                 if length > MAX_RECORD:
+                    self.stats.truncated = True
                     self.stats.skip(0, f"record length {length} is beyond 4 GiB: corrupt file, "
                                        "rest not read")
                     break
                 body = _read_exact(stream, length)
                 if len(body) < length:
+                    self.stats.truncated = True
                     self.stats.skip(0, "truncated record at the end of the file")
                     break
                 if opcode == OP_MESSAGE:
@@ -417,12 +430,20 @@ class _McapFrames:
     def _classify(self, channel: Any) -> _Topic:
         """How the messages of a channel become frames (or why they are ignored)."""
         schema = self.schemas.get(channel.schema_id)
-        name = schema.name if schema is not None else ""
-        enc = channel.message_encoding
-        senc = schema.encoding if schema is not None else ""
-        topic = _Topic(channel.topic, IGNORED, name)
+        topic = _Topic(channel.topic, IGNORED, schema.name if schema is not None else "")
         if self.selected is not None and channel.topic not in self.selected:
             return topic
+        # mcap_ros2's schema parser prints its complaints about a damaged schema to stderr;
+        # the damage is reported as skipped messages, and stderr is for exit-2 messages only
+        with contextlib.redirect_stderr(io.StringIO()):
+            self._decoders(topic, channel, schema)
+        return topic
+
+    def _decoders(self, topic: _Topic, channel: Any, schema: Any) -> None:
+        """Set how the topic's messages are decoded, from its encoding and schema."""
+        name = topic.schema_name
+        enc = channel.message_encoding
+        senc = schema.encoding if schema is not None else ""
         try:
             if enc == "json":
                 self._classify_json(topic, schema)
@@ -450,7 +471,6 @@ class _McapFrames:
                 raise _Bad(why)
 
             topic.kind, topic.decode = OBJECTS, broken
-        return topic
 
     def _ros2_decoder(self, schema: Any) -> Callable[[bytes], Any]:
         if self._ros2_factory is None:

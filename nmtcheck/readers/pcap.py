@@ -87,6 +87,10 @@ def _plausible(raw_id: np.ndarray) -> np.ndarray:
     return (eff & ~err) | (~eff & small & ~(err & rtr))
 
 
+DAMAGED_INTERFACE = -1  # the link type of an interface block that cannot be read
+MAX_TICKS = 10**18  # if_tsresol finer than 1e-18 s: a damaged option (and beyond uint64 math)
+
+
 @dataclass
 class _Interface:
     linktype: int
@@ -236,6 +240,7 @@ class _Pcap(_Capture):
             carry = buf[used:]
             if not more:
                 if carry:
+                    self.stats.truncated = True
                     self.stats.skip(0, "truncated record at the end of the file")
                 break
             if used < 0:
@@ -254,6 +259,7 @@ class _Pcap(_Capture):
         while end - pos >= 16:
             incl = int.from_bytes(buf[pos + 8 : pos + 12], "little" if order == "<" else "big")
             if incl > MAX_PACKET:
+                self.stats.truncated = True
                 self.stats.skip(0, f"record length {incl} is not plausible: corrupt file, "
                                    "rest not read")
                 stop = True
@@ -300,6 +306,7 @@ class _PcapNg(_Capture):
             carry = buf[used:] if used >= 0 else b""
             if not more or used < 0:
                 if carry:
+                    self.stats.truncated = True
                     self.stats.skip(0, "truncated block at the end of the file")
                 break
         if (batch := self.out.take()) is not None:
@@ -323,6 +330,7 @@ class _PcapNg(_Capture):
                 order = self.order
             btype, blen = struct.unpack_from(order + "II", buf, pos)
             if blen < 12 or blen % 4 or blen > MAX_PACKET + 64:
+                self.stats.truncated = True
                 self.stats.skip(0, f"block length {blen} is not plausible: corrupt file, "
                                    "rest not read")
                 yield from self._flush(buf, arr, found, loose)
@@ -351,15 +359,22 @@ class _PcapNg(_Capture):
         return pos
 
     def _interface(self, body: bytes) -> _Interface:
+        """An interface description; a damaged one keeps its number (packets name
+        interfaces by number) and its packets are skipped."""
         order = self.order
-        linktype = struct.unpack_from(order + "H", body, 0)[0]
-        iface = _Interface(linktype, str(len(self.interfaces)))
+        iface = _Interface(DAMAGED_INTERFACE, str(len(self.interfaces)))
+        if len(body) < 8:
+            self.stats.skip(0, "interface description block too short")
+            return iface
+        iface.linktype = struct.unpack_from(order + "H", body, 0)[0]
         pos = 8
         while pos + 4 <= len(body):
             code, size = struct.unpack_from(order + "HH", body, pos)
             value = body[pos + 4 : pos + 4 + size]
             if code == 0:
                 break
+            if len(value) < size:
+                break  # an option that runs past its block: the options end here
             if code == 2 and value:  # if_name
                 iface.name = value.rstrip(b"\0").decode("utf-8", "replace")
             elif code == 9 and size >= 1:  # if_tsresol
@@ -368,6 +383,10 @@ class _PcapNg(_Capture):
             elif code == 14 and size >= 8:  # if_tsoffset
                 iface.offset = struct.unpack_from(order + "q", value, 0)[0]
             pos += 4 + size + (-size % 4)
+        if iface.ticks > MAX_TICKS:
+            self.stats.skip(0, f"interface time resolution of 1/{iface.ticks} s is not "
+                               "plausible")
+            iface.linktype = DAMAGED_INTERFACE
         return iface
 
     def _flush(self, buf: bytes, arr: np.ndarray, found: RecordRuns,
@@ -403,6 +422,11 @@ class _PcapNg(_Capture):
                                            "described")
                     continue
                 iface = self.interfaces[idx]
+                if iface.linktype == DAMAGED_INTERFACE:
+                    for _ in range(len(sel)):
+                        self.stats.skip(0, f"packet on interface {idx}, whose description "
+                                           "is damaged")
+                    continue
                 if iface.linktype not in CAN_LINKTYPES:
                     self.stats.ignored += len(sel)
                     continue

@@ -34,7 +34,7 @@ from datetime import datetime, timedelta, timezone
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text
+from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
 
 DEFAULT_CHANNEL = "1"  # versions without a bus column log one bus
 STATUS_ID = b"FFFFFFFF"  # version 1.x bus-status lines use this ID
@@ -83,10 +83,10 @@ def _hex_bytes(tokens: list[bytes], n: int) -> bytes:
 
 
 def _number(tok: bytes, what: str, base: int = 10) -> int:
-    try:
-        return int(tok, base)
-    except ValueError:
-        raise _Bad(f"{what} {tok.decode('latin-1')!r} is not a number") from None
+    value = unsigned(tok, base)
+    if value is None:
+        raise _Bad(f"{what} {tok.decode('latin-1')!r} is not a number")
+    return value
 
 
 def _offset(tok: bytes) -> float:

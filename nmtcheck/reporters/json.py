@@ -42,6 +42,7 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
             "end": _r(s.end if s.end is not None else 0.0),
             "remote_frames": s.remote_frames, "fd_frames": s.fd_frames, "ignored": s.ignored,
             "dropped": s.dropped, "backwards_timestamps": s.backwards_timestamps,
+            "truncated": s.truncated,
             "skipped_lines": s.skipped_lines, "channels": s.channels,
         })
         for m in res.nodes():

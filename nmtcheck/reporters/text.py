@@ -23,6 +23,8 @@ def _input_line(res: InputResult) -> list[str]:
               f"non-frame records: {s.ignored}", f"DROPCOUNT dropped: {s.dropped}"]
     if s.backwards_timestamps:
         counts.append(f"timestamps going backwards: {s.backwards_timestamps}")
+    if s.truncated:
+        counts.append("TRUNCATED: the input ends early, read up to the damage")
     lines.append("  " + ", ".join(counts))
     return lines
 

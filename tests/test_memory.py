@@ -1,0 +1,85 @@
+"""Memory stays bounded as the log grows: the reader streams, the decoder's stores spill.
+
+Peak RSS is measured on a child process (`os.wait4`: that child's own peak) that
+checks generated candump logs of 1 M and 4 M frames of PDO traffic (a few
+heartbeats, so the per-event timeline stays small and the streaming parts are
+what is measured): four times the frames may not cost more than 20 % more memory.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO
+
+from nmtcheck.decode import ChunkStore
+
+
+def write_pdo_log(path: Path, frames: int) -> None:
+    """`(ts) can0 1XX#<8 bytes>` lines at 5 kHz, and a heartbeat of node 1 every second."""
+    template = np.frombuffer(b"(1700000000.000000) can0 181#0011223344556677\n", np.uint8)
+    with open(path, "wb") as out:
+        for start in range(0, frames, 500_000):
+            n = min(500_000, frames - start)
+            i = np.arange(start, start + n, dtype=np.int64)
+            us = 1_700_000_000 * 10**6 + i * 200
+            rows = np.tile(template, (n, 1))
+            digits = (us[:, None] // 10 ** np.arange(15, -1, -1)) % 10 + 48
+            rows[:, 1:11] = digits[:, :10]
+            rows[:, 12:18] = digits[:, 10:]
+            cob = 0x180 + i % 16 + 1  # TPDO1 of nodes 1..16
+            hexdigits = np.frombuffer(b"0123456789ABCDEF", np.uint8)
+            for col, shift in ((25, 8), (26, 4), (27, 0)):
+                rows[:, col] = hexdigits[cob >> shift & 15]
+            hb = i % 5000 == 0  # node 1's heartbeat: shortened to `701#05` below
+            rows[hb, 25:28] = np.frombuffer(b"701", np.uint8)
+            text = rows.reshape(-1).tobytes()
+            if hb.any():
+                text = text.replace(b"701#0011223344556677", b"701#05")
+            out.write(text)
+
+
+# A child's peak RSS starts at its parent's RSS at fork (Linux keeps the high-water mark
+# across exec), so the check runs under a small launcher process, never under pytest.
+LAUNCHER = ("import os, subprocess, sys; p = subprocess.Popen(sys.argv[1:], "
+            "stdout=subprocess.DEVNULL); _, st, ru = os.wait4(p.pid, 0); "
+            "print(os.waitstatus_to_exitcode(st), ru.ru_maxrss)")
+
+
+def peak_rss_mb(log: Path) -> float:
+    out = subprocess.run(
+        [sys.executable, "-c", LAUNCHER, sys.executable, "-m", "nmtcheck", "check", str(log),
+         "--format", "json", "--fail-on", "never"],
+        env=dict(os.environ, PYTHONPATH=str(REPO)), capture_output=True, text=True, check=True)
+    code, kb = out.stdout.split()
+    assert code == "0"
+    return int(kb) / 1024
+
+
+@pytest.mark.skipif(not hasattr(os, "wait4"), reason="needs os.wait4 (POSIX)")
+def test_peak_memory_flat_as_the_log_grows(tmp_path: Path) -> None:
+    small, large = tmp_path / "small.log", tmp_path / "large.log"
+    write_pdo_log(small, 1_000_000)  # the decoder's in-memory budgets are full from here on
+    write_pdo_log(large, 4_000_000)
+    small_mb, large_mb = peak_rss_mb(small), peak_rss_mb(large)
+    assert large_mb <= 1.2 * small_mb, (small_mb, large_mb)
+    assert large_mb < 300
+
+
+def test_chunk_store_spills_past_its_budget_and_reads_back() -> None:
+    store = ChunkStore(budget=2500)  # each chunk is 2000 bytes: only the first stays in memory
+    chunks = [{"ts": np.arange(k, k + 100, dtype=np.float64), "key": np.full(100, k, np.int32),
+               "data": np.full((100, 8), k, np.uint8)} for k in range(5)]
+    for c in chunks:
+        store.append(**c)
+    assert store.spilled == 4
+    for got, want in zip(store, chunks, strict=True):
+        for name in want:
+            np.testing.assert_array_equal(got[name], want[name])
+            assert got[name].dtype == want[name].dtype
+    store.close()
