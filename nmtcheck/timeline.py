@@ -242,15 +242,21 @@ class NodeModel:
         period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
         return timeout_factor * period if period else None
 
+    def _starts(self) -> np.ndarray:
+        """Interval start times, built once per timeline (lookups happen per frame)."""
+        cached = self.__dict__.get("_starts_cache")
+        if cached is None or cached[0] is not self.intervals or len(cached[1]) != len(
+                self.intervals):
+            cached = (self.intervals, np.asarray([iv.start for iv in self.intervals]))
+            self.__dict__["_starts_cache"] = cached
+        return cached[1]
+
     def state_at(self, ts: float) -> str:
         """State after the evidence of a frame at `ts` (intervals starting at ts included)."""
-        starts = [iv.start for iv in self.intervals]
-        i = int(np.searchsorted(starts, ts, side="right")) - 1
-        return self.intervals[max(i, 0)].state
+        return self.intervals[self.interval_index(ts)].state
 
     def interval_index(self, ts: float) -> int:
-        starts = [iv.start for iv in self.intervals]
-        return max(int(np.searchsorted(starts, ts, side="right")) - 1, 0)
+        return max(int(np.searchsorted(self._starts(), ts, side="right")) - 1, 0)
 
     @property
     def error_control(self) -> str:
