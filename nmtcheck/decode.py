@@ -37,6 +37,7 @@ KIND_RPDO = 2
 KIND_SDO_TX = 3
 KIND_EMCY = 4
 KIND_EC = 5  # error-control data frame (only in first/last-seen bookkeeping)
+KIND_CONFIGURED = 6  # on a configured (non-default) PDO COB-ID: attributed by checks/state.py
 KIND_NAMES = {KIND_TPDO: "TPDO", KIND_RPDO: "RPDO", KIND_SDO_TX: "SDO response",
               KIND_EMCY: "EMCY", KIND_EC: "error-control"}
 
@@ -281,8 +282,26 @@ def _first_last(keys: np.ndarray, rows: np.ndarray, kinds: np.ndarray, b: FrameB
         last_tx[k] = p
 
 
-def decode(batches: Iterable[FrameBatch]) -> Decoded:
-    """Stream the batches once; keep only sparse events, the compact store and aggregates."""
+def _written_pdo_cob_ids(ev: np.ndarray) -> set[int]:
+    """COB-IDs that SDO downloads in these events write to a PDO communication parameter."""
+    cid = ev["can_id"].astype(np.int64)
+    data = ev["data"]
+    index = data[:, 1].astype(np.int64) | (data[:, 2].astype(np.int64) << 8)
+    hit = ((cid >= 0x601) & (cid <= 0x67F) & ((data[:, 0] & 0xE2) == 0x22) & (data[:, 3] == 1)
+           & (((index >= 0x1400) & (index <= 0x1403)) | ((index >= 0x1800) & (index <= 0x1803))))
+    cob = data[hit, 4].astype(np.int64) | (data[hit, 5].astype(np.int64) << 8)
+    return {int(c) & 0x7FF for c in cob.tolist()}
+
+
+def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> Decoded:
+    """Stream the batches once; keep only sparse events, the compact store and aggregates.
+
+    `pdo_cob_ids`: configured PDO COB-IDs outside the pre-defined set (network file,
+    EDS/DCF); COB-IDs written by SDO in the trace are added as they are seen.
+    """
+    keep = np.zeros(2049, bool)  # 11-bit IDs stored for later attribution
+    for c in pdo_cob_ids:
+        keep[c & 0x7FF] = True
     event_parts: list[np.ndarray] = []
     frame_times = ChunkStore()
     node_frames = ChunkStore()
@@ -309,10 +328,13 @@ def decode(batches: Iterable[FrameBatch]) -> Decoded:
             ev["dlc"] = b.dlc[sel]
             ev["data"] = b.data[sel]
             event_parts.append(ev)
+            for c in _written_pdo_cob_ids(ev):
+                keep[c] = True
 
         # Kind and node of every 11-bit data frame, by table lookup on the CAN-ID.
         id11 = np.minimum(b.can_id, 2048)
         kinds = _KIND_OF_ID[id11]
+        kinds[(kinds == 0) & keep[id11]] = KIND_CONFIGURED
         kinds[~(co & ~b.rtr)] = 0
         nodes = _NODE_OF_ID[id11]
         keys = (b.chan.astype(np.int32) << 7) | nodes  # node key: channel * 128 + node
@@ -325,7 +347,7 @@ def decode(batches: Iterable[FrameBatch]) -> Decoded:
             )
 
         # Each node's first and last transmitted frame (anything but RPDOs, which others send).
-        tx_sel = np.flatnonzero((kinds > 0) & (kinds != KIND_RPDO))
+        tx_sel = np.flatnonzero((kinds > 0) & (kinds != KIND_RPDO) & (kinds != KIND_CONFIGURED))
         if tx_sel.size:
             _first_last(keys[tx_sel], tx_sel, kinds, b, first_tx, last_tx)
 

@@ -83,7 +83,10 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                 reader_options: dict[str, Any] | None = None,
                 progress: Callable[[int], object] | None = None) -> InputResult:
     opened = open_input(path, input_format, strict, reader_options)
-    decoded = decode(_counted(opened.batches, progress) if progress else opened.batches)
+    pdo_ids = {c for cfg, _channel in (network.nodes.values() if network else ())
+               for c in [*cfg.tpdo_cob_ids.values(), *cfg.rpdo_cob_ids.values()] if c is not None}
+    decoded = decode(_counted(opened.batches, progress) if progress else opened.batches,
+                     pdo_ids)
     stats = opened.stats
     try:
         if stats.frames == 0:

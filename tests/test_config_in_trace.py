@@ -135,3 +135,38 @@ def test_pdo_made_invalid_by_sdo_is_nobodys(checker) -> None:  # type: ignore[no
     # without the write the same frame is node 2's PDO while pre-operational
     fr2 = [(0.0, "702#00")] + hb(2, 0.1, 2.0, 0.1) + [(0.5, "182#0102")]
     assert checker.findings(candump(sorted(fr2)), select="S001") == [("S001", 2, 0.5)]
+
+
+def test_pdo_moved_outside_the_predefined_set_is_still_checked(checker) -> None:  # type: ignore[no-untyped-def]
+    """A TPDO moved by SDO to 6A2h (no pre-defined ID) is still node 2's PDO."""
+    fr = [(0.0, "702#00")] + write(2, 0.05, 0x1800, 1, 0x6A2, size=4)
+    fr += hb(2, 0.1, 2.0, 0.1) + [(0.5, "6A2#0102"), (0.6, "6A2#0102"), (1.0, "000#0102")]
+    fr += [(1.2, "6A2#0102")]  # operational now: fine
+    assert checker.findings(candump(sorted(fr)), select="S001") == [("S001", 2, 0.5)]
+
+
+def test_pdo_cob_id_from_the_network_dcf(checker, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The COB-ID comes from a DCF given in the network file (no SDO in the trace)."""
+    dcf = tmp_path / "node2.dcf"
+    dcf.write_text("[DeviceComissioning]\nNodeID=2\n[1800]\nSubNumber=2\nObjectType=0x9\n"
+                   "[1800sub0]\nDataType=0x0005\nAccessType=ro\nDefaultValue=1\n"
+                   "[1800sub1]\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x6A2\n")
+    fr = [(0.0, "702#00")] + hb(2, 0.1, 2.0, 0.1) + [(0.5, "6A2#0102"), (0.6, "182#0102")]
+    net = f'[nodes.2]\ndcf = "{dcf}"\n'
+    assert checker.findings(candump(sorted(fr)), select="S001", network=net) == [
+        ("S001", 2, 0.5)]
+    assert checker.findings(candump(sorted(fr)), select="S001") == [("S001", 2, 0.6)]
+
+
+def test_healthy_sample_with_the_exported_dcfs() -> None:
+    """samples/network.toml points at DCFs exported by canopen: values read, verdict clean."""
+    from nmtcheck.network import load_network
+
+    net = load_network(str(SAMPLES / "network.toml"))
+    assert {n: cfg.heartbeat_ms for n, (cfg, _c) in net.nodes.items()} == {
+        2: 100.0, 3: 100.0, 4: 100.0}
+    profile = load_profile("default")
+    res = check_input(str(SAMPLES / "healthy.log"), 0, profile, select_rules(profile, [], []),
+                      net)
+    assert res.findings == []
+    assert all(m.config.heartbeat_ms == 100.0 for m in res.nodes())
