@@ -1,12 +1,15 @@
+#!/usr/bin/env python3
 """Coverage-guided fuzz target (atheris/libFuzzer) for one text reader, or all of them.
 
-    python fuzz/fuzz_reader.py FORMAT [libFuzzer options] [CORPUS_DIR...]
+    python fuzz/fuzz_reader.py --format=FORMAT [libFuzzer options] [CORPUS_DIR...]
+    python fuzz/fuzz_reader.py --format=FORMAT --seed=CORPUS_DIR
 
 FORMAT is a text format (candump, asc, trc, candump-screen, csv, cl2000) or `all` (the
 first input byte picks the reader). An input fails when the reader raises anything but an
 InputError (exit 2 with one line) or when its counts do not account for every record line
-(frames + skipped + non-frame records). The corpus directories start from valid logs of
-every format (`--seed DIR` writes them). See fuzz/README.md.
+(frames + skipped + non-frame records). `--seed` writes valid logs of the format to start
+a corpus from. Options start with `--` because libFuzzer ignores those and hands them on
+to the processes of `-jobs`/`-fork`. See fuzz/README.md.
 """
 
 from __future__ import annotations
@@ -64,12 +67,20 @@ def check_one(data: bytes, fmt: str) -> None:
                              f"non-frame records, but {records} record lines")
 
 
+def _option(name: str) -> str | None:
+    """The value of `--name=VALUE` in argv (libFuzzer ignores `--` options)."""
+    prefix = f"--{name}="
+    return next((a[len(prefix):] for a in sys.argv[1:] if a.startswith(prefix)), None)
+
+
 def main() -> None:
-    fmt = sys.argv.pop(1) if len(sys.argv) > 1 else ""
+    fmt = _option("format") or ""
     if fmt not in (*TEXT_FORMATS, "all"):
-        sys.exit(f"usage: fuzz_reader.py {{{','.join(TEXT_FORMATS)},all}} [libFuzzer options]")
-    if len(sys.argv) > 2 and sys.argv[1] == "--seed":
-        write_seeds(Path(sys.argv[2]), fmt)
+        sys.exit(f"usage: fuzz_reader.py --format={{{','.join(TEXT_FORMATS)},all}} "
+                 "[--seed=DIR | libFuzzer options and corpus directories]")
+    seed_dir = _option("seed")
+    if seed_dir is not None:
+        write_seeds(Path(seed_dir), fmt)
         return
 
     def one_input(data: bytes) -> None:

@@ -9,6 +9,7 @@ with OFFLINE from each timeout to the node's next frame of any kind.
 
 from __future__ import annotations
 
+import bisect
 import statistics
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -37,6 +38,16 @@ COMMAND_NAMES = {CS_START: "start", CS_STOP: "stop", CS_PREOP: "enter pre-operat
                  CS_RESET_NODE: "reset node", CS_RESET_COMM: "reset communication"}
 RESETS = (CS_RESET_NODE, CS_RESET_COMM)
 EPS = 1e-7  # timestamps are microseconds at best: ignore float noise in comparisons
+
+
+def any_between(sorted_values: list[Any], lo: Any, hi: Any, include_hi: bool = False) -> bool:
+    """Whether a sorted list holds a value v with lo < v < hi (v <= hi with include_hi).
+
+    Bisection, because rules ask this per heartbeat pair against every reset/command.
+    """
+    k = bisect.bisect_right(sorted_values, lo)
+    return k < len(sorted_values) and (sorted_values[k] <= hi if include_hi
+                                       else sorted_values[k] < hi)
 
 
 def state_name(code: int) -> str:
@@ -499,14 +510,14 @@ def _find_period(m: NodeModel) -> None:
     if m.config.heartbeat_ms:
         m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
         return
-    resets = [c.ts for c in m.commands if c.is_reset]
+    resets = sorted(c.ts for c in m.commands if c.is_reset)
     intervals = []
     prev: EcFrame | None = None
     for f in m.ec:
         if f.kind == "bootup":
             prev = None
         elif f.kind == "heartbeat":
-            if prev is not None and not any(prev.ts < r <= f.ts for r in resets):
+            if prev is not None and not any_between(resets, prev.ts, f.ts, include_hi=True):
                 intervals.append(f.ts - prev.ts)
             prev = f
     if intervals:

@@ -8,6 +8,7 @@ import builtins
 import gzip
 import json
 import os
+import random
 import resource
 import subprocess
 import sys
@@ -15,10 +16,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import zstandard
 from conftest import REPO, SAMPLES
 from hostile_logs import (
     BINARY_WRITERS,
     TEXT_WRITERS,
+    Frame,
     format_of,
     mf4,
     network_frames,
@@ -243,6 +246,8 @@ def _cut(data: bytes, fraction: float) -> bytes:
 
 @pytest.mark.parametrize("name, make", [
     ("cut.log.gz", lambda: _cut(gzip.compress(TEXT_WRITERS["candump"](FRAMES) * 50), 0.5)),
+    ("cut.trc.zst", lambda: _cut(zstandard.ZstdCompressor().compress(TEXT_WRITERS["trc"](
+        [Frame(i / 1000, 0x181, random.Random(i).randbytes(8)) for i in range(5000)])), 0.5)),
     ("cut.blf", lambda: _cut(BINARY_WRITERS["blf"](FRAMES), 0.6)),
     ("cut.blf.gz", lambda: gzip.compress(_cut(BINARY_WRITERS["blf-plain"](FRAMES), 0.6))),
     ("nofooter.mcap", lambda: BINARY_WRITERS["mcap"](FRAMES)[:-37]),
@@ -257,7 +262,8 @@ def test_truncated_files_are_read_up_to_the_cut_and_reported(tmp_path: Path, nam
               cwd=tmp_path)
     [entry] = json_inputs(res)
     assert res.returncode == 0 and entry["truncated"] is True
-    assert 10 < entry["frames"] <= len(FRAMES) * (50 if name.endswith(".log.gz") else 1)
+    assert 10 < entry["frames"] <= {"cut.log.gz": 50 * len(FRAMES), "cut.trc.zst": 5000}.get(
+        name, len(FRAMES))
     assert "TRUNCATED: the input ends early" in (tmp_path / "r.txt").read_text()
     strict = run("check", name, "--strict", cwd=tmp_path)
     assert_one_line_error(strict, name)
@@ -323,15 +329,19 @@ def _assert_one_skipped_record(outcome: dict[str, Any]) -> None:
 
 def test_a_100_mb_line_without_newline_is_one_skipped_record_in_bounded_memory(
         tmp_path: Path) -> None:
-    """The line readers (Source.lines): the line is never held whole."""
-    outcomes = _long_line_outcomes(tmp_path, ["trc", "candump-screen", "csv", "csv-savvycan",
-                                              "cl2000"])
-    assert len(outcomes) == 5
+    """Every text reader, the line readers (Source.lines) and the block readers (candump,
+    ASC) alike: the line is never held whole."""
+    outcomes = _long_line_outcomes(tmp_path, sorted(TEXT_WRITERS))
+    assert [o["writer"] for o in outcomes] == sorted(TEXT_WRITERS)
     for outcome in outcomes:
         _assert_one_skipped_record(outcome)
 
 
-@pytest.mark.parametrize("writer", ["candump", "asc"])
-def test_a_100_mb_line_in_the_block_readers(tmp_path: Path, writer: str) -> None:
-    [outcome] = _long_line_outcomes(tmp_path, [writer])
-    _assert_one_skipped_record(outcome)
+@pytest.mark.parametrize("fraction", [0.3, 0.999])
+def test_a_cut_mf4_file_is_one_line_on_stderr(tmp_path: Path, fraction: float) -> None:
+    """asammdf cannot read a cut MF4 file at all (exit 2); its half-built object used to
+    print a traceback from __del__ after the message."""
+    pytest.importorskip("asammdf")
+    mf4(FRAMES, str(tmp_path / "whole.mf4"))
+    (tmp_path / "cut.mf4").write_bytes(_cut((tmp_path / "whole.mf4").read_bytes(), fraction))
+    assert_one_line_error(run("check", "cut.mf4", cwd=tmp_path), "cut.mf4: cannot read MF4")

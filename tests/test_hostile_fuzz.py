@@ -23,11 +23,11 @@ RUNS = 600  # inputs: a few seconds, enough to pass every reader's main paths
 def test_short_fuzz_run_of_every_text_reader_finds_nothing(tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     corpus = tmp_path / "corpus"
-    seeded = subprocess.run([sys.executable, str(TARGET), "all", "--seed", str(corpus)],
+    seeded = subprocess.run([sys.executable, str(TARGET), "--format=all", f"--seed={corpus}"],
                             env=env, capture_output=True, text=True, timeout=120)
     assert seeded.returncode == 0, seeded.stderr
     assert len(list(corpus.iterdir())) == 7  # a valid log of every text format
-    res = subprocess.run([sys.executable, str(TARGET), "all", f"-runs={RUNS}", "-seed=1",
+    res = subprocess.run([sys.executable, str(TARGET), "--format=all", f"-runs={RUNS}", "-seed=1",
                           f"-artifact_prefix={tmp_path}/", str(corpus)], env=env,
                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
     crashes = sorted(p.name for p in tmp_path.glob("crash-*"))

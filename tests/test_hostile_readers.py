@@ -10,13 +10,17 @@ and CI never flakes; `NMTCHECK_HYPOTHESIS=explore` runs many more random example
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import json
+import lzma
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zstandard
 from hostile_logs import (
     BINARY_WRITERS,
     PCAP_RECORD,
@@ -107,6 +111,7 @@ def frames_by_line(cols: dict[str, np.ndarray]) -> dict[int, tuple[object, ...]]
 
 
 def findings(res: InputResult) -> list[tuple[object, ...]]:
+    """Everything a finding says, its frame index and line included."""
     return [(f.rule, f.channel, f.node, round(f.time, 9), f.frame_index, f.line, f.message)
             for f in res.findings]
 
@@ -119,6 +124,7 @@ EDIT = st.tuples(st.floats(0, 1), st.sampled_from(["replace", "insert", "delete"
 
 
 def apply_edits(data: bytes, edits: list[tuple[float, str, bytes]]) -> bytes:
+    """Replace, insert or delete bytes at relative positions (so any seed fits)."""
     out = bytearray(data)
     for where, kind, blob in edits:
         at = int(where * len(out))
@@ -234,22 +240,37 @@ def test_binary_log_cut_anywhere_reads_up_to_the_cut(tmp_path: Path, writer: str
         assert stats.truncated and stats.skipped == 1  # the object the cut went through
 
 
-@pytest.mark.parametrize("suffix", ["gz", "xz"])
+def _zstd(data: bytes) -> bytes:
+    return zstandard.ZstdCompressor().compress(data)
+
+
+COMPRESS: dict[str, Callable[[bytes], bytes]] = {"gz": gzip.compress, "xz": lzma.compress,
+                                                 "zst": _zstd}
+
+
+@pytest.mark.parametrize("suffix", sorted(COMPRESS))
 @bounded(10)
 @given(cut=st.floats(0.05, 0.95))
 def test_compressed_log_cut_mid_stream_is_read_up_to_the_cut(tmp_path: Path, suffix: str,
                                                              cut: float) -> None:
-    import gzip
-    import lzma
-
-    seed = TEXT_SEEDS["candump"] * 20
-    packed = gzip.compress(seed) if suffix == "gz" else lzma.compress(seed)
+    seed = b"".join(TEXT_WRITERS["candump"](FRAMES[i:] + FRAMES[:i]) for i in range(20))
+    packed = COMPRESS[suffix](seed)
     res = check(tmp_path / f"cut.log.{suffix}", packed[:int(cut * len(packed))])
-    if isinstance(res, InputError):
-        assert "cannot decompress" in str(res)  # not even the first block is whole
+    if isinstance(res, InputError):  # not even the first block or line is whole
+        assert "cannot decompress" in str(res), res
         return
     assert res.stats.truncated and res.stats.frames <= 20 * len(FRAMES)
     assert res.stats.skipped <= 1  # at most the line the damage cut
+
+
+@pytest.mark.parametrize("suffix", sorted(COMPRESS))
+def test_compressed_logs_concatenated_by_hand_are_read_whole(tmp_path: Path,
+                                                             suffix: str) -> None:
+    """`cat a.log.gz b.log.gz > ab.log.gz`: every member or frame is read."""
+    data = COMPRESS[suffix](TEXT_SEEDS["candump"]) + COMPRESS[suffix](TEXT_SEEDS["candump"])
+    res = check(tmp_path / f"ab.log.{suffix}", data)
+    assert isinstance(res, InputResult)
+    assert (res.stats.frames, res.stats.truncated) == (2 * len(FRAMES), False)
 
 
 # --- corruption ---------------------------------------------------------------------------
@@ -417,7 +438,7 @@ JSON_FIELDS = ["id", "can_id", "arbitration_id", "data", "dlc", "len", "is_rtr",
 CAN_JSON = st.dictionaries(st.sampled_from(JSON_FIELDS), JSON_VALUES, max_size=8)
 
 
-@bounded(40)
+@bounded(25)
 @given(messages=st.lists(CAN_JSON, min_size=1, max_size=10))
 def test_mcap_json_messages_with_any_values(tmp_path: Path, messages: list[dict[str, object]]
                                             ) -> None:
@@ -428,3 +449,28 @@ def test_mcap_json_messages_with_any_values(tmp_path: Path, messages: list[dict[
     res = check(tmp_path / "log.mcap", mcap_json(payloads))
     assert isinstance(res, InputResult)
     assert res.stats.frames + res.stats.skipped == len(payloads)
+
+
+# --- well-formed frames that make no sense ------------------------------------------------
+
+CANOPEN_IDS = st.one_of(
+    st.sampled_from([0x000, 0x001, 0x080, 0x100]),
+    st.integers(1, 127).flatmap(lambda n: st.sampled_from(
+        [0x700 + n, 0x180 + n, 0x200 + n, 0x580 + n, 0x600 + n, 0x080 + n])),
+    st.integers(0, 0x7FF))
+CANOPEN_FRAME = st.tuples(
+    st.one_of(st.floats(-1e6, 1e12, allow_nan=False), st.sampled_from([0.0, 1e-9, 1e15])),
+    CANOPEN_IDS, st.binary(max_size=8), st.booleans())
+
+
+@bounded(60)
+@given(frames=st.lists(CANOPEN_FRAME, min_size=1, max_size=60))
+def test_any_sequence_of_canopen_frames_gives_a_report(tmp_path: Path,
+                                                       frames: list[tuple[float, int, bytes,
+                                                                          bool]]) -> None:
+    """Boot-ups, heartbeats, NMT commands, guarding requests, SDOs and PDOs in any order, at
+    any times (backwards, equal, far apart), with any payload: the rules never crash."""
+    lines = [f"({t:.6f}) can0 {i:03X}#" + ("R" if rtr else data.hex()) + "\n"
+             for t, i, data, rtr in frames]
+    res = check(tmp_path / "log", "".join(lines).encode(), "candump")
+    assert isinstance(res, InputResult) and res.stats.frames == len(frames)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Iterator
 from typing import Any
 
 from nmtcheck.checks.base import Param, Problem, rule
 from nmtcheck.decode import KIND_EC, KIND_NAMES
-from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel
+from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, any_between
 
 
 def _auto_window_s(m: NodeModel, value_ms: float) -> float:
@@ -42,18 +43,26 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     in between.
     """
     timeout = p["bootup_timeout_ms"] / 1000.0
+    nodes = [m for cm in model.channels for m in cm.nodes.values()]
+    # One pass over the node-frame store answers every reset's "first frame after it".
+    queries = [(m.key, c.ts, c.idx) for m in nodes for c in m.commands if c.is_reset]
+    answers = iter(model.decoded.first_node_frame_after(queries))
     for cm in model.channels:
         for m in cm.nodes.values():
             resets = [c for c in m.commands if c.is_reset]
             bootups = m.bootups
+            boot_idx = [b.idx for b in bootups]
+            life = [f for f in m.ec if f.kind in ("heartbeat", "guard", "malformed")]
+            life_idx = [f.idx for f in life]
             for i, c in enumerate(resets):
                 next_reset = resets[i + 1].idx if i + 1 < len(resets) else None
-                boot = next((b for b in bootups if b.idx > c.idx), None)
+                k = bisect.bisect_right(boot_idx, c.idx)
+                boot = bootups[k] if k < len(bootups) else None
                 limit_idx = min(x for x in (boot.idx if boot else None, next_reset, 1 << 62)
                                 if x is not None)
-                sign = next((f for f in m.ec if c.idx < f.idx < limit_idx
-                             and f.kind in ("heartbeat", "guard", "malformed")), None)
-                other = model.decoded.first_node_frame_after([(m.key, c.ts, c.idx)])[0]
+                k = bisect.bisect_right(life_idx, c.idx)
+                sign = life[k] if k < len(life) and life[k].idx < limit_idx else None
+                other = next(answers)
                 if other is not None and other[1] < limit_idx and (sign is None
                                                                    or other[1] < sign.idx):
                     yield Problem(cm.name, m.node, other[0],
@@ -91,10 +100,10 @@ def _repeats(m: NodeModel, window: float) -> list[list[EcFrame]]:
     """Runs of 00h frames that follow each other within the window with no reset between."""
     runs: list[list[EcFrame]] = []
     prev: EcFrame | None = None
-    resets = [c for c in m.commands if c.is_reset]
+    resets = sorted(c.idx for c in m.commands if c.is_reset)
     for b in m.bootups:
-        if prev is not None and b.ts - prev.ts <= window + EPS and not any(
-                prev.idx < c.idx < b.idx for c in resets):
+        if prev is not None and b.ts - prev.ts <= window + EPS and not any_between(
+                resets, prev.idx, b.idx):
             if runs and runs[-1][-1] is prev:
                 runs[-1].append(b)
             else:

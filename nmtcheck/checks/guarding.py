@@ -6,7 +6,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from nmtcheck.checks.base import Param, Problem, count_note, rule, runs
-from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel
+from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, any_between
 
 
 @rule("G001", "guard-toggle", "error")
@@ -103,7 +103,8 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
     """
     for cm in model.channels:
         for m in cm.nodes.values():
-            resets = [c.idx for c in m.commands if c.is_reset] + [b.idx for b in m.bootups]
+            resets = sorted([c.idx for c in m.commands if c.is_reset]
+                            + [b.idx for b in m.bootups])
             reqs = [f for f in m.ec if f.kind == "request"]
 
             def life_s(at: float, m: NodeModel = m) -> float | None:
@@ -117,7 +118,7 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
             for i, (a, b) in enumerate(zip(reqs, reqs[1:], strict=False)):
                 life = life_s(a.ts)
                 if (life is not None and b.ts - a.ts > life + EPS
-                        and not any(a.idx < r < b.idx for r in resets)):
+                        and not any_between(resets, a.idx, b.idx)):
                     late.append((i, a, b))
             # consecutive late requests within one timeline interval: one finding
             def next_gap(x: tuple[int, EcFrame, EcFrame], y: tuple[int, EcFrame, EcFrame],

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from nmtcheck.checks.base import Param, Problem, count_note, rule, runs
-from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, state_name
+from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, any_between, state_name
 
 
 @rule("H001", "heartbeat-timeout", "error",
@@ -82,7 +82,7 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
                     prev = None
                 elif f.kind == "heartbeat":
                     if (prev is not None and f.code == prev.code
-                            and not any(prev.idx < i < f.idx for i in cmd_idx)
+                            and not any_between(cmd_idx, prev.idx, f.idx)
                             and f.ts - prev.ts < limit - EPS):
                         early.append((prev, f))
                     prev = f
@@ -128,7 +128,7 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
                 if f.kind == "bootup":
                     prev = None
                 elif f.kind == "heartbeat":
-                    if prev is not None and not any(prev.idx < i < f.idx for i in breaks):
+                    if prev is not None and not any_between(breaks, prev.idx, f.idx):
                         value = m.config_at(prev.ts).heartbeat_ms
                         if value:
                             by_value.setdefault(value, []).append((f.ts - prev.ts, f))

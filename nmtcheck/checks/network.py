@@ -6,7 +6,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from nmtcheck.checks.base import Problem, rule
-from nmtcheck.timeline import EPS, EcFrame, InputModel, state_name
+from nmtcheck.timeline import EPS, EcFrame, InputModel, any_between, state_name
 
 
 @rule("N001", "missing-node", "error", exempt_from_unknown=True)
@@ -41,7 +41,7 @@ def _segments(frames: list[EcFrame], cmd_idx: list[int]) -> Iterator[list[EcFram
     seg: list[EcFrame] = []
     marks = sorted(cmd_idx)
     for f in frames:
-        if f.kind == "bootup" or (seg and any(seg[-1].idx < i < f.idx for i in marks)):
+        if f.kind == "bootup" or (seg and any_between(marks, seg[-1].idx, f.idx)):
             if len(seg) > 1:
                 yield seg
             seg = []

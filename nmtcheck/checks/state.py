@@ -7,6 +7,7 @@ timeline with `searchsorted`; only offending runs become Python objects.
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -27,6 +28,7 @@ from nmtcheck.timeline import (
     EcFrame,
     InputModel,
     NodeModel,
+    any_between,
     state_name,
 )
 
@@ -252,11 +254,13 @@ def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
         for m in cm.nodes.values():
             cmds = [c for c in m.commands if not c.is_reset]
             all_cmd_idx = sorted(c.idx for c in m.commands)
+            ec_idx = [f.idx for f in m.ec]
             for c in cmds:
                 target = {0x01: OPERATIONAL, 0x02: STOPPED, 0x80: PRE_OPERATIONAL}[c.cs]
-                newer = next((i for i in all_cmd_idx if i > c.idx), None)
-                for f in m.ec:
-                    if f.idx <= c.idx or not f.reports_state:
+                k = bisect.bisect_right(all_cmd_idx, c.idx)
+                newer = all_cmd_idx[k] if k < len(all_cmd_idx) else None
+                for f in m.ec[bisect.bisect_right(ec_idx, c.idx):]:
+                    if not f.reports_state:
                         continue
                     if (newer is not None and f.idx > newer) or f.kind == "bootup":
                         break
@@ -296,7 +300,7 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[P
                 if f.kind not in ("heartbeat", "guard") or f.code not in STATE_OF_CODE:
                     continue
                 if (prev is not None and STATE_OF_CODE[f.code] != STATE_OF_CODE[prev.code]
-                        and not any(prev.idx < i < f.idx for i in cmd_idx)):
+                        and not any_between(cmd_idx, prev.idx, f.idx)):
                     yield Problem(cm.name, m.node, f.ts,
                                   f"node {m.node} changed from {state_name(prev.code)} to "
                                   f"{state_name(f.code)} without an NMT command", f.idx, f.line)

@@ -158,10 +158,58 @@ def _decompressed(raw: IO[bytes], magic: bytes) -> tuple[IO[bytes], str]:
     if magic.startswith(b"\xfd7zXZ\x00"):
         return lzma.LZMAFile(raw), "xz"
     if magic.startswith(b"\x28\xb5\x2f\xfd"):
-        import zstandard
-
-        return zstandard.ZstdDecompressor().stream_reader(raw), "zstd"
+        return io.BufferedReader(_ZstdFrames(raw)), "zstd"
     return raw, ""
+
+
+class _ZstdFrames(io.RawIOBase):
+    """The frames of a zstd stream one after another (a concatenated `.zst` too).
+
+    zstandard's own stream reader ends silently where a cut-off file ends, so a truncated
+    log would look whole; here a stream that ends inside a frame raises EOFError, like the
+    gzip, bzip2 and xz readers do. Compressed bytes are fed in small pieces, so one call
+    never inflates to more than a few MB (a highly compressible block cannot explode).
+    """
+
+    FEED_BYTES = 256
+    READ_BYTES = 1 << 16
+
+    def __init__(self, raw: IO[bytes]) -> None:
+        import zstandard  # ImportError: the caller names the missing module
+
+        self._raw = raw
+        self._dctx = zstandard.ZstdDecompressor()
+        self._frame = self._dctx.decompressobj()
+        self._in_frame = False  # compressed bytes of the current frame have been fed
+        self._pending = b""  # compressed bytes read, fed up to _fed
+        self._fed = 0
+        self._out = b""  # decompressed bytes, returned up to _taken
+        self._taken = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: bytearray | memoryview) -> int:  # type: ignore[override]
+        while self._taken == len(self._out):
+            if self._fed == len(self._pending):
+                self._pending, self._fed = self._raw.read(self.READ_BYTES), 0
+                if not self._pending:
+                    if self._in_frame:
+                        raise EOFError("zstd data ends inside a frame")
+                    return 0
+            piece = self._pending[self._fed : self._fed + self.FEED_BYTES]
+            self._fed += len(piece)
+            self._in_frame = True
+            self._out, self._taken = self._frame.decompress(piece), 0
+            if self._frame.eof:  # the next frame, if any, starts in what was left over
+                self._pending = self._frame.unused_data + self._pending[self._fed :]
+                self._fed = 0
+                self._frame = self._dctx.decompressobj()
+                self._in_frame = False
+        n = min(len(b), len(self._out) - self._taken)
+        b[:n] = self._out[self._taken : self._taken + n]
+        self._taken += n
+        return n
 
 
 class _Prefixed(io.RawIOBase):
@@ -341,6 +389,9 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
         raise InputError(display, f"unknown input format {fmt!r} (supported: {', '.join(FORMATS)})")
     if fmt is None:
         raw.close()
+        if damage is not None and damage.damage is not None:
+            raise InputError(display, f"cannot decompress ({compression}) beyond its first "
+                             f"{len(head)} bytes, too few to tell the format: {damage.damage}")
         raise InputError(
             display,
             "unknown log format (supported: " + ", ".join(FORMATS) + "; use --input-format NAME)",

@@ -482,6 +482,9 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
             rest = raw.read(RAW_READ)
             if not rest.strip(b"\0"):
                 break  # the end of the file (zero padding after the last object)
+            if len(rest) < BASE_HEADER.size:  # a few bytes at the end: a header cut short
+                cut("the file ends inside an object header")
+                break
             damaged(f"bytes at {raw.offset - len(rest)} are not a log object")
             raw.unread(rest)
             resync = True

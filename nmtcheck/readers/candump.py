@@ -46,7 +46,7 @@ _HEX_DIGITS = b"0123456789abcdefABCDEF"
 _FAST = re.compile(  # a classic 11-bit data frame; everything else takes the general path
     rb"\(([0-9]{1,12}\.[0-9]{1,9})\) (\S+) ([0-9A-Fa-f]{3})#((?:[0-9A-Fa-f]{2}){0,8})"
     rb"(?: [RT])?\r?\n?")
-_DROP = re.compile(rb"DROPCOUNT:\s*dropped\s+(\d+)")
+_DROP = re.compile(rb"DROPCOUNT:\s*dropped\s+(\d{1,18})\b")  # more digits: not a count
 _CANXL = re.compile(rb"[0-9A-Fa-f]{5}#[0-9A-Fa-f]{2}:[0-9A-Fa-f]{2}:[0-9A-Fa-f]{8}#[0-9A-Fa-f.]*$")
 
 

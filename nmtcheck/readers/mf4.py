@@ -13,8 +13,10 @@ counted as ignored.
 
 from __future__ import annotations
 
+import gc
 import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Iterator
 from typing import Any
@@ -123,12 +125,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
                          + INSTALL_HINT) from None
     path = _local_copy(source)
     try:
-        try:
-            # asammdf's own per-ID signal tables are not needed (and cost time)
-            options: dict[str, Any] = {"process_bus_logging": False}
-            mdf = MDF(path, **options)
-        except Exception as exc:  # asammdf raises many kinds for a damaged file
-            raise InputError(source.path, f"cannot read MF4 file: {exc}") from None
+        mdf = _open(MDF, path, source)
         try:
             yield from _read_groups(mdf, source, stats)
         finally:
@@ -136,6 +133,28 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     finally:
         if path != source.file_path:
             os.unlink(path)
+
+
+def _open(mdf_class: Any, path: str, source: Source) -> Any:
+    """asammdf's MDF of the file; a damaged or cut-off file is an InputError.
+
+    When asammdf's constructor fails, the half-built object's __del__ fails too and Python
+    prints that traceback on stderr ("Exception ignored in MDF4.__del__"): silenced, so the
+    one-line message stays the only one.
+    """
+    hook = sys.unraisablehook
+    sys.unraisablehook = lambda _unraisable: None
+    try:
+        try:
+            # asammdf's own per-ID signal tables are not needed (and cost time)
+            options: dict[str, Any] = {"process_bus_logging": False}
+            return mdf_class(path, **options)
+        except Exception as exc:  # asammdf raises many kinds for a damaged file
+            message = f"cannot read MF4 file (cut off or damaged?): {exc}"
+        gc.collect()  # the half-built object goes now, while its complaint is silenced
+    finally:
+        sys.unraisablehook = hook
+    raise InputError(source.path, message)
 
 
 def _read_groups(mdf: Any, source: Source, stats: InputStats) -> Iterator[FrameBatch]:
