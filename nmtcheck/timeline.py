@@ -40,14 +40,13 @@ RESETS = (CS_RESET_NODE, CS_RESET_COMM)
 EPS = 1e-7  # timestamps are microseconds at best: ignore float noise in comparisons
 
 
-def any_between(sorted_values: list[Any], lo: Any, hi: Any, include_hi: bool = False) -> bool:
-    """Whether a sorted list holds a value v with lo < v < hi (v <= hi with include_hi).
+def any_between(sorted_values: list[Any], lo: Any, hi: Any) -> bool:
+    """Whether a sorted list holds a value v with lo < v < hi.
 
     Bisection, because rules ask this per heartbeat pair against every reset/command.
     """
     k = bisect.bisect_right(sorted_values, lo)
-    return k < len(sorted_values) and (sorted_values[k] <= hi if include_hi
-                                       else sorted_values[k] < hi)
+    return k < len(sorted_values) and sorted_values[k] < hi
 
 
 def state_name(code: int) -> str:
@@ -223,6 +222,21 @@ class NodeModel:
     @property
     def key(self) -> int:
         return self.chan * 128 + self.node
+
+    def heartbeat_pairs(self) -> list[tuple[EcFrame, EcFrame]]:
+        """Consecutive heartbeats with no boot-up or reset command of the node between them:
+        the intervals the period is measured from (SPEC §2) and H003 compares."""
+        resets = [c.idx for c in self.commands if c.is_reset]  # commands are in file order
+        pairs: list[tuple[EcFrame, EcFrame]] = []
+        prev: EcFrame | None = None
+        for f in self.ec:
+            if f.kind == "bootup":
+                prev = None
+            elif f.kind == "heartbeat":
+                if prev is not None and not any_between(resets, prev.idx, f.idx):
+                    pairs.append((prev, f))
+                prev = f
+        return pairs
 
     @property
     def heartbeats(self) -> list[EcFrame]:
@@ -510,16 +524,7 @@ def _find_period(m: NodeModel) -> None:
     if m.config.heartbeat_ms:
         m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
         return
-    resets = sorted(c.ts for c in m.commands if c.is_reset)
-    intervals = []
-    prev: EcFrame | None = None
-    for f in m.ec:
-        if f.kind == "bootup":
-            prev = None
-        elif f.kind == "heartbeat":
-            if prev is not None and not any_between(resets, prev.ts, f.ts, include_hi=True):
-                intervals.append(f.ts - prev.ts)
-            prev = f
+    intervals = [b.ts - a.ts for a, b in m.heartbeat_pairs()]
     if intervals:
         m.period_s, m.period_source = float(statistics.median(intervals)), "measured"
     else:

@@ -2,18 +2,34 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.frames import FrameBatch
 from nmtcheck.network import Network, load_network
 from nmtcheck.profiles import load_profile
+from nmtcheck.readers import InputStats, open_input
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"
 CORPUS = SHARED / "corpus"
 SAMPLES = REPO / "samples"
+
+
+def read_columns(path: Path | str, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:
+    """All frames of one input through the real reader, as whole columns (batches joined)."""
+    opened = open_input(str(path), **kw)  # type: ignore[arg-type]
+    batches = list(opened.batches)
+    names = [f.name for f in dataclasses.fields(FrameBatch)]
+    if not batches:
+        cols = {n: np.empty(0) for n in names}
+        cols["data"] = np.empty((0, 8), np.uint8)
+        return opened.stats, cols
+    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 def candump(lines: list[tuple[float, str]], channel: str = "can0") -> str:

@@ -9,7 +9,6 @@ layouts of Vector's binlog objects.
 
 from __future__ import annotations
 
-import dataclasses
 import random
 import struct
 import subprocess
@@ -22,9 +21,9 @@ import can
 import numpy as np
 import pytest
 from conftest import CORPUS
+from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
 from nmtcheck.readers import InputStats, detect_format, open_input
 from nmtcheck.readers.blf import systemtime_to_epoch
 
@@ -92,17 +91,6 @@ def write(tmp_path: Path, content: bytes, name: str = "trace.blf") -> Path:
     path = tmp_path / name
     path.write_bytes(content)
     return path
-
-
-def read(path: Path, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:
-    opened = open_input(str(path), **kw)  # type: ignore[arg-type]
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]

@@ -8,7 +8,6 @@ in the shape can-utils' `lib.c`/`candump.c` print it.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import random
 from pathlib import Path
@@ -16,26 +15,15 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import BatchBuilder, FrameBatch
+from nmtcheck.frames import BatchBuilder
 from nmtcheck.readers import InputStats, candump, open_input
 
 T0 = 1_700_000_000.0
 
 Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]
-
-
-def read(path: Path, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:
-    """All frames of one input as whole columns (batches concatenated)."""
-    opened = open_input(str(path), **kw)  # type: ignore[arg-type]
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 def rows(stats: InputStats, cols: dict[str, np.ndarray]) -> list[Row]:

@@ -9,7 +9,6 @@ candump `-L` with the same frames, so each is the other's reference; the CL2000 
 from __future__ import annotations
 
 import calendar
-import dataclasses
 import random
 from pathlib import Path
 
@@ -17,24 +16,13 @@ import can
 import numpy as np
 import pytest
 from conftest import CORPUS
+from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import InputStats, detect_format, open_input
+from nmtcheck.readers import InputStats, detect_format
 
 THIRD = CORPUS / "third_party"
 needs_corpus = pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
-
-
-def read(path: Path, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:
-    opened = open_input(str(path), **kw)  # type: ignore[arg-type]
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]

@@ -18,25 +18,13 @@ import can
 import numpy as np
 import pytest
 from conftest import CORPUS
+from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
 from nmtcheck.readers import InputStats, detect_format, open_input
 
 THIRD = CORPUS / "third_party"
 HAVE_ZSTD = importlib.util.find_spec("zstandard") is not None
-
-
-def read(path: Path | str, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:
-    """All frames of one input as whole columns (batches concatenated)."""
-    opened = open_input(str(path), **kw)  # type: ignore[arg-type]
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 def summary(stats: InputStats) -> dict[str, object]:

@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import REPO
+from conftest import read_columns as read
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
 from nmtcheck.readers import InputStats, detect_format, mcaplog, open_input
 
 T0_NS = 1_700_000_000_000_000_000
@@ -150,17 +150,6 @@ def write_ros2(path: Path, topics: dict[str, list[Frame]], *, frame_ids: dict[st
             else:
                 writer.write_message(topic, string_schema, {"data": item}, log_time=t_ns)
         writer.finish()
-
-
-def read(path: Path, **kw: Any) -> tuple[InputStats, dict[str, np.ndarray]]:
-    opened = open_input(str(path), **kw)
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 def rows(stats: InputStats, cols: dict[str, np.ndarray]) -> list[tuple[Any, ...]]:

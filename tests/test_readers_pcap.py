@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import CORPUS
+from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
 from nmtcheck.readers import InputStats, detect_format, open_input, pcap
 
 THIRD = CORPUS / "third_party"
@@ -112,17 +112,6 @@ def pcapng_packet(iface: int, ticks: int, pkt: bytes, order: str = "<",
     if flags is not None:
         body += _option(2, struct.pack(order + "I", flags), order) + _option(0, b"", order)
     return _block(6, body, order)
-
-
-def read(path: Path, **kw: Any) -> tuple[InputStats, dict[str, np.ndarray]]:
-    opened = open_input(str(path), **kw)
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 def rows(stats: InputStats, cols: dict[str, np.ndarray]) -> list[tuple[Any, ...]]:

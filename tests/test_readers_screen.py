@@ -8,31 +8,19 @@ log of the same frames.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from conftest import SAMPLES
+from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import InputStats, detect_format, open_input
+from nmtcheck.readers import InputStats, detect_format
 
 ESC = "\x1b"
 BLUE, RED, RESET = f"{ESC}[1m{ESC}[34m", f"{ESC}[1m{ESC}[31m", f"{ESC}[0m"
-
-
-def read(path: Path, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:
-    opened = open_input(str(path), **kw)  # type: ignore[arg-type]
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]

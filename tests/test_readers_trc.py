@@ -8,7 +8,6 @@ are hand-written in the layout of PEAK's format description and of those files.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import subprocess
 import sys
@@ -18,9 +17,9 @@ import can
 import numpy as np
 import pytest
 from conftest import CORPUS
+from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
 from nmtcheck.readers import FORMATS, InputStats, detect_format, open_input
 from nmtcheck.readers.trc import start_time_from_ole_days
 
@@ -32,17 +31,6 @@ needs_corpus = pytest.mark.skipif(not HAVE_CORPUS, reason="shared corpus not ava
 
 START_DAYS = 44548.6028595139  # 2021-12-18 14:28:07.062 (the corpus files' $STARTTIME)
 START = start_time_from_ole_days(START_DAYS)
-
-
-def read(path: Path, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:
-    opened = open_input(str(path), **kw)  # type: ignore[arg-type]
-    batches = list(opened.batches)
-    names = [f.name for f in dataclasses.fields(FrameBatch)]
-    if not batches:
-        cols = {n: np.empty(0) for n in names}
-        cols["data"] = np.empty((0, 8), np.uint8)
-        return opened.stats, cols
-    return opened.stats, {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
 
 
 Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]

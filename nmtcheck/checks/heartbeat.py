@@ -121,18 +121,11 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
     tolerance = p["tolerance"]
     for cm in model.channels:
         for m in cm.nodes.values():
-            breaks = [c.idx for c in m.commands if c.is_reset]
             by_value: dict[float, list[tuple[float, EcFrame]]] = {}
-            prev: EcFrame | None = None
-            for f in m.ec:
-                if f.kind == "bootup":
-                    prev = None
-                elif f.kind == "heartbeat":
-                    if prev is not None and not any_between(breaks, prev.idx, f.idx):
-                        value = m.config_at(prev.ts).heartbeat_ms
-                        if value:
-                            by_value.setdefault(value, []).append((f.ts - prev.ts, f))
-                    prev = f
+            for prev, f in m.heartbeat_pairs():
+                value = m.config_at(prev.ts).heartbeat_ms
+                if value:
+                    by_value.setdefault(value, []).append((f.ts - prev.ts, f))
             for value, items in by_value.items():
                 if len(items) < 5:
                     continue

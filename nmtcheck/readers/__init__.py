@@ -23,7 +23,7 @@ from typing import IO, Any, cast
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.frames import BatchBuilder, FrameBatch
 
 MAX_SKIPPED_LINES_KEPT = 10
 HEAD_BYTES = 65536
@@ -108,6 +108,26 @@ def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
     stats.remote_frames += int(np.count_nonzero(batch.rtr))
     stats.fd_frames += int(np.count_nonzero(batch.fd))
     return batch
+
+
+class FrameSink:
+    """What every line-oriented reader does with a parsed frame: code its channel name,
+    collect it, and hand out an accounted batch whenever one is full."""
+
+    def __init__(self, stats: InputStats) -> None:
+        self.stats = stats
+        self.builder = BatchBuilder()
+
+    def add(self, ts: float, channel: str, can_id: int, *, ext: bool = False,
+            rtr: bool = False, err: bool = False, fd: bool = False, dlc: int = 0,
+            data: bytes = b"", line: int = 0) -> FrameBatch | None:
+        self.builder.add(ts, self.stats.channel_code(channel), can_id, ext=ext, rtr=rtr,
+                         err=err, fd=fd, dlc=dlc, data=data, line=line)
+        return account(self.stats, self.builder.take()) if self.builder.full else None
+
+    def flush(self) -> FrameBatch | None:
+        """The last, partly filled batch."""
+        return account(self.stats, self.builder.take())
 
 
 # Format name -> module, in the order sniffing tries them (binary magic bytes first, then

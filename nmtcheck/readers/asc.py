@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text
+from nmtcheck.readers import FrameSink, InputStats, Source, account, is_text
 from nmtcheck.readers.blocks import (
     HIGH,
     MAX_EXACT,
@@ -181,18 +181,17 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     """The reference path: every line through `_parse_line`."""
-    builder = BatchBuilder()
+    sink = FrameSink(stats)
     state = _State()
     for lineno, raw in enumerate(source.lines(), 1):
         row = _parse_line(raw, lineno, stats, state)
         if row is None:
             continue
         ts, chan_name, can_id, ext, rtr, err, fd, dlc, data = row
-        builder.add(ts, stats.channel_code(chan_name), can_id, ext=ext, rtr=rtr, err=err, fd=fd,
-                    dlc=dlc, data=data, line=lineno)
-        if builder.full and (batch := account(stats, builder.take())) is not None:
+        if (batch := sink.add(ts, chan_name, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
+                              data=data, line=lineno)) is not None:
             yield batch
-    if (batch := account(stats, builder.take())) is not None:
+    if (batch := sink.flush()) is not None:
         yield batch
 
 

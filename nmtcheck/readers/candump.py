@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text
+from nmtcheck.readers import FrameSink, InputStats, Source, account, is_text
 from nmtcheck.readers.blocks import (
     MAX_EXACT,
     POW10,
@@ -175,21 +175,16 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     """The reference path: every line through `_parse_line`."""
-    builder = BatchBuilder()
-    add = builder.add
-    chan_of: dict[bytes, int] = {}
+    sink = FrameSink(stats)
     for lineno, raw in enumerate(source.lines(), 1):
         row = _parse_line(raw, lineno, stats)
         if row is None:
             continue
         ts, iface, can_id, ext, rtr, err, fd, dlc, data = row
-        chan = chan_of.get(iface)
-        if chan is None:
-            chan = chan_of[iface] = stats.channel_code(iface.decode("latin-1"))
-        add(ts, chan, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc, data=data, line=lineno)
-        if builder.full and (batch := account(stats, builder.take())) is not None:
+        if (batch := sink.add(ts, iface.decode("latin-1"), can_id, ext=ext, rtr=rtr, err=err,
+                              fd=fd, dlc=dlc, data=data, line=lineno)) is not None:
             yield batch
-    if (batch := account(stats, builder.take())) is not None:
+    if (batch := sink.flush()) is not None:
         yield batch
 
 

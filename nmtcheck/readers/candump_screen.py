@@ -27,8 +27,8 @@ from collections.abc import Iterator
 from datetime import datetime, timezone
 from itertools import chain, islice
 
-from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
+from nmtcheck.frames import FrameBatch
+from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -189,11 +189,10 @@ def _looks_like_deltas(lines: list[bytes]) -> bool:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    builder = BatchBuilder()
+    sink = FrameSink(stats)
     lines = source.lines()
     head = list(islice(lines, DETECT_LINES))
     clock = _Clock(deltas=_looks_like_deltas(head))
-    chan_of: dict[str, int] = {}
     for lineno, raw in enumerate(chain(head, lines), 1):
         if raw[:1] == b"\t" or not raw.strip():
             continue  # -e: the explanation of the error frame above
@@ -213,12 +212,8 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         except _Bad as exc:
             stats.skip(lineno, str(exc))
             continue
-        chan = chan_of.get(iface)
-        if chan is None:
-            chan = chan_of[iface] = stats.channel_code(iface)
-        builder.add(ts, chan, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc, data=data,
-                    line=lineno)
-        if builder.full and (batch := account(stats, builder.take())) is not None:
+        if (batch := sink.add(ts, iface, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
+                                   data=data, line=lineno)) is not None:
             yield batch
-    if (batch := account(stats, builder.take())) is not None:
+    if (batch := sink.flush()) is not None:
         yield batch

@@ -20,8 +20,8 @@ import calendar
 from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
+from nmtcheck.frames import FrameBatch
+from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
 
 CHANNEL = "1"
 FULL_TIME_DIGITS = 17  # YYYYMMDDhhmmsskkk
@@ -98,9 +98,8 @@ class _Layout:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    builder = BatchBuilder()
+    sink = FrameSink(stats)
     layout = _Layout()
-    chan = -1
     for lineno, raw in enumerate(source.lines(), 1):
         line = raw.strip()
         if not line:
@@ -121,12 +120,10 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
             stats.skip(lineno, str(exc))
             continue
         stats.dropped += lost
-        if chan < 0:
-            chan = stats.channel_code(CHANNEL)
-        builder.add(ts, chan, can_id, ext=ext, dlc=dlc, data=data, line=lineno)
-        if builder.full and (batch := account(stats, builder.take())) is not None:
+        batch = sink.add(ts, CHANNEL, can_id, ext=ext, dlc=dlc, data=data, line=lineno)
+        if batch is not None:
             yield batch
-    if (batch := account(stats, builder.take())) is not None:
+    if (batch := sink.flush()) is not None:
         yield batch
 
 

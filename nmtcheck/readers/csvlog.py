@@ -22,8 +22,8 @@ import binascii
 from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
+from nmtcheck.frames import FrameBatch
+from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
 
 PYTHON_CAN_HEADER = b"timestamp,arbitration_id,extended,remote,error,dlc,data"
 DEFAULT_CHANNEL = "1"  # python-can's CSV has no channel column
@@ -131,9 +131,8 @@ class _SavvyCan:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    builder = BatchBuilder()
+    sink = FrameSink(stats)
     savvycan: _SavvyCan | None = None
-    chan_codes: dict[str, int] = {}
     header_seen = False
     for lineno, raw in enumerate(source.lines(), 1):
         line = raw.strip()
@@ -159,12 +158,8 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         except _Bad as exc:
             stats.skip(lineno, str(exc))
             continue
-        code = chan_codes.get(chan)
-        if code is None:
-            code = chan_codes[chan] = stats.channel_code(chan)
-        builder.add(ts, code, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc, data=data,
-                    line=lineno)
-        if builder.full and (batch := account(stats, builder.take())) is not None:
+        if (batch := sink.add(ts, chan, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
+                                   data=data, line=lineno)) is not None:
             yield batch
-    if (batch := account(stats, builder.take())) is not None:
+    if (batch := sink.flush()) is not None:
         yield batch

@@ -33,8 +33,8 @@ from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Source, account, is_text, unsigned
+from nmtcheck.frames import FrameBatch
+from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
 
 DEFAULT_CHANNEL = "1"  # versions without a bus column log one bus
 STATUS_ID = b"FFFFFFFF"  # version 1.x bus-status lines use this ID
@@ -223,11 +223,10 @@ class _V2Layout:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    builder = BatchBuilder()
+    sink = FrameSink(stats)
     header = _Header()
     layout: _V2Layout | None = None
     started = False  # the first record line fixes the version's layout
-    chan_codes: dict[str, int] = {}
     for lineno, raw in enumerate(source.lines(), 1):
         line = raw.strip()
         if not line:
@@ -259,12 +258,8 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
             stats.ignored += 1
             continue
         ts, chan, can_id, ext, rtr, err, fd, dlc, data = row
-        code = chan_codes.get(chan)
-        if code is None:
-            code = chan_codes[chan] = stats.channel_code(chan)
-        builder.add(ts, code, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc, data=data,
-                    line=lineno)
-        if builder.full and (batch := account(stats, builder.take())) is not None:
+        if (batch := sink.add(ts, chan, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
+                                   data=data, line=lineno)) is not None:
             yield batch
-    if (batch := account(stats, builder.take())) is not None:
+    if (batch := sink.flush()) is not None:
         yield batch

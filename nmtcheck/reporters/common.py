@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from nmtcheck.checks import RULES
 from nmtcheck.checks.base import Rule
 from nmtcheck.engine import Finding, InputResult, summary
-from nmtcheck.timeline import NodeModel, any_between
+from nmtcheck.timeline import NodeModel
 
 SEVERITY_ORDER = ("error", "warning", "info")
 # Rules whose findings may name no node (a CAN-ID or a frame on 000h belongs to the network):
@@ -125,17 +125,7 @@ class HeartbeatStats:
 
 def heartbeat_stats(m: NodeModel) -> HeartbeatStats:
     """The same intervals the timeline measures the period from (SPEC §2)."""
-    resets = sorted(c.ts for c in m.commands if c.is_reset)  # sorted: bisected per interval
-    intervals: list[float] = []
-    prev_ts: float | None = None
-    for f in m.ec:
-        if f.kind == "bootup":
-            prev_ts = None
-        elif f.kind == "heartbeat":
-            if prev_ts is not None and not any_between(resets, prev_ts, f.ts, include_hi=True):
-                intervals.append(f.ts - prev_ts)
-            prev_ts = f.ts
-    return HeartbeatStats(intervals)
+    return HeartbeatStats([b.ts - a.ts for a, b in m.heartbeat_pairs()])
 
 
 @dataclass
