@@ -10,7 +10,7 @@ with OFFLINE from each timeout to the node's next frame of any kind.
 from __future__ import annotations
 
 import bisect
-import statistics
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -86,17 +86,22 @@ class Command:
         return COMMAND_NAMES[self.cs] + (" (broadcast)" if self.broadcast else "")
 
 
-@dataclass
-class EcFrame:
-    """A frame on 700h+N: a remote request, or a data frame with its classification."""
+REQUEST, BOOTUP, HEARTBEAT, GUARD, MALFORMED = range(5)
+KIND_NAMES = ("request", "bootup", "heartbeat", "guard", "malformed")
 
+
+@dataclass(frozen=True)
+class EcFrame:
+    """One frame on 700h+N, materialised from the node's columns for a finding or a test."""
+
+    pos: int  # position in the node's EcTable
     ts: float
     idx: int
     line: int
     rtr: bool
     dlc: int
     value: int  # data byte 0
-    kind: str = ""  # request | bootup | heartbeat | guard | malformed
+    kind: str  # request | bootup | heartbeat | guard | malformed
 
     @property
     def code(self) -> int:
@@ -109,6 +114,67 @@ class EcFrame:
     @property
     def reports_state(self) -> bool:
         return self.kind in ("bootup", "heartbeat", "guard")
+
+
+class EcTable:
+    """A node's frames on 700h+N as columns, in file order.
+
+    Heartbeats are the one dense NMT stream (a frame per node per period), so
+    they stay numpy columns; rules compute on them vectorised and materialise an
+    `EcFrame` only for what they report.
+    """
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
+                 dlc: np.ndarray, value: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.rtr = np.asarray(rtr, bool)
+        self.dlc = np.asarray(dlc, np.int16)
+        self.value = np.asarray(value, np.int16)
+        self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
+
+    @classmethod
+    def empty(cls) -> EcTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> EcFrame:
+        return EcFrame(int(pos), float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
+                       bool(self.rtr[pos]), int(self.dlc[pos]), int(self.value[pos]),
+                       KIND_NAMES[self.kind[pos]])
+
+    def __iter__(self) -> Iterator[EcFrame]:
+        return (self[i] for i in range(len(self)))
+
+    def frames(self, positions: Iterable[int]) -> list[EcFrame]:
+        return [self[int(p)] for p in positions]
+
+    def where(self, *kinds: int) -> np.ndarray:
+        """Positions of the frames of these kinds."""
+        return np.flatnonzero(np.isin(self.kind, kinds))
+
+    def count(self, kind: int) -> int:
+        return int(np.count_nonzero(self.kind == kind))
+
+    @property
+    def code(self) -> np.ndarray:
+        return self.value & 0x7F
+
+    def after(self, idx: int) -> int:
+        """Position of the first frame later in the file than frame index `idx`."""
+        return int(np.searchsorted(self.idx, idx, side="right"))
+
+
+def between(sorted_marks: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Per pair, whether a mark m with lo < m < hi exists (vectorised any_between)."""
+    if not len(sorted_marks):
+        return np.zeros(len(lo), bool)
+    return (np.searchsorted(sorted_marks, lo, side="right")
+            < np.searchsorted(sorted_marks, hi, side="left"))
 
 
 @dataclass
@@ -181,7 +247,7 @@ class NodeModel:
     channel: str
     node: int
     config: NodeConfig
-    ec: list[EcFrame] = field(default_factory=list)
+    ec: EcTable = field(default_factory=EcTable.empty)
     commands: list[Command] = field(default_factory=list)
     first_show_idx: int | None = None
     first_show_ts: float | None = None
@@ -223,28 +289,52 @@ class NodeModel:
     def key(self) -> int:
         return self.chan * 128 + self.node
 
-    def heartbeat_pairs(self) -> list[tuple[EcFrame, EcFrame]]:
-        """Consecutive heartbeats with no boot-up or reset command of the node between them:
-        the intervals the period is measured from (SPEC §2) and H003 compares."""
-        resets = [c.idx for c in self.commands if c.is_reset]  # commands are in file order
-        pairs: list[tuple[EcFrame, EcFrame]] = []
-        prev: EcFrame | None = None
-        for f in self.ec:
-            if f.kind == "bootup":
-                prev = None
-            elif f.kind == "heartbeat":
-                if prev is not None and not any_between(resets, prev.idx, f.idx):
-                    pairs.append((prev, f))
-                prev = f
+    def config_series(self, times: np.ndarray, get: Callable[[NodeConfig], float | None]
+                      ) -> np.ndarray:
+        """`get(config_at(t))` for many times at once (NaN where None).
+
+        The configuration only changes where a write is confirmed or stops holding, so
+        it is evaluated once per stretch between those moments.
+        """
+        writes = self.writes + self.consumer_writes
+        bps = np.asarray(sorted({w.ts for w in writes}
+                                | {w.until for w in writes if w.until != float("inf")}))
+        values = [get(self.config_at(at)) for at in [-np.inf, *bps.tolist()]]
+        table = np.asarray([np.nan if v is None else v for v in values], np.float64)
+        return table[np.searchsorted(bps, times, side="right")]
+
+    def heartbeat_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Consecutive heartbeats with no boot-up or reset command of the node between them,
+        as two arrays of positions in `ec`: the intervals the period is measured from
+        (SPEC §2), H003 compares and the report summarises."""
+        cached = self.__dict__.get("_pairs")
+        if cached is not None and cached[0] is self.ec.kind:
+            return cached[1]
+        kind = self.ec.kind
+        pos = np.flatnonzero((kind == HEARTBEAT) | (kind == BOOTUP))
+        a, b = pos[:-1], pos[1:]
+        ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
+        resets = np.asarray([c.idx for c in self.commands if c.is_reset], np.int64)
+        ok &= ~between(resets, self.ec.idx[a], self.ec.idx[b])
+        pairs = (a[ok], b[ok])
+        self.__dict__["_pairs"] = (kind, pairs)
         return pairs
+
+    def heartbeat_intervals(self) -> np.ndarray:
+        a, b = self.heartbeat_pairs()
+        return self.ec.ts[b] - self.ec.ts[a]
 
     @property
     def heartbeats(self) -> list[EcFrame]:
-        return [f for f in self.ec if f.kind == "heartbeat"]
+        return self.ec.frames(self.ec.where(HEARTBEAT))
 
     @property
     def bootups(self) -> list[EcFrame]:
-        return [f for f in self.ec if f.kind == "bootup"]
+        return self.ec.frames(self.ec.where(BOOTUP))
+
+    @property
+    def bootup_count(self) -> int:
+        return self.ec.count(BOOTUP)
 
     @property
     def is_producer(self) -> bool:
@@ -252,14 +342,18 @@ class NodeModel:
             return True
         if any(w.index == 0x1017 and w.value for w in self.writes):
             return True
-        return len(self.heartbeats) >= 2
+        return self.ec.count(HEARTBEAT) >= 2
 
     def hb_timeout_s(self, timeout_factor: float, at: float | None = None) -> float | None:
         """The heartbeat timeout in force at `at`: consumer time, else factor x period.
 
         None when there is none, or when 1017h was set to 0 by SDO (heartbeat disabled).
         """
-        cfg = self.config if at is None else self.config_at(at)
+        return self.hb_timeout(self.config if at is None else self.config_at(at),
+                               timeout_factor)
+
+    def hb_timeout(self, cfg: NodeConfig, timeout_factor: float) -> float | None:
+        """The heartbeat timeout under configuration `cfg`."""
         if cfg.heartbeat_ms == 0.0:
             return None
         if cfg.consumer_timeout_ms:
@@ -283,10 +377,14 @@ class NodeModel:
     def interval_index(self, ts: float) -> int:
         return max(int(np.searchsorted(self._starts(), ts, side="right")) - 1, 0)
 
+    def interval_indices(self, ts: np.ndarray) -> np.ndarray:
+        """`interval_index` for many times at once."""
+        return np.maximum(np.searchsorted(self._starts(), ts, side="right") - 1, 0)
+
     @property
     def error_control(self) -> str:
-        hb = any(f.kind == "heartbeat" for f in self.ec)
-        guard = any(f.kind == "guard" for f in self.ec)
+        hb = bool(self.ec.count(HEARTBEAT))
+        guard = bool(self.ec.count(GUARD))
         return {(True, True): "both", (True, False): "heartbeat", (False, True): "guarding"}.get(
             (hb, guard), "none")
 
@@ -357,9 +455,13 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                 m.first_tx = first
                 m.first_show_idx, m.first_show_ts = first[0], first[1]
                 m.last_seen = decoded.last_tx.get(key)
-        requests_only: dict[int, list[EcFrame]] = {}
+        is_ec = (rows["can_id"] >= 0x701) & (rows["can_id"] <= 0x77F)
+        ec_tables = _ec_tables(rows[is_ec])
+        for n, table in ec_tables.items():
+            if not table.rtr.all():  # a node exists once it sends; requests alone do not
+                node_model(n)
         sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
-        for r in rows.tolist():
+        for r in rows[~is_ec].tolist():
             ts, idx, line, _chan, can_id, rtr, dlc, data = r
             data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
             if 0x081 <= can_id <= 0x0FF:
@@ -379,20 +481,10 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                     m = node_model(target)
                     if m.first_show_idx is None or idx < m.first_show_idx:
                         m.first_show_idx, m.first_show_ts = idx, ts
-                continue
-            n = can_id - 0x700
-            f = EcFrame(ts, idx, line, rtr, dlc, int(data[0]) if dlc >= 1 and not rtr else 0)
-            if rtr:
-                f.kind = "request"
-                if n in nodes:
-                    nodes[n].ec.append(f)
-                else:
-                    requests_only.setdefault(n, []).append(f)
-            else:
-                node_model(n).ec.append(f)
-        for n, reqs in requests_only.items():
-            if n in nodes:  # node showed up through other traffic: keep its requests, in order
-                nodes[n].ec = sorted(nodes[n].ec + reqs, key=lambda f: f.idx)
+        _sdo_config(sdo_rows, nodes, node_model)
+        for n, table in ec_tables.items():
+            if n in nodes:  # requests to a node nothing else shows are not kept
+                nodes[n].ec = table
         # Commands per node, broadcasts only for nodes seen before the command.
         for frame in nmt:
             if frame.problem is not None:
@@ -404,7 +496,6 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                 ):
                     m.commands.append(Command(frame.ts, frame.idx, frame.line, frame.cs,
                                               frame.target == 0))
-        _sdo_config(sdo_rows, nodes, node_model)
         for m in nodes.values():
             _classify(m, params, period_s=None)
             _find_period(m)
@@ -423,6 +514,21 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         for m in cm.nodes.values():
             m.intervals = _intervals(m, start, end)
     return InputModel(decoded, start, end, models)
+
+
+def _ec_tables(rows: np.ndarray) -> dict[int, EcTable]:
+    """Split the error-control events of one channel into one column table per node."""
+    node = rows["can_id"].astype(np.int64) - 0x700
+    order = np.argsort(node, kind="stable")  # file order kept within each node
+    rows, node = rows[order], node[order]
+    cuts = np.flatnonzero(np.diff(node)) + 1
+    tables: dict[int, EcTable] = {}
+    for part in np.split(np.arange(len(rows)), cuts) if len(rows) else []:
+        r = rows[part]
+        value = np.where((r["dlc"] >= 1) & ~r["rtr"], r["data"][:, 0], 0)
+        tables[int(node[part[0]])] = EcTable(r["ts"], r["idx"], r["line"], r["rtr"], r["dlc"],
+                                             value)
+    return tables
 
 
 def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
@@ -470,7 +576,7 @@ def _write_validity(nodes: dict[int, NodeModel]) -> None:
     """A written value holds until the node's next boot-up or reset; 1016h entries also
     count for the producer they name."""
     for m in nodes.values():
-        ends = sorted([f.ts for f in m.ec if f.kind == "bootup"]
+        ends = sorted(m.ec.ts[m.ec.kind == BOOTUP].tolist()
                       + [c.ts for c in m.commands if c.is_reset])
         for w in m.writes:
             w.until = next((t for t in ends if t > w.ts), float("inf"))
@@ -482,41 +588,47 @@ def _write_validity(nodes: dict[int, NodeModel]) -> None:
 
 def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> None:
     """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2)."""
-    pending: EcFrame | None = None
+    ec = m.ec
+    kind = np.where(ec.rtr, REQUEST, np.where(
+        ec.dlc != 1, MALFORMED, np.where(ec.value == 0, BOOTUP, HEARTBEAT))).astype(np.int8)
+    if kind.size and (kind == REQUEST).any():
+        _classify_guarding(ec, kind, params, period_s)
+    ec.kind = kind
+
+
+def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
+                       period_s: float | None) -> None:
+    """Where remote requests are pending, a data frame may be a guarding response: the
+    order matters, so this walks the frames (plain Python ints, no objects)."""
+    pending: float | None = None  # ts of the pending request
     hb_since_boot = 0
-    last_hb: EcFrame | None = None
-    for f in m.ec:
-        if f.rtr:
-            pending = f
-            continue
-        if f.dlc != 1:
-            f.kind = "malformed"
-            continue
-        if f.value == 0x00:
+    last_hb: float | None = None
+    timeout = params.response_timeout_s + EPS
+    early = None if period_s is None else params.early_factor * period_s - EPS
+    for i, (k, ts, value) in enumerate(zip(kind.tolist(), ec.ts.tolist(), ec.value.tolist(),
+                                           strict=True)):
+        if k == REQUEST:
+            pending = ts
+        elif k == BOOTUP:
             # Always a boot-up, even with a request pending: a node in Initialisation does
             # not answer guarding, and reading it as a response would raise false G001/B001.
-            f.kind = "bootup"
             hb_since_boot = 0
             last_hb = None
             pending = None
-            continue
-        answerable = (pending is not None
-                      and f.ts - pending.ts <= params.response_timeout_s + EPS)
-        is_guard = False
-        if answerable:
-            if hb_since_boot >= 2:
-                early = (period_s is not None and last_hb is not None
-                         and f.ts - last_hb.ts < params.early_factor * period_s - EPS)
-                is_guard = bool(f.value & 0x80) or early
+        elif k == HEARTBEAT:
+            is_guard = False
+            if pending is not None and ts - pending <= timeout:
+                if hb_since_boot >= 2:
+                    is_guard = bool(value & 0x80) or (
+                        early is not None and last_hb is not None and ts - last_hb < early)
+                else:
+                    is_guard = True
+            if is_guard:
+                kind[i] = GUARD
+                pending = None
             else:
-                is_guard = True
-        if is_guard:
-            f.kind = "guard"
-            pending = None
-        else:
-            f.kind = "heartbeat"
-            hb_since_boot += 1
-            last_hb = f
+                hb_since_boot += 1
+                last_hb = ts
 
 
 def _find_period(m: NodeModel) -> None:
@@ -524,34 +636,47 @@ def _find_period(m: NodeModel) -> None:
     if m.config.heartbeat_ms:
         m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
         return
-    intervals = [b.ts - a.ts for a, b in m.heartbeat_pairs()]
-    if intervals:
-        m.period_s, m.period_source = float(statistics.median(intervals)), "measured"
+    intervals = m.heartbeat_intervals()
+    if intervals.size:
+        m.period_s, m.period_source = float(np.median(intervals)), "measured"
     else:
         m.period_s, m.period_source = None, "none"
 
 
 def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
-    """H001: each gap after a heartbeat or boot-up that exceeds the timeout."""
+    """H001: each gap after a heartbeat or boot-up that exceeds the timeout.
+
+    Vectorised over the gaps: only gaps that outlast the timeout in force at their
+    start, or that contain a configuration change, are looked at one by one.
+    """
     if not m.is_producer:
         return
-    marks: list[tuple[float, int, str]] = [(f.ts, f.idx, "hb") for f in m.ec
-                                           if f.kind in ("heartbeat", "bootup")]
-    marks += [(c.ts, c.idx, "reset") for c in m.commands if c.is_reset]
-    # A confirmed 1017h write ends the gap too; a non-zero one starts the heartbeat anew.
-    marks += [(w.ts, w.idx, "hb" if w.value else "reset") for w in m.writes
-              if w.index == 0x1017]
-    marks.sort(key=lambda x: x[1])
-    changes = sorted({w.ts for w in m.writes + m.consumer_writes})
-    open_gap: tuple[float, int] | None = None
-    for ts, idx, what in marks:
-        # A reset ends the gap: the wait for the boot-up is B001's, but a timeout that
-        # expired before the reset (often the reason for it) still counts.
-        if open_gap is not None:
-            _gap_timeout(m, params, open_gap, ts, changes, closed=True)
-        open_gap = (ts, idx) if what == "hb" else None
-    if open_gap is not None:
-        _gap_timeout(m, params, open_gap, end, changes, closed=False)
+    ec = m.ec
+    pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
+    # A reset ends the gap: the wait for the boot-up is B001's, but a timeout that expired
+    # before the reset (often the reason for it) still counts. A confirmed 1017h write ends
+    # the gap too; a non-zero one starts the heartbeat anew.
+    extra = [(c.ts, c.idx, False) for c in m.commands if c.is_reset]
+    extra += [(w.ts, w.idx, bool(w.value)) for w in m.writes if w.index == 0x1017]
+    ts = np.concatenate([ec.ts[pos], np.asarray([e[0] for e in extra], np.float64)])
+    idx = np.concatenate([ec.idx[pos], np.asarray([e[1] for e in extra], np.int64)])
+    opens = np.concatenate([np.ones(len(pos), bool), np.asarray([e[2] for e in extra], bool)])
+    order = np.argsort(idx, kind="stable")
+    ts, idx, opens = ts[order], idx[order], opens[order]
+    if not ts.size:
+        return
+    until = np.append(ts[1:], end)
+    closed = np.ones(len(ts), bool)
+    closed[-1] = False
+    gap = np.flatnonzero(opens)
+    changes = np.asarray(sorted({w.ts for w in m.writes + m.consumer_writes}), np.float64)
+    limit = m.config_series(ts[gap], lambda cfg: m.hb_timeout(cfg, params.timeout_factor))
+    slow = between(changes, ts[gap], until[gap])
+    fire = slow | ((limit > 0) & (until[gap] - ts[gap] > limit + EPS))
+    changes_list = changes.tolist()
+    for g in gap[fire].tolist():
+        _gap_timeout(m, params, (float(ts[g]), int(idx[g])), float(until[g]), changes_list,
+                     closed=bool(closed[g]))
 
 
 def _gap_timeout(m: NodeModel, params: TimelineParams, gap: tuple[float, int], until: float,
@@ -579,32 +704,35 @@ def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
     """G002: runs of remote requests to N that got no guarding response in time."""
     limit = params.response_timeout_s
     run: Timeout | None = None
-    pending: EcFrame | None = None
+    pending: tuple[float, int] | None = None  # ts, idx of the pending request
 
-    def close(request: EcFrame, next_request: float | None) -> None:
+    def close(request: tuple[float, int], next_request: float | None) -> None:
         nonlocal run
-        deadline = request.ts + limit
+        deadline = request[0] + limit
         if next_request is None and deadline > end - EPS:
             return  # the trace ended before the answer was due
         moment = deadline if next_request is None else min(deadline, next_request)
         if run is None:
-            run = Timeout("G002", moment, request.ts, request.idx, limit, None)
+            run = Timeout("G002", moment, request[0], request[1], limit, None)
             m.timeouts.append(run)
         else:
             run.requests += 1
 
-    for f in m.ec:
-        if f.kind == "request":
+    ec = m.ec
+    pos = ec.where(REQUEST, GUARD, BOOTUP)  # heartbeats play no part here
+    for k, ts, idx in zip(ec.kind[pos].tolist(), ec.ts[pos].tolist(), ec.idx[pos].tolist(),
+                          strict=True):
+        if k == REQUEST:
             if pending is not None:
-                close(pending, f.ts)
-            pending = f
-        elif f.kind == "guard":  # classification only accepts answers to a pending request
+                close(pending, ts)
+            pending = (ts, idx)
+        elif k == GUARD:  # classification only accepts answers to a pending request
             pending = None
             run = None
-        elif f.kind == "bootup" and pending is not None:
+        elif pending is not None:  # boot-up
             # A request still within its wait when the node booted was lost to the restart,
             # which B001/B002 judge; one that had already timed out is a real G002.
-            if f.ts - pending.ts > limit + EPS:
+            if ts - pending[0] > limit + EPS:
                 close(pending, None)
             pending = None
             run = None
@@ -619,20 +747,62 @@ def _offline_ends(decoded: Decoded, items: list[tuple[NodeModel, Timeout]]) -> N
     found = decoded.first_node_frame_after([(m.key, t.moment, t.after_idx) for m, t in items])
     for (m, t), hit in zip(items, found, strict=True):
         best = hit[0] if hit is not None else None
-        for f in m.ec:
-            if f.kind != "request" and f.ts >= t.moment and f.idx > t.after_idx:
-                if best is None or f.ts < best:
-                    best = f.ts
+        ec = m.ec
+        p = ec.after(t.after_idx)
+        step = 16
+        while p < len(ec):  # usually the very next frames: look in growing windows
+            window = slice(p, p + step)
+            ok = np.flatnonzero((ec.kind[window] != REQUEST) & (ec.ts[window] >= t.moment))
+            if ok.size:
+                ts = float(ec.ts[p + ok[0]])
+                if best is None or ts < best:
+                    best = ts
                 break
+            p += step
+            step *= 2
         t.ended_by = best
+
+
+# state index a data byte reports, -1 if none (boot-up handled apart)
+_STATE_OF_BYTE = np.full(256, -1, np.int8)
+for _code, _state in STATE_OF_CODE.items():
+    _STATE_OF_BYTE[_code] = _STATE_OF_BYTE[_code | 0x80] = STATE_INDEX[_state]
+
+
+def _evidence(m: NodeModel, times: list[float]) -> np.ndarray:
+    """Positions (in time order) of the node's error-control frames that can change its
+    timeline: a frame that reports the same as the frame before it, with no command or
+    timeout in between, changes nothing, so runs of equal heartbeats reduce to their first."""
+    ec = m.ec
+    pos = np.flatnonzero(ec.kind != REQUEST)
+    pos = pos[np.lexsort((ec.idx[pos], ec.ts[pos]))]
+    if not pos.size:
+        return pos
+    kind = ec.kind[pos]
+    target = np.where(kind == BOOTUP, STATE_INDEX[PRE_OPERATIONAL],
+                      np.where((kind == HEARTBEAT) | (kind == GUARD),
+                               _STATE_OF_BYTE[ec.value[pos] & 0xFF], -1))
+    keep = np.ones(len(pos), bool)
+    keep[1:] = target[1:] != target[:-1]
+    if times:
+        sts = ec.ts[pos]
+        t = np.asarray(times, np.float64)
+        lo = np.searchsorted(sts, t, side="left")
+        hi = np.minimum(np.searchsorted(sts, t, side="right"), len(pos) - 1)
+        mark = np.zeros(len(pos) + 1, np.int64)
+        np.add.at(mark, lo, 1)
+        np.add.at(mark, hi + 1, -1)
+        keep |= np.cumsum(mark[:-1]) > 0
+    return pos[keep]
 
 
 def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
     """Walk the node's evidence in order and cut the timeline into state intervals."""
     steps: list[tuple[float, int, int, str, object]] = []
-    for f in m.ec:
-        if f.kind != "request":
-            steps.append((f.ts, f.idx, 1, "ec", f))
+    times = [c.ts for c in m.commands] + [t.moment for t in m.timeouts] + [
+        t.ended_by for t in m.timeouts if t.ended_by is not None]
+    for f in m.ec.frames(_evidence(m, times)):
+        steps.append((f.ts, f.idx, 1, "ec", f))
     for c in m.commands:
         steps.append((c.ts, c.idx, 1, "cmd", c))
     for t in m.timeouts:

@@ -12,6 +12,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from nmtcheck.timeline import InputModel
 
 SEVERITIES = ("error", "warning", "info")
@@ -79,6 +81,16 @@ def runs(items: list[Any], same_run: Callable[[Any, Any], bool]) -> Iterator[lis
         run.append(item)
     if run:
         yield run
+
+
+def run_starts(join: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised `runs`: `join[i]` says item i continues the run of item i-1 (`join[0]` is
+    ignored). Returns the index of each run's first item and the run's length."""
+    n = len(join)
+    if not n:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    first = np.flatnonzero(np.concatenate([[True], ~np.asarray(join, bool)[1:]]))
+    return first, np.diff(np.append(first, n))
 
 
 def count_note(n: int, what: str = "frames") -> str:

@@ -6,9 +6,20 @@ import bisect
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
+
 from nmtcheck.checks.base import Param, Problem, rule
 from nmtcheck.decode import KIND_EC, KIND_NAMES
-from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, any_between
+from nmtcheck.timeline import (
+    EPS,
+    GUARD,
+    HEARTBEAT,
+    MALFORMED,
+    EcFrame,
+    InputModel,
+    NodeModel,
+    any_between,
+)
 
 
 def _auto_window_s(m: NodeModel, value_ms: float) -> float:
@@ -50,18 +61,19 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     for cm in model.channels:
         for m in cm.nodes.values():
             resets = [c for c in m.commands if c.is_reset]
-            bootups = m.bootups
+            ec = m.ec
+            bootups = m.bootups if resets else []
             boot_idx = [b.idx for b in bootups]
-            life = [f for f in m.ec if f.kind in ("heartbeat", "guard", "malformed")]
-            life_idx = [f.idx for f in life]
+            life = ec.where(HEARTBEAT, GUARD, MALFORMED)  # signs of life but the boot-up
+            life_idx = ec.idx[life]
             for i, c in enumerate(resets):
                 next_reset = resets[i + 1].idx if i + 1 < len(resets) else None
                 k = bisect.bisect_right(boot_idx, c.idx)
                 boot = bootups[k] if k < len(bootups) else None
                 limit_idx = min(x for x in (boot.idx if boot else None, next_reset, 1 << 62)
                                 if x is not None)
-                k = bisect.bisect_right(life_idx, c.idx)
-                sign = life[k] if k < len(life) and life[k].idx < limit_idx else None
+                k = int(np.searchsorted(life_idx, c.idx, side="right"))
+                sign = ec[life[k]] if k < len(life) and life_idx[k] < limit_idx else None
                 other = next(answers)
                 if other is not None and other[1] < limit_idx and (sign is None
                                                                    or other[1] < sign.idx):
@@ -86,7 +98,8 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                                   f"after {c.name}")
             # (b) the node was already running when it first appeared, without a boot-up
             if m.first_tx is not None and m.first_tx[2] == KIND_EC:
-                first = next((f for f in m.ec if f.idx == m.first_tx[0]), None)
+                k = int(np.searchsorted(ec.idx, m.first_tx[0]))
+                first = ec[k] if k < len(ec) and ec.idx[k] == m.first_tx[0] else None
                 late = _auto_window_s(m, p["late_start_ms"])
                 if first is not None and first.kind == "heartbeat" and (
                         first.ts - model.start > late + EPS):
@@ -160,7 +173,7 @@ def unexpected_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     repeat_ms = model.params.get("B003", {}).get("repeat_window_ms", 0.0)
     for cm in model.channels:
         for m in cm.nodes.values():
-            repeated = {id(b) for run in _repeats(m, _auto_window_s(m, repeat_ms))
+            repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms))
                         for b in run[1:]}
             resets = [c for c in m.commands if c.is_reset]
             unanswered: list[float] = []
@@ -173,7 +186,7 @@ def unexpected_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
                 if unanswered:
                     unanswered.pop(0)
                     continue
-                if id(b) in repeated:
+                if b.pos in repeated:
                     continue
                 if m.first_tx is not None and m.first_tx[0] < b.idx:
                     yield Problem(cm.name, m.node, b.ts,

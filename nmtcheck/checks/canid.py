@@ -2,11 +2,24 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
-from nmtcheck.checks.base import Param, Problem, count_note, rule, runs
-from nmtcheck.timeline import STATE_OF_CODE, ChannelModel, EcFrame, InputModel, NmtFrame
+import numpy as np
+
+from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts, runs
+from nmtcheck.timeline import (
+    BOOTUP,
+    GUARD,
+    HEARTBEAT,
+    MALFORMED,
+    STATE_OF_CODE,
+    ChannelModel,
+    EcFrame,
+    EcTable,
+    InputModel,
+    NmtFrame,
+)
 
 
 @rule("C001", "restricted-can-id", "error",
@@ -78,22 +91,22 @@ def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Prob
                           f.idx, f.line)
 
 
-def _ec_runs(model: InputModel, bad: Any) -> Iterator[tuple[str, int, list[EcFrame]]]:
+def _ec_runs(model: InputModel, bad: Callable[[EcTable, np.ndarray], np.ndarray]
+             ) -> Iterator[tuple[str, int, EcFrame, int]]:
     """Runs of consecutive error-control frames of one node for which `bad` holds,
-    each within one timeline interval."""
+    each within one timeline interval: (channel, node, first frame, length)."""
     for cm in model.channels:
         for m in cm.nodes.values():
-            frames = [f for f in m.ec if f.kind != "request"]
-            current: list[EcFrame] = []
-            for f in frames:
-                if current and (not bad(f) or m.interval_index(f.ts)
-                                != m.interval_index(current[-1].ts)):
-                    yield cm.name, m.node, current
-                    current = []
-                if bad(f):
-                    current.append(f)
-            if current:
-                yield cm.name, m.node, current
+            ec = m.ec
+            frames = ec.where(BOOTUP, HEARTBEAT, GUARD, MALFORMED)  # all but requests
+            hit = np.flatnonzero(bad(ec, frames))
+            if not hit.size:
+                continue
+            iv = m.interval_indices(ec.ts[frames[hit]])
+            join = np.ones(len(hit), bool)
+            join[1:] = (hit[1:] == hit[:-1] + 1) & (iv[1:] == iv[:-1])
+            for s, n in zip(*run_starts(join), strict=True):
+                yield cm.name, m.node, ec[frames[hit[s]]], int(n)
 
 
 @rule("C003", "malformed-error-control", "error", exempt_from_unknown=True)
@@ -110,15 +123,15 @@ def malformed_error_control(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
 
     **Example.** `703#0500` (DLC 2).
     """
-    def bad(f: EcFrame) -> bool:
-        return f.kind == "malformed" or (f.kind == "heartbeat" and bool(f.value & 0x80))
+    def bad(ec: EcTable, pos: np.ndarray) -> np.ndarray:
+        kind = ec.kind[pos]
+        return (kind == MALFORMED) | ((kind == HEARTBEAT) & (ec.value[pos] & 0x80 != 0))
 
-    for channel, node, run in _ec_runs(model, bad):
-        f = run[0]
+    for channel, node, f, n in _ec_runs(model, bad):
         why = (f"DLC {f.dlc} (must be 1)" if f.kind == "malformed"
                else f"heartbeat {f.value:02X}h has the reserved bit 7 set")
         yield Problem(channel, node, f.ts, f"malformed error-control frame from node {node}: "
-                      f"{why}{count_note(len(run))}", f.idx, f.line)
+                      f"{why}{count_note(n)}", f.idx, f.line)
 
 
 @rule("C004", "unknown-nmt-state", "warning", exempt_from_unknown=True)
@@ -134,10 +147,11 @@ def unknown_nmt_state(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
 
     **Example.** `703#02` (legacy "pre-operational" of DS301 v3).
     """
-    def bad(f: EcFrame) -> bool:
-        return f.kind in ("heartbeat", "guard") and f.code not in STATE_OF_CODE
+    def bad(ec: EcTable, pos: np.ndarray) -> np.ndarray:
+        kind = ec.kind[pos]
+        return (((kind == HEARTBEAT) | (kind == GUARD))
+                & ~np.isin(ec.code[pos], list(STATE_OF_CODE)))
 
-    for channel, node, run in _ec_runs(model, bad):
-        f = run[0]
+    for channel, node, f, n in _ec_runs(model, bad):
         yield Problem(channel, node, f.ts, f"node {node} reports unknown NMT state "
-                      f"{f.code:02X}h{count_note(len(run))}", f.idx, f.line)
+                      f"{f.code:02X}h{count_note(n)}", f.idx, f.line)

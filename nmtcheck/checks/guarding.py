@@ -5,8 +5,19 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
-from nmtcheck.checks.base import Param, Problem, count_note, rule, runs
-from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, any_between
+import numpy as np
+
+from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts
+from nmtcheck.timeline import (
+    BOOTUP,
+    EPS,
+    GUARD,
+    HEARTBEAT,
+    REQUEST,
+    InputModel,
+    NodeConfig,
+    between,
+)
 
 
 @rule("G001", "guard-toggle", "error")
@@ -25,41 +36,44 @@ def guard_toggle(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """
     for cm in model.channels:
         for m in cm.nodes.values():
+            ec = m.ec
+            pos = ec.where(GUARD, BOOTUP)  # heartbeats and requests play no part
+            if not (ec.kind[pos] == GUARD).any():
+                continue
             expected: int | None = None
             resets = sorted([c.idx for c in m.commands if c.is_reset])
             ri = 0
-            bad: list[tuple[int, EcFrame, str]] = []  # (position, frame, why)
-            n = 0
-            for f in m.ec:
-                while ri < len(resets) and resets[ri] < f.idx:
+            bad: list[tuple[int, int, str]] = []  # (response number, position, why)
+            prev_boot = True  # the previous guard/boot-up frame is a boot-up (or none)
+            # n numbers responses and boot-ups alike: a boot-up separates runs
+            for n, (p_, k, idx, value) in enumerate(zip(
+                    pos.tolist(), ec.kind[pos].tolist(), ec.idx[pos].tolist(),
+                    ec.value[pos].tolist(), strict=True)):
+                while ri < len(resets) and resets[ri] < idx:
                     expected = 0
                     ri += 1
-                if f.kind == "bootup":
+                if k == BOOTUP:
                     expected = 0
-                    n += 1  # a boot-up separates runs
-                elif f.kind == "guard":
-                    n += 1
-                    if expected is not None and f.toggle != expected:
+                else:
+                    toggle = value >> 7
+                    if expected is not None and toggle != expected:
                         why = ("first response after boot-up/reset has toggle 1"
-                               if expected == 0 and f.value & 0x80 and _first_after_reset(m.ec, f)
-                               else f"toggle bit {f.toggle} repeats the previous response's")
-                        bad.append((n, f, why))
-                    expected = 1 - f.toggle
+                               if expected == 0 and value & 0x80 and prev_boot
+                               else f"toggle bit {toggle} repeats the previous response's")
+                        bad.append((n, p_, why))
+                    expected = 1 - toggle
+                prev_boot = k == BOOTUP
             # consecutive offending responses within one timeline interval: one finding
-            def next_response(a: tuple[int, EcFrame, str], b: tuple[int, EcFrame, str],
-                              m: NodeModel = m) -> bool:
-                return b[0] == a[0] + 1 and m.interval_index(a[1].ts) == m.interval_index(b[1].ts)
-
-            for run in runs(bad, next_response):
-                _n, f, why = run[0]
+            iv = m.interval_indices(ec.ts[[b[1] for b in bad]])
+            number = np.asarray([b[0] for b in bad])
+            join = np.ones(len(bad), bool)
+            join[1:] = (number[1:] == number[:-1] + 1) & (iv[1:] == iv[:-1])
+            for s, count in zip(*run_starts(join), strict=True):
+                _n, p_, why = bad[s]
+                f = ec[p_]
                 yield Problem(cm.name, m.node, f.ts,
                               f"guarding response {f.value:02X}h from node {m.node}: {why}"
-                              f"{count_note(len(run), 'responses')}", f.idx, f.line)
-
-
-def _first_after_reset(ec: list[EcFrame], f: EcFrame) -> bool:
-    before = [g for g in ec if g.idx < f.idx and g.kind in ("guard", "bootup")]
-    return not before or before[-1].kind == "bootup"
+                              f"{count_note(int(count), 'responses')}", f.idx, f.line)
 
 
 @rule("G002", "guard-no-response", "error",
@@ -103,36 +117,37 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
     """
     for cm in model.channels:
         for m in cm.nodes.values():
-            resets = sorted([c.idx for c in m.commands if c.is_reset]
-                            + [b.idx for b in m.bootups])
-            reqs = [f for f in m.ec if f.kind == "request"]
-
-            def life_s(at: float, m: NodeModel = m) -> float | None:
-                """Node life time in force at `at` (files, or 100Ch/100Dh written by SDO)."""
-                cfg = m.config_at(at)
-                if not cfg.guard_time_ms or not cfg.life_time_factor:
-                    return None
-                return cfg.guard_time_ms * cfg.life_time_factor / 1000.0
-
-            late = []
-            for i, (a, b) in enumerate(zip(reqs, reqs[1:], strict=False)):
-                life = life_s(a.ts)
-                if (life is not None and b.ts - a.ts > life + EPS
-                        and not any_between(resets, a.idx, b.idx)):
-                    late.append((i, a, b))
+            ec = m.ec
+            resets = np.sort(np.concatenate([
+                np.asarray([c.idx for c in m.commands if c.is_reset], np.int64),
+                ec.idx[ec.kind == BOOTUP]]))
+            reqs = ec.where(REQUEST)
+            if len(reqs) < 2:
+                continue
+            a, b = reqs[:-1], reqs[1:]
+            # node life time in force at each request (files, or 100Ch/100Dh written by SDO)
+            life = m.config_series(ec.ts[a], _life_s)
+            late = np.flatnonzero((ec.ts[b] - ec.ts[a] > life + EPS)
+                                  & ~between(resets, ec.idx[a], ec.idx[b]))
             # consecutive late requests within one timeline interval: one finding
-            def next_gap(x: tuple[int, EcFrame, EcFrame], y: tuple[int, EcFrame, EcFrame],
-                         m: NodeModel = m) -> bool:
-                return y[0] == x[0] + 1 and m.interval_index(x[2].ts) == m.interval_index(y[2].ts)
-
-            for run in runs(late, next_gap):
-                _i, a, b = run[0]
-                cfg = m.config_at(a.ts)
+            iv = m.interval_indices(ec.ts[b[late]])
+            join = np.ones(len(late), bool)
+            join[1:] = (late[1:] == late[:-1] + 1) & (iv[1:] == iv[:-1])
+            for s, count in zip(*run_starts(join), strict=True):
+                fa, fb = ec[a[late[s]]], ec[b[late[s]]]
+                cfg = m.config_at(fa.ts)
                 gt, ltf = cfg.guard_time_ms or 0.0, cfg.life_time_factor or 0
-                yield Problem(cm.name, m.node, b.ts,
-                              f"guarding requests to node {m.node} {b.ts - a.ts:.3f} s apart "
+                yield Problem(cm.name, m.node, fb.ts,
+                              f"guarding requests to node {m.node} {fb.ts - fa.ts:.3f} s apart "
                               f"(node life time {gt * ltf / 1000.0:.3f} s = {gt:g} ms x {ltf})"
-                              f"{count_note(len(run), 'requests')}", b.idx, b.line)
+                              f"{count_note(int(count), 'requests')}", fb.idx, fb.line)
+
+
+def _life_s(cfg: NodeConfig) -> float | None:
+    """Node life time = guard time x life time factor, None when either is unknown."""
+    if not cfg.guard_time_ms or not cfg.life_time_factor:
+        return None
+    return cfg.guard_time_ms * cfg.life_time_factor / 1000.0
 
 
 @rule("G004", "guarding-with-heartbeat", "warning")
@@ -150,16 +165,17 @@ def guarding_with_heartbeat(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
     """
     for cm in model.channels:
         for m in cm.nodes.values():
-            seen_hb = seen_guard = False
-            reported = False
-            for f in m.ec:
-                if f.kind == "bootup":
-                    seen_hb = seen_guard = reported = False
-                elif f.kind in ("heartbeat", "guard"):
-                    seen_hb |= f.kind == "heartbeat"
-                    seen_guard |= f.kind == "guard"
-                    if seen_hb and seen_guard and not reported:
-                        reported = True
-                        yield Problem(cm.name, m.node, f.ts,
-                                      f"node {m.node} answers node guarding and produces "
-                                      f"heartbeats", f.idx, f.line)
+            ec = m.ec
+            hb, guard = ec.where(HEARTBEAT), ec.where(GUARD)
+            if not hb.size or not guard.size:
+                continue
+            # per stretch between boot-ups: the first frame by which N did both
+            boots = ec.where(BOOTUP)
+            seg_hb, first_hb = np.unique(np.searchsorted(boots, hb), return_index=True)
+            seg_guard, first_guard = np.unique(np.searchsorted(boots, guard), return_index=True)
+            _both, i_hb, i_guard = np.intersect1d(seg_hb, seg_guard, return_indices=True)
+            for p_ in np.maximum(hb[first_hb[i_hb]], guard[first_guard[i_guard]]).tolist():
+                f = ec[p_]
+                yield Problem(cm.name, m.node, f.ts,
+                              f"node {m.node} answers node guarding and produces "
+                              f"heartbeats", f.idx, f.line)

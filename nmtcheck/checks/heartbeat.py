@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import statistics
 from collections.abc import Iterator
 from typing import Any
 
-from nmtcheck.checks.base import Param, Problem, count_note, rule, runs
-from nmtcheck.timeline import EPS, EcFrame, InputModel, NodeModel, any_between, state_name
+import numpy as np
+
+from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts
+from nmtcheck.timeline import BOOTUP, EPS, HEARTBEAT, InputModel, between, state_name
 
 
 @rule("H001", "heartbeat-timeout", "error",
@@ -74,28 +75,24 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
             if not m.period_s:
                 continue
             limit = factor * m.period_s
-            cmd_idx = [c.idx for c in m.commands]
-            early: list[tuple[EcFrame, EcFrame]] = []
-            prev: EcFrame | None = None
-            for f in m.ec:
-                if f.kind == "bootup":
-                    prev = None
-                elif f.kind == "heartbeat":
-                    if (prev is not None and f.code == prev.code
-                            and not any_between(cmd_idx, prev.idx, f.idx)
-                            and f.ts - prev.ts < limit - EPS):
-                        early.append((prev, f))
-                    prev = f
-            def chained(a: tuple[EcFrame, EcFrame], b: tuple[EcFrame, EcFrame],
-                        m: NodeModel = m) -> bool:
-                return a[1] is b[0] and m.interval_index(a[1].ts) == m.interval_index(b[1].ts)
-
-            for run in runs(early, chained):
-                prev_f, f = run[0]
+            ec = m.ec
+            pos = ec.where(HEARTBEAT, BOOTUP)
+            a, b = pos[:-1], pos[1:]
+            cmd_idx = np.asarray([c.idx for c in m.commands], np.int64)
+            early = ((ec.kind[a] == HEARTBEAT) & (ec.kind[b] == HEARTBEAT)
+                     & (ec.code[a] == ec.code[b]) & (ec.ts[b] - ec.ts[a] < limit - EPS))
+            early &= ~between(cmd_idx, ec.idx[a], ec.idx[b])
+            ea, eb = a[early], b[early]
+            # a run: each early pair starts where the previous one ended, in one interval
+            iv = m.interval_indices(ec.ts[eb])
+            join = np.ones(len(ea), bool)
+            join[1:] = (ea[1:] == eb[:-1]) & (iv[1:] == iv[:-1])
+            for s, n in zip(*run_starts(join), strict=True):
+                prev_f, f = ec[ea[s]], ec[eb[s]]
                 yield Problem(cm.name, m.node, f.ts,
                               f"heartbeat ({state_name(f.code)}) {f.ts - prev_f.ts:.3f} s after "
                               f"the previous one (period {m.period_s:.3f} s, limit "
-                              f"{limit:.3f} s){count_note(len(run), 'heartbeats')}",
+                              f"{limit:.3f} s){count_note(int(n), 'heartbeats')}",
                               f.idx, f.line)
 
 
@@ -121,20 +118,21 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
     tolerance = p["tolerance"]
     for cm in model.channels:
         for m in cm.nodes.values():
-            by_value: dict[float, list[tuple[float, EcFrame]]] = {}
-            for prev, f in m.heartbeat_pairs():
-                value = m.config_at(prev.ts).heartbeat_ms
-                if value:
-                    by_value.setdefault(value, []).append((f.ts - prev.ts, f))
-            for value, items in by_value.items():
-                if len(items) < 5:
+            a, b = m.heartbeat_pairs()
+            if not a.size:
+                continue
+            ts = m.ec.ts
+            value = m.config_series(ts[a], lambda cfg: cfg.heartbeat_ms)
+            for v in dict.fromkeys(value[(value > 0)].tolist()):  # in order of appearance
+                sel = np.flatnonzero(value == v)
+                if len(sel) < 5:
                     continue
-                median = statistics.median(d for d, _ in items)
-                configured = value / 1000.0
+                median = float(np.median(ts[b[sel]] - ts[a[sel]]))
+                configured = v / 1000.0
                 if abs(median - configured) > tolerance * configured + EPS:
-                    last = items[-1][1]
+                    last = m.ec[b[sel[-1]]]
                     yield Problem(cm.name, m.node, last.ts,
                                   f"node {m.node} heartbeats every {median:.3f} s (median of "
-                                  f"{len(items)} intervals) but its producer time is "
+                                  f"{len(sel)} intervals) but its producer time is "
                                   f"{configured:.3f} s (tolerance {tolerance:.0%})",
                                   last.idx, last.line)

@@ -5,8 +5,19 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
+
 from nmtcheck.checks.base import Problem, rule
-from nmtcheck.timeline import EPS, EcFrame, InputModel, any_between, state_name
+from nmtcheck.timeline import (
+    BOOTUP,
+    EPS,
+    HEARTBEAT,
+    EcFrame,
+    InputModel,
+    NodeModel,
+    between,
+    state_name,
+)
 
 
 @rule("N001", "missing-node", "error", exempt_from_unknown=True)
@@ -36,21 +47,6 @@ def missing_node(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                               f"on {name}", 0, line)
 
 
-def _segments(frames: list[EcFrame], cmd_idx: list[int]) -> Iterator[list[EcFrame]]:
-    """Heartbeats split at boot-ups and NMT commands."""
-    seg: list[EcFrame] = []
-    marks = sorted(cmd_idx)
-    for f in frames:
-        if f.kind == "bootup" or (seg and any_between(marks, seg[-1].idx, f.idx)):
-            if len(seg) > 1:
-                yield seg
-            seg = []
-        if f.kind == "heartbeat":
-            seg.append(f)
-    if len(seg) > 1:
-        yield seg
-
-
 @rule("N002", "duplicate-node-id", "warning")
 def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """Two devices seem to share one node-ID.
@@ -68,32 +64,51 @@ def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     """
     for cm in model.channels:
         for m in cm.nodes.values():
-            hit: tuple[EcFrame, str] | None = None
-            for seg in _segments(m.ec, [c.idx for c in m.commands]):
-                codes = [f.code for f in seg]
-                for i in range(len(seg) - 3):
-                    a, b = codes[i], codes[i + 1]
-                    if a != b and codes[i + 2] == a and codes[i + 3] == b:
-                        hit = hit or (seg[i + 3], f"its heartbeat alternates between "
-                                      f"{state_name(a)} and {state_name(b)}")
-                        break
-                gaps = [y.ts - x.ts for x, y in zip(seg, seg[1:], strict=False)]
-                for i in range(len(gaps) - 3):
-                    w = gaps[i:i + 4]
-                    if min(w) <= 0:
-                        continue
-                    steps = ["L" if w[k] >= 1.5 * w[k + 1] - EPS
-                             else "S" if w[k + 1] >= 1.5 * w[k] - EPS
-                             else "" for k in range(3)]
-                    alt = all(steps) and steps[0] == steps[2] != steps[1]
-                    if alt:
-                        f = seg[i + 4]
-                        if hit is None or f.idx < hit[0].idx:
-                            hit = (f, "its heartbeat intervals alternate short/long "
-                                      f"({', '.join(f'{x:.3f}' for x in w)} s)")
-                        break
+            hit = _duplicate_evidence(m)
             if hit is not None:
                 f, why = hit
                 yield Problem(cm.name, m.node, f.ts,
                               f"node-ID {m.node} may be used by two devices: {why}",
                               f.idx, f.line)
+
+
+def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:
+    """The first frame of N's heartbeats that shows two devices, vectorised over segments
+    of heartbeats (split at boot-ups and NMT commands to N); at equal frames the state
+    alternation wins."""
+    ec = m.ec
+    hb = ec.where(HEARTBEAT)
+    if len(hb) < 4:
+        return None
+    boots = ec.where(BOOTUP)
+    cmd_idx = np.asarray(sorted(c.idx for c in m.commands), np.int64)
+    cut = np.zeros(len(hb), bool)
+    cut[1:] = (np.searchsorted(boots, hb[1:]) != np.searchsorted(boots, hb[:-1])) | between(
+        cmd_idx, ec.idx[hb[:-1]], ec.idx[hb[1:]])
+    seg = np.cumsum(cut)
+    code = ec.code[hb]
+    ts = ec.ts[hb]
+    found: list[tuple[int, int, str]] = []  # (frame position, preference, why)
+    a, b, c, d = code[:-3], code[1:-2], code[2:-1], code[3:]
+    alt = np.flatnonzero((a != b) & (c == a) & (d == b) & (seg[:-3] == seg[3:]))
+    if alt.size:
+        i = int(alt[0])
+        found.append((int(hb[i + 3]), 0, f"its heartbeat alternates between "
+                      f"{state_name(int(a[i]))} and {state_name(int(b[i]))}"))
+    if len(hb) >= 5:
+        g = np.diff(ts)
+        w = [g[k:len(g) - 3 + k] for k in range(4)]  # windows of four consecutive gaps
+        longer = [w[k] >= 1.5 * w[k + 1] - EPS for k in range(3)]
+        shorter = [~longer[k] & (w[k + 1] >= 1.5 * w[k] - EPS) for k in range(3)]
+        ok = (np.minimum.reduce(w) > 0) & (seg[:-4] == seg[4:])
+        ok &= (longer[0] | shorter[0]) & (longer[1] | shorter[1]) & (longer[2] | shorter[2])
+        ok &= (longer[0] == longer[2]) & (longer[0] != longer[1])
+        alt = np.flatnonzero(ok)
+        if alt.size:
+            i = int(alt[0])
+            found.append((int(hb[i + 4]), 1, "its heartbeat intervals alternate short/long "
+                          f"({', '.join(f'{x[i]:.3f}' for x in w)} s)"))
+    if not found:
+        return None
+    pos, _pref, why = min(found)
+    return ec[pos], why

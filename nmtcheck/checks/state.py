@@ -18,19 +18,25 @@ from nmtcheck.checks.base import Param, Problem, count_note, rule
 from nmtcheck.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
 from nmtcheck.frames import RPDO_BASES, TPDO_BASES
 from nmtcheck.timeline import (
+    BOOTUP,
     EPS,
+    GUARD,
+    HEARTBEAT,
     OFFLINE,
     OPERATIONAL,
     PRE_OPERATIONAL,
     STATE_INDEX,
     STATE_OF_CODE,
     STOPPED,
-    EcFrame,
     InputModel,
     NodeModel,
-    any_between,
+    between,
     state_name,
 )
+
+_STATE_OF_CODE = np.full(128, -1, np.int8)  # state index of a 7-bit state code, -1 if none
+for _code, _state in STATE_OF_CODE.items():
+    _STATE_OF_CODE[_code] = STATE_INDEX[_state]
 
 
 @dataclass
@@ -253,23 +259,26 @@ def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
     for cm in model.channels:
         for m in cm.nodes.values():
             cmds = [c for c in m.commands if not c.is_reset]
+            if not cmds:
+                continue
             all_cmd_idx = sorted(c.idx for c in m.commands)
-            ec_idx = [f.idx for f in m.ec]
+            ec = m.ec
+            reports = ec.where(BOOTUP, HEARTBEAT, GUARD)  # frames that report a state
+            rep_idx = ec.idx[reports]
             for c in cmds:
                 target = {0x01: OPERATIONAL, 0x02: STOPPED, 0x80: PRE_OPERATIONAL}[c.cs]
                 k = bisect.bisect_right(all_cmd_idx, c.idx)
                 newer = all_cmd_idx[k] if k < len(all_cmd_idx) else None
-                for f in m.ec[bisect.bisect_right(ec_idx, c.idx):]:
-                    if not f.reports_state:
-                        continue
-                    if (newer is not None and f.idx > newer) or f.kind == "bootup":
+                for p_ in reports[int(np.searchsorted(rep_idx, c.idx, side="right")):]:
+                    if (newer is not None and ec.idx[p_] > newer) or ec.kind[p_] == BOOTUP:
                         break
-                    state = STATE_OF_CODE.get(f.code)
+                    state = STATE_OF_CODE.get(int(ec.value[p_]) & 0x7F)
                     if state is None:
                         continue
                     if state == target:
                         break
-                    if f.ts - c.ts > obey + EPS:
+                    if ec.ts[p_] - c.ts > obey + EPS:
+                        f = ec[p_]
                         yield Problem(cm.name, m.node, f.ts,
                                       f"node {m.node} reports {state} {f.ts - c.ts:.3f} s after "
                                       f"NMT {c.name} (expected {target})", f.idx, f.line)
@@ -291,17 +300,19 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[P
     """
     for cm in model.channels:
         for m in cm.nodes.values():
-            cmd_idx = [c.idx for c in m.commands]
-            prev: EcFrame | None = None
-            for f in m.ec:
-                if f.kind == "bootup":
-                    prev = None
-                    continue
-                if f.kind not in ("heartbeat", "guard") or f.code not in STATE_OF_CODE:
-                    continue
-                if (prev is not None and STATE_OF_CODE[f.code] != STATE_OF_CODE[prev.code]
-                        and not any_between(cmd_idx, prev.idx, f.idx)):
-                    yield Problem(cm.name, m.node, f.ts,
-                                  f"node {m.node} changed from {state_name(prev.code)} to "
-                                  f"{state_name(f.code)} without an NMT command", f.idx, f.line)
-                prev = f
+            ec = m.ec
+            # heartbeats and guarding responses with a CiA 301 state; a boot-up starts anew
+            pos = ec.where(BOOTUP, HEARTBEAT, GUARD)
+            kind = ec.kind[pos]
+            state = _STATE_OF_CODE[ec.code[pos]]
+            pos, kind, state = (x[(kind == BOOTUP) | (state >= 0)] for x in (pos, kind, state))
+            a, b = pos[:-1], pos[1:]
+            cmd_idx = np.asarray([c.idx for c in m.commands], np.int64)
+            change = np.flatnonzero((kind[:-1] != BOOTUP) & (kind[1:] != BOOTUP)
+                                    & (state[:-1] != state[1:])
+                                    & ~between(cmd_idx, ec.idx[a], ec.idx[b]))
+            for i in change.tolist():
+                prev, f = ec[a[i]], ec[b[i]]
+                yield Problem(cm.name, m.node, f.ts,
+                              f"node {m.node} changed from {state_name(prev.code)} to "
+                              f"{state_name(f.code)} without an NMT command", f.idx, f.line)

@@ -3,9 +3,10 @@ per-node heartbeat statistics, computed once here so every format tells the same
 
 from __future__ import annotations
 
-import statistics
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from nmtcheck.checks import RULES
 from nmtcheck.checks.base import Rule
@@ -99,7 +100,7 @@ def group_findings(findings: Iterable[Finding]) -> list[FindingGroup]:
 class HeartbeatStats:
     """Heartbeat intervals of one node in seconds (no interval across a boot-up or reset)."""
 
-    intervals: list[float]
+    intervals: np.ndarray
 
     @property
     def count(self) -> int:
@@ -107,25 +108,25 @@ class HeartbeatStats:
 
     @property
     def minimum(self) -> float | None:
-        return min(self.intervals) if self.intervals else None
+        return float(self.intervals.min()) if self.count else None
 
     @property
     def median(self) -> float | None:
-        return float(statistics.median(self.intervals)) if self.intervals else None
+        return float(np.median(self.intervals)) if self.count else None
 
     @property
     def maximum(self) -> float | None:
-        return max(self.intervals) if self.intervals else None
+        return float(self.intervals.max()) if self.count else None
 
     @property
     def jitter(self) -> float | None:
         """Population standard deviation: how far a typical interval strays from the mean."""
-        return float(statistics.pstdev(self.intervals)) if len(self.intervals) > 1 else None
+        return float(np.std(self.intervals)) if self.count > 1 else None
 
 
 def heartbeat_stats(m: NodeModel) -> HeartbeatStats:
     """The same intervals the timeline measures the period from (SPEC §2)."""
-    return HeartbeatStats([b.ts - a.ts for a, b in m.heartbeat_pairs()])
+    return HeartbeatStats(m.heartbeat_intervals())
 
 
 @dataclass

@@ -13,13 +13,13 @@ from __future__ import annotations
 import html
 import json
 import re
-import statistics
 from datetime import datetime, timezone
 from functools import cache
 from importlib import resources
 from typing import Any
 
 import jinja2
+import numpy as np
 from markupsafe import Markup
 
 from nmtcheck import __version__
@@ -39,7 +39,7 @@ from nmtcheck.reporters.common import (
     resets,
 )
 from nmtcheck.reporters.json import report_dict
-from nmtcheck.timeline import STATES, NodeModel
+from nmtcheck.timeline import HEARTBEAT, STATES, NodeModel
 
 # Colours of the NMT states on the timeline and in the legend (colour-blind safe-ish:
 # the fault states are the dark/saturated ones, and wide intervals carry their name).
@@ -125,28 +125,28 @@ def _group_view(res: InputResult, g: FindingGroup, gid: str) -> dict[str, Any]:
     }
 
 
-def _histogram(intervals: list[float]) -> dict[str, Any] | None:
+def _histogram(intervals: np.ndarray) -> dict[str, Any] | None:
     """Bin heartbeat intervals for a small inline SVG bar chart (ms on the x axis).
 
     Gaps longer than twice the median (a lost heartbeat) would squash every normal
     interval into one bar: they are counted in a separate overflow bar instead.
     """
-    if not intervals:
+    if not len(intervals):
         return None
-    lo = min(intervals)
-    limit = 2 * float(statistics.median(intervals))
-    hi = min(max(intervals), limit)
-    normal = [x for x in intervals if x <= hi]
+    lo = float(intervals.min())
+    limit = 2 * float(np.median(intervals))
+    hi = min(float(intervals.max()), limit)
+    normal = intervals[intervals <= hi]
     overflow = len(intervals) - len(normal)
     span = hi - lo
-    bins = [0] * (HISTOGRAM_BINS if span > 1e-9 else 1)
-    for x in normal:
-        i = 0 if span <= 1e-9 else min(int((x - lo) / span * len(bins)), len(bins) - 1)
-        bins[i] += 1
+    nbins = HISTOGRAM_BINS if span > 1e-9 else 1
+    where = (np.zeros(len(normal), np.int64) if span <= 1e-9
+             else np.minimum(((normal - lo) / span * nbins).astype(np.int64), nbins - 1))
+    bins = np.bincount(where, minlength=nbins).tolist()
     peak = max(*bins, overflow)
     return {"lo_ms": lo * 1000, "hi_ms": hi * 1000, "bins": bins, "peak": peak,
             "heights": [b / peak for b in bins], "overflow": overflow,
-            "overflow_height": overflow / peak, "max_ms": max(intervals) * 1000}
+            "overflow_height": overflow / peak, "max_ms": float(intervals.max()) * 1000}
 
 
 def _node_view(entry: dict[str, Any], m: NodeModel) -> dict[str, Any]:
@@ -158,7 +158,7 @@ def _node_view(entry: dict[str, Any], m: NodeModel) -> dict[str, Any]:
 
     return {
         **entry, "period_ms": entry["heartbeat_period_ms"], "period_source": m.period_source,
-        "heartbeats": len(m.heartbeats), "intervals": hb.count, "min_ms": ms(hb.minimum),
+        "heartbeats": m.ec.count(HEARTBEAT), "intervals": hb.count, "min_ms": ms(hb.minimum),
         "median_ms": ms(hb.median), "max_ms": ms(hb.maximum), "jitter_ms": ms(hb.jitter),
         "resets": resets(m), "histogram": _histogram(hb.intervals),
     }

@@ -50,7 +50,7 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
                 "input": res.index, "channel": m.channel, "node": m.node,
                 "first_seen": _r(m.first_show_ts), "last_seen": _r(m.last_seen),
                 "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
-                "bootups": len(m.bootups), "error_control": m.error_control,
+                "bootups": m.bootup_count, "error_control": m.error_control,
                 "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
                 **_configured_vs_measured(m, res.model.end),
             })

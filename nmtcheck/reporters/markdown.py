@@ -75,7 +75,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             hb = heartbeat_stats(m)
             out.append(f"| `{cell(res.stats.path)}` | {cell(m.channel)} | {m.node} | "
                        f"{m.error_control} | {_ms(hb.median)} | {_ms(hb.minimum)} | "
-                       f"{_ms(hb.maximum)} | {len(m.bootups)} | {resets(m)} | "
+                       f"{_ms(hb.maximum)} | {m.bootup_count} | {resets(m)} | "
                        f"{final_state(m)} |")
     out += ["", "</details>", ""]
     return "\n".join(out)

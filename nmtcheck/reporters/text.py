@@ -45,7 +45,7 @@ def _node_table(res: InputResult) -> list[str]:
         consumer = _ms(c.consumer_ms) + (f" (node {c.consumer_node})"
                                          if c.consumer_node is not None else "")
         rows.append((f"{m.channel}/{m.node}", final_state(m), m.error_control,
-                     str(len(m.bootups)), _ms(c.producer_ms), _ms(c.median_ms),
+                     str(m.bootup_count), _ms(c.producer_ms), _ms(c.median_ms),
                      _ms(c.jitter_ms), consumer, _ms(c.worst_gap_ms)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return ["  " + "  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip()
