@@ -3,7 +3,9 @@
 One streaming pass over the frame batches keeps:
 
 * `events`: the few frames the NMT state model needs one by one: NMT
-  commands (ID 000h) and error-control traffic (701h..77Fh).
+  commands (ID 000h), EMCYs and the SDOs that configure error control.
+* `ec`: the error-control traffic (701h..77Fh) as compact columns grouped by
+  node: heartbeats are the one NMT stream as dense as a node's period.
 * `store`: per frame a timestamp and line (to find "the first frame at or
   after a moment"), and for the frames that belong to a node but are not
   events (TPDO, RPDO, SDO response, EMCY) their node key and kind. These are
@@ -46,6 +48,9 @@ EVENT_DTYPE = np.dtype([
     ("rtr", "?"), ("dlc", "i2"), ("data", "u1", (8,)),
 ])
 
+EC_COLUMNS = {"ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32,
+              "rtr": np.bool_, "dlc": np.int16, "value": np.uint8}
+
 STORE_BUDGET_BYTES = 16 << 20  # per store; past it chunks go to a temporary directory
 
 
@@ -65,6 +70,7 @@ class ChunkStore:
         self._budget = budget
         self._in_memory = 0
         self._chunks: list[dict[str, np.ndarray] | dict[str, tuple[str, np.dtype, tuple]]] = []
+        self._ts_max: list[float] = []  # per chunk, to skip chunks that end before a moment
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
 
     @property
@@ -73,6 +79,8 @@ class ChunkStore:
         return sum(1 for c in self._chunks if isinstance(next(iter(c.values())), tuple))
 
     def append(self, **cols: np.ndarray) -> None:
+        ts = cols.get("ts")
+        self._ts_max.append(float(ts.max()) if ts is not None and ts.size else np.inf)
         size = sum(a.nbytes for a in cols.values())
         if self._in_memory + size <= self._budget:
             self._chunks.append(cols)
@@ -88,15 +96,21 @@ class ChunkStore:
         self._chunks.append(spilled)
 
     def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
-        for chunk in self._chunks:
-            yield {name: np.fromfile(col[0], col[1]).reshape(col[2])
-                   if isinstance(col, tuple) else col for name, col in chunk.items()}
+        return self.reaching(-np.inf)
+
+    def reaching(self, ts: float) -> Iterator[dict[str, np.ndarray]]:
+        """The chunks holding a time >= ts (others are not even read back from disk)."""
+        for chunk, ts_max in zip(self._chunks, self._ts_max, strict=True):
+            if ts_max >= ts:
+                yield {name: np.fromfile(col[0], col[1]).reshape(col[2])
+                       if isinstance(col, tuple) else col for name, col in chunk.items()}
 
     def close(self) -> None:
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
         self._chunks.clear()
+        self._ts_max.clear()
 
 
 @dataclass
@@ -114,12 +128,28 @@ class Decoded:
     """Everything later stages need from one input."""
 
     events: np.ndarray  # EVENT_DTYPE, file order
+    ec: dict[str, np.ndarray]  # EC_COLUMNS, sorted by node key, file order within a key
     frame_times: ChunkStore  # per batch: ts, base index, lines (see _lines)
     node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, line
     restricted: dict[tuple[int, int], IdUse] = field(default_factory=dict)
     # node key -> (frame index, ts, kind) of the node's first transmitted frame
     first_tx: dict[int, tuple[int, float, int]] = field(default_factory=dict)
     last_tx: dict[int, float] = field(default_factory=dict)
+
+    def ec_rows(self, key: int) -> slice:
+        """The rows of `ec` that belong to one node key."""
+        return self.ec_rows_between(key, key)
+
+    def ec_rows_between(self, lo: int, hi: int) -> slice:
+        """The rows of `ec` whose node key is in lo..hi."""
+        keys = self.ec["key"]
+        return slice(int(np.searchsorted(keys, lo, side="left")),
+                     int(np.searchsorted(keys, hi, side="right")))
+
+    @property
+    def last_event_ts(self) -> float | None:
+        times = [float(a.max()) for a in (self.events["ts"], self.ec["ts"]) if len(a)]
+        return max(times) if times else None
 
     def close(self) -> None:
         self.frame_times.close()
@@ -132,7 +162,7 @@ class Decoded:
             return result
         order = np.argsort(np.asarray(moments, np.float64), kind="stable")
         pending = list(order)
-        for chunk in self.frame_times:
+        for chunk in self.frame_times.reaching(min(moments)):
             if not pending:
                 break
             ts = chunk["ts"]
@@ -160,8 +190,10 @@ class Decoded:
             return result
         qkeys = np.asarray([q[0] for q in queries], np.int64)
         qts = np.asarray([q[1] for q in queries], np.float64)
-        for chunk in self.node_frames:
-            tx = np.flatnonzero(chunk["kind"] != KIND_RPDO)
+        wanted = np.unique(qkeys)
+        for chunk in self.node_frames.reaching(float(qts.min())):
+            tx = np.flatnonzero((chunk["kind"] != KIND_RPDO) & (chunk["ts"] >= qts.min())
+                                & np.isin(chunk["key"], wanted))
             if not tx.size:
                 continue
             key = chunk["key"][tx].astype(np.int64)
@@ -179,7 +211,8 @@ class Decoded:
                 if p < b:
                     row = tx[order[p]]
                     cand = (float(chunk["ts"][row]), int(chunk["idx"][row]),
-                            int(chunk["line"][row]), int(chunk["kind"][row]))
+                            int(node_frame_lines(chunk, np.asarray([row]))[0]),
+                            int(chunk["kind"][row]))
                     cur = result[q]
                     if cur is None or cand[0] < cur[0]:
                         result[q] = cand
@@ -256,6 +289,22 @@ def _lines(line: np.ndarray) -> dict[str, np.ndarray]:
     return {"line": line}
 
 
+def _node_lines(line: np.ndarray, idx: np.ndarray) -> dict[str, np.ndarray]:
+    """Line numbers for the node-frame store: one offset from the frame index when that
+    is constant (a text log without junk lines), else the column."""
+    off = line - idx
+    if off.shape[0] and bool((off == off[0]).all()):
+        return {"line_off": off[:1].copy()}
+    return {"line": line}
+
+
+def node_frame_lines(chunk: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
+    """The line numbers of some rows of a node-frame chunk."""
+    if "line" in chunk:
+        return chunk["line"][rows]
+    return chunk["idx"][rows] + chunk["line_off"][0]
+
+
 def _line_at(chunk: dict[str, np.ndarray], pos: int) -> int:
     if "line" in chunk:
         return int(chunk["line"][pos])
@@ -303,6 +352,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     for c in pdo_cob_ids:
         keep[c & 0x7FF] = True
     event_parts: list[np.ndarray] = []
+    ec_parts: dict[str, list[np.ndarray]] = {name: [] for name in EC_COLUMNS}
     frame_times = ChunkStore()
     node_frames = ChunkStore()
     restricted: dict[tuple[int, int], IdUse] = {}
@@ -315,7 +365,15 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
         co = ~b.ext & ~b.err
         cid = b.can_id.astype(np.int64)
         ec = co & (cid >= 0x701) & (cid <= 0x77F)
-        ev_mask = co & ((cid == 0) | ec | node_events(cid, b))
+        if ec.any():
+            sel = np.flatnonzero(ec)
+            rtr, dlc = b.rtr[sel], b.dlc[sel]
+            for name, col in (("ts", b.ts[sel]), ("idx", b.index[sel]), ("line", b.line[sel]),
+                              ("key", b.chan[sel].astype(np.int32) * 128 + (cid[sel] - 0x700)),
+                              ("rtr", rtr), ("dlc", dlc),
+                              ("value", np.where((dlc >= 1) & ~rtr, b.data[sel, 0], 0))):
+                ec_parts[name].append(col.astype(EC_COLUMNS[name], copy=False))
+        ev_mask = co & ((cid == 0) | node_events(cid, b))
         if ev_mask.any():
             sel = np.flatnonzero(ev_mask)
             ev = np.empty(sel.size, EVENT_DTYPE)
@@ -340,10 +398,11 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
         keys = (b.chan.astype(np.int32) << 7) | nodes  # node key: channel * 128 + node
         sel = np.flatnonzero((kinds > 0) & (kinds != KIND_EC))
         if sel.size:  # in file order: the rules take the first offending frame of each run
+            key = keys[sel]
             node_frames.append(
-                key=keys[sel].astype(np.int32), kind=kinds[sel],
+                key=key.astype(np.int16 if key.max() < 1 << 15 else np.int32), kind=kinds[sel],
                 can_id=b.can_id[sel].astype(np.uint16), ts=b.ts[sel],
-                idx=b.index[sel], line=b.line[sel],
+                idx=b.index[sel], **_node_lines(b.line[sel], b.index[sel]),
             )
 
         # Each node's first and last transmitted frame (anything but RPDOs, which others send).
@@ -367,4 +426,18 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
                     use.count += int(c)
 
     events = np.concatenate(event_parts) if event_parts else np.empty(0, EVENT_DTYPE)
-    return Decoded(events, frame_times, node_frames, restricted, first_tx, last_tx)
+    return Decoded(events, _grouped(ec_parts), frame_times, node_frames, restricted, first_tx,
+                   last_tx)
+
+
+def _grouped(parts: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
+    """Join the per-batch error-control columns and group them by node key (stable, so
+    file order within a node), one column at a time to keep the peak low."""
+    cols: dict[str, np.ndarray] = {}
+    for name, dtype in EC_COLUMNS.items():
+        cols[name] = np.concatenate(parts[name]) if parts[name] else np.empty(0, dtype)
+        parts[name].clear()
+    order = np.argsort(cols["key"], kind="stable")
+    for name in EC_COLUMNS:
+        cols[name] = cols[name][order]
+    return cols

@@ -93,8 +93,9 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             start = end = 0.0
         else:
             start, end = float(stats.start or 0.0), float(stats.end or 0.0)
-            if len(decoded.events):
-                end = max(end, float(decoded.events["ts"].max()))
+            last = decoded.last_event_ts
+            if last is not None:
+                end = max(end, last)
         configs = network.configs() if network else {}
         model = build(decoded, stats.channels, start, end, timeline_params(profile), configs)
         model.params = {code: s.params for code, s in profile.items()}

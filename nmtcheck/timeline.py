@@ -131,7 +131,7 @@ class EcTable:
         self.line = np.asarray(line, np.int64)
         self.rtr = np.asarray(rtr, bool)
         self.dlc = np.asarray(dlc, np.int16)
-        self.value = np.asarray(value, np.int16)
+        self.value = np.asarray(value, np.uint8)
         self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
 
     @classmethod
@@ -361,7 +361,7 @@ class NodeModel:
         period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
         return timeout_factor * period if period else None
 
-    def _starts(self) -> np.ndarray:
+    def interval_starts(self) -> np.ndarray:
         """Interval start times, built once per timeline (lookups happen per frame)."""
         cached = self.__dict__.get("_starts_cache")
         if cached is None or cached[0] is not self.intervals or len(cached[1]) != len(
@@ -375,11 +375,11 @@ class NodeModel:
         return self.intervals[self.interval_index(ts)].state
 
     def interval_index(self, ts: float) -> int:
-        return max(int(np.searchsorted(self._starts(), ts, side="right")) - 1, 0)
+        return max(int(np.searchsorted(self.interval_starts(), ts, side="right")) - 1, 0)
 
     def interval_indices(self, ts: np.ndarray) -> np.ndarray:
         """`interval_index` for many times at once."""
-        return np.maximum(np.searchsorted(self._starts(), ts, side="right") - 1, 0)
+        return np.maximum(np.searchsorted(self.interval_starts(), ts, side="right") - 1, 0)
 
     @property
     def error_control(self) -> str:
@@ -455,13 +455,12 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                 m.first_tx = first
                 m.first_show_idx, m.first_show_ts = first[0], first[1]
                 m.last_seen = decoded.last_tx.get(key)
-        is_ec = (rows["can_id"] >= 0x701) & (rows["can_id"] <= 0x77F)
-        ec_tables = _ec_tables(rows[is_ec])
+        ec_tables = _ec_tables(decoded, chan)
         for n, table in ec_tables.items():
             if not table.rtr.all():  # a node exists once it sends; requests alone do not
                 node_model(n)
         sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
-        for r in rows[~is_ec].tolist():
+        for r in rows.tolist():
             ts, idx, line, _chan, can_id, rtr, dlc, data = r
             data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
             if 0x081 <= can_id <= 0x0FF:
@@ -516,18 +515,16 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     return InputModel(decoded, start, end, models)
 
 
-def _ec_tables(rows: np.ndarray) -> dict[int, EcTable]:
-    """Split the error-control events of one channel into one column table per node."""
-    node = rows["can_id"].astype(np.int64) - 0x700
-    order = np.argsort(node, kind="stable")  # file order kept within each node
-    rows, node = rows[order], node[order]
-    cuts = np.flatnonzero(np.diff(node)) + 1
+def _ec_tables(decoded: Decoded, chan: int) -> dict[int, EcTable]:
+    """One column table per node of the channel: views into the decoded columns."""
     tables: dict[int, EcTable] = {}
-    for part in np.split(np.arange(len(rows)), cuts) if len(rows) else []:
-        r = rows[part]
-        value = np.where((r["dlc"] >= 1) & ~r["rtr"], r["data"][:, 0], 0)
-        tables[int(node[part[0]])] = EcTable(r["ts"], r["idx"], r["line"], r["rtr"], r["dlc"],
-                                             value)
+    ec = decoded.ec
+    rows = decoded.ec_rows_between(chan * 128, chan * 128 + 127)
+    keys = ec["key"][rows]
+    for key in np.unique(keys).tolist():
+        r = decoded.ec_rows(key)
+        tables[key - chan * 128] = EcTable(ec["ts"][r], ec["idx"][r], ec["line"][r],
+                                           ec["rtr"][r], ec["dlc"][r], ec["value"][r])
     return tables
 
 

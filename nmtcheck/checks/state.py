@@ -15,7 +15,14 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, count_note, rule
-from nmtcheck.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.decode import (
+    KIND_EMCY,
+    KIND_NAMES,
+    KIND_RPDO,
+    KIND_SDO_TX,
+    KIND_TPDO,
+    node_frame_lines,
+)
 from nmtcheck.frames import RPDO_BASES, TPDO_BASES
 from nmtcheck.timeline import (
     BOOTUP,
@@ -108,6 +115,55 @@ def _attribute(chunk: dict[str, np.ndarray], overrides: list[_PdoOverride]
     return key, kind
 
 
+_CHECKED_STATES = (PRE_OPERATIONAL, STOPPED)  # the states S001-S003 look into
+
+
+def _candidates(model: InputModel) -> dict[str, np.ndarray]:
+    """The stored node frames sent while their node was PRE-OPERATIONAL or STOPPED,
+    with their attributed key and kind: one pass over the store for S001-S003 together.
+
+    Usually a tiny set (a node is OPERATIONAL most of the time), so each rule's exact
+    test, grace periods included, runs on it alone. Cached on the model.
+    """
+    cached = model.__dict__.get("_state_candidates")
+    if cached is not None:
+        return cached
+    checked = {STATE_INDEX[s] for s in _CHECKED_STATES}
+    windows = []
+    for cm in model.channels:
+        for m in cm.nodes.values():
+            last = len(m.intervals) - 1
+            for i, iv in enumerate(m.intervals):
+                if STATE_INDEX[iv.state] in checked:  # the first/last interval also take
+                    windows.append((-np.inf if i == 0 else iv.start,  # stray timestamps
+                                    np.inf if i == last else iv.end))
+    windows.sort()
+    merged: list[list[float]] = []  # union over all nodes: a cheap first filter on time
+    for a, b in windows:
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    starts = np.asarray([w[0] for w in merged], np.float64)
+    ends = np.asarray([w[1] for w in merged], np.float64)
+    parts: list[dict[str, np.ndarray]] = []
+    overrides = _pdo_overrides(model)
+    for chunk in model.decoded.node_frames if merged else ():
+        ts = chunk["ts"]
+        w = np.searchsorted(starts, ts, side="right") - 1
+        sel = np.flatnonzero((w >= 0) & (ts <= ends[np.maximum(w, 0)] + EPS))
+        if not sel.size:
+            continue
+        key, kind = _attribute(chunk, overrides)
+        parts.append({"key": key[sel].astype(np.int64), "kind": kind[sel],
+                      "can_id": chunk["can_id"][sel], "ts": ts[sel], "idx": chunk["idx"][sel],
+                      "line": node_frame_lines(chunk, sel)})
+    names = ("key", "kind", "can_id", "ts", "idx", "line")
+    result = {n: np.concatenate([p[n] for p in parts]) if parts else np.zeros(0) for n in names}
+    model.__dict__["_state_candidates"] = result
+    return result
+
+
 def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
           grace_s: float, grace_from: str | None) -> list[tuple[NodeModel, int, _Run]]:
     """Frames of `kinds` sent while the node is in one of `states`.
@@ -118,11 +174,18 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
     not a new entry.
     """
     by_key = {m.key: m for cm in model.channels for m in cm.nodes.values()}
-    tables: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     offline = STATE_INDEX[OFFLINE]
     grace_code = STATE_INDEX[grace_from] if grace_from else -2
-    for key, m in by_key.items():
-        starts = np.asarray([iv.start for iv in m.intervals], np.float64)
+    wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
+    found: dict[tuple[int, int], _Run] = {}
+    cand = _candidates(model)
+    sel = np.flatnonzero(np.isin(cand["kind"], kinds))
+    keys = cand["key"][sel]
+    for key in np.unique(keys).tolist():
+        m = by_key.get(key)
+        if m is None:
+            continue
+        starts = m.interval_starts()
         codes = np.asarray([STATE_INDEX[iv.state] for iv in m.intervals], np.int8)
         since = np.full(len(codes), -np.inf)  # when the grace period of each interval began
         for i in range(len(codes)):
@@ -133,40 +196,21 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
                 since[i] = starts[i]
             elif i >= 1 and codes[i - 1] != offline:
                 since[i] = since[i - 1]  # e.g. OPERATIONAL -> STOPPED -> PRE-OPERATIONAL
-        tables[key] = (starts, codes, since)
-    wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
-    found: dict[tuple[int, int], _Run] = {}
-    overrides = _pdo_overrides(model)
-    for chunk in model.decoded.node_frames:
-        chunk_key, chunk_kind = _attribute(chunk, overrides)
-        sel = np.flatnonzero(np.isin(chunk_kind, kinds))
-        if not sel.size:
-            continue
-        keys = chunk_key[sel]
-        order = np.argsort(keys, kind="stable")
-        sk = keys[order]
-        bounds = np.flatnonzero(np.diff(sk)) + 1
-        for part in np.split(order, bounds):
-            key = int(keys[part[0]])
-            table = tables.get(key)
-            if table is None:
-                continue
-            starts, codes, since = table
-            rows = sel[part]
-            ts = chunk["ts"][rows]
-            iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
-            bad = np.isin(codes[iv], wanted)
-            bad &= ~((ts - since[iv]) <= grace_s + EPS)
-            for j in np.flatnonzero(bad):
-                row = rows[j]
-                k = (key, int(iv[j]))
-                run = found.get(k)
-                if run is None:
-                    found[k] = _Run(float(chunk["ts"][row]), int(chunk["idx"][row]),
-                                    int(chunk["line"][row]), int(chunk["can_id"][row]),
-                                    int(chunk_kind[row]), 1)
-                else:
-                    run.count += 1
+        rows = sel[keys == key]  # in file order
+        ts = cand["ts"][rows]
+        iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
+        bad = np.isin(codes[iv], wanted)
+        bad &= ~((ts - since[iv]) <= grace_s + EPS)
+        for j in np.flatnonzero(bad).tolist():
+            row = rows[j]
+            k = (key, int(iv[j]))
+            run = found.get(k)
+            if run is None:
+                found[k] = _Run(float(cand["ts"][row]), int(cand["idx"][row]),
+                                int(cand["line"][row]), int(cand["can_id"][row]),
+                                int(cand["kind"][row]), 1)
+            else:
+                run.count += 1
     return [(by_key[key], iv, run) for (key, iv), run in sorted(
         found.items(), key=lambda kv: kv[1].idx)]
 
