@@ -51,12 +51,59 @@ EVENT_DTYPE = np.dtype([
 EC_COLUMNS = {"ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32,
               "rtr": np.bool_, "dlc": np.int16, "value": np.uint8}
 
-STORE_BUDGET_BYTES = 16 << 20  # per store; past it chunks go to a temporary directory
+STORE_BUDGET_BYTES = 8 << 20  # per store; past it chunks go to a temporary directory
 
 
 def node_key(chan: np.ndarray | int, node: np.ndarray | int) -> np.ndarray | int:
     """One integer per (channel, node-ID): channel * 128 + node."""
     return chan * 128 + node
+
+
+class ColumnSpool:
+    """Columns appended batch by batch and read back whole once: the error-control
+    frames. Past a small budget they go to one file per column, so the decoder keeps
+    no growing heap of small arrays (which glibc could not give back)."""
+
+    def __init__(self, dtypes: dict[str, type], budget: int = 4 << 20) -> None:
+        self._dtypes = dtypes
+        self._parts: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
+        self._size = 0
+        self._budget = budget
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    def append(self, cols: dict[str, np.ndarray]) -> None:
+        for name, col in cols.items():
+            self._parts[name].append(col.astype(self._dtypes[name], copy=False))
+            self._size += col.nbytes
+        if self._size > self._budget:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="nmtcheck-")
+        for name, parts in self._parts.items():
+            with open(os.path.join(self._tmp.name, name), "ab") as f:
+                for part in parts:
+                    np.ascontiguousarray(part).tofile(f)
+            parts.clear()
+        self._size = 0
+
+    def column(self, name: str) -> np.ndarray:
+        """One whole column; the parts it was made of are released."""
+        dtype = self._dtypes[name]
+        parts = self._parts[name]
+        if self._tmp is not None:
+            path = os.path.join(self._tmp.name, name)
+            parts.insert(0, np.fromfile(path, dtype))
+            os.remove(path)
+        col = np.concatenate(parts) if parts else np.empty(0, dtype)
+        parts.clear()
+        return col
+
+    def close(self) -> None:
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
 
 
 class ChunkStore:
@@ -352,7 +399,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     for c in pdo_cob_ids:
         keep[c & 0x7FF] = True
     event_parts: list[np.ndarray] = []
-    ec_parts: dict[str, list[np.ndarray]] = {name: [] for name in EC_COLUMNS}
+    ec_spool = ColumnSpool(EC_COLUMNS)
     frame_times = ChunkStore()
     node_frames = ChunkStore()
     restricted: dict[tuple[int, int], IdUse] = {}
@@ -368,11 +415,10 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
         if ec.any():
             sel = np.flatnonzero(ec)
             rtr, dlc = b.rtr[sel], b.dlc[sel]
-            for name, col in (("ts", b.ts[sel]), ("idx", b.index[sel]), ("line", b.line[sel]),
-                              ("key", b.chan[sel].astype(np.int32) * 128 + (cid[sel] - 0x700)),
-                              ("rtr", rtr), ("dlc", dlc),
-                              ("value", np.where((dlc >= 1) & ~rtr, b.data[sel, 0], 0))):
-                ec_parts[name].append(col.astype(EC_COLUMNS[name], copy=False))
+            ec_spool.append({
+                "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+                "key": b.chan[sel].astype(np.int32) * 128 + (cid[sel] - 0x700),
+                "rtr": rtr, "dlc": dlc, "value": np.where((dlc >= 1) & ~rtr, b.data[sel, 0], 0)})
         ev_mask = co & ((cid == 0) | node_events(cid, b))
         if ev_mask.any():
             sel = np.flatnonzero(ev_mask)
@@ -426,18 +472,19 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
                     use.count += int(c)
 
     events = np.concatenate(event_parts) if event_parts else np.empty(0, EVENT_DTYPE)
-    return Decoded(events, _grouped(ec_parts), frame_times, node_frames, restricted, first_tx,
+    ec_cols = _grouped(ec_spool)
+    ec_spool.close()
+    return Decoded(events, ec_cols, frame_times, node_frames, restricted, first_tx,
                    last_tx)
 
 
-def _grouped(parts: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
-    """Join the per-batch error-control columns and group them by node key (stable, so
-    file order within a node), one column at a time to keep the peak low."""
-    cols: dict[str, np.ndarray] = {}
-    for name, dtype in EC_COLUMNS.items():
-        cols[name] = np.concatenate(parts[name]) if parts[name] else np.empty(0, dtype)
-        parts[name].clear()
+def _grouped(spool: ColumnSpool) -> dict[str, np.ndarray]:
+    """Join the error-control columns and group them by node key (stable, so file order
+    within a node), one column at a time to keep the peak low."""
+    cols = {"key": spool.column("key")}
     order = np.argsort(cols["key"], kind="stable")
+    cols["key"] = cols["key"][order]
     for name in EC_COLUMNS:
-        cols[name] = cols[name][order]
+        if name != "key":
+            cols[name] = spool.column(name)[order]
     return cols

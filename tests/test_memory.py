@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO
+from conftest import REPO, candump
 
-from nmtcheck.decode import ChunkStore
+from nmtcheck.decode import ChunkStore, ColumnSpool, decode
+from nmtcheck.readers import open_input
 
 
 def write_pdo_log(path: Path, frames: int) -> None:
@@ -83,3 +84,46 @@ def test_chunk_store_spills_past_its_budget_and_reads_back() -> None:
             np.testing.assert_array_equal(got[name], want[name])
             assert got[name].dtype == want[name].dtype
     store.close()
+
+
+def test_chunk_store_skips_chunks_that_end_before_a_moment() -> None:
+    store = ChunkStore(budget=1000)  # the later chunks spill: skipping must not read them
+    for k in range(4):
+        store.append(ts=np.arange(10.0 * k, 10.0 * k + 10), idx=np.arange(10) + 10 * k)
+    assert [int(c["idx"][0]) for c in store.reaching(25.0)] == [20, 30]
+    assert [int(c["idx"][0]) for c in store.reaching(-np.inf)] == [0, 10, 20, 30]
+    store.close()
+
+
+def test_column_spool_reads_back_what_was_appended_in_order() -> None:
+    spool = ColumnSpool({"ts": np.float64, "key": np.int32}, budget=1000)
+    parts = [{"ts": np.arange(k, k + 50, dtype=np.float64), "key": np.full(50, k)}
+             for k in range(7)]  # 600 bytes each: several flushes to disk, a rest in memory
+    for p in parts:
+        spool.append(p)
+    ts, key = spool.column("ts"), spool.column("key")
+    np.testing.assert_array_equal(ts, np.concatenate([p["ts"] for p in parts]))
+    np.testing.assert_array_equal(key, np.concatenate([p["key"] for p in parts]))
+    assert key.dtype == np.int32
+    spool.close()
+
+
+def test_error_control_columns_group_by_node_in_file_order(tmp_path: Path) -> None:
+    """Enough heartbeats to spill the error-control spool: the grouped columns still hold
+    every frame, per node in file order."""
+    # 150 000 frames = 4.8 MB of columns, past the spool's 4 MB budget
+    frames = [(k * 0.01, f"7{k % 3 + 1:02X}#{k % 2 * 0x7A + 5:02X}") for k in range(150_000)]
+    log = tmp_path / "hb.log"
+    log.write_text(candump(frames))
+    decoded = decode(open_input(str(log), None, False, None).batches)
+    try:
+        ec = decoded.ec
+        assert len(ec["ts"]) == 150_000
+        for node in (1, 2, 3):
+            rows = decoded.ec_rows(node)
+            idx = ec["idx"][rows]
+            assert list(idx) == list(range(node - 1, 150_000, 3))
+            np.testing.assert_allclose(ec["ts"][rows], 1000.0 + idx * 0.01, atol=1e-6)
+            np.testing.assert_array_equal(ec["value"][rows], np.where(idx % 2, 0x7F, 0x05))
+    finally:
+        decoded.close()
