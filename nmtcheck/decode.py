@@ -337,11 +337,14 @@ def _lines(line: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def _node_lines(line: np.ndarray, idx: np.ndarray) -> dict[str, np.ndarray]:
-    """Line numbers for the node-frame store: one offset from the frame index when that
-    is constant (a text log without junk lines), else the column."""
+    """Line numbers for the node-frame store: two numbers instead of a column when lines
+    are all 0 (binary logs) or a constant offset from the frame index (text logs
+    without junk lines)."""
+    if line.shape[0] and not line.any():  # binary logs: no lines
+        return {"line_off": np.zeros(1, np.int64), "line_step": np.zeros(1, np.int64)}
     off = line - idx
     if off.shape[0] and bool((off == off[0]).all()):
-        return {"line_off": off[:1].copy()}
+        return {"line_off": off[:1].copy(), "line_step": np.ones(1, np.int64)}
     return {"line": line}
 
 
@@ -349,7 +352,7 @@ def node_frame_lines(chunk: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarr
     """The line numbers of some rows of a node-frame chunk."""
     if "line" in chunk:
         return chunk["line"][rows]
-    return chunk["idx"][rows] + chunk["line_off"][0]
+    return chunk["idx"][rows] * chunk["line_step"][0] + chunk["line_off"][0]
 
 
 def _line_at(chunk: dict[str, np.ndarray], pos: int) -> int:
