@@ -37,6 +37,8 @@ class Network:
 
 
 def _value(where: str, value: Any, want: type) -> Any:
+    if want in (float, int) and isinstance(value, (int, float)) and value < 0:
+        raise UsageError(f"{where}: expected a number >= 0, got {value!r}")  # times, factors
     if want is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         return float(value)
     if isinstance(value, want) and not isinstance(value, bool):

@@ -56,6 +56,8 @@ def _resolve(name: str, relative_to: Path | None) -> Path:
 
 def _check_value(where: str, value: Any, want: type) -> Any:
     if want is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if value < 0:  # every numeric parameter is a time, factor or tolerance
+            raise UsageError(f"{where}: expected a number >= 0, got {value!r}")
         return float(value)
     if want is list and isinstance(value, list):
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in value):

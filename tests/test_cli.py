@@ -154,6 +154,9 @@ def test_profile_errors_name_file_and_key(tmp_path: Path) -> None:
     prof.write_text('extends = "default"\n[rules.Z123]\nenabled = false\n')
     assert_one_line_error(run("check", str(HEALTHY), "--rules", str(prof), cwd=tmp_path),
                           "Z123")
+    prof.write_text('extends = "default"\n[rules.H001]\ntimeout_factor = -1.5\n')
+    assert_one_line_error(run("check", str(HEALTHY), "--rules", str(prof), cwd=tmp_path),
+                          "H001", "timeout_factor", ">= 0")
     prof.write_text('extends = "default"\n[rules.H001]\nfactor = 2\n')
     assert_one_line_error(run("check", str(HEALTHY), "--rules", str(prof), cwd=tmp_path),
                           "factor", "unknown parameter")
@@ -179,6 +182,10 @@ def test_network_file_missing_node_and_errors(tmp_path: Path) -> None:
     net.write_text("[nodes.2]\nheartbeat = 100\n")
     assert_one_line_error(run("check", str(HEALTHY), "--network", str(net), cwd=tmp_path),
                           str(net), "heartbeat")
+    for key in ("heartbeat_ms", "consumer_timeout_ms", "guard_time_ms", "life_time_factor"):
+        net.write_text(f"[nodes.2]\n{key} = -100\n")  # times and factors are never negative
+        assert_one_line_error(run("check", str(HEALTHY), "--network", str(net), cwd=tmp_path),
+                              str(net), key, ">= 0")
 
 
 def test_unavailable_format_and_usage_errors(tmp_path: Path) -> None:

@@ -72,7 +72,7 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
     factor = p["early_factor"]
     for cm in model.channels:
         for m in cm.nodes.values():
-            if not m.period_s:
+            if not m.period_s or m.period_s < 0:  # none, or timestamps going backwards
                 continue
             limit = factor * m.period_s
             ec = m.ec
