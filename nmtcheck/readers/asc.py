@@ -33,6 +33,7 @@ from nmtcheck.readers.blocks import (
     MAX_EXACT,
     POW10,
     Block,
+    LineWords,
     all_digits,
     byte_flags,
     byte_mask,
@@ -201,6 +202,7 @@ def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 # the timestamp); lines spaced otherwise go through `_parse_line`.
 _COMMON = re.compile(rb" *(\d{1,8})\.(\d{1,9})( +)(\d{1,3})( +)([0-9A-Fa-f]{1,3}) +([RT]x) +"
                      rb"([dD]) ([0-8])(?:(?: [0-9A-Fa-f]{2})*)(?=[ \t\r\n\x0b\x0c]|$)")
+MAX_WIDTH = 64  # columns from the timestamp to the data: wider lines go per line (see PAD)
 _WS = np.zeros(256, bool)
 _WS[list(b" \t\r\n\x0b\x0c")] = True
 
@@ -222,8 +224,9 @@ class _Layout:
         if m is None:
             return None
         end = m.end(2)
-        return cls(len(m[2]), m.start(4) - end, len(m[4]), m.start(6) - end, m.start(7) - end,
-                   m.start(8) - end)
+        layout = cls(len(m[2]), m.start(4) - end, len(m[4]), m.start(6) - end,
+                     m.start(7) - end, m.start(8) - end)
+        return layout if layout.width <= MAX_WIDTH else None
 
     @property
     def width(self) -> int:
@@ -240,22 +243,25 @@ class _Parsed:
     data: np.ndarray
 
 
-_SPACES = np.uint64(0x2020202020202020)
+_U64 = np.uint64
+_SPACES = _U64(0x2020202020202020)
 
 
-def _data_tables() -> tuple[np.ndarray, np.ndarray]:
-    """Per DLC 0..8 and per word of the data field (` XX` × 8 = 24 bytes): the flags of the
-    bytes that must be spaces, and of those that must be hex digits."""
-    space = np.zeros((9, 3), np.uint64)
-    digit = np.zeros((9, 3), np.uint64)
-    for dlc in range(9):
-        for k in range(dlc):
-            for pos, table in ((3 * k, space), (3 * k + 1, digit), (3 * k + 2, digit)):
-                table[dlc, pos // 8] |= np.uint64(0x80 << (8 * (pos % 8)))
-    return space, digit
+def _data_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per word of the data field (` XX` × 8 = 24 bytes): the flags of the bytes that are
+    spaces, of those that are hex digits, and per DLC 0..8 of those that must be either."""
+    space = np.zeros(3, np.uint64)
+    digit = np.zeros(3, np.uint64)
+    need = np.zeros((3, 9), np.uint64)
+    for k in range(8):
+        for pos, table in ((3 * k, space), (3 * k + 1, digit), (3 * k + 2, digit)):
+            flag = np.uint64(0x80 << (8 * (pos % 8)))
+            table[pos // 8] |= flag
+            need[pos // 8, k + 1:] |= flag
+    return space, digit, need
 
 
-_DATA_SPACES, _DATA_DIGITS = _data_tables()
+_DATA_SPACES, _DATA_DIGITS, _DATA_NEED = _data_tables()
 
 
 def _fixed_words(layout: _Layout) -> list[tuple[int, np.uint64, np.uint64]]:
@@ -263,6 +269,7 @@ def _fixed_words(layout: _Layout) -> list[tuple[int, np.uint64, np.uint64]]:
     timestamp: the spaces between the fields and the `x` of Rx/Tx."""
     fixed = {c: 0x20 for c in range(layout.chan)}
     fixed.update({c: 0x20 for c in range(layout.chan + layout.chan_w, layout.ident)})
+    fixed.update({c: 0x20 for c in range(layout.ident + 3, layout.direction)})  # ID: 1..3 hex
     fixed.update({c: 0x20 for c in range(layout.direction + 2, layout.dtype)})
     fixed[layout.dtype + 1] = 0x20
     fixed[layout.direction + 1] = ord("x")
@@ -284,80 +291,85 @@ _LEADING = np.asarray([0 if not b & 1 else 1 if not b & 2 else 2 if not b & 4 el
 
 def _parse_block(block: Block, layout: _Layout, rows: np.ndarray) -> _Parsed:
     """Vectorised parse of the given rows of `block` that have the common shape."""
-    buf, words = block.buf, block.words
+    buf = block.buf
     s = block.starts[rows]
     j, ok = find_byte(buf, s, 0x2E, _dot_guess(block, s), 1, 9)
     dot = s + j
+    line = LineWords(block, dot)  # every field is at a constant offset from the dot
     # Before the dot: spaces, then 1..8 digits (bytes of the previous line count as spaces).
-    head = fill_high(words[dot - 8], j, _SPACES)
+    head = fill_high(line.word(-8), j, _SPACES)
     digits = digit_flags(head)
     n_int = count_flags(digits)
     ok &= (n_int >= 1) & ((digits | byte_flags(head, 0x20)) == HIGH) & (
         digits == high_flags(n_int))
     whole = parse_digits(fill_high(head, n_int))
-    frac_word = fill_low(words[dot + 1], layout.frac)
+    frac_word = fill_low(line.word(1), layout.frac)
     ok &= all_digits(frac_word)
     frac = parse_digits(frac_word) // np.uint64(10 ** max(8 - layout.frac, 0))
     if layout.frac > 8:
-        ninth = buf[dot + 9].astype(np.int64) - 0x30
-        ok &= (ninth >= 0) & (ninth <= 9)
-        frac = frac * np.uint64(10) + np.clip(ninth, 0, 9).astype(np.uint64)
+        ninth = line.byte(9) - _U64(0x30)  # non-digits wrap around: > 9
+        ok &= ninth <= _U64(9)
+        frac = frac * _U64(10) + ninth
     end = dot + 1 + layout.frac  # the space after the timestamp
     total = whole * np.uint64(10 ** layout.frac) + frac
     ts = total.astype(np.float64) / POW10[layout.frac]
+    # After the timestamp: the template (spaces, the `x` of Rx/Tx) checked word by word,
+    # then the fields.
+    after = 1 + layout.frac  # the space that ends the timestamp, from the dot
     for off, mask, value in _fixed_words(layout):
-        ok &= (words[end + off] & mask) == value
-    chan = np.zeros(rows.size, np.int64)
+        ok &= (line.word(after + off) & mask) == value
+    chan = np.zeros(rows.size, np.uint64)
     for k in range(layout.chan_w):
-        digit = buf[end + layout.chan + k].astype(np.int64) - 0x30
-        ok &= (digit >= 0) & (digit <= 9)
-        chan = chan * 10 + digit
+        digit = line.byte(after + layout.chan + k) - _U64(0x30)  # non-digits wrap: > 9
+        ok &= digit <= _U64(9)
+        chan = chan * _U64(10) + digit
     # CAN-ID field: 1..3 hex digits, then spaces up to the direction column.
-    field = end + layout.ident
-    width = layout.direction - layout.ident
-    first = words[field]
+    first = line.word(after + layout.ident)
     flags, nib = hex_flags(first)
-    id_len = _LEADING[((((flags >> np.uint64(7)) * np.uint64(0x0102040810204080))
-                        >> np.uint64(56)) & np.uint64(15)).astype(np.int64)]
+    id_len = _LEADING[((((flags >> _U64(7)) * _U64(0x0102040810204080))
+                        >> _U64(56)) & _U64(15)).astype(np.int64)]
+    width = layout.direction - layout.ident
     ok &= (id_len >= 1) & (id_len < width)
-    need = HIGH & ~byte_mask(id_len) & byte_mask(min(width, 8))
+    need = HIGH & ~byte_mask(id_len) & byte_mask(min(width, 3))  # the rest: in the template
     ok &= (byte_flags(first, 0x20) & need) == need
-    for off in range(8, width, 8):
-        need_more = byte_mask(min(width - off, 8)) & HIGH
-        ok &= (byte_flags(words[field + off], 0x20) & need_more) == need_more
-    n0 = (nib & np.uint64(15)).astype(np.int64)
-    n1 = ((nib >> np.uint64(8)) & np.uint64(15)).astype(np.int64)
-    n2 = ((nib >> np.uint64(16)) & np.uint64(15)).astype(np.int64)
-    can_id = np.where(id_len == 3, n0 << 8 | n1 << 4 | n2, np.where(id_len == 2, n0 << 4 | n1, n0))
+    # The first three nibbles as one number (spaces count 0), less the ones past the ID.
+    mask4 = _U64(15)
+    id3 = (nib & mask4) << _U64(8) | ((nib >> _U64(8)) & mask4) << _U64(4) | (
+        (nib >> _U64(16)) & mask4)
+    can_id = id3 >> ((3 - id_len) * 4).astype(np.uint64)
     ok &= can_id <= 0x7FF
-    direction = buf[end + layout.direction]
+    direction = line.byte(after + layout.direction)
     ok &= (direction == 0x52) | (direction == 0x54)
-    dtype = buf[end + layout.dtype]
+    dtype = line.byte(after + layout.dtype)
     ok &= (dtype == 0x64) | (dtype == 0x44)
-    dlc = buf[end + layout.dtype + 2].astype(np.int64) - 0x30
-    ok &= (dlc >= 0) & (dlc <= 8)
-    dlc = np.clip(dlc, 0, 8)
+    dlc = line.byte(after + layout.dtype + 2) - _U64(0x30)
+    ok &= dlc <= _U64(8)
+    dlc = np.minimum(dlc, _U64(8)).astype(np.int64)
     # Data: ` XX` per byte, then whitespace or the end of the line.
-    body = end + layout.width
     nibs = np.empty((rows.size, 3), np.uint64)
     for k in range(3):
-        word = words[body + 8 * k]
+        word = line.word(after + layout.width + 8 * k)
         flags, nibs[:, k] = hex_flags(word)
-        need_sp = _DATA_SPACES[dlc, k]
-        need_hex = _DATA_DIGITS[dlc, k]
-        ok &= ((byte_flags(word, 0x20) & need_sp) == need_sp) & ((flags & need_hex) == need_hex)
+        have = (byte_flags(word, 0x20) & _DATA_SPACES[k]) | (flags & _DATA_DIGITS[k])
+        need = _DATA_NEED[k][dlc]
+        ok &= (have & need) == need
+    body = end + layout.width
     ok &= _WS[buf[body + 3 * dlc]]
-    chars = nibs.view(np.uint8)
-    data = ((chars[:, 1::3] << 4) | chars[:, 2::3]).copy()
+    # Each character's nibble shifted up, or'ed with the next one's: byte 3k+1 is data byte k.
+    pairs = nibs.view(np.uint8).reshape(-1) << np.uint8(4)
+    pairs[:-1] |= nibs.view(np.uint8).reshape(-1)[1:]
+    data = pairs.reshape(-1, 24)[:, 1::3].copy()
     data.view(np.uint64)[:, 0] &= byte_mask(dlc)
     inexact = ok & (total >= np.uint64(MAX_EXACT))
     for i in np.flatnonzero(inexact):  # more digits than a double holds
         ts[i] = float(block.buf[dot[i] - n_int[i]:end[i]].tobytes())
+    chan = chan.astype(np.int64)
     if bool(ok.all()):
         return _Parsed(rows, ts, chan, can_id.astype(np.uint32), dlc.astype(np.int16), data)
     good = np.flatnonzero(ok)
     return _Parsed(rows[good], ts[good], chan[good], can_id[good].astype(np.uint32),
                    dlc[good].astype(np.int16), data[good])
+
 
 
 def _dot_guess(block: Block, s: np.ndarray) -> int:
@@ -398,9 +410,9 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
     """Walk the block's lines in order: fast rows as parsed, the others through
     `_parse_line`; a line that leaves the plain state hands every later line to it too."""
     n = len(block)
-    is_fast = np.zeros(n, bool)
-    if parsed is not None:
-        is_fast[parsed.fast] = True
+    if parsed is None:
+        parsed = _Parsed(np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64),
+                         np.empty(0, np.uint32), np.empty(0, np.int16), np.empty((0, 8), np.uint8))
     slow_rows: list[int] = []
     slow_vals: list[_Row] = []
 
@@ -411,39 +423,48 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
             slow_vals.append(vals)
 
     cut = n  # rows from here on are not taken from the fast parse
-    for row in np.flatnonzero(~is_fast).tolist():
-        parse_line(row)
-        if not state.plain:
-            cut = row + 1
-            break
+    if parsed.fast.shape[0] < n:
+        is_fast = np.zeros(n, bool)
+        is_fast[parsed.fast] = True
+        for row in np.flatnonzero(~is_fast).tolist():
+            parse_line(row)
+            if not state.plain:
+                cut = row + 1
+                break
     for row in range(cut, n):
         parse_line(row)
-    fast_rows = np.empty(0, np.int64) if parsed is None else parsed.fast
-    keep = fast_rows < cut
+    k = int(np.searchsorted(parsed.fast, cut))  # the fast rows before the cut
+    fast_rows, chan = parsed.fast[:k], parsed.chan[:k]
     # Channel names in order of first appearance, as the reference registers them.
-    firsts: dict[str, int] = {}
-    chan_values = np.empty(0, np.int64) if parsed is None else parsed.chan[keep]
-    for v in np.unique(chan_values).tolist():
-        firsts[str(v)] = int(fast_rows[keep][int(np.argmax(chan_values == v))])
+    first_of = _first_rows(chan, fast_rows)
+    firsts = {str(v): row for v, row in first_of.items()}
     for row, vals in zip(slow_rows, slow_vals, strict=True):
         if row < firsts.get(vals[1], row + 1):
             firsts[vals[1]] = row
     for name, _row in sorted(firsts.items(), key=lambda kv: kv[1]):
         stats.channel_code(name)
-    code_of = np.zeros(int(chan_values.max(initial=0)) + 1, np.int32)
-    for v in np.unique(chan_values).tolist():
-        code_of[v] = stats.channel_code(str(v))
-    if parsed is None:
-        fast_cols: tuple[np.ndarray, ...] = (
-            np.empty(0), np.empty(0, np.int32), np.empty(0, np.uint32), np.empty(0, np.int16),
-            np.empty((0, 8), np.uint8))
+    codes = {v: stats.channel_code(str(v)) for v in first_of}
+    if len(codes) == 1:
+        chan_code = np.full(k, codes.popitem()[1], np.int32)
     else:
-        fast_cols = (parsed.ts[keep], code_of[chan_values], parsed.can_id[keep],
-                     parsed.dlc[keep], parsed.data[keep])
+        code_of = np.zeros(max(codes, default=0) + 1, np.int32)
+        code_of[list(codes)] = list(codes.values())
+        chan_code = code_of[chan]
+    fast_cols = (parsed.ts[:k], chan_code, parsed.can_id[:k], parsed.dlc[:k], parsed.data[:k])
     slow = [(v[0], stats.channel_code(v[1]), *v[2:]) for v in slow_vals]
-    for batch in merged_batches(builder, block, fast_rows[keep], fast_cols, slow_rows, slow):
+    for batch in merged_batches(builder, block, fast_rows, fast_cols, slow_rows, slow):
         account(stats, batch)
         yield batch
+
+
+def _first_rows(values: np.ndarray, rows: np.ndarray) -> dict[int, int]:
+    """Each distinct value and the row it first appears on (one value: no sorting)."""
+    if values.shape[0] == 0:
+        return {}
+    if bool((values == values[0]).all()):
+        return {int(values[0]): int(rows[0])}
+    distinct, first = np.unique(values, return_index=True)
+    return dict(zip(distinct.tolist(), rows[first].tolist(), strict=True))
 
 
 _Frame = tuple[str, int, bool, bool, bool, bool, int, bytes]

@@ -7,6 +7,11 @@ those lines' fields with SWAR arithmetic on 8-byte words gathered at computed
 offsets. Every other line goes through the reader's per-line parser, which is
 also the reference path (`NMTCHECK_REFERENCE=1` forces it for whole files, so
 tests can compare both).
+
+Past the first few MB, blocks are also split into lines and parsed in a forked
+worker process (readers/forked.py; worker threads where forking is not safe),
+while the reading thread reads ahead and merges the parsed blocks in file order;
+`NMTCHECK_THREADS=1` keeps everything on the reading thread.
 """
 
 from __future__ import annotations
@@ -15,20 +20,24 @@ import os
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
-from typing import TypeVar
+from dataclasses import dataclass, fields
+from functools import partial
+from typing import Any, TypeVar
 
 import numpy as np
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import MAX_LINE_BYTES, OVERLONG_LINE, Source
+from nmtcheck.readers import MAX_LINE_BYTES, OVERLONG_LINE, Source, forked
 
 REFERENCE_ENV = "NMTCHECK_REFERENCE"
+THREADS_ENV = "NMTCHECK_THREADS"
 BLOCK_BYTES = 2 << 20
-MAX_WORKERS = 2  # parse threads: the machine this is tuned on has 2 cores
+PARALLEL_BYTES = 8 << 20  # a shorter input is parsed by the reading thread alone
+CARRY_ROOM = 64 << 10  # a block sent to the worker process may start with this much carry
+MAX_WORKERS = 2  # parse threads (without fork): the machine this is tuned on has 2 cores
 T = TypeVar("T")
-PAD = 96  # bytes before and after a block's data: gathers at line offsets never fall off
+PAD = 128  # bytes before and after a block's data: gathers at line offsets never fall off
 
 ONES = np.uint64(0x0101010101010101)
 HIGH = np.uint64(0x8080808080808080)
@@ -47,12 +56,22 @@ def reference_path() -> bool:
     return os.environ.get(REFERENCE_ENV, "") not in ("", "0")
 
 
+def parse_threads() -> int:
+    """NMTCHECK_THREADS if set, else one per CPU up to MAX_WORKERS: 1 parses every block on
+    the reading thread; more, in parallel (the worker threads, without fork)."""
+    value = os.environ.get(THREADS_ENV, "").strip()
+    if value.isdigit() and int(value) >= 1:
+        return int(value)
+    return min(usable_cpus(), MAX_WORKERS)
+
+
 @dataclass
 class Block:
     """One block of whole lines as a padded byte array."""
 
-    buf: np.ndarray  # uint8: PAD bytes, the block, a newline, PAD bytes
+    buf: np.ndarray  # uint8, 8-byte aligned: PAD bytes, the block, a newline, PAD bytes
     words: np.ndarray  # uint64 view: words[i] = the 8 bytes at buf[i:i+8] (little endian)
+    aligned: np.ndarray  # uint64 view: aligned[i] = words[8 * i]
     starts: np.ndarray  # int64 index into buf of each line's first byte
     ends: np.ndarray  # int64 index into buf of each line's newline (added after a last line)
     first_line: int  # 1-based line number of the block's first line
@@ -72,13 +91,14 @@ class Block:
         return self.buf[start:end + 1].tobytes()
 
 
-def _block(buf: np.ndarray, size: int, first_line: int,
-           newlines: np.ndarray | None = None) -> Block:
-    """A block from `buf` = PAD bytes, `size` bytes of whole lines, at least PAD more
-    (`newlines`: the newline offsets in those bytes, if already known)."""
-    if newlines is None:
-        newlines = np.flatnonzero(buf[PAD:PAD + size] == 10)
-    ends = newlines + PAD
+Chunk = forked.Chunk  # a padded buffer (see Block.buf) and how many bytes of lines it holds
+
+
+def _block(chunk: Chunk) -> Block:
+    """The lines of a chunk: `buf` = PAD bytes, `size` bytes of whole lines, at least PAD more
+    (numbered later, in file order: `first_line` is 0 here)."""
+    buf, size = chunk
+    ends = np.flatnonzero(buf[PAD:PAD + size] == 10) + PAD
     unterminated = bool(size) and buf[PAD + size - 1] != 10
     if unterminated:  # a last line without newline: give it one in the padding
         buf[PAD + size] = 10
@@ -87,8 +107,20 @@ def _block(buf: np.ndarray, size: int, first_line: int,
     if ends.size:
         starts[0] = PAD
         starts[1:] = ends[:-1] + 1
+    return _lines(buf, starts, ends, unterminated)
+
+
+def _lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, unterminated: bool) -> Block:
     words = np.ndarray(shape=(buf.shape[0] - 7,), dtype="<u8", buffer=buf, strides=(1,))
-    return Block(buf, words, starts, ends, first_line, unterminated)
+    aligned = np.ndarray(shape=(buf.shape[0] // 8,), dtype="<u8", buffer=buf)
+    return Block(buf, words, aligned, starts, ends, 0, unterminated)
+
+
+def _aligned_empty(n: int) -> np.ndarray:
+    """n uninitialised bytes starting at a multiple of 8 (for the uint64 view)."""
+    raw = np.empty(n + 8, np.uint8)
+    skip = -raw.ctypes.data % 8
+    return raw[skip:skip + n]
 
 
 def _read_into(source: Source, view: memoryview) -> int:
@@ -105,14 +137,26 @@ def _read_into(source: Source, view: memoryview) -> int:
     return got
 
 
-def blocks(source: Source, size: int | None = None) -> Iterator[Block]:
-    """The input as blocks of whole lines, read straight into padded numpy buffers; read
+def _last_newline(data: np.ndarray) -> int:
+    """Offset of the last newline in `data`, -1 if none (searched from the end: a block's
+    last newline is a line length away from it)."""
+    hi, step = data.shape[0], 4096
+    while hi > 0:
+        lo = max(hi - step, 0)
+        hits = np.flatnonzero(data[lo:hi] == 10)
+        if hits.size:
+            return lo + int(hits[-1])
+        hi, step = lo, step * 4
+    return -1
+
+
+def _chunks(source: Source) -> Iterator[Chunk]:
+    """The input in chunks of whole lines, read straight into padded numpy buffers; read
     errors of damaged files become InputError."""
-    size = size or BLOCK_BYTES
+    size = BLOCK_BYTES
     carry = b""
-    line = 1
     while True:
-        buf = np.empty(PAD + len(carry) + size + 1 + PAD, np.uint8)
+        buf = _aligned_empty(PAD + len(carry) + size + 1 + PAD)
         buf[:PAD] = 0
         buf[PAD:PAD + len(carry)] = np.frombuffer(carry, np.uint8)
         got = _read_into(source, buf.data[PAD + len(carry):PAD + len(carry) + size])
@@ -120,21 +164,18 @@ def blocks(source: Source, size: int | None = None) -> Iterator[Block]:
         buf[PAD + filled:] = 0
         if got == 0:  # end of input: what is left is the last line
             if filled:
-                yield _block(buf, filled, line)
+                yield buf, filled
             return
-        newlines = np.flatnonzero(buf[PAD:PAD + filled] == 10)
-        if not newlines.size:
+        cut = _last_newline(buf[PAD:PAD + filled]) + 1
+        if not cut:
             if filled < MAX_LINE_BYTES:  # a line longer than this read: read on
                 carry = buf[PAD:PAD + filled].tobytes()
             else:  # overlong: one skipped record, as Source.lines() has it, never held whole
                 carry = OVERLONG_LINE + _rest_after_line(source)
             continue
-        cut = int(newlines[-1]) + 1
         carry = buf[PAD + cut:PAD + filled].tobytes()
         buf[PAD + cut:] = 0
-        block = _block(buf, cut, line, newlines)
-        line += len(block)
-        yield block
+        yield buf, cut
 
 
 def _rest_after_line(source: Source) -> bytes:
@@ -155,32 +196,74 @@ def _rest_after_line(source: Source) -> bytes:
 
 def parsed_blocks(source: Source, parse: Callable[[Block], T],
                   learn: Callable[[Block], None] | None = None) -> Iterator[tuple[Block, T]]:
-    """(block, parse(block)) in file order, parsing ahead in worker threads: numpy releases
-    the GIL in its loops, so the blocks after the current one are parsed on the other cores
-    while the caller works. At most `workers + 1` blocks are in memory. `learn` sees the
-    first block before any parsing starts."""
-    workers = min(usable_cpus(), MAX_WORKERS)
-    it = blocks(source)
+    """(block, parse(block)) in file order. `learn` sees the first block before any parsing.
+
+    The first PARALLEL_BYTES are parsed here. Past them, with more than one CPU (and unless
+    NMTCHECK_THREADS=1), blocks are split into lines and parsed in parallel: by a forked
+    worker process next to this one (readers/forked.py), or by worker threads where
+    forking is not safe. A small input never starts either."""
+    it = _chunks(source)
     first = next(it, None)
     if first is None:
         return
+    head = _block(first)
     if learn is not None:
-        learn(first)
-    if workers < 2:
-        yield first, parse(first)
-        for block in it:
-            yield block, parse(block)
+        learn(head)
+
+    def job(chunk: Chunk) -> tuple[Block, T]:
+        lines = _block(chunk)
+        return lines, parse(lines)
+
+    line = 1
+    for block, parsed in _parallel(job, it, (head, parse(head)), first[1]):
+        block.first_line = line  # numbered here, in order: a worker cannot know it
+        line += len(block)
+        yield block, parsed
+
+
+def _parallel(job: Callable[[Chunk], tuple[Block, T]], it: Iterator[Chunk],
+              first: tuple[Block, T], seen: int) -> Iterator[tuple[Block, T]]:
+    """`first`, then job(chunk) for each chunk, in order; in parallel once more than
+    PARALLEL_BYTES have been read (`seen`: the bytes so far)."""
+    yield first
+    threads = parse_threads()
+    for chunk in it:
+        yield job(chunk)
+        seen += chunk[1]
+        if threads > 1 and seen > PARALLEL_BYTES:
+            break
+    else:
         return
-    with ThreadPoolExecutor(workers, thread_name_prefix="nmtcheck-parse") as pool:
-        pending: deque[tuple[Block, Future[T]]] = deque([(first, pool.submit(parse, first))])
-        for block in it:
-            pending.append((block, pool.submit(parse, block)))
-            if len(pending) > workers:
-                done, future = pending.popleft()
-                yield done, future.result()
+    if forked.available():
+        rebuilt = partial(_rebuilt, kind=type(first[1]))  # every block's parse is of one type
+        yield from forked.ForkedParser(job, _arrays, rebuilt,
+                                       BLOCK_BYTES + 2 * PAD + CARRY_ROOM).map(it)
+        return
+    with ThreadPoolExecutor(threads, thread_name_prefix="nmtcheck-parse") as pool:
+        pending: deque[Future[tuple[Block, T]]] = deque()
+        for chunk in it:
+            pending.append(pool.submit(job, chunk))
+            if len(pending) > threads:  # at most threads + 1 blocks parsed ahead
+                yield pending.popleft().result()
         while pending:
-            done, future = pending.popleft()
-            yield done, future.result()
+            yield pending.popleft().result()
+
+
+def _arrays(result: tuple[Block, Any]) -> list[np.ndarray]:
+    """A parsed block as arrays, to come back from the worker process: where its lines
+    are, and the reader's parse of it (a dataclass of arrays, or None)."""
+    lines, parsed = result
+    cols = [] if parsed is None else [getattr(parsed, f.name) for f in fields(parsed)]
+    return [lines.starts, lines.ends, np.asarray([lines.unterminated]), *cols]
+
+
+def _rebuilt(chunk: Chunk, arrays: list[np.ndarray], kind: type) -> tuple[Block, Any]:
+    """What `_arrays` took apart, on this process's copy of the chunk."""
+    buf, size = chunk
+    starts, ends, unterminated, *cols = arrays
+    if unterminated[0]:
+        buf[PAD + size] = 10  # as `_block` did in the worker
+    return _lines(buf, starts, ends, bool(unterminated[0])), kind(*cols) if cols else None
 
 
 SlowRow = tuple[float, int, int, bool, bool, bool, bool, int, bytes]  # ts, channel code, id,
@@ -215,19 +298,21 @@ def merged_batches(builder: BatchBuilder, block: Block, fast_rows: np.ndarray,
 
 
 def find_byte(buf: np.ndarray, base: np.ndarray, byte: int, guess: int,
-              lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+              lo: int, hi: int) -> tuple[np.ndarray | int, np.ndarray]:
     """Per line, the smallest offset k (lo <= k < hi) with buf[base + k] == byte.
 
     Tries `guess` first (every line of a file usually has the same layout) and
     searches offset by offset only for the lines where the guess misses. A guess
     hit may not be the first occurrence: the caller's validation of the field
     before it (digits only, no whitespace) rejects such lines. Returns (offsets,
-    found mask).
+    found mask); the offset is one int when the guess is right for every line.
     """
     guess = guess if lo <= guess < hi else lo
-    off = np.full(base.shape[0], guess, np.int64)
     found = buf[base + guess] == byte
     miss = np.flatnonzero(~found)
+    if miss.size == 0:
+        return guess, found
+    off = np.full(base.shape[0], guess, np.int64)
     for k in range(lo, hi):
         if miss.size == 0:
             break
@@ -236,6 +321,47 @@ def find_byte(buf: np.ndarray, base: np.ndarray, byte: int, guess: int,
         found[miss[hit]] = True
         miss = miss[~hit]
     return off, found
+
+
+class LineWords:
+    """Per line, the bytes from `base` (an index into the block per line) on, as 8-byte
+    words that fields at constant offsets are shifted out of.
+
+    numpy gathers 8 bytes at unaligned offsets slowly; aligned words are gathered instead and
+    each line's pair shifted into place (half the cost), and one line's words are shared by
+    all its fields."""
+
+    def __init__(self, block: Block, base: np.ndarray) -> None:
+        self._aligned = block.aligned
+        self._index = base >> 3
+        self._shift = ((base & 7) << 3).astype(np.uint64)
+        self._back = _U64(64) - self._shift  # a shift by 64 gives 0 in numpy
+        self._raw: dict[int, np.ndarray] = {}
+        self._words: dict[int, np.ndarray] = {}
+
+    def _aligned_word(self, i: int) -> np.ndarray:
+        if i not in self._raw:
+            self._raw[i] = self._aligned[self._index + i]
+        return self._raw[i]
+
+    def _word(self, i: int) -> np.ndarray:
+        """The bytes base + 8i .. base + 8i + 7."""
+        if i not in self._words:
+            self._words[i] = (self._aligned_word(i) >> self._shift) | (
+                self._aligned_word(i + 1) << self._back)
+        return self._words[i]
+
+    def word(self, off: int) -> np.ndarray:
+        """The 8 bytes at base + off."""
+        q, r = divmod(off, 8)
+        if not r:
+            return self._word(q)
+        return (self._word(q) >> _U64(8 * r)) | (self._word(q + 1) << _U64(64 - 8 * r))
+
+    def byte(self, off: int) -> np.ndarray:
+        """The byte at base + off (as uint64)."""
+        q, r = divmod(off, 8)
+        return (self._word(q) >> _U64(8 * r)) & _U64(0xFF)
 
 
 _KEEP_LOW = np.asarray([(1 << (8 * w)) - 1 for w in range(9)], np.uint64)
@@ -308,14 +434,18 @@ def digit_flags(word: np.ndarray) -> np.ndarray:
     return _at_least(low7, 0x30) & ~_at_least(low7, 0x3A) & ~word & HIGH
 
 
+_ABOVE = {limit: ONES * _U64(0x80 - limit) for limit in (0x30, 0x3A, 0x61, 0x67)}
+
+
 def hex_flags(word: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(80h in each byte that is a hex digit, per-byte nibble values where it is)."""
     low7 = word & _LOW7
     lower = low7 | (ONES * _U64(0x20))
-    digit = _at_least(low7, 0x30) & ~_at_least(low7, 0x3A)
-    letter = _at_least(lower, 0x61) & ~_at_least(lower, 0x67) & ~word
-    flags = (digit | letter) & ~word & HIGH
-    nib = (word & (ONES * _U64(0x0F))) + ((letter & HIGH) >> _U64(7)) * _U64(9)
+    ascii_ = ~word & HIGH
+    # (x + 80h - a) & ~(x + 80h - b) has 80h where a <= x < b (7-bit x: no carries)
+    letter = (lower + _ABOVE[0x61]) & ~(lower + _ABOVE[0x67]) & ascii_
+    flags = ((low7 + _ABOVE[0x30]) & ~(low7 + _ABOVE[0x3A]) & ascii_) | letter
+    nib = (word & (ONES * _U64(0x0F))) + (letter >> _U64(7)) * _U64(9)
     return flags, nib
 
 

@@ -28,6 +28,7 @@ from nmtcheck.readers.blocks import (
     MAX_EXACT,
     POW10,
     Block,
+    LineWords,
     all_digits,
     fill_high,
     fill_low,
@@ -220,95 +221,121 @@ class _Parsed:
     iface_len: np.ndarray
 
 
-_U8 = np.uint64(8)
+_U64 = np.uint64
+_U8 = _U64(8)
+_Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                 np.ndarray]  # ok, ts, can_id, dlc, data (one word), name (two words), name length
 
 
 def _parse_block(block: Block, layout: _Layout) -> _Parsed:
-    """Vectorised parse of the lines of `block` that match `_FAST`; nothing else is touched."""
-    buf, words = block.buf, block.words
+    """Vectorised parse of the lines of `block` that match `_FAST`; nothing else is touched.
+
+    Lines are grouped by where their `)`, `.` and the space after the interface are (one
+    group in almost every block), and each group is decoded at constant offsets: scalar
+    widths and masks, no per-line ones."""
+    buf = block.buf
     n = len(block)
     rows = np.flatnonzero(buf[block.starts] == 0x28)  # "("
     s = block.starts[rows]
     k, ok = find_byte(buf, s, 0x29, layout.close, 4, 24)
     j, ok_dot = find_byte(buf, s, 0x2E, layout.dot, 2, 14)
     ok &= ok_dot
-    close = s + k
-    dot = s + j
-    int_w = j - 1
-    frac_w = k - j - 1
-    ok &= (int_w >= 1) & (int_w <= 12) & (frac_w >= 1) & (frac_w <= 9)
-    int_w = np.clip(int_w, 1, 12)  # keep the arithmetic below in range on rejected lines
-    frac_w = np.clip(frac_w, 1, 9)
-    ok &= buf[close + 1] == 0x20
-    name = close + 2
-    m, ok_sp = find_byte(buf, name, 0x20, layout.iface_len, 1, 17)
+    m, ok_sp = find_byte(buf, s + k + 2, 0x20, layout.iface_len, 1, 17)
     ok &= ok_sp
-    space = name + m
-    head = words[space + 1]  # 3 ID digits, "#", 4 data digits
-    ok &= ((head >> np.uint64(24)) & np.uint64(0xFF)) == np.uint64(0x23)
-    end = block.ends[rows]
-    end = end - (buf[end - 1] == 0x0D)
-    tail = buf[end - 1]
-    end = end - 2 * ((buf[end - 2] == 0x20) & ((tail == 0x52) | (tail == 0x54)))
-    hex_len = end - (space + 5)
-    ok &= (hex_len >= 0) & (hex_len <= 16) & (hex_len % 2 == 0)
-
-    # Timestamp: integer digits right-aligned before the dot, fraction left-aligned after it.
-    low = fill_high(words[dot - 8], int_w)
-    ok &= all_digits(low)
-    whole = parse_digits(low)
-    if (int_w > 8).any():
-        high = fill_high(words[dot - 16], int_w - 8)
-        ok &= all_digits(high)
-        whole += parse_digits(high) * np.uint64(10**8)
-    frac_word = fill_low(words[dot + 1], frac_w)
-    ok &= all_digits(frac_word)
-    ninth = np.where(frac_w == 9, buf[dot + 9].astype(np.int64) - 0x30, 0)
-    ok &= (ninth >= 0) & (ninth <= 9)
-    # The first 8 fraction digits (zero filled) and the 9th: the fraction in nanoseconds.
-    nanos = parse_digits(frac_word) * np.uint64(10) + np.clip(ninth, 0, 9).astype(np.uint64)
-    frac = nanos // (np.uint64(10) ** (np.uint64(9) - frac_w.astype(np.uint64)))
-    scale = np.uint64(10) ** frac_w.astype(np.uint64)
-    total = whole * scale + frac  # the decimal's digits as one exact integer
-    # float(total) / 10**frac_w is the correctly rounded value, as float() of the text is.
-    ts = total.astype(np.float64) / POW10[frac_w]
-
-    ident, ok_id = hex_nibbles(fill_low(head, 3))
-    ok &= ok_id
-    mask4 = np.uint64(0xF)
-    can_id = ((ident & mask4) << _U8) | (((ident >> _U8) & mask4) << np.uint64(4)) | (
-        (ident >> np.uint64(16)) & mask4)
-    nib1, ok1 = hex_nibbles(fill_low(words[space + 5], hex_len))
-    ok &= ok1
-    data = pack_nibbles(nib1)
-    if (hex_len > 8).any():
-        nib2, ok2 = hex_nibbles(fill_low(words[space + 13], hex_len - 8))
-        ok &= ok2
-        data |= pack_nibbles(nib2) << np.uint64(32)
-
-    name_words = np.zeros((rows.size, 2), np.uint64)
-    name_words[:, 0] = fill_low(words[name], m, np.uint64(0))
-    long_name = np.flatnonzero(m > 8)
-    name_words[long_name, 1] = fill_low(words[name[long_name] + 8], m[long_name] - 8,
-                                        np.uint64(0))
-
-    # More than 16 digits may even overflow `total`: those take float() of the text.
-    inexact = ok & ((int_w + frac_w > 16) | (total >= np.uint64(MAX_EXACT)))
-    for i in np.flatnonzero(inexact):  # nanosecond stamps: more digits than a double holds
-        ts[i] = float(block.buf[s[i] + 1:close[i]].tobytes())
+    e = block.ends[rows]
+    if isinstance(k, int) and isinstance(j, int) and isinstance(m, int):
+        cols = _parse_shape(block, s, e, ok, k, j, m)
+    else:  # several layouts in one block: each decoded apart, the results in row order
+        shape = np.broadcast_to(np.asarray(k) << 10 | np.asarray(j) << 5 | m, rows.shape)
+        cols = (np.zeros(rows.size, bool), np.zeros(rows.size), np.zeros(rows.size, np.uint32),
+                np.zeros(rows.size, np.int16), np.zeros(rows.size, np.uint64),
+                np.zeros((rows.size, 2), np.uint64), np.zeros(rows.size, np.int64))
+        for value in np.unique(shape).tolist():
+            sel = np.flatnonzero(shape == value)
+            parts = _parse_shape(block, s[sel], e[sel], ok[sel], value >> 10, (value >> 5) & 31,
+                                 value & 31)
+            for col, part in zip(cols, parts, strict=True):
+                col[sel] = part
+    ok, ts, can_id, dlc, data, name, name_len = cols
     data8 = data.view(np.uint8).reshape(-1, 8)
     if rows.size == n and bool(ok.all()):  # the usual block: every line has the common shape
-        return _Parsed(fast=rows, slow=np.empty(0, np.int64), ts=ts,
-                       can_id=can_id.astype(np.uint32), dlc=(hex_len // 2).astype(np.int16),
-                       data=data8, iface=name_words, iface_len=m)
+        return _Parsed(rows, np.empty(0, np.int64), ts, can_id, dlc, data8, name, name_len)
     good = np.flatnonzero(ok)
     fast = rows[good]
     is_fast = np.zeros(n, bool)
     is_fast[fast] = True
-    return _Parsed(
-        fast=fast, slow=np.flatnonzero(~is_fast), ts=ts[good],
-        can_id=can_id[good].astype(np.uint32), dlc=(hex_len[good] // 2).astype(np.int16),
-        data=data8[good], iface=name_words[good], iface_len=m[good])
+    return _Parsed(fast, np.flatnonzero(~is_fast), ts[good], can_id[good], dlc[good],
+                   data8[good], name[good], name_len[good])
+
+
+def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, close: int,
+                 dot: int, name_len: int) -> _Columns:
+    """The lines starting at `s` and ending (newline) at `e` whose `)`, `.` and the space
+    after the interface are at offsets `close`, `dot` and `close + 2 + name_len`; `ok`:
+    where those were found."""
+    buf = block.buf
+    line = LineWords(block, s)
+    int_w, frac_w = dot - 1, close - dot - 1
+    ok = ok & (line.byte(close + 1) == 0x20)
+    if not (1 <= int_w <= 12 and 1 <= frac_w <= 9):
+        ok[:] = False
+        int_w, frac_w = min(max(int_w, 1), 12), min(max(frac_w, 1), 9)
+
+    # Timestamp: the integer digits right-aligned before the dot, the fraction's last (up to
+    # 8) digits right-aligned before the `)`: the decimal's digits as one exact integer.
+    low = fill_high(line.word(dot - 8), min(int_w, 8))
+    ok &= all_digits(low)
+    total = parse_digits(low)
+    if int_w > 8:
+        high = fill_high(line.word(dot - 16), int_w - 8)
+        ok &= all_digits(high)
+        total += parse_digits(high) * _U64(10**8)
+    frac = fill_high(line.word(close - 8), min(frac_w, 8))
+    ok &= all_digits(frac)
+    total = total * _U64(10**frac_w) + parse_digits(frac)
+    if frac_w == 9:  # nanoseconds: the fraction's first digit
+        first = line.byte(dot + 1) - _U64(0x30)  # non-digits wrap around: > 9
+        ok &= first <= _U64(9)
+        total += first * _U64(10**8)
+    # float(total) / 10**frac_w is the correctly rounded value, as float() of the text is.
+    ts = total.astype(np.float64) / POW10[frac_w]
+    # More than 16 digits may even overflow `total`: those take float() of the text.
+    inexact = ok if int_w + frac_w > 16 else ok & (total >= _U64(MAX_EXACT))
+    for i in np.flatnonzero(inexact).tolist():  # more digits than a double holds
+        ts[i] = float(buf[s[i] + 1:s[i] + close].tobytes())
+
+    name = close + 2
+    names = np.zeros((s.size, 2), np.uint64)
+    names[:, 0] = fill_low(line.word(name), name_len, _U64(0))
+    if name_len > 8:
+        names[:, 1] = fill_low(line.word(name + 8), name_len - 8, _U64(0))
+    head = line.word(name + name_len + 1)  # 3 ID digits, "#", 4 data digits
+    ok &= (head & _U64(0xFF000000)) == _U64(0x23000000)
+    ident, ok_id = hex_nibbles(fill_low(head, 3))
+    ok &= ok_id
+    mask4 = _U64(0xF)
+    can_id = ((ident & mask4) << _U8) | (((ident >> _U8) & mask4) << _U64(4)) | (
+        (ident >> _U64(16)) & mask4)
+
+    # Data: after the `#` up to the end of the line, less a `\r` and a ` R`/` T` flag.
+    last = buf[e - 1]
+    if (cr := last == 0x0D).any():
+        e = e - cr
+        last = buf[e - 1]
+    if (flag := (last == 0x52) | (last == 0x54)).any():
+        e = e - 2 * (flag & (buf[e - 2] == 0x20))
+    data_at = name + name_len + 5
+    hex_len = e - (s + data_at)
+    ok &= (hex_len >= 0) & (hex_len <= 16) & (hex_len % 2 == 0)
+    nib1, ok1 = hex_nibbles(fill_low(line.word(data_at), hex_len))
+    ok &= ok1
+    data = pack_nibbles(nib1)
+    if (hex_len > 8).any():
+        nib2, ok2 = hex_nibbles(fill_low(line.word(data_at + 8), hex_len - 8))
+        ok &= ok2
+        data |= pack_nibbles(nib2) << _U64(32)
+    return (ok, ts, can_id.astype(np.uint32), (hex_len // 2).astype(np.int16), data, names,
+            np.full(s.size, name_len, np.int64))
 
 
 _WHITESPACE = frozenset(b" \t\n\r\x0b\x0c")
