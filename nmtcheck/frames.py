@@ -111,14 +111,18 @@ class BatchBuilder:
             yield self._cut(self.capacity)
 
     def _cut(self, n: int) -> FrameBatch:
-        """The first n frames of the column chunks as one batch."""
-        cols = [np.concatenate(c) if len(self._parts) > 1 else c[0]
-                for c in zip(*self._parts, strict=True)]
-        if cols[0].shape[0] == n:
-            head, rest = cols, [c[n:] for c in cols]
-        else:  # copies: a view would keep the whole chunk alive in the decoder's store
-            head, rest = [c[:n].copy() for c in cols], [c[n:].copy() for c in cols]
-        self._parts = [tuple(rest)] if rest[0].shape[0] else []
+        """The first n frames of the column chunks as one batch: each column is copied once
+        (a view would keep a whole chunk alive in the decoder's store), the rest of the
+        chunk the cut falls in stays for the next batch."""
+        taken, used = [], 0
+        while used < n:
+            part = self._parts.pop(0)
+            k = min(n - used, part[0].shape[0])
+            taken.append(part if k == part[0].shape[0] else tuple(c[:k] for c in part))
+            if k < part[0].shape[0]:
+                self._parts.insert(0, tuple(c[k:] for c in part))
+            used += k
+        head = [_owned(c) for c in zip(*taken, strict=True)]
         self._pending -= n
         ts, chan, can_id, flags, dlc, data, line = head
         batch = FrameBatch(
@@ -153,6 +157,13 @@ class BatchBuilder:
         self.next_index += n
         self._reset()
         return batch
+
+
+def _owned(parts: tuple[np.ndarray, ...]) -> np.ndarray:
+    """The parts as one array that owns its memory (one copy at most)."""
+    if len(parts) > 1:
+        return np.concatenate(parts)
+    return parts[0] if parts[0].base is None else parts[0].copy()
 
 
 def canopen_mask(batch: FrameBatch) -> np.ndarray:
