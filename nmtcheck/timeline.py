@@ -1,10 +1,12 @@
-"""Sparse events -> per (channel, node) NMT state timeline (SPEC §2).
+"""Decoded events -> per (channel, node) NMT state timeline (SPEC §2).
 
-Per channel the events are walked in file order. Error-control data frames are
-classified (boot-up, heartbeat, guarding response), each node's heartbeat
-period is found (configured, else the median interval), heartbeat and
-guarding timeouts are computed, and finally the state intervals are built,
-with OFFLINE from each timeout to the node's next frame of any kind.
+Each node's error-control frames are numpy columns (`EcTable`): they are
+classified (boot-up, heartbeat, guarding response), the heartbeat period is
+found (configured, else the median interval), heartbeat and guarding timeouts
+are computed, and finally the state intervals are built, with OFFLINE from each
+timeout to the node's next frame of any kind. Everything is vectorised per node
+but the interval walk, which sees only the frames that can change the state.
+The sparse events (NMT commands, EMCY, configuration SDOs) are Python objects.
 """
 
 from __future__ import annotations
@@ -87,7 +89,7 @@ class Command:
 
 
 REQUEST, BOOTUP, HEARTBEAT, GUARD, MALFORMED = range(5)
-KIND_NAMES = ("request", "bootup", "heartbeat", "guard", "malformed")
+EC_KIND_NAMES = ("request", "bootup", "heartbeat", "guard", "malformed")  # by EcTable.kind
 
 
 @dataclass(frozen=True)
@@ -145,7 +147,7 @@ class EcTable:
     def __getitem__(self, pos: int) -> EcFrame:
         return EcFrame(int(pos), float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
                        bool(self.rtr[pos]), int(self.dlc[pos]), int(self.value[pos]),
-                       KIND_NAMES[self.kind[pos]])
+                       EC_KIND_NAMES[self.kind[pos]])
 
     def __iter__(self) -> Iterator[EcFrame]:
         return (self[i] for i in range(len(self)))
