@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 from conftest import read_columns as read
+from hostile_logs import ROS2_FRAME_MSG
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
@@ -33,23 +34,6 @@ from nmtcheck.readers import InputStats, detect_format, mcaplog, open_input
 T0_NS = 1_700_000_000_000_000_000
 LATENCY_NS = 7_000_000  # the recorder's log time lags the driver's header stamp
 
-ROS2_FRAME_MSG = """\
-std_msgs/Header header
-uint32 id
-bool is_rtr
-bool is_extended
-bool is_error
-uint8 dlc
-uint8[8] data
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
 ROS2_FD_FRAME_MSG = """\
 std_msgs/Header header
 uint32 id

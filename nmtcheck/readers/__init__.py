@@ -15,7 +15,7 @@ import lzma
 import os
 import sys
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from types import ModuleType
 from typing import IO, Any, cast
@@ -110,24 +110,21 @@ def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
     return batch
 
 
-class FrameSink:
-    """What every line-oriented reader does with a parsed frame: code its channel name,
-    collect it, and hand out an accounted batch whenever one is full."""
+Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]
+"""One frame parsed by a line reader: ts, channel name, CAN-ID, ext, rtr, err, fd, dlc, data."""
 
-    def __init__(self, stats: InputStats) -> None:
-        self.stats = stats
-        self.builder = BatchBuilder()
 
-    def add(self, ts: float, channel: str, can_id: int, *, ext: bool = False,
-            rtr: bool = False, err: bool = False, fd: bool = False, dlc: int = 0,
-            data: bytes = b"", line: int = 0) -> FrameBatch | None:
-        self.builder.add(ts, self.stats.channel_code(channel), can_id, ext=ext, rtr=rtr,
-                         err=err, fd=fd, dlc=dlc, data=data, line=line)
-        return account(self.stats, self.builder.take()) if self.builder.full else None
-
-    def flush(self) -> FrameBatch | None:
-        """The last, partly filled batch."""
-        return account(self.stats, self.builder.take())
+def batches_of(stats: InputStats, rows: Iterable[tuple[int, Row]]) -> Iterator[FrameBatch]:
+    """What every line-oriented reader does with its (line number, row) pairs: code the
+    channel names, collect the frames, and hand out accounted batches as they fill."""
+    builder = BatchBuilder()
+    for line, (ts, channel, can_id, ext, rtr, err, fd, dlc, data) in rows:
+        builder.add(ts, stats.channel_code(channel), can_id, ext=ext, rtr=rtr, err=err, fd=fd,
+                    dlc=dlc, data=data, line=line)
+        if builder.full and (batch := account(stats, builder.take())) is not None:
+            yield batch
+    if (batch := account(stats, builder.take())) is not None:
+        yield batch
 
 
 # Format name -> module, in the order sniffing tries them (binary magic bytes first, then

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import FrameSink, InputStats, Source, account, is_text
+from nmtcheck.readers import InputStats, Row, Source, account, batches_of, is_text
 from nmtcheck.readers.blocks import (
     HIGH,
     MAX_EXACT,
@@ -115,10 +115,7 @@ class _State:
         return self.base == 16 and not self.relative
 
 
-_Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]
-
-
-def _parse_line(raw: bytes, lineno: int, stats: InputStats, state: _State) -> _Row | None:
+def _parse_line(raw: bytes, lineno: int, stats: InputStats, state: _State) -> Row | None:
     """One line: (ts, channel, id, ext, rtr, err, fd, dlc, data), or None for a line that is
     no frame (header, comment, status…: counted into stats where it is a record)."""
     tokens = raw.split()
@@ -182,18 +179,15 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     """The reference path: every line through `_parse_line`."""
-    sink = FrameSink(stats)
+    return batches_of(stats, _rows(source, stats))
+
+
+def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     state = _State()
     for lineno, raw in enumerate(source.lines(), 1):
         row = _parse_line(raw, lineno, stats, state)
-        if row is None:
-            continue
-        ts, chan_name, can_id, ext, rtr, err, fd, dlc, data = row
-        if (batch := sink.add(ts, chan_name, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
-                              data=data, line=lineno)) is not None:
-            yield batch
-    if (batch := sink.flush()) is not None:
-        yield batch
+        if row is not None:
+            yield lineno, row
 
 
 # The fast path's line: `<spaces><digits>.<digits> <channel> <id, 1-3 hex> Rx|Tx d <dlc 0-8>`
@@ -414,7 +408,7 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
         parsed = _Parsed(np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64),
                          np.empty(0, np.uint32), np.empty(0, np.int16), np.empty((0, 8), np.uint8))
     slow_rows: list[int] = []
-    slow_vals: list[_Row] = []
+    slow_vals: list[Row] = []
 
     def parse_line(row: int) -> None:
         vals = _parse_line(block.line(row), block.first_line + row, stats, state)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import FrameSink, InputStats, Source, account, is_text
+from nmtcheck.readers import InputStats, Row, Source, account, batches_of, is_text
 from nmtcheck.readers.blocks import (
     MAX_EXACT,
     POW10,
@@ -176,17 +176,15 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     """The reference path: every line through `_parse_line`."""
-    sink = FrameSink(stats)
+    return batches_of(stats, _rows(source, stats))
+
+
+def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     for lineno, raw in enumerate(source.lines(), 1):
         row = _parse_line(raw, lineno, stats)
-        if row is None:
-            continue
-        ts, iface, can_id, ext, rtr, err, fd, dlc, data = row
-        if (batch := sink.add(ts, iface.decode("latin-1"), can_id, ext=ext, rtr=rtr, err=err,
-                              fd=fd, dlc=dlc, data=data, line=lineno)) is not None:
-            yield batch
-    if (batch := sink.flush()) is not None:
-        yield batch
+        if row is not None:
+            ts, iface, can_id, ext, rtr, err, fd, dlc, data = row
+            yield lineno, (ts, iface.decode("latin-1"), can_id, ext, rtr, err, fd, dlc, data)
 
 
 @dataclass

@@ -28,7 +28,7 @@ from datetime import datetime, timezone
 from itertools import chain, islice
 
 from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
+from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -189,7 +189,10 @@ def _looks_like_deltas(lines: list[bytes]) -> bool:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    sink = FrameSink(stats)
+    return batches_of(stats, _rows(source, stats))
+
+
+def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     lines = source.lines()
     head = list(islice(lines, DETECT_LINES))
     clock = _Clock(deltas=_looks_like_deltas(head))
@@ -212,8 +215,4 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         except _Bad as exc:
             stats.skip(lineno, str(exc))
             continue
-        if (batch := sink.add(ts, iface, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
-                                   data=data, line=lineno)) is not None:
-            yield batch
-    if (batch := sink.flush()) is not None:
-        yield batch
+        yield lineno, (ts, iface, can_id, ext, rtr, err, fd, dlc, data)

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
+from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
 
 CHANNEL = "1"
 FULL_TIME_DIGITS = 17  # YYYYMMDDhhmmsskkk
@@ -98,7 +98,10 @@ class _Layout:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    sink = FrameSink(stats)
+    return batches_of(stats, _rows(source, stats))
+
+
+def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     layout = _Layout()
     for lineno, raw in enumerate(source.lines(), 1):
         line = raw.strip()
@@ -120,11 +123,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
             stats.skip(lineno, str(exc))
             continue
         stats.dropped += lost
-        batch = sink.add(ts, CHANNEL, can_id, ext=ext, dlc=dlc, data=data, line=lineno)
-        if batch is not None:
-            yield batch
-    if (batch := sink.flush()) is not None:
-        yield batch
+        yield lineno, (ts, CHANNEL, can_id, ext, False, False, False, dlc, data)
 
 
 def _record(fields: list[bytes], layout: _Layout) -> tuple[float, int, bool, int, bytes, int]:

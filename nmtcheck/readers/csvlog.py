@@ -23,7 +23,7 @@ from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
+from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
 
 PYTHON_CAN_HEADER = b"timestamp,arbitration_id,extended,remote,error,dlc,data"
 DEFAULT_CHANNEL = "1"  # python-can's CSV has no channel column
@@ -131,7 +131,10 @@ class _SavvyCan:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    sink = FrameSink(stats)
+    return batches_of(stats, _rows(source, stats))
+
+
+def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     savvycan: _SavvyCan | None = None
     header_seen = False
     for lineno, raw in enumerate(source.lines(), 1):
@@ -158,8 +161,4 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         except _Bad as exc:
             stats.skip(lineno, str(exc))
             continue
-        if (batch := sink.add(ts, chan, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
-                                   data=data, line=lineno)) is not None:
-            yield batch
-    if (batch := sink.flush()) is not None:
-        yield batch
+        yield lineno, (ts, chan, can_id, ext, rtr, err, fd, dlc, data)

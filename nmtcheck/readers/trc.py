@@ -34,7 +34,7 @@ from datetime import datetime, timedelta, timezone
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import FrameSink, InputStats, Source, is_text, unsigned
+from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
 
 DEFAULT_CHANNEL = "1"  # versions without a bus column log one bus
 STATUS_ID = b"FFFFFFFF"  # version 1.x bus-status lines use this ID
@@ -129,8 +129,6 @@ class _Header:
             self.columns = [c.strip() for c in text.split(",")]
 
 
-# ts, channel, ID, extended, remote, error, FD, DLC, data
-Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]
 
 
 def _v1_row(tokens: list[bytes], version: str, start: float) -> Row | None:
@@ -223,7 +221,10 @@ class _V2Layout:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    sink = FrameSink(stats)
+    return batches_of(stats, _rows(source, stats))
+
+
+def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     header = _Header()
     layout: _V2Layout | None = None
     started = False  # the first record line fixes the version's layout
@@ -257,9 +258,4 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         if row is None:
             stats.ignored += 1
             continue
-        ts, chan, can_id, ext, rtr, err, fd, dlc, data = row
-        if (batch := sink.add(ts, chan, can_id, ext=ext, rtr=rtr, err=err, fd=fd, dlc=dlc,
-                                   data=data, line=lineno)) is not None:
-            yield batch
-    if (batch := sink.flush()) is not None:
-        yield batch
+        yield lineno, row
