@@ -117,7 +117,8 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
         if progress:
             progress.close()
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet,
-                                  "rules": {r.code: profile[r.code].severity for r in rules}}
+                                  "rules": {r.code: profile[r.code].severity for r in rules},
+                                  "network_notes": list(network.notes) if network else []}
     for path, render in files:
         try:
             Path(path).write_text(render(results, options), encoding="utf-8")

@@ -20,7 +20,7 @@ from nmtcheck.frames import FrameBatch
 from nmtcheck.network import Network
 from nmtcheck.profiles import Profile, RuleSettings
 from nmtcheck.readers import InputStats, open_input
-from nmtcheck.timeline import UNKNOWN, InputModel, NodeModel, TimelineParams, build
+from nmtcheck.timeline import UNKNOWN, InputModel, Master, NodeModel, TimelineParams, build
 
 
 @dataclass
@@ -74,7 +74,23 @@ def timeline_params(profile: Profile) -> TimelineParams:
         timeout_factor=profile["H001"].params["timeout_factor"],
         early_factor=profile["H002"].params["early_factor"],
         response_timeout_s=profile["G002"].params["response_timeout_ms"] / 1000.0,
+        obey_s=profile["S004"].params["obey_ms"] / 1000.0,
+        master_window_s=profile.timeline["master_window_ms"] / 1000.0,
+        reset_window_s=profile["B002"].params["reset_window_ms"] / 1000.0,
+        bootup_timeout_s=profile["B001"].params["bootup_timeout_ms"] / 1000.0,
     )
+
+
+def known_masters(network: Network | None, channels: list[str]) -> dict[str, Master]:
+    """Each channel's master as the network file or a device file names it (SPEC §2)."""
+    out: dict[str, Master] = {}
+    if network is None:
+        return out
+    for name in channels:
+        found = network.master_for(name)
+        if found is not None:
+            out[name] = Master(*found)
+    return out
 
 
 def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
@@ -97,7 +113,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             if last is not None:
                 end = max(end, last)
         configs = network.configs() if network else {}
-        model = build(decoded, stats.channels, start, end, timeline_params(profile), configs)
+        model = build(decoded, stats.channels, start, end, timeline_params(profile), configs,
+                      known_masters(network, stats.channels))
         model.params = {code: s.params for code, s in profile.items()}
         model.expected = network.expected() if network else []
         if channel is not None:

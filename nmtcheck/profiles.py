@@ -26,7 +26,15 @@ class RuleSettings:
     params: dict[str, Any] = field(default_factory=dict)
 
 
-Profile = dict[str, RuleSettings]
+TIMELINE_PARAMS = {"master_window_ms": 1000.0}  # [timeline]: parameters of no single rule
+
+
+class Profile(dict[str, RuleSettings]):
+    """Rule code -> settings, plus the `[timeline]` parameters (SPEC §5)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.timeline: dict[str, float] = dict(TIMELINE_PARAMS)
 
 
 def builtin_dir() -> Path:
@@ -34,6 +42,10 @@ def builtin_dir() -> Path:
     here = Path(__file__).resolve().parent
     installed = here / "rules"
     return installed if (installed / "default.toml").is_file() else here.parent / "rules"
+
+
+def _default_path() -> Path:
+    return (builtin_dir() / f"{DEFAULT_PROFILE}.toml").resolve()
 
 
 def builtin_profiles() -> list[str]:
@@ -81,13 +93,24 @@ def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> P
     except OSError as exc:
         raise UsageError(f"{path}: cannot read: {exc.strerror}") from None
     for key in data:
-        if key not in ("extends", "rules"):
-            raise UsageError(f"{path}: unknown key {key!r} (expected 'extends' and [rules.CODE])")
-    profile: Profile = {}
-    if "extends" in data:
-        if not isinstance(data["extends"], str):
+        if key not in ("extends", "rules", "timeline"):
+            raise UsageError(f"{path}: unknown key {key!r} "
+                             f"(expected 'extends', [timeline] and [rules.CODE])")
+    profile = Profile()
+    # A profile without `extends` extends `default`, so a user file holds only its changes.
+    base = data.get("extends", None if path.resolve() == _default_path() else DEFAULT_PROFILE)
+    if base is not None:
+        if not isinstance(base, str):
             raise UsageError(f"{path}: extends: expected a profile name or path")
-        profile = load_profile(data["extends"], (*_seen, path.resolve()))
+        profile = load_profile(base, (*_seen, path.resolve()))
+    timeline = data.get("timeline", {})
+    if not isinstance(timeline, dict):
+        raise UsageError(f"{path}: timeline: expected a table [timeline]")
+    for key, value in timeline.items():
+        if key not in TIMELINE_PARAMS:
+            raise UsageError(f"{path}: [timeline] {key}: unknown parameter "
+                             f"(known: {', '.join(TIMELINE_PARAMS)})")
+        profile.timeline[key] = _check_value(f"{path}: [timeline] {key}", value, float)
     rules = data.get("rules", {})
     if not isinstance(rules, dict):
         raise UsageError(f"{path}: rules: expected tables [rules.CODE]")

@@ -135,6 +135,8 @@ class EcTable:
         self.dlc = np.asarray(dlc, np.int16)
         self.value = np.asarray(value, np.uint8)
         self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
+        # a report of the pre-command state just after a command (SPEC §2 stale reports)
+        self.stale = np.zeros(len(self.ts), bool)
 
     @classmethod
     def empty(cls) -> EcTable:
@@ -205,6 +207,8 @@ class ConfigWrite:
     sub: int
     value: int
     until: float = float("inf")  # the node's next boot-up or reset: power-on values again
+    request_ts: float = float("nan")  # the client's request: the server may act on it at once
+    request_idx: int = -1
 
 
 @dataclass
@@ -363,6 +367,14 @@ class NodeModel:
         period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
         return timeout_factor * period if period else None
 
+    def periods_at(self, times: np.ndarray) -> np.ndarray:
+        """N's heartbeat period in force at each time (SPEC §2): the producer time (1017h)
+        in force if non-zero, else the whole-trace median (NaN if neither is known)."""
+        series = self.config_series(np.asarray(times, np.float64),
+                                    lambda cfg: cfg.heartbeat_ms)
+        fallback = self.period_s if self.period_s and self.period_s > 0 else np.nan
+        return np.where(series > 0, series / 1000.0, fallback)
+
     def interval_starts(self) -> np.ndarray:
         """Interval start times, built once per timeline (lookups happen per frame)."""
         cached = self.__dict__.get("_starts_cache")
@@ -396,6 +408,19 @@ class TimelineParams:
     timeout_factor: float = 1.5
     early_factor: float = 0.5
     response_timeout_s: float = 1.0
+    obey_s: float = 0.1  # S004: reports within this after a command may be stale
+    master_window_s: float = 1.0  # [timeline] master_window_ms: boot-up -> broadcast
+    reset_window_s: float = 10.0  # B002: a reset this recent explains a boot-up
+    bootup_timeout_s: float = 5.0  # B001: a reset node boots within this
+
+
+@dataclass(frozen=True)
+class Master:
+    """A channel's NMT master and how it is known (SPEC §2)."""
+
+    node: int
+    source: str  # network | device-file | inferred
+    detail: str = ""
 
 
 @dataclass
@@ -404,6 +429,8 @@ class ChannelModel:
     name: str
     nmt: list[NmtFrame]
     nodes: dict[int, NodeModel]
+    master: Master | None = None
+    master_note: str = ""  # why no master is known, or how it was chosen
 
 
 @dataclass
@@ -431,8 +458,13 @@ def _nmt_problem(rtr: bool, dlc: int, cs: int, target: int) -> str | None:
 
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
-          params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig]) -> InputModel:
-    """Build every node's model and timeline from the decoded input."""
+          params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig],
+          masters: dict[str, Master] | None = None) -> InputModel:
+    """Build every node's model and timeline from the decoded input.
+
+    `masters`: the NMT master of a channel (by name) known from the network or device
+    files; on other channels it is inferred from the start-up pattern (SPEC §2).
+    """
     ev = decoded.events
     models: list[ChannelModel] = []
     timeouts_to_end: list[tuple[NodeModel, Timeout]] = []
@@ -486,35 +518,137 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         for n, table in ec_tables.items():
             if n in nodes:  # requests to a node nothing else shows are not kept
                 nodes[n].ec = table
-        # Commands per node, broadcasts only for nodes seen before the command.
-        for frame in nmt:
-            if frame.problem is not None:
-                continue
-            for n, m in nodes.items():
-                if frame.target == n or (
-                    frame.target == 0 and m.first_show_idx is not None
-                    and m.first_show_idx < frame.idx
-                ):
-                    m.commands.append(Command(frame.ts, frame.idx, frame.line, frame.cs,
-                                              frame.target == 0))
+        master, master_note = _channel_master(name, nmt, ec_tables, params, masters or {})
+        _apply_commands(nmt, nodes, master)
         for m in nodes.values():
-            _classify(m, params, period_s=None)
-            _find_period(m)
-            _classify(m, params, period_s=m.period_s)
-            _find_period(m)
+            _classify(m, params, with_period=False)  # boot-ups bound the SDO-written values
         _write_validity(nodes)
+        for m in nodes.values():
+            _find_period(m)
+            _classify(m, params, with_period=True)
+            _find_period(m)
         for m in nodes.values():
             _heartbeat_timeouts(m, params, end)
             _guard_timeouts(m, params, end)
             for t in m.timeouts:
                 timeouts_to_end.append((m, t))
-        models.append(ChannelModel(chan, name, nmt, dict(sorted(nodes.items()))))
+        models.append(ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master,
+                                   master_note))
 
     _offline_ends(decoded, timeouts_to_end)
     for cm in models:
         for m in cm.nodes.values():
-            m.intervals = _intervals(m, start, end)
+            m.intervals = _intervals(m, start, end, params.obey_s)
     return InputModel(decoded, start, end, models)
+
+
+def _apply_commands(nmt: list[NmtFrame], nodes: dict[int, NodeModel],
+                    master: Master | None) -> None:
+    """Each valid command to the nodes it applies to: a direct one to its target, a
+    broadcast to every node seen before it but the channel's master, which does not
+    receive its own frames (SPEC §2)."""
+    for frame in nmt:
+        if frame.problem is not None:
+            continue
+        for n, m in nodes.items():
+            if frame.target == n or (
+                frame.target == 0 and (master is None or n != master.node)
+                and m.first_show_idx is not None and m.first_show_idx < frame.idx
+            ):
+                m.commands.append(Command(frame.ts, frame.idx, frame.line, frame.cs,
+                                          frame.target == 0))
+
+
+def _channel_master(name: str, nmt: list[NmtFrame], tables: dict[int, EcTable],
+                    params: TimelineParams, known: dict[str, Master]) -> tuple[Master | None, str]:
+    """The channel's master from the files, else inferred; with a note on how or why not."""
+    if name in known:
+        return known[name], known[name].detail
+    return infer_master(nmt, tables, params)
+
+
+def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: TimelineParams
+                 ) -> tuple[Master | None, str]:
+    """A master announces itself by its start-up: its own boot-up, at once a broadcast
+    command, and then it does not obey that command (it never receives its own frames).
+
+    SPEC §2's three conditions, checked for the last boot-up before each broadcast;
+    only a single qualifying node is taken.
+    """
+    valid = [f for f in nmt if f.problem is None]
+    if not any(f.target == 0 for f in valid):
+        return None, "not inferred: no broadcast NMT command"
+    boots = sorted((int(t.idx[p]), float(t.ts[p]), n) for n, t in tables.items()
+                   for p in np.flatnonzero(~t.rtr & (t.dlc == 1) & (t.value == 0)).tolist())
+    boot_idx = [b[0] for b in boots]
+    found: dict[int, str] = {}
+    prev_idx = -1
+    for i, f in enumerate(valid):
+        if f.target == 0:
+            k = bisect.bisect_left(boot_idx, f.idx) - 1
+            if k >= 0 and boot_idx[k] > prev_idx and (
+                    f.ts - boots[k][1] <= params.master_window_s + EPS):
+                b_idx, b_ts, node = boots[k]
+                if node not in found and not _answers_reset(valid, i, node, b_idx, b_ts,
+                                                            params) and _disobeyed(
+                        tables[node], valid, i, node, params):
+                    found[node] = (f"inferred: boot-up at {b_ts:.6f} s, then broadcast "
+                                   f"{COMMAND_NAMES[f.cs]} at {f.ts:.6f} s that node {node} "
+                                   f"did not obey")
+        prev_idx = f.idx
+    if len(found) == 1:
+        (node, why), = found.items()
+        return Master(node, "inferred", why), why
+    if found:
+        return None, ("not inferred: several nodes start like a master ("
+                      + ", ".join(str(n) for n in sorted(found)) + ")")
+    return None, "not inferred: no node starts like a master"
+
+
+def _answers_reset(valid: list[NmtFrame], before: int, node: int, b_idx: int, b_ts: float,
+                   params: TimelineParams) -> bool:
+    """Whether a reset command to `node` (direct or broadcast) came in the B002 window
+    before its boot-up: a node that obeys a broadcast reset is not its sender."""
+    for f in reversed(valid[:before]):
+        if f.idx > b_idx:
+            continue
+        if f.ts < b_ts - params.reset_window_s - EPS:
+            return False
+        if f.cs in RESETS and f.target in (0, node):
+            return True
+    return False
+
+
+def _disobeyed(t: EcTable, valid: list[NmtFrame], i: int, node: int,
+               params: TimelineParams) -> bool:
+    """Whether the node's own frames show it did not obey broadcast `valid[i]`."""
+    f = valid[i]
+    data = np.flatnonzero(~t.rtr & (t.dlc == 1))
+    p = int(np.searchsorted(t.idx[data], f.idx, side="right"))
+    after, before = data[p:].tolist(), data[:p].tolist()
+    if f.cs in RESETS:
+        for q in after:
+            boot = int(t.value[q]) == 0
+            dt = float(t.ts[q]) - f.ts
+            if not boot and dt <= params.obey_s + EPS:
+                continue  # may have been queued before the command
+            return not boot or dt > params.bootup_timeout_s + EPS
+        return False
+    prior = None
+    for q in reversed(before):
+        prior = STATE_OF_CODE.get(int(t.value[q]) & 0x7F)
+        if prior is not None:
+            break
+    if prior is None or prior == COMMAND_STATE[f.cs]:
+        return False
+    next_cmd = next((g.idx for g in valid[i + 1:] if g.target in (0, node)), None)
+    for q in after:
+        if next_cmd is not None and int(t.idx[q]) > next_cmd or int(t.value[q]) == 0:
+            return False
+        if float(t.ts[q]) - f.ts <= params.obey_s + EPS:
+            continue
+        return STATE_OF_CODE.get(int(t.value[q]) & 0x7F) == prior
+    return False
 
 
 def _ec_tables(decoded: Decoded, chan: int) -> dict[int, EcTable]:
@@ -533,7 +667,8 @@ def _ec_tables(decoded: Decoded, chan: int) -> dict[int, EcTable]:
 def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
                 nodes: dict[int, NodeModel], node_model: Any) -> None:
     """Pair SDO requests with the server's answer: confirmed writes, aborts, segmented ones."""
-    pending: dict[int, tuple[int, int, int | None, float]] = {}  # node -> index, sub, value, ts
+    # node -> index, sub, value, ts, idx of the request
+    pending: dict[int, tuple[int, int, int | None, float, int]] = {}
     for ts, idx, line, can_id, dlc, data in rows:
         if dlc < 4:
             continue
@@ -541,7 +676,7 @@ def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
         if can_id >= 0x601:  # request to server N
             n = can_id - 0x600
             if cmd & 0xE0 == 0x20 and sdo.is_config_index(index, sub):
-                pending[n] = (index, sub, sdo.expedited_value(data), ts)
+                pending[n] = (index, sub, sdo.expedited_value(data), ts, idx)
             else:
                 pending.pop(n, None)
             continue
@@ -565,7 +700,8 @@ def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
                                           f"segmented download to {sdo.object_name(index, sub)}"
                                           f" confirmed; its value is not applied"))
                 continue
-            m.writes.append(ConfigWrite(ts, idx, line, n, index, sub, value))
+            m.writes.append(ConfigWrite(ts, idx, line, n, index, sub, value,
+                                        request_ts=req[3], request_idx=req[4]))
             m.events.append(NodeEvent(ts, idx, line, "sdo-write",
                                       f"{sdo.object_name(index, sub)} = {value} "
                                       f"({value:X}h) written by SDO"))
@@ -585,27 +721,35 @@ def _write_validity(nodes: dict[int, NodeModel]) -> None:
                     producer.consumer_writes.append(w)
 
 
-def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> None:
-    """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2)."""
+def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> None:
+    """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2).
+
+    Without the period (first pass) only boot-ups are final: the period in force needs
+    the SDO-written values, which hold until the next boot-up.
+    """
     ec = m.ec
     kind = np.where(ec.rtr, REQUEST, np.where(
         ec.dlc != 1, MALFORMED, np.where(ec.value == 0, BOOTUP, HEARTBEAT))).astype(np.int8)
     if kind.size and (kind == REQUEST).any():
-        _classify_guarding(ec, kind, params, period_s)
+        periods = m.periods_at(ec.ts) if with_period else np.full(len(ec), np.nan)
+        _classify_guarding(ec, kind, params, periods)
     ec.kind = kind
 
 
 def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
-                       period_s: float | None) -> None:
+                       periods: np.ndarray) -> None:
     """Where remote requests are pending, a data frame may be a guarding response: the
-    order matters, so this walks the frames (plain Python ints, no objects)."""
+    order matters, so this walks the frames (plain Python ints, no objects).
+
+    `periods`: the heartbeat period in force at each frame (NaN: unknown).
+    """
     pending: float | None = None  # ts of the pending request
     hb_since_boot = 0
     last_hb: float | None = None
+    early: float | None = None  # the early limit at the last heartbeat
     timeout = params.response_timeout_s + EPS
-    early = None if period_s is None else params.early_factor * period_s - EPS
-    for i, (k, ts, value) in enumerate(zip(kind.tolist(), ec.ts.tolist(), ec.value.tolist(),
-                                           strict=True)):
+    for i, (k, ts, value, period) in enumerate(zip(
+            kind.tolist(), ec.ts.tolist(), ec.value.tolist(), periods.tolist(), strict=True)):
         if k == REQUEST:
             pending = ts
         elif k == BOOTUP:
@@ -628,6 +772,7 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
             else:
                 hb_since_boot += 1
                 last_hb = ts
+                early = None if period != period else params.early_factor * period - EPS
 
 
 def _find_period(m: NodeModel) -> None:
@@ -642,61 +787,53 @@ def _find_period(m: NodeModel) -> None:
         m.period_s, m.period_source = None, "none"
 
 
-def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
-    """H001: each gap after a heartbeat or boot-up that exceeds the timeout.
+_HB, _BOOT, _RESET, _OFF, _ON = range(5)  # what happens to a heartbeat gap (H001)
 
-    Vectorised over the gaps: only gaps that outlast the timeout in force at their
-    start, or that contain a configuration change, are looked at one by one.
+
+def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
+    """H001: each heartbeat gap that outlasts the timeout in force at its start (SPEC §3).
+
+    A gap starts at a heartbeat, or at a confirmed non-zero 1017h write when none runs
+    (a boot-up starts none: a node's power-on producer time is often 0 until the master
+    writes 1017h). It ends at the next heartbeat, boot-up, reset command or 1017h = 0;
+    a timeout that expired before a reset or a 0 write still counts.
     """
     if not m.is_producer:
         return
     ec = m.ec
     pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
-    # A reset ends the gap: the wait for the boot-up is B001's, but a timeout that expired
-    # before the reset (often the reason for it) still counts. A confirmed 1017h write ends
-    # the gap too; a non-zero one starts the heartbeat anew.
-    extra = [(c.ts, c.idx, False) for c in m.commands if c.is_reset]
-    extra += [(w.ts, w.idx, bool(w.value)) for w in m.writes if w.index == 0x1017]
+    extra = [(c.ts, c.idx, _RESET) for c in m.commands if c.is_reset]
+    extra += [(w.ts, w.idx, _ON if w.value else _OFF) for w in m.writes if w.index == 0x1017]
     ts = np.concatenate([ec.ts[pos], np.asarray([e[0] for e in extra], np.float64)])
     idx = np.concatenate([ec.idx[pos], np.asarray([e[1] for e in extra], np.int64)])
-    opens = np.concatenate([np.ones(len(pos), bool), np.asarray([e[2] for e in extra], bool)])
+    what = np.concatenate([np.where(ec.kind[pos] == HEARTBEAT, _HB, _BOOT).astype(np.int8),
+                           np.asarray([e[2] for e in extra], np.int8)])
     order = np.argsort(idx, kind="stable")
-    ts, idx, opens = ts[order], idx[order], opens[order]
+    ts, idx, what = ts[order], idx[order], what[order]
     if not ts.size:
         return
-    until = np.append(ts[1:], end)
-    closed = np.ones(len(ts), bool)
-    closed[-1] = False
+    # A write of a non-zero 1017h starts a gap only when none runs: right after a boot-up,
+    # a reset or a 0 write, or first of all. Other such writes change nothing.
+    prev = np.concatenate([[_BOOT], what[:-1]])
+    opens = (what == _HB) | ((what == _ON) & np.isin(prev, (_BOOT, _RESET, _OFF)))
+    ends = np.flatnonzero(what != _ON)  # every event but a non-zero write ends a gap
     gap = np.flatnonzero(opens)
-    changes = np.asarray(sorted({w.ts for w in m.writes + m.consumer_writes}), np.float64)
-    limit = m.config_series(ts[gap], lambda cfg: m.hb_timeout(cfg, params.timeout_factor))
-    slow = between(changes, ts[gap], until[gap])
-    fire = slow | ((limit > 0) & (until[gap] - ts[gap] > limit + EPS))
-    changes_list = changes.tolist()
-    for g in gap[fire].tolist():
-        _gap_timeout(m, params, (float(ts[g]), int(idx[g])), float(until[g]), changes_list,
-                     closed=bool(closed[g]))
-
-
-def _gap_timeout(m: NodeModel, params: TimelineParams, gap: tuple[float, int], until: float,
-                 changes: list[float], closed: bool) -> None:
-    """Record an H001 timeout if the gap [gap start, until] outlasts the timeout in force.
-
-    The timeout follows configuration confirmed during the gap (a consumer entry or
-    1017h written by SDO): it expires at the first moment the silence exceeds the
-    limit valid at that moment.
-    """
-    start, start_idx = gap
-    limit = m.hb_timeout_s(params.timeout_factor, start)
-    for c in changes:
-        if not start < c < until:
-            continue
-        if limit is not None and c >= start + limit + EPS:
-            break  # already expired under the old configuration
-        limit = m.hb_timeout_s(params.timeout_factor, c)
-    if limit and until - start > limit + EPS:
-        m.timeouts.append(Timeout("H001", start + limit, start, start_idx, limit,
-                                  until - start if closed else None))
+    k = np.searchsorted(ends, gap, side="right")
+    closed = k < len(ends)
+    until = np.where(closed, ts[ends[np.minimum(k, len(ends) - 1)]], end)
+    # A heartbeat sent while a 1017h write is being confirmed already follows the new value
+    # (stacks apply it before they answer): its gap is timed by that value.
+    at = ts[gap].copy()
+    for w in m.writes:
+        if w.index == 0x1017:
+            at[(ts[gap] >= w.request_ts) & (ts[gap] < w.ts)] = w.ts
+    limit = m.config_series(at, lambda cfg: m.hb_timeout(cfg, params.timeout_factor))
+    fire = (limit > 0) & (until - ts[gap] > limit + EPS)
+    for g, lim, u, c in zip(gap[fire].tolist(), limit[fire].tolist(), until[fire].tolist(),
+                            closed[fire].tolist(), strict=True):
+        start = float(ts[g])
+        m.timeouts.append(Timeout("H001", start + lim, start, int(idx[g]), lim,
+                                  u - start if c else None))
 
 
 def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
@@ -768,10 +905,11 @@ for _code, _state in STATE_OF_CODE.items():
     _STATE_OF_BYTE[_code] = _STATE_OF_BYTE[_code | 0x80] = STATE_INDEX[_state]
 
 
-def _evidence(m: NodeModel, times: list[float]) -> np.ndarray:
+def _evidence(m: NodeModel, windows: list[tuple[float, float]]) -> np.ndarray:
     """Positions (in time order) of the node's error-control frames that can change its
-    timeline: a frame that reports the same as the frame before it, with no command or
-    timeout in between, changes nothing, so runs of equal heartbeats reduce to their first."""
+    timeline: a frame that reports the same as the frame before it changes nothing, so
+    runs of equal heartbeats reduce to their first. Frames inside a window [lo, hi]
+    (after a command or timeout) are kept, and the first one after it."""
     ec = m.ec
     pos = np.flatnonzero(ec.kind != REQUEST)
     pos = pos[np.lexsort((ec.idx[pos], ec.ts[pos]))]
@@ -783,11 +921,11 @@ def _evidence(m: NodeModel, times: list[float]) -> np.ndarray:
                                _STATE_OF_BYTE[ec.value[pos] & 0xFF], -1))
     keep = np.ones(len(pos), bool)
     keep[1:] = target[1:] != target[:-1]
-    if times:
+    if windows:
         sts = ec.ts[pos]
-        t = np.asarray(times, np.float64)
-        lo = np.searchsorted(sts, t, side="left")
-        hi = np.minimum(np.searchsorted(sts, t, side="right"), len(pos) - 1)
+        w = np.asarray(windows, np.float64)
+        lo = np.searchsorted(sts, w[:, 0], side="left")
+        hi = np.minimum(np.searchsorted(sts, w[:, 1] + EPS, side="right"), len(pos) - 1)
         mark = np.zeros(len(pos) + 1, np.int64)
         np.add.at(mark, lo, 1)
         np.add.at(mark, hi + 1, -1)
@@ -795,12 +933,18 @@ def _evidence(m: NodeModel, times: list[float]) -> np.ndarray:
     return pos[keep]
 
 
-def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
-    """Walk the node's evidence in order and cut the timeline into state intervals."""
+def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> list[Interval]:
+    """Walk the node's evidence in order and cut the timeline into state intervals.
+
+    A heartbeat or guarding response up to `obey_s` after a command that reports the
+    state from before the command was queued before the node processed it: it is marked
+    stale in `m.ec.stale` and is no evidence (SPEC §2).
+    """
     steps: list[tuple[float, int, int, str, object]] = []
-    times = [c.ts for c in m.commands] + [t.moment for t in m.timeouts] + [
-        t.ended_by for t in m.timeouts if t.ended_by is not None]
-    for f in m.ec.frames(_evidence(m, times)):
+    windows = [(c.ts, c.ts + obey_s) for c in m.commands] + [
+        (t, t) for t in [t.moment for t in m.timeouts]
+        + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
+    for f in m.ec.frames(_evidence(m, windows)):
         steps.append((f.ts, f.idx, 1, "ec", f))
     for c in m.commands:
         steps.append((c.ts, c.idx, 1, "cmd", c))
@@ -824,6 +968,7 @@ def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
         out.append(Interval(max(ts, start), end, state, source))
 
     offline_until: float | None = None
+    last_cmd: tuple[float, str] | None = None  # the latest command: ts, state before it
     for ts, _idx, _order, what, obj in steps:
         cur = out[-1].state
         if what == "timeout":
@@ -839,6 +984,7 @@ def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
                 saved = None
         elif what == "cmd":
             assert isinstance(obj, Command)
+            last_cmd = (ts, saved[0] if cur == OFFLINE and saved is not None else cur)
             target = COMMAND_STATE[obj.cs]
             if cur == OFFLINE:
                 saved = (target, "command")
@@ -847,6 +993,11 @@ def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
         else:
             assert isinstance(obj, EcFrame)
             f = obj
+            if (f.kind in ("heartbeat", "guard") and last_cmd is not None
+                    and ts - last_cmd[0] <= obey_s + EPS
+                    and STATE_OF_CODE.get(f.code) == last_cmd[1]):
+                m.ec.stale[f.pos] = True
+                continue
             if f.reports_state and (f.kind == "bootup" or f.code in STATE_OF_CODE):
                 state = STATE_OF_CODE[0x00] if f.kind == "bootup" else STATE_OF_CODE[f.code]
                 source = {"bootup": "bootup", "heartbeat": "heartbeat", "guard": "guarding"}[f.kind]

@@ -65,6 +65,7 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
             bootups = m.bootups if resets else []
             boot_idx = [b.idx for b in bootups]
             life = ec.where(HEARTBEAT, GUARD, MALFORMED)  # signs of life but the boot-up
+            life = life[~ec.stale[life]]  # a report queued before the reset is none
             life_idx = ec.idx[life]
             for i, c in enumerate(resets):
                 next_reset = resets[i + 1].idx if i + 1 < len(resets) else None

@@ -18,14 +18,18 @@ def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     """A heartbeat producer fell silent for longer than its consumers wait.
 
     **What it checks.** N produces heartbeats (two or more seen, or a producer time
-    configured) and a gap after one of its heartbeats or its boot-up exceeds the
-    timeout: the consumer time if configured (the smallest non-zero one for N),
-    else `timeout_factor` x the producer period (configured, else the median of
-    N's heartbeat intervals). The gap ends at N's next heartbeat or boot-up; a
-    reset command to N ends it (waiting for the boot-up is B001's), so only a
-    timeout that expired before the reset counts. The trace continuing past the
-    timeout after N's last heartbeat counts too. One finding per gap, at the
-    moment the timeout expired; the node is OFFLINE from then until its next frame.
+    configured) and a gap after one of its heartbeats exceeds the timeout in force
+    at the gap's start: the consumer time if configured (the smallest non-zero one
+    for N), else `timeout_factor` x N's heartbeat period (the producer time in
+    force, else the median of N's heartbeat intervals). A boot-up starts no gap:
+    a slave's power-on producer time is often 0 until the master writes 1017h, and
+    consumers only start monitoring at the first heartbeat. After a boot-up the
+    next gap starts at N's first heartbeat or at a confirmed non-zero 1017h write.
+    A gap ends at N's next heartbeat or boot-up; a reset command to N or a
+    confirmed 1017h = 0 ends it without a finding (a timeout that expired before
+    still counts). The trace continuing past the timeout after N's last heartbeat
+    counts too. One finding per gap, at the moment the timeout expired; the node
+    is OFFLINE from then until its next frame.
 
     **Why it matters.** This is the heartbeat event of CiA 301: every consumer of
     N raises EMCY 8130h and applies its error behaviour (1029h), CiA 302 masters
@@ -59,9 +63,11 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
     """Two heartbeats of a node come much closer together than its period.
 
     **What it checks.** Two consecutive heartbeats of N are closer than
-    `early_factor` x the producer period, except the first heartbeat after a
-    boot-up, after an NMT command to N, or one that reports a different state
-    (stacks may send one at once on a state change).
+    `early_factor` x N's heartbeat period at the first of them (the producer time
+    in force when one is known, else the median interval), except the first
+    heartbeat after a boot-up, after an NMT command to N, after an SDO write of
+    1017h to N (the new period starts a new phase), or one that reports a
+    different state (stacks may send one at once on a state change).
 
     **Why it matters.** A producer that sends too often wastes bus bandwidth and
     usually means a misconfigured 1017h, two devices sharing the node-ID, or a
@@ -72,17 +78,24 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
     factor = p["early_factor"]
     for cm in model.channels:
         for m in cm.nodes.values():
-            if not m.period_s or m.period_s < 0:  # none, or timestamps going backwards
-                continue
-            limit = factor * m.period_s
             ec = m.ec
             pos = ec.where(HEARTBEAT, BOOTUP)
             a, b = pos[:-1], pos[1:]
+            # the period in force at the first heartbeat: a confirmed 1017h beats the median
+            period = m.periods_at(ec.ts[a])
+            limit = factor * period
             cmd_idx = np.asarray([c.idx for c in m.commands], np.int64)
-            early = ((ec.kind[a] == HEARTBEAT) & (ec.kind[b] == HEARTBEAT)
-                     & (ec.code[a] == ec.code[b]) & (ec.ts[b] - ec.ts[a] < limit - EPS))
+            with np.errstate(invalid="ignore"):
+                early = ((ec.kind[a] == HEARTBEAT) & (ec.kind[b] == HEARTBEAT)
+                         & (ec.code[a] == ec.code[b]) & (period > 0)
+                         & (ec.ts[b] - ec.ts[a] < limit - EPS))
             early &= ~between(cmd_idx, ec.idx[a], ec.idx[b])
-            ea, eb = a[early], b[early]
+            # a new producer time starts a new phase: the first heartbeat after a 1017h
+            # write is not early either
+            writes = np.asarray(sorted(w.request_idx for w in m.writes if w.index == 0x1017),
+                                np.int64)
+            early &= ~between(writes, ec.idx[a], ec.idx[b])
+            ea, eb, el, ep = a[early], b[early], limit[early], period[early]
             # a run: each early pair starts where the previous one ended, in one interval
             iv = m.interval_indices(ec.ts[eb])
             join = np.ones(len(ea), bool)
@@ -91,8 +104,8 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
                 prev_f, f = ec[ea[s]], ec[eb[s]]
                 yield Problem(cm.name, m.node, f.ts,
                               f"heartbeat ({state_name(f.code)}) {f.ts - prev_f.ts:.3f} s after "
-                              f"the previous one (period {m.period_s:.3f} s, limit "
-                              f"{limit:.3f} s){count_note(int(n), 'heartbeats')}",
+                              f"the previous one (period {ep[s]:.3f} s, limit "
+                              f"{el[s]:.3f} s){count_note(int(n), 'heartbeats')}",
                               f.idx, f.line)
 
 

@@ -52,9 +52,12 @@ def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     """Two devices seem to share one node-ID.
 
     **What it checks.** Within N's heartbeats the reported state goes A, B, A, B with
-    no NMT command to N or boot-up in between, or over at least 4 consecutive
-    intervals N's heartbeat intervals alternate short/long with long >= 1.5 x short.
-    One finding per node, at the first evidence.
+    no NMT command to N or boot-up in between (reports queued before a command do
+    not count), or over at least 4 consecutive intervals N's heartbeat intervals
+    alternate short/long with long >= 1.5 x short, the shorts within 20 % of each
+    other and the longs too: two producers with one period, out of phase. A late
+    heartbeat and its early catch-up (a fixed-rate producer after a stall) is not
+    this. One finding per node, at the first evidence.
 
     **Why it matters.** Two devices with the same node-ID collide on every COB-ID of
     the pre-defined set: SDOs get two answers, PDOs mix, and the heartbeat shows
@@ -78,6 +81,7 @@ def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:
     alternation wins."""
     ec = m.ec
     hb = ec.where(HEARTBEAT)
+    hb = hb[~ec.stale[hb]]  # reports queued before a command are no evidence
     if len(hb) < 4:
         return None
     boots = ec.where(BOOTUP)
@@ -103,6 +107,10 @@ def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:
         ok = (np.minimum.reduce(w) > 0) & (seg[:-4] == seg[4:])
         ok &= (longer[0] | shorter[0]) & (longer[1] | shorter[1]) & (longer[2] | shorter[2])
         ok &= (longer[0] == longer[2]) & (longer[0] != longer[1])
+        # the shorts alike and the longs alike (within 20 %): two producers with one period,
+        # not one late heartbeat and its catch-up
+        ok &= (np.maximum(w[0], w[2]) <= 1.2 * np.minimum(w[0], w[2]) + EPS)
+        ok &= (np.maximum(w[1], w[3]) <= 1.2 * np.minimum(w[1], w[3]) + EPS)
         alt = np.flatnonzero(ok)
         if alt.size:
             i = int(alt[0])

@@ -308,6 +308,7 @@ def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
             all_cmd_idx = sorted(c.idx for c in m.commands)
             ec = m.ec
             reports = ec.where(BOOTUP, HEARTBEAT, GUARD)  # frames that report a state
+            reports = reports[~ec.stale[reports]]  # queued before a command: no evidence
             rep_idx = ec.idx[reports]
             for c in cmds:
                 target = {0x01: OPERATIONAL, 0x02: STOPPED, 0x80: PRE_OPERATIONAL}[c.cs]
@@ -334,7 +335,8 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[P
     """A node changed its NMT state on its own.
 
     **What it checks.** N's reported state changes between two of its error-control
-    messages with no NMT command to N in between and no boot-up.
+    messages with no NMT command to N in between and no boot-up. The channel's NMT
+    master is left out: it changes its own state by design (CiA 302).
 
     **Why it matters.** Local control is allowed (self-start, 1029h error behaviour,
     application events) but it is the first thing to look at when a node leaves
@@ -344,9 +346,12 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[P
     """
     for cm in model.channels:
         for m in cm.nodes.values():
+            if cm.master is not None and m.node == cm.master.node:
+                continue  # a master starts and stops itself (CiA 302): that is its job
             ec = m.ec
             # heartbeats and guarding responses with a CiA 301 state; a boot-up starts anew
             pos = ec.where(BOOTUP, HEARTBEAT, GUARD)
+            pos = pos[~ec.stale[pos]]  # queued before a command: no evidence
             kind = ec.kind[pos]
             state = _STATE_OF_CODE[ec.code[pos]]
             pos, kind, state = (x[(kind == BOOTUP) | (state >= 0)] for x in (pos, kind, state))

@@ -11,13 +11,31 @@ import numpy as np
 from nmtcheck.checks import RULES
 from nmtcheck.checks.base import Rule
 from nmtcheck.engine import Finding, InputResult, summary
-from nmtcheck.timeline import NodeModel
+from nmtcheck.timeline import ChannelModel, NodeModel
 
 SEVERITY_ORDER = ("error", "warning", "info")
 # Rules whose findings may name no node (a CAN-ID or a frame on 000h belongs to the network):
 # their per-channel "network" test cases exist even when nothing fired. C001 never names one.
 NETWORK_RULES = ("C001", "C002")
 NETWORK_ONLY_RULES = ("C001",)
+
+
+def network_notes(options: dict[str, object] | None) -> list[str]:
+    """What could not be read from the network and device files (shown, never dropped)."""
+    notes = (options or {}).get("network_notes") or []
+    assert isinstance(notes, list)
+    return [str(n) for n in notes]
+
+
+def master_line(cm: ChannelModel) -> str:
+    """A channel's NMT master and how it is known, or why none is."""
+    if cm.master is None:
+        return f"{cm.name}: no NMT master known ({cm.master_note or 'none given'})"
+    m = cm.master
+    how = {"network": "named in the network file", "device-file": "device file 1F80h bit 0",
+           "inferred": "inferred from the start-up"}.get(m.source, m.source)
+    return f"{cm.name}: NMT master node {m.node} ({how}" + (
+        f"; {m.detail})" if m.detail and m.source != "network" else ")")
 
 
 def fail_on(options: dict[str, object]) -> str:

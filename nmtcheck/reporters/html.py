@@ -33,6 +33,8 @@ from nmtcheck.reporters.common import (
     group_findings,
     heartbeat_stats,
     is_failing,
+    master_line,
+    network_notes,
     node_label,
     nodes_by_channel,
     offset,
@@ -198,7 +200,12 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                 rows.append({"node": node, "label": node_label(node), "marks": sorted(marks),
                              "iv": [] if node is None
                              else intervals.get((res.index, channel, node), [])})
-            timelines.append({"id": timeline_id(res, channel), "input": res.index,
+            cm = next((c for c in res.model.channels if c.name == channel), None)
+            master = ("no NMT master known" if cm is None or cm.master is None
+                      else f"NMT master node {cm.master.node} ({cm.master.source})")
+            timelines.append({"master": master,
+                              "master_title": "" if cm is None else master_line(cm),
+                              "id": timeline_id(res, channel), "input": res.index,
                               "path": res.stats.path, "channel": channel,
                               "duration": _r(duration(res)), "rows": rows})
     rules = [{"code": r.code, "name": r.name, "severity": sev, "summary": r.summary,
@@ -219,7 +226,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "counts": report["summary"],
         "inputs": inputs, "timelines": timelines, "groups": groups, "nodes": nodes,
         "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
-        "several_inputs": len(results) > 1,
+        "several_inputs": len(results) > 1, "network_notes": network_notes(options),
         "rule_options": sorted({g["rule"] for g in groups}),
         "node_options": sorted({(g["input"], g["channel"], -1 if g["node"] is None else g["node"],
                                  g["node_key"], g["where"]) for g in groups}),

@@ -7,7 +7,7 @@ from typing import Any
 
 from nmtcheck import __version__
 from nmtcheck.engine import InputResult, summary
-from nmtcheck.reporters.common import configured_vs_measured
+from nmtcheck.reporters.common import configured_vs_measured, network_notes
 from nmtcheck.timeline import NodeModel
 
 REPORT_VERSION = 1
@@ -33,7 +33,14 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
     timeline: list[dict[str, Any]] = []
     findings: list[dict[str, Any]] = []
     events: list[dict[str, Any]] = []
+    channels: list[dict[str, Any]] = []
     for res in results:
+        for cm in res.model.channels:
+            master = cm.master
+            channels.append({"input": res.index, "name": cm.name, "master": None if master is None
+                             else {"node": master.node, "source": master.source,
+                                   "detail": master.detail},
+                             "master_note": None if master is not None else cm.master_note})
         s = res.stats
         inputs.append({
             "path": s.path, "format": s.format, "frames": s.frames, "skipped": s.skipped,
@@ -71,6 +78,8 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
             "report_version": REPORT_VERSION, "inputs": inputs, "nodes": nodes,
             "timeline": timeline, "findings": findings,
             "events": sorted(events, key=lambda e: (e["input"], e["frame_index"])),
+            "channels": channels,
+            "network": {"notes": list(network_notes(options))},
             "summary": summary(results)}
 
 

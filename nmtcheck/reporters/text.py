@@ -5,7 +5,13 @@ from __future__ import annotations
 from itertools import groupby
 
 from nmtcheck.engine import InputResult, summary
-from nmtcheck.reporters.common import configured_vs_measured, final_state, is_failing
+from nmtcheck.reporters.common import (
+    configured_vs_measured,
+    final_state,
+    is_failing,
+    master_line,
+    network_notes,
+)
 
 MAX_EVENTS_SHOWN = 50
 
@@ -67,10 +73,15 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     fail_on = str(options.get("fail_on", "error"))
     quiet = bool(options.get("quiet", False))
     out: list[str] = []
+    notes = network_notes(options)
+    if notes:
+        out.append("network description: values that could not be read:")
+        out += [f"  {n}" for n in notes]
     for res in results:
         out += _input_line(res)
         start = res.stats.start or 0.0
         if not quiet:
+            out += [f"  {master_line(cm)}" for cm in res.model.channels]
             out += _node_table(res)
             out += _node_events(res)
         key = lambda f: (f.channel, -1 if f.node is None else f.node)  # noqa: E731
