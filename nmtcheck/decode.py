@@ -182,6 +182,7 @@ class Decoded:
     # node key -> (frame index, ts, kind) of the node's first transmitted frame
     first_tx: dict[int, tuple[int, float, int]] = field(default_factory=dict)
     last_tx: dict[int, float] = field(default_factory=dict)
+    standard_frames: int = 0  # 11-bit data and remote frames: what CANopen decoding sees
 
     def ec_rows(self, key: int) -> slice:
         """The rows of `ec` that belong to one node key."""
@@ -408,11 +409,13 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     restricted: dict[tuple[int, int], IdUse] = {}
     first_tx: dict[int, tuple[int, float, int]] = {}
     last_tx: dict[int, float] = {}
+    standard = 0
 
     for b in batches:
         # (copies of one-element slices: a view would keep the whole column alive)
         frame_times.append(ts=b.ts, base=b.index[:1].copy(), **_lines(b.line))
         co = ~b.ext & ~b.err
+        standard += int(np.count_nonzero(co))
         cid = b.can_id.astype(np.int64)
         ec = co & (cid >= 0x701) & (cid <= 0x77F)
         if ec.any():
@@ -478,7 +481,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     ec_cols = _grouped(ec_spool)
     ec_spool.close()
     return Decoded(events, ec_cols, frame_times, node_frames, restricted, first_tx,
-                   last_tx)
+                   last_tx, standard)
 
 
 def _grouped(spool: ColumnSpool) -> dict[str, np.ndarray]:

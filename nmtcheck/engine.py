@@ -116,6 +116,7 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         model = build(decoded, stats.channels, start, end, timeline_params(profile), configs,
                       known_masters(network, stats.channels))
         model.params = {code: s.params for code, s in profile.items()}
+        model.stats = stats
         model.expected = network.expected() if network else []
         if channel is not None:
             if channel not in stats.channels:

@@ -443,6 +443,7 @@ class InputModel:
     channels: list[ChannelModel]
     params: dict[str, dict[str, Any]] = field(default_factory=dict)  # every rule's parameters
     expected: list[tuple[int, str | None]] = field(default_factory=list)  # network file nodes
+    stats: Any = None  # the reader's InputStats (the I-rules judge the input itself)
 
 
 def _nmt_problem(rtr: bool, dlc: int, cs: int, target: int) -> str | None:
