@@ -519,7 +519,8 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         for n, table in ec_tables.items():
             if n in nodes:  # requests to a node nothing else shows are not kept
                 nodes[n].ec = table
-        master, master_note = _channel_master(name, nmt, ec_tables, params, masters or {})
+        master, master_note = _channel_master(name, nmt, ec_tables, params, masters or {},
+                                              start)
         _apply_commands(nmt, nodes, master)
         for m in nodes.values():
             _classify(m, params, with_period=False)  # boot-ups bound the SDO-written values
@@ -561,20 +562,24 @@ def _apply_commands(nmt: list[NmtFrame], nodes: dict[int, NodeModel],
 
 
 def _channel_master(name: str, nmt: list[NmtFrame], tables: dict[int, EcTable],
-                    params: TimelineParams, known: dict[str, Master]) -> tuple[Master | None, str]:
+                    params: TimelineParams, known: dict[str, Master], start: float
+                    ) -> tuple[Master | None, str]:
     """The channel's master from the files, else inferred; with a note on how or why not."""
     if name in known:
         return known[name], known[name].detail
-    return infer_master(nmt, tables, params)
+    return infer_master(nmt, tables, params, start)
 
 
-def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: TimelineParams
-                 ) -> tuple[Master | None, str]:
+def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: TimelineParams,
+                 start: float = 0.0) -> tuple[Master | None, str]:
     """A master announces itself by its start-up: its own boot-up, at once a broadcast
     command, and then it does not obey that command (it never receives its own frames).
 
-    SPEC §2's three conditions, checked for the last boot-up before each broadcast;
-    only a single qualifying node is taken.
+    SPEC §2's three conditions, checked for the boot-ups before each broadcast (within
+    the window, no other command between); only a single qualifying node is taken. SPEC
+    asks for the last boot-up only; on a common power-on (Lely's recordings) the
+    slaves' boot-ups follow the master's by microseconds, so every one is a candidate
+    and the slaves drop out by obeying the broadcast.
     """
     valid = [f for f in nmt if f.problem is None]
     if not any(f.target == 0 for f in valid):
@@ -586,16 +591,19 @@ def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: Timeli
     prev_idx = -1
     for i, f in enumerate(valid):
         if f.target == 0:
+            # every boot-up since the previous command and within the window: at a common
+            # power-on the slaves' boot-ups may come after the master's
             k = bisect.bisect_left(boot_idx, f.idx) - 1
-            if k >= 0 and boot_idx[k] > prev_idx and (
+            while k >= 0 and boot_idx[k] > prev_idx and (
                     f.ts - boots[k][1] <= params.master_window_s + EPS):
                 b_idx, b_ts, node = boots[k]
+                k -= 1
                 if node not in found and not _answers_reset(valid, i, node, b_idx, b_ts,
                                                             params) and _disobeyed(
                         tables[node], valid, i, node, params):
-                    found[node] = (f"inferred: boot-up at {b_ts:.6f} s, then broadcast "
-                                   f"{COMMAND_NAMES[f.cs]} at {f.ts:.6f} s that node {node} "
-                                   f"did not obey")
+                    found[node] = (f"boot-up at {b_ts - start:.6f} s, then broadcast "
+                                   f"{COMMAND_NAMES[f.cs]} at {f.ts - start:.6f} s that node "
+                                   f"{node} did not obey")
         prev_idx = f.idx
     if len(found) == 1:
         (node, why), = found.items()

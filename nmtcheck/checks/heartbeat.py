@@ -117,7 +117,9 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
     **What it checks.** N's producer time (1017h) is known (network file, EDS/DCF,
     or an SDO write of 1017h confirmed in the trace) and, over at least 5
     heartbeat intervals while that value holds, the median interval differs from
-    it by more than `tolerance` (a fraction). Intervals containing a boot-up or a
+    it by more than `tolerance` (a fraction), or a run of at least 5 consecutive
+    intervals is off by more than `tolerance` the same way (a node whose
+    application changed its own 1017h later). Intervals containing a boot-up or a
     reset are left out. One finding per configured value, at the last heartbeat
     counted.
 
@@ -140,12 +142,39 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
                 sel = np.flatnonzero(value == v)
                 if len(sel) < 5:
                     continue
-                median = float(np.median(ts[b[sel]] - ts[a[sel]]))
                 configured = v / 1000.0
-                if abs(median - configured) > tolerance * configured + EPS:
-                    last = m.ec[b[sel[-1]]]
-                    yield Problem(cm.name, m.node, last.ts,
-                                  f"node {m.node} heartbeats every {median:.3f} s (median of "
-                                  f"{len(sel)} intervals) but its producer time is "
-                                  f"{configured:.3f} s (tolerance {tolerance:.0%})",
-                                  last.idx, last.line)
+                gaps = ts[b[sel]] - ts[a[sel]]
+                median = float(np.median(gaps))
+                what = f"median of {len(sel)} intervals"
+                last = sel[-1]
+                if abs(median - configured) <= tolerance * configured + EPS:
+                    # the producer may change its own period later (an application writing
+                    # its 1017h locally): a run of >= 5 consecutive intervals all off the
+                    # same way counts too
+                    run = _longest_off_run(gaps, configured, tolerance)
+                    if run is None:
+                        continue
+                    lo, hi = run
+                    median = float(np.median(gaps[lo:hi]))
+                    what = (f"median of {hi - lo} consecutive intervals from "
+                            f"{ts[a[sel[lo]]] - model.start:.3f} s")
+                    last = sel[hi - 1]
+                f = m.ec[b[last]]
+                yield Problem(cm.name, m.node, f.ts,
+                              f"node {m.node} heartbeats every {median:.3f} s ({what}) but its "
+                              f"producer time is {configured:.3f} s (tolerance {tolerance:.0%})",
+                              f.idx, f.line)
+
+
+def _longest_off_run(gaps: np.ndarray, configured: float, tolerance: float
+                     ) -> tuple[int, int] | None:
+    """The longest run of at least 5 consecutive intervals that are all longer (or all
+    shorter) than the configured period by more than the tolerance, as [lo, hi)."""
+    best: tuple[int, int] | None = None
+    for off in (gaps > configured * (1 + tolerance) + EPS,
+                gaps < configured * (1 - tolerance) - EPS):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], off.astype(np.int8), [0]])))
+        for lo, hi in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+            if hi - lo >= 5 and (best is None or hi - lo > best[1] - best[0]):
+                best = (lo, hi)
+    return best

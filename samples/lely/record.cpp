@@ -1,0 +1,620 @@
+// record.cpp - record real CANopen NMT traffic from the Lely CANopen stack.
+//
+// One process runs a Lely CiA 302 NMT master (lely::canopen::BasicMaster,
+// node-ID 1, configured from master.dcf made by Lely's dcfgen from master.yml)
+// and three Lely slaves (lely::canopen::BasicSlave, node-IDs 2, 3, 4, each
+// from slave.eds) on Lely's userspace virtual CAN bus
+// (lely::io::VirtualCanController), all driven by one event loop
+// (lely::ev::Loop on a lely::io::Poll) with CLOCK_MONOTONIC timers.
+//
+// Every device sits on its own small virtual CAN bus ("stub") with its own
+// VirtualCanController; a "connector" (two VirtualCanChannels, one on the
+// stub and one on the main bus) copies frames between the stub and the main
+// bus. Unplugging a device stops the copying in both directions: the device
+// keeps running (timers, state, heartbeats) but nothing it sends reaches the
+// bus and nothing from the bus reaches it, as with a pulled CAN connector.
+// (Closing a Lely VirtualCanChannel under a running node would make its CAN
+// network busy-loop on read errors, so we do not do that.)
+//
+// One more VirtualCanChannel on the main bus only receives, and writes every
+// frame it gets as a candump -L line. A VirtualCanController delivers a frame
+// to every channel on the bus except the sender, so the recorder sees every
+// frame exactly once. The program checks this at the end: frames put on the
+// main bus by the connectors == frames logged, and every connector received
+// all logged frames except its own.
+//
+// Timestamps are the ones the main bus controller gives each frame (Lely
+// stamps a frame with its controller's clock, CLOCK_MONOTONIC here, when it
+// is put on the bus), shifted so that the program start is at 1700000000 s.
+//
+// Usage: record SCENARIO OUT.log   (run in the directory holding master.dcf,
+//        master.bin, slave2.bin ... slave4.bin and slave.eds)
+// Events seen by the master and the slaves (boot, heartbeat/guarding events,
+// NMT commands) are printed on stderr as "# t=SECONDS ..." lines, t relative
+// to the program start.
+//
+// Part of nmtcheck (MIT, see pyproject.toml). It contains no Lely code; it
+// only includes the headers of, and links against, an installed lely-core
+// (Apache-2.0).
+
+#include <lely/coapp/master.hpp>
+#include <lely/coapp/slave.hpp>
+#include <lely/ev/loop.hpp>
+#include <lely/io2/posix/poll.hpp>
+#include <lely/io2/sys/clock.hpp>
+#include <lely/io2/sys/io.hpp>
+#include <lely/io2/sys/timer.hpp>
+#include <lely/io2/vcan.hpp>
+
+#include <chrono>
+#include <cinttypes>
+#include <cstdarg>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+using namespace lely;
+using namespace std::chrono_literals;
+using canopen::NmtCommand;
+using canopen::NmtState;
+
+namespace {
+
+constexpr double kEpoch = 1700000000.0;
+std::chrono::nanoseconds g_start{0};
+
+std::chrono::nanoseconds
+mono_now() {
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return std::chrono::seconds(ts.tv_sec) + std::chrono::nanoseconds(ts.tv_nsec);
+}
+
+double
+rel_now() {
+  return std::chrono::duration<double>(mono_now() - g_start).count();
+}
+
+void
+event(const char* fmt, ...) __attribute__((format(printf, 1, 2)));
+
+void
+event(const char* fmt, ...) {
+  std::fprintf(stderr, "# t=%.6f ", rel_now());
+  va_list ap;
+  va_start(ap, fmt);
+  std::vfprintf(stderr, fmt, ap);
+  va_end(ap);
+  std::fputc('\n', stderr);
+}
+
+const char*
+st_name(NmtState st) {
+  switch (st) {
+    case NmtState::BOOTUP:
+      return "BOOTUP";
+    case NmtState::STOP:
+      return "STOPPED";
+    case NmtState::START:
+      return "OPERATIONAL";
+    case NmtState::RESET_NODE:
+      return "RESET_NODE";
+    case NmtState::RESET_COMM:
+      return "RESET_COMM";
+    case NmtState::PREOP:
+      return "PRE-OPERATIONAL";
+    default:
+      return "?";
+  }
+}
+
+const char*
+cs_name(NmtCommand cs) {
+  switch (cs) {
+    case NmtCommand::START:
+      return "START";
+    case NmtCommand::STOP:
+      return "STOP";
+    case NmtCommand::ENTER_PREOP:
+      return "ENTER_PREOP";
+    case NmtCommand::RESET_NODE:
+      return "RESET_NODE";
+    case NmtCommand::RESET_COMM:
+      return "RESET_COMM";
+    default:
+      return "?";
+  }
+}
+
+// The receive-only channel on the main bus that writes candump -L lines.
+class Recorder {
+ public:
+  Recorder(io::Context& ctx, ev_exec_t* exec, io::VirtualCanController& bus,
+           FILE* out, const char* iface)
+      : chan_(ctx, exec, 65536),
+        out_(out),
+        iface_(iface),
+        read_(&msg_, nullptr, &ts_, exec, [this](int result, std::error_code ec) {
+          OnRead(result, ec);
+        }) {
+    chan_.open(bus);
+    chan_.submit_read(read_);
+  }
+
+  uint64_t frames() const { return frames_; }
+
+ private:
+  void
+  OnRead(int result, std::error_code ec) {
+    if (result == 1) {
+      Write();
+    } else if (result == -1 && ec != std::errc::operation_canceled) {
+      std::fprintf(stderr, "recorder: read error: %s\n", ec.message().c_str());
+    }
+    if (result != -1 || ec != std::errc::operation_canceled)
+      chan_.submit_read(read_);
+  }
+
+  void
+  Write() {
+    ++frames_;
+    double t = kEpoch + std::chrono::duration<double>(ts_ - g_start).count();
+    char data[64] = "";
+    if (msg_.flags & CAN_FLAG_RTR) {
+      // candump -L: "ID#R", with the DLC after R if it is not 0.
+      if (msg_.len)
+        std::snprintf(data, sizeof(data), "R%u", msg_.len);
+      else
+        std::snprintf(data, sizeof(data), "R");
+    } else {
+      for (int i = 0; i < msg_.len && i < 8; i++)
+        std::snprintf(data + 2 * i, 3, "%02X", msg_.data[i]);
+    }
+    if (msg_.flags & CAN_FLAG_IDE)
+      std::fprintf(out_, "(%.6f) %s %08" PRIX32 "#%s\n", t, iface_, msg_.id, data);
+    else
+      std::fprintf(out_, "(%.6f) %s %03" PRIX32 "#%s\n", t, iface_, msg_.id, data);
+  }
+
+  io::VirtualCanChannel chan_;
+  FILE* out_;
+  const char* iface_;
+  can_msg msg_ = CAN_MSG_INIT;
+  std::chrono::nanoseconds ts_{0};
+  io::CanChannelRead read_;
+  uint64_t frames_{0};
+};
+
+// A device's stub bus plus the connector that joins it to the main bus.
+class Connector {
+  int node_;
+
+ public:
+  Connector(io::Context& ctx, ev_exec_t* exec, io::VirtualCanController& bus,
+            int node)
+      : node_(node),
+        stub_(io::clock_monotonic),
+        dev(ctx, exec),
+        stub_side_(ctx, exec),
+        bus_side_(ctx, exec),
+        up_read_(&up_msg_, nullptr, nullptr, exec,
+                 [this](int r, std::error_code ec) { OnUp(r, ec); }),
+        down_read_(&down_msg_, nullptr, nullptr, exec,
+                   [this](int r, std::error_code ec) { OnDown(r, ec); }) {
+    dev.open(stub_);
+    stub_side_.open(stub_);
+    bus_side_.open(bus);
+    stub_side_.submit_read(up_read_);
+    bus_side_.submit_read(down_read_);
+  }
+
+  void
+  set_plugged(bool plugged) {
+    plugged_ = plugged;
+  }
+  bool plugged() const { return plugged_; }
+
+  // The device's own channel (on the stub bus).
+  io::VirtualCanController stub_;
+  io::VirtualCanChannel dev;
+
+  uint64_t sent{0};         // frames of the device put on the main bus
+  uint64_t sent_lost{0};    // frames of the device dropped while unplugged
+  uint64_t received{0};     // frames from the main bus (all, plugged or not)
+  uint64_t delivered{0};    // of those, delivered to the device
+  uint64_t errors{0};       // write errors (should stay 0)
+  // Called for every frame of the device that reaches the main bus.
+  std::function<void(const can_msg&)> on_sent;
+
+ private:
+  void
+  OnUp(int r, std::error_code ec) {
+    if (r == 1) {
+      if (plugged_) {
+        std::error_code wec;
+        bus_side_.write(up_msg_, 0, wec);
+        if (wec) {
+          ++errors;
+          std::fprintf(stderr, "node %d: write to bus failed: %s\n", node_,
+                       wec.message().c_str());
+        } else {
+          ++sent;
+          if (on_sent) on_sent(up_msg_);
+        }
+      } else {
+        ++sent_lost;
+      }
+    }
+    if (r != -1 || ec != std::errc::operation_canceled)
+      stub_side_.submit_read(up_read_);
+  }
+
+  void
+  OnDown(int r, std::error_code ec) {
+    if (r == 1) {
+      ++received;
+      if (plugged_) {
+        std::error_code wec;
+        stub_side_.write(down_msg_, 0, wec);
+        if (wec) {
+          ++errors;
+          std::fprintf(stderr, "node %d: write to stub failed: %s\n", node_,
+                       wec.message().c_str());
+        } else {
+          ++delivered;
+        }
+      }
+    }
+    if (r != -1 || ec != std::errc::operation_canceled)
+      bus_side_.submit_read(down_read_);
+  }
+
+  bool plugged_{true};
+  io::VirtualCanChannel stub_side_;
+  io::VirtualCanChannel bus_side_;
+  can_msg up_msg_ = CAN_MSG_INIT;
+  can_msg down_msg_ = CAN_MSG_INIT;
+  io::CanChannelRead up_read_;
+  io::CanChannelRead down_read_;
+};
+
+class Slave : public canopen::BasicSlave {
+ public:
+  Slave(ev_exec_t* exec, io::TimerBase& timer, io::CanChannelBase& chan,
+        const std::string& dcf, int node)
+      : BasicSlave(exec, timer, chan, dcf, "", node), node_(node) {}
+
+  // Application: count and send TPDO1 (2000h:00, event-driven). Lely only
+  // sends the PDO when the node is OPERATIONAL and TPDO1 is valid.
+  void
+  Tick() {
+    uint32_t v = (*this)[0x2000][0];
+    (*this)[0x2000][0] = v + 1;
+    (*this)[0x2000][0].SetEvent();
+  }
+
+  // Application writes its own 1017h (local SDO download, no bus traffic).
+  void
+  SetHeartbeat(uint16_t ms) {
+    Write<uint16_t>(0x1017, 0, ms);
+  }
+
+ private:
+  void
+  OnCommand(NmtCommand cs) noexcept override {
+    event("node %d: NMT command %s", node_, cs_name(cs));
+  }
+  void
+  OnHeartbeat(uint8_t id, bool occurred) noexcept override {
+    event("node %d: heartbeat event for node %d %s", node_, id,
+          occurred ? "occurred" : "resolved");
+  }
+  void
+  OnLifeGuarding(bool occurred) noexcept override {
+    event("node %d: life guarding event %s", node_,
+          occurred ? "occurred" : "resolved");
+  }
+
+  // The node-ID (Device::id() takes the device lock, which the stack already
+  // holds while it calls these callbacks).
+  int node_;
+};
+
+class Master : public canopen::BasicMaster {
+ public:
+  using BasicMaster::BasicMaster;
+
+ private:
+  void
+  OnCommand(NmtCommand cs) noexcept override {
+    event("master: own NMT state change by command %s", cs_name(cs));
+    BasicMaster::OnCommand(cs);
+  }
+  void
+  OnHeartbeat(uint8_t id, bool occurred) noexcept override {
+    event("master: heartbeat event for node %d %s", id,
+          occurred ? "occurred (timeout)" : "resolved");
+    BasicMaster::OnHeartbeat(id, occurred);
+  }
+  void
+  OnState(uint8_t id, NmtState st) noexcept override {
+    event("master: node %d state %s", id, st_name(st));
+    BasicMaster::OnState(id, st);
+  }
+  void
+  OnNodeGuarding(uint8_t id, bool occurred) noexcept override {
+    event("master: node guarding event for node %d %s", id,
+          occurred ? "occurred (timeout)" : "resolved");
+    BasicMaster::OnNodeGuarding(id, occurred);
+  }
+  void
+  OnBoot(uint8_t id, NmtState st, char es,
+         const std::string& what) noexcept override {
+    event("master: boot-slave process for node %d finished: state %s, "
+          "error status '%c' %s",
+          id, st_name(st), es ? es : '0', what.c_str());
+    BasicMaster::OnBoot(id, st, es, what);
+  }
+  void
+  OnEmcy(uint8_t id, uint16_t eec, uint8_t er, uint8_t msef[5]) noexcept
+      override {
+    event("master: EMCY from node %d: %04X %02X", id, eec, er);
+    BasicMaster::OnEmcy(id, eec, er, msef);
+  }
+};
+
+struct Scenario {
+  const char* name;
+  const char* what;
+};
+
+const Scenario kScenarios[] = {
+    {"healthy", "master + 3 slaves power on together, run 10 s"},
+    {"late_master", "slaves power on at 0 s, the master at 3 s, run to 12 s"},
+    {"unplugged_heartbeat",
+     "node 3 (heartbeat) unplugged at 5 s, plugged back at 7 s, run to 12 s"},
+    {"unplugged_guarded",
+     "node 4 (node guarding) unplugged at 5 s, plugged back at 7 s, run to "
+     "12 s"},
+    {"reboot",
+     "node 3 powers off at 5 s and on again at 5.15 s (boot-up without an NMT "
+     "command), run to 11 s"},
+    {"stop_start_sdo",
+     "master stops node 3 at 4 s, reads 1018h:01 from it at 4.5 s (500 ms "
+     "SDO timeout), starts it at 6 s, reads 1018h:01 again at 7 s, run to 10 "
+     "s"},
+    {"broadcast",
+     "master sends NMT enter pre-operational to all at 4 s and start all at "
+     "6 s, run to 10 s"},
+    {"self_1017",
+     "node 2's application writes its own 1017h = 250 ms at 4 s (right "
+     "after one of its heartbeats), run to 10 s"},
+};
+
+void
+usage(const char* argv0) {
+  std::fprintf(stderr, "usage: %s SCENARIO OUT.log\nscenarios:\n", argv0);
+  for (const auto& s : kScenarios)
+    std::fprintf(stderr, "  %-20s %s\n", s.name, s.what);
+}
+
+}  // namespace
+
+int
+main(int argc, char* argv[]) {
+  if (argc != 3) {
+    usage(argv[0]);
+    return 2;
+  }
+  const std::string scenario = argv[1];
+  bool known = false;
+  for (const auto& s : kScenarios) known = known || scenario == s.name;
+  if (!known) {
+    usage(argv[0]);
+    return 2;
+  }
+  FILE* out = std::fopen(argv[2], "w");
+  if (!out) {
+    std::perror(argv[2]);
+    return 2;
+  }
+
+  io::IoGuard io_guard;
+  io::Context ctx;
+  io::Poll poll(ctx);
+  ev::Loop loop(poll.get_poll());
+  ev_exec_t* exec = loop.get_executor();
+
+  g_start = mono_now();
+
+  // The main bus, with every frame time-stamped by CLOCK_MONOTONIC.
+  io::VirtualCanController bus(io::clock_monotonic);
+  Recorder recorder(ctx, exec, bus, out, "vcan0");
+
+  std::map<int, std::unique_ptr<Connector>> conn;
+  for (int id : {1, 2, 3, 4})
+    conn[id] = std::make_unique<Connector>(ctx, exec, bus, id);
+
+  std::map<int, std::unique_ptr<io::Timer>> dev_timer;
+  std::map<int, std::unique_ptr<Slave>> slaves;
+  std::unique_ptr<Master> master;
+
+  // Scheduled actions: one io::Timer each, relative to the program start.
+  std::vector<std::unique_ptr<io::Timer>> timers;
+  auto at = [&](double t, std::function<void()> f) {
+    auto tm = std::make_unique<io::Timer>(poll, exec, CLOCK_MONOTONIC);
+    auto when = g_start + std::chrono::duration_cast<std::chrono::nanoseconds>(
+                              std::chrono::duration<double>(t));
+    tm->settime(io::Timer::time_point(when));
+    tm->submit_wait(exec, [f](int, std::error_code ec) {
+      if (!ec) f();
+    });
+    timers.push_back(std::move(tm));
+  };
+
+  auto power_on_slave = [&](int id) {
+    event("node %d: power on", id);
+    dev_timer[id] = std::make_unique<io::Timer>(poll, exec, CLOCK_MONOTONIC);
+    slaves[id] = std::make_unique<Slave>(exec, *dev_timer[id], conn[id]->dev,
+                                         "slave.eds", id);
+    slaves[id]->Reset();
+  };
+  auto power_on_master = [&]() {
+    event("master: power on");
+    dev_timer[1] = std::make_unique<io::Timer>(poll, exec, CLOCK_MONOTONIC);
+    master = std::make_unique<Master>(exec, *dev_timer[1], conn[1]->dev,
+                                      "master.dcf", "master.bin", 1);
+    master->Reset();
+  };
+  auto unplug = [&](int id) {
+    event("node %d: unplugged", id);
+    conn[id]->set_plugged(false);
+  };
+  auto plug = [&](int id) {
+    event("node %d: plugged in", id);
+    conn[id]->set_plugged(true);
+  };
+
+  // The slaves' application: every 500 ms bump the counter (TPDO1).
+  io::Timer app_timer(poll, exec, CLOCK_MONOTONIC);
+  std::function<void(int, std::error_code)> app_tick;
+  app_tick = [&](int, std::error_code ec) {
+    if (ec) return;
+    for (auto& kv : slaves) kv.second->Tick();
+    app_timer.submit_wait(exec, app_tick);
+  };
+  // (Off the whole-second grid the scenario actions use, so a TPDO is never
+  // queued in the same instant as an NMT command.)
+  app_timer.settime(io::Timer::time_point(g_start + 370ms), 500ms);
+  app_timer.submit_wait(exec, app_tick);
+
+  double end = 10.0;
+  bool armed_1017 = false;
+  if (scenario == "late_master") {
+    at(0.0, [&] {
+      for (int id : {2, 3, 4}) power_on_slave(id);
+    });
+    at(3.0, [&] { power_on_master(); });
+    end = 12.0;
+  } else {
+    at(0.0, [&] {
+      power_on_master();
+      for (int id : {2, 3, 4}) power_on_slave(id);
+    });
+  }
+  if (scenario == "unplugged_heartbeat" || scenario == "unplugged_guarded") {
+    int id = scenario == "unplugged_heartbeat" ? 3 : 4;
+    at(5.0, [&, id] { unplug(id); });
+    at(7.0, [&, id] { plug(id); });
+    end = 12.0;
+  } else if (scenario == "reboot") {
+    at(5.0, [&] {
+      event("node 3: power off");
+      unplug(3);
+    });
+    at(5.15, [&] {
+      plug(3);
+      event("node 3: power on again (reboot, application reset)");
+      slaves[3]->Reset();
+    });
+    end = 11.0;
+  } else if (scenario == "stop_start_sdo") {
+    auto read_identity = [&]() {
+      event("master: SDO upload request 1018h:01 from node 3");
+      master->SubmitRead<uint32_t>(
+          exec, 3, 0x1018, 1,
+          [](uint8_t id, uint16_t idx, uint8_t subidx, std::error_code ec,
+             uint32_t value) {
+            if (ec)
+              event("master: SDO upload %04Xh:%02X from node %d failed: %s",
+                    idx, subidx, id, ec.message().c_str());
+            else
+              event("master: SDO upload %04Xh:%02X from node %d = 0x%08X", idx,
+                    subidx, id, value);
+          },
+          500ms);
+    };
+    at(4.0, [&] {
+      event("master: NMT stop node 3");
+      master->Command(NmtCommand::STOP, 3);
+    });
+    at(4.5, read_identity);
+    at(6.0, [&] {
+      event("master: NMT start node 3");
+      master->Command(NmtCommand::START, 3);
+    });
+    at(7.0, read_identity);
+  } else if (scenario == "broadcast") {
+    at(4.0, [&] {
+      event("master: NMT enter pre-operational, all nodes");
+      master->Command(NmtCommand::ENTER_PREOP, 0);
+    });
+    at(6.0, [&] {
+      event("master: NMT start, all nodes");
+      master->Command(NmtCommand::START, 0);
+    });
+  } else if (scenario == "self_1017") {
+    // At 4 s, right after node 2's next heartbeat is on the bus, its
+    // application writes 1017h = 250 ms (so the gap after the change is the
+    // new 250 ms, not up to 100 + 250 ms).
+    at(4.0, [&] { armed_1017 = true; });
+    conn[2]->on_sent = [&](const can_msg& msg) {
+      if (!armed_1017 || msg.id != 0x702) return;
+      armed_1017 = false;
+      ev::Executor(exec).post([&] {
+        event("node 2: application writes its own 1017h = 250 ms");
+        slaves[2]->SetHeartbeat(250);
+      });
+    };
+  }
+
+  // End: disconnect every device from the main bus, let in-flight frames
+  // drain, then stop the loop.
+  at(end, [&] {
+    for (auto& kv : conn) kv.second->set_plugged(false);
+  });
+  at(end + 0.2, [&] { loop.stop(); });
+
+  loop.run();
+  std::fflush(out);
+
+  // Every frame exactly once: what the connectors put on the main bus must be
+  // what the recorder logged, and each connector must have received all of
+  // it but its own frames.
+  uint64_t sent = 0;
+  int rc = 0;
+  for (auto& kv : conn) {
+    const Connector& c = *kv.second;
+    sent += c.sent;
+    std::fprintf(stderr,
+                 "# node %d: sent %" PRIu64 " (dropped while unplugged %" PRIu64
+                 "), received %" PRIu64 " (delivered %" PRIu64 "), errors %" PRIu64
+                 "\n",
+                 kv.first, c.sent, c.sent_lost, c.received, c.delivered,
+                 c.errors);
+    if (c.errors) rc = 1;
+  }
+  for (auto& kv : conn) {
+    const Connector& c = *kv.second;
+    if (c.received + c.sent != recorder.frames()) {
+      std::fprintf(stderr, "# MISMATCH: node %d received+sent != logged\n",
+                   kv.first);
+      rc = 1;
+    }
+  }
+  std::fprintf(stderr, "# logged %" PRIu64 " frames, sent %" PRIu64 " -> %s\n",
+               recorder.frames(), sent,
+               sent == recorder.frames() && !rc ? "OK" : "MISMATCH");
+  if (sent != recorder.frames()) rc = 1;
+
+  std::fclose(out);
+  // Exit without running the destructors of the devices, channels and timers
+  // that still have operations pending on the (stopped) loop.
+  std::fflush(stderr);
+  std::_Exit(rc);
+}
