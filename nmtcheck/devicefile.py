@@ -2,13 +2,21 @@
 
 Read: 1017h producer heartbeat time, 1016h consumer entries, 100Ch guard time,
 100Dh life time factor, the PDO communication parameters (1400h-1403h RPDO,
-1800h-1803h TPDO COB-IDs with their valid bit) and 1F81h (CiA 302 slave
-assignment). A DCF's ParameterValue wins over the DefaultValue.
+1800h-1803h TPDO COB-IDs with their valid bit), 1F80h NMT startup (bit 0: the
+device is the NMT master) and 1F81h (CiA 302 slave assignment). A DCF's
+ParameterValue wins over the DefaultValue; `$NODEID` is the node-ID the file is
+used as (else its [DeviceComissioning] NodeID).
+
+CiA 306 compact storage (`CompactSubObj=N` with a `[xxxxValue]` section, how
+Lely's dcfgen and CANopen editors store 1016h and 1F81h) is read from the INI
+text: canopen 2.4.1 ignores `[xxxxValue]`, and answers every sub-index of such
+an array with a copy of the object section's own default.
 
 Real files are messy and canopen's import raises on some (an empty numeric
-value, a DummyUsage section without all entries). Then the same objects are
-read from the INI text directly, and what still cannot be read is reported,
-never fatal.
+value, a DummyUsage section without all entries, a `[xxxxName]` section keyed
+by sub-index). Then the same objects are read from the INI text directly. What
+still cannot be read is a note naming the object and the reason, never fatal
+and never silently dropped.
 """
 
 from __future__ import annotations
@@ -24,6 +32,8 @@ from nmtcheck.errors import UsageError
 
 COB_ID_INVALID = 0x80000000  # bit 31: the PDO does not exist / is not valid
 _NODEID = re.compile(r"\$NODEID", re.I)
+_OCTAL = re.compile(r"0[0-7]+")
+_VALUE_KEYS = ("ParameterValue", "DefaultValue")  # a DCF's ParameterValue wins
 
 
 @dataclass
@@ -39,53 +49,140 @@ class DeviceValues:
     tpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # PDO 1..4 -> COB-ID
     rpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)
     slaves: list[int] | None = None  # 1F81h: node-IDs assigned as slaves
+    nmt_master: bool = False  # 1F80h read and its bit 0 set (CiA 302: the device is NMT master)
     reader: str = "canopen"  # canopen | ini (fallback)
     notes: list[str] = field(default_factory=list)  # what could not be read, and why
 
 
 def _int(text: str | None, node_id: int | None) -> int | None:
-    """An EDS number: decimal, 0x-hex, octal, or `$NODEID+...`; None if empty."""
-    if text is None:
+    """A CiA 306 number: decimal, 0x hex, 0-prefixed octal, terms joined by `+`, one of
+    which may be `$NODEID`. None if empty; ValueError saying why if unreadable (the
+    caller names the key)."""
+    if text is None or not text.strip():
         return None
-    t = text.strip()
-    if not t:
-        return None
-    if _NODEID.search(t):
-        if node_id is None:
-            return None
-        t = _NODEID.sub(str(node_id), t)
     total = 0
-    for term in t.replace(" ", "").split("+"):
-        total += int(term, 0)
+    for term in text.replace(" ", "").replace("\t", "").split("+"):
+        if _NODEID.fullmatch(term):
+            if node_id is None:
+                raise ValueError("uses $NODEID but the node-ID is not known")
+            total += node_id
+        elif _OCTAL.fullmatch(term):
+            total += int(term, 8)
+        else:
+            try:
+                total += int(term, 0)
+            except ValueError:
+                raise ValueError("not a number") from None
     return total
 
 
+def _read(key: str, text: str | None, node_id: int | None) -> int | None:
+    """_int, with an error that names the key and the text."""
+    try:
+        return _int(text, node_id)
+    except ValueError as exc:
+        raise ValueError(f"cannot read {key}={(text or '').strip()} ({exc})") from None
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 class _Ini:
-    """Direct INI access to an EDS/DCF (the fallback when canopen's import fails)."""
+    """Direct INI access to an EDS/DCF: the fallback when canopen's import fails, and
+    the only reader of compact storage. Notes on what it cannot read go to `notes`."""
 
     def __init__(self, path: Path) -> None:
-        self.cp = configparser.ConfigParser(strict=False, interpolation=None)
-        self.cp.optionxform = str  # type: ignore[assignment,method-assign]
+        # keys are case-insensitive (as canopen reads them); values may end in a `; comment`
+        self.cp = configparser.ConfigParser(strict=False, interpolation=None,
+                                            inline_comment_prefixes=(";",))
         self.cp.read_string(path.read_text(encoding="latin-1"))
         self.sections = {s.upper(): s for s in self.cp.sections()}
+        self.notes: list[str] = []
+        self._compact: dict[int, tuple[int, dict[int, str]] | None] = {}
+
+    def section(self, name: str) -> configparser.SectionProxy | None:
+        sec = self.sections.get(name.upper())
+        return None if sec is None else self.cp[sec]
 
     def node_id(self) -> int | None:
-        sec = self.sections.get("DEVICECOMISSIONING")
-        if sec is None:
-            return None
+        """[DeviceComissioning] NodeID (CiA 306 spells it so; the correct spelling is
+        accepted too); None with a note when it is not a node-ID."""
+        for name in ("DeviceComissioning", "DeviceCommissioning"):
+            sec = self.section(name)
+            if sec is None or not sec.get("NodeID", "").strip():
+                continue
+            text = sec["NodeID"].strip()
+            try:
+                nid = _int(text, None)
+            except ValueError as exc:
+                self.notes.append(f"[{name}] NodeID={text}: {exc}; ignored")
+                return None
+            if nid is None or not 1 <= nid <= 127:
+                self.notes.append(f"[{name}] NodeID={text} is not a node-ID 1..127; ignored")
+                return None
+            return nid
+        return None
+
+    def compact(self, index: int) -> tuple[int, dict[int, str]] | None:
+        """(N, {sub-index: value text}) of an object stored as `CompactSubObj=N` with its
+        `[xxxxValue]` section (keys are decimal sub-indices, CiA 306); None if not compact."""
+        if index not in self._compact:
+            self._compact[index] = self._read_compact(index)
+        return self._compact[index]
+
+    def _read_compact(self, index: int) -> tuple[int, dict[int, str]] | None:
+        obj = self.section(f"{index:04X}")
+        values = self.section(f"{index:04X}Value")
+        text = obj.get("CompactSubObj", "").strip() if obj is not None else ""
         try:
-            return _int(self.cp[sec].get("NodeID"), None)
+            n = _int(text, None) or 0
         except ValueError:
+            self.notes.append(f"{index:04X}h: CompactSubObj={text} is not a number; "
+                              f"its sub-objects are ignored")
+            return (0, {})
+        if not n:
+            if values is not None:
+                self.notes.append(f"{index:04X}h: [{index:04X}Value] ignored: the object has "
+                                  f"no CompactSubObj")
             return None
+        if any(s.startswith(f"{index:04X}SUB") for s in self.sections):
+            self.notes.append(f"{index:04X}h: CompactSubObj={n} and [{index:04X}subN] sections; "
+                              f"the sub-index sections are ignored")
+        entries: dict[int, str] = {}
+        if values is None:
+            return (n, entries)
+        listed = {k: v for k, v in values.items() if k.upper() != "NROFENTRIES"}
+        declared = next((v.strip() for k, v in values.items() if k.upper() == "NROFENTRIES"), "")
+        if declared != str(len(listed)):
+            self.notes.append(f"{index:04X}h [{index:04X}Value]: NrOfEntries={declared or '?'} "
+                              f"but {len(listed)} entries")
+        for key, value in listed.items():
+            if not key.isdigit():
+                self.notes.append(f"{index:04X}h [{index:04X}Value] {key}={value}: {key!r} is "
+                                  f"not a decimal sub-index; ignored")
+            elif not 1 <= int(key) <= n:
+                self.notes.append(f"{index:04X}h [{index:04X}Value] {key}={value}: sub-index "
+                                  f"{key} outside 1..{n} (CompactSubObj); ignored")
+            else:
+                entries[int(key)] = value
+        return (n, entries)
 
     def value(self, index: int, sub: int | None, node_id: int | None) -> int | None:
-        name = f"{index:04X}" if sub is None else f"{index:04X}SUB{sub:X}"
-        sec = self.sections.get(name)
+        compact = self.compact(index)
+        if compact is not None:
+            n, entries = compact
+            if sub is None or not 1 <= sub <= n:
+                return None
+            if sub in entries:
+                return _read(f"[{index:04X}Value] {sub}", entries[sub], node_id)
+            sec = self.section(f"{index:04X}")  # the object's own value is every entry's default
+        else:
+            sec = self.section(f"{index:04X}" if sub is None else f"{index:04X}sub{sub:X}")
         if sec is None:
             return None
-        s = self.cp[sec]
-        for key in ("ParameterValue", "DefaultValue"):
-            v = _int(s.get(key), node_id)
+        for key in _VALUE_KEYS:
+            v = _read(key, sec.get(key), node_id)
             if v is not None:
                 return v
         return None
@@ -100,20 +197,23 @@ class _CanopenOD:
         logging.getLogger("canopen").setLevel(logging.ERROR)
         self.od = canopen.import_od(str(path), node_id)
 
-    def node_id(self) -> int | None:
-        nid = self.od.node_id
-        return int(nid) if nid else None
-
     def value(self, index: int, sub: int | None, node_id: int | None) -> int | None:
-        try:
-            entry: Any = self.od[index]
-            obj: Any = entry if sub is None else entry[sub]
-        except (KeyError, IndexError, TypeError):
+        """canopen's value, or None: absent, empty, or one canopen could not convert
+        (it drops those silently; the caller then asks the INI text why). `$NODEID`
+        values are left to the INI text too: canopen substitutes the file's NodeID even
+        when that is no node-ID, and reads only `$NODEID+N` / `N+$NODEID`."""
+        obj: Any = self.od.get(index)
+        if sub is None:
+            entry = None if hasattr(obj, "subindices") else obj
+        else:  # .subindices, not [sub]: an ODArray makes up any missing sub-index from sub 1
+            entry = getattr(obj, "subindices", {}).get(sub)
+        if entry is None:
             return None
-        for v in (getattr(obj, "value", None), getattr(obj, "default", None)):
-            if isinstance(v, bool):
-                continue
-            if isinstance(v, int):
+        for raw_attr, v in (("value_raw", entry.value), ("default_raw", entry.default)):
+            raw = getattr(entry, raw_attr, None)  # set by the import only when the key is there
+            if raw is not None and str(raw).strip():
+                if _NODEID.search(str(raw)) or not isinstance(v, int) or isinstance(v, bool):
+                    return None
                 return v
         return None
 
@@ -125,35 +225,51 @@ def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
         raise UsageError(f"{path}: no such EDS/DCF file")
     out = DeviceValues(path=path)
     try:
-        source: _CanopenOD | _Ini = _CanopenOD(p, node_id)
+        ini = _Ini(p)
+    except (configparser.Error, UnicodeDecodeError, OSError) as exc:
+        raise UsageError(f"{path}: not a readable EDS/DCF file: {_one_line(str(exc))}") from None
+    file_nid = ini.node_id()
+    if node_id is not None and file_nid is not None and file_nid != node_id:
+        out.notes.append(f"[DeviceComissioning] NodeID={file_nid}, but the file is used for "
+                         f"node {node_id}: $NODEID is {node_id}")
+    nid = node_id or file_nid
+    out.node_id = nid
+    source: _CanopenOD | _Ini = ini
+    first: list[str] = []
+    try:
+        source = _CanopenOD(p, nid)
     except Exception as exc:  # noqa: BLE001 - canopen raises many kinds on messy files
         out.reader = "ini"
-        out.notes.append(f"canopen could not import it ({type(exc).__name__}: {exc}); "
-                         f"read the needed objects from the INI text instead")
-        try:
-            source = _Ini(p)
-        except (configparser.Error, UnicodeDecodeError) as exc2:
-            raise UsageError(f"{path}: not a readable EDS/DCF file: {exc2}") from None
-    nid = node_id or source.node_id()
-    out.node_id = nid
+        first.append(f"canopen could not import it ({type(exc).__name__}: {exc}); "
+                     f"read the needed objects from the INI text instead")
 
     def get(index: int, sub: int | None = None) -> int | None:
         try:
-            return source.value(index, sub, nid)
+            if source is not ini and ini.compact(index) is None:
+                v = source.value(index, sub, nid)
+                if v is not None:
+                    return v
+            return ini.value(index, sub, nid)  # also says why canopen had no value
         except ValueError as exc:
             where = f"{index:04X}h" + (f" sub {sub}" if sub is not None else "")
-            out.notes.append(f"{where}: unreadable value ({exc})")
+            out.notes.append(f"{where}: {exc}; ignored")
             return None
 
     hb = get(0x1017)
     out.heartbeat_ms = float(hb) if hb else None  # 0 in a file: not configured (SPEC §6)
+    consumer_sub: dict[int, int] = {}
     for sub in range(1, 128):
         entry = get(0x1016, sub)
         if entry is None:
             continue
         producer, time_ms = (entry >> 16) & 0xFF, entry & 0xFFFF
-        if time_ms and 1 <= producer <= 127:
+        if time_ms and 1 <= producer <= 127:  # else the entry is unused (CiA 301)
             prev = out.consumers.get(producer)
+            if prev is not None:
+                out.notes.append(f"1016h sub {sub}: node {producer} is also in sub "
+                                 f"{consumer_sub[producer]}; the shorter time is taken")
+            else:
+                consumer_sub[producer] = sub
             out.consumers[producer] = min(prev, time_ms) if prev else float(time_ms)
     gt = get(0x100C)
     out.guard_time_ms = float(gt) if gt else None
@@ -164,6 +280,11 @@ def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
             cob = get(base + n, 1)
             if cob is not None:
                 table[n + 1] = None if cob & COB_ID_INVALID else cob & 0x7FF
+    startup = get(0x1F80)
+    out.nmt_master = bool(startup is not None and startup & 1)
     slaves = [n for n in range(1, 128) if (get(0x1F81, n) or 0) & 1]
     out.slaves = slaves or None
+    # the reader and the file's structure, then the values; one line each (a value in an
+    # INI file may go on over several lines)
+    out.notes = [_one_line(note) for note in first + ini.notes + out.notes]
     return out

@@ -5,6 +5,10 @@ paths relative to the network file, or `--dcf NODE=PATH`). A consumer entry
 (1016h) in any node's device file sets the consumer time of the producer it
 names; a 1F81h slave assignment (CiA 302, in the master's DCF) adds the nodes
 it lists to the expected ones.
+
+The NMT master of a channel (SPEC §2): `master = M` under `[channels.NAME]`,
+else at top level, else the node whose device file has 1F80h bit 0 set (the
+lowest node-ID if several do).
 """
 
 from __future__ import annotations
@@ -26,7 +30,33 @@ _KEYS = {"heartbeat_ms": float, "consumer_timeout_ms": float, "guard_time_ms": f
 class Network:
     nodes: dict[int, tuple[NodeConfig, str | None]] = field(default_factory=dict)
     devices: dict[int, DeviceValues] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)  # what could not be read from device files
+    # One line each, naming node, file and object: what could not be read from device files.
+    notes: list[str] = field(default_factory=list)
+    path: str | None = None  # the network file, if any
+    master: int | None = None  # top-level `master = M`
+    channel_masters: dict[str, int] = field(default_factory=dict)  # [channels.NAME] master
+
+    def master_for(self, channel: str) -> tuple[int, str, str] | None:
+        """(node, source, detail) of the channel's NMT master as the files name it: source
+        "network" (the channel's table wins over the top level) or "device-file" (1F80h
+        bit 0; a device file of a node restricted to another channel does not count)."""
+        claims = sorted(n for n, dev in self.devices.items()
+                        if dev.nmt_master and self.nodes[n][1] in (None, channel))
+        m = self.channel_masters.get(channel, self.master)
+        if m is not None:
+            where = f"[channels.{channel}] master" if channel in self.channel_masters else "master"
+            detail = f"{self.path}: {where} = {m}"
+            others = [n for n in claims if n != m]
+            if others:
+                verb = "has" if len(others) == 1 else "have"
+                detail += f" ({_and(others)} also {verb} 1F80h bit 0)"
+            return m, "network", detail
+        if not claims:
+            return None
+        if len(claims) == 1:
+            dev = self.devices[claims[0]]
+            return claims[0], "device-file", f"node {claims[0]} {dev.path}: 1F80h bit 0 set"
+        return claims[0], "device-file", f"{_and(claims)} have 1F80h bit 0; lowest taken"
 
     def configs(self) -> dict[tuple[str | None, int], NodeConfig]:
         return {(channel, n): cfg for n, (cfg, channel) in self.nodes.items()}
@@ -34,6 +64,19 @@ class Network:
     def expected(self) -> list[tuple[int, str | None]]:
         return [(n, channel) for n, (cfg, channel) in sorted(self.nodes.items())
                 if cfg.expected]
+
+
+def _and(nodes: list[int]) -> str:
+    """"node 5", "nodes 1 and 5", "nodes 1, 5 and 7"."""
+    if len(nodes) == 1:
+        return f"node {nodes[0]}"
+    return f"nodes {', '.join(map(str, nodes[:-1]))} and {nodes[-1]}"
+
+
+def _master(where: str, value: Any) -> int:
+    if isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= 127:
+        return value
+    raise UsageError(f"{where}: expected a node-ID 1..127, got {value!r}")
 
 
 def _value(where: str, value: Any, want: type) -> Any:
@@ -62,12 +105,27 @@ def load_network(path: str | None, dcf_args: dict[int, str] | None = None) -> Ne
     """Read and validate a network file (and --dcf NODE=PATH); errors name the file and key."""
     tables: dict[int, dict[str, Any]] = {}
     base = Path(".")
+    net = Network(path=path)
     if path is not None:
         data = _read_toml(path)
         base = Path(path).resolve().parent
         for key in data:
-            if key != "nodes":
-                raise UsageError(f"{path}: unknown key {key!r} (expected [nodes.N] tables)")
+            if key not in ("nodes", "channels", "master"):
+                raise UsageError(f"{path}: unknown key {key!r} (expected master, "
+                                 f"[nodes.N] and [channels.NAME] tables)")
+        if "master" in data:
+            net.master = _master(f"{path}: master", data["master"])
+        channels = data.get("channels", {})
+        if not isinstance(channels, dict):
+            raise UsageError(f"{path}: channels: expected [channels.NAME] tables")
+        for name, table in channels.items():
+            where = f"{path}: [channels.{name}]"
+            if not isinstance(table, dict):
+                raise UsageError(f"{where}: expected a table")
+            for key, value in table.items():
+                if key != "master":
+                    raise UsageError(f"{where} {key}: unknown key (known: master)")
+                net.channel_masters[name] = _master(f"{where} master", value)
         nodes = data.get("nodes", {})
         if not isinstance(nodes, dict):
             raise UsageError(f"{path}: nodes: expected [nodes.N] tables")
@@ -91,7 +149,6 @@ def load_network(path: str | None, dcf_args: dict[int, str] | None = None) -> Ne
             raise UsageError(f"--dcf {node}={dcf}: node-ID must be 1..127")
         tables.setdefault(node, {})["dcf"] = dcf
 
-    net = Network()
     for node, values in sorted(tables.items()):
         dev_path = values.get("dcf") or values.get("eds")
         dev = load_device_file(dev_path, node) if dev_path else None

@@ -1,11 +1,12 @@
-"""EDS/DCF reading on the real files of the corpus, and what the network file takes from them."""
+"""EDS/DCF reading on real files (the shared corpus, the samples, tests/data/devices), and
+what the network file takes from them."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
-from conftest import CORPUS, candump
+from conftest import CORPUS, SAMPLES, candump
 
 from nmtcheck.devicefile import load_device_file
 from nmtcheck.errors import UsageError
@@ -13,6 +14,10 @@ from nmtcheck.network import load_network
 
 EDS = CORPUS / "eds"
 ALL_FILES = sorted([*EDS.glob("*/*.eds"), *EDS.glob("*/*.dcf")])
+DEVICES = Path(__file__).resolve().parent / "data" / "devices"
+LELY_MASTER = DEVICES / "lely_master.dcf"  # compact storage, as Lely's dcfgen writes it
+SLAVE = DEVICES / "slave_values.dcf"
+needs_corpus = pytest.mark.skipif(not EDS.is_dir(), reason="shared corpus not available")
 
 
 @pytest.mark.parametrize("path", ALL_FILES, ids=lambda p: f"{p.parent.name}/{p.name}")
@@ -22,6 +27,7 @@ def test_every_corpus_file_loads(path: Path) -> None:
     assert values.reader in ("canopen", "ini")
 
 
+@needs_corpus
 @pytest.mark.parametrize("name", ["canopennode/DS301_profile.eds", "lely/co-gw_txt-master.dcf"])
 def test_files_canopen_rejects_are_read_anyway_with_a_note(name: str) -> None:
     values = load_device_file(str(EDS / name), 5)
@@ -29,6 +35,7 @@ def test_files_canopen_rejects_are_read_anyway_with_a_note(name: str) -> None:
     assert values.notes and "canopen could not import it" in values.notes[0]
 
 
+@needs_corpus
 def test_values_from_real_files() -> None:
     lely = load_device_file(str(EDS / "lely/co-nmt-slave.dcf"))
     assert (lely.node_id, lely.heartbeat_ms) == (2, 100.0)  # ParameterValue=100 wins over 0
@@ -43,12 +50,16 @@ def test_values_from_real_files() -> None:
     assert pdo.tpdo_cob_ids == {1: 0x187}  # $NODEID+0x180 resolved with the given node-ID
 
 
+def _corpus(*names: str) -> list[Path]:
+    return [EDS / n for n in names] if EDS.is_dir() else []
+
+
 def test_canopen_and_ini_readers_agree(tmp_path: Path) -> None:
-    """The fallback gives the same values as canopen where canopen can read the file."""
+    """The fallback gives the same values and notes as canopen where canopen can read the file."""
     from nmtcheck import devicefile
 
-    for path in [EDS / "oresat/imu.dcf", EDS / "python-canopen/sample.eds",
-                 EDS / "lely/co-nmt-slave.dcf"]:
+    for path in [LELY_MASTER, SLAVE, *SAMPLES.glob("devices/*.dcf"),
+                 *_corpus("oresat/imu.dcf", "python-canopen/sample.eds", "lely/co-nmt-slave.dcf")]:
         via_canopen = load_device_file(str(path), 9)
         original = devicefile._CanopenOD
         devicefile._CanopenOD = None  # type: ignore[assignment,misc]  # force the fallback
@@ -56,10 +67,11 @@ def test_canopen_and_ini_readers_agree(tmp_path: Path) -> None:
             via_ini = load_device_file(str(path), 9)
         finally:
             devicefile._CanopenOD = original  # type: ignore[misc]
-        assert via_ini.reader == "ini"
-        for key in ("heartbeat_ms", "consumers", "guard_time_ms", "life_time_factor",
-                    "tpdo_cob_ids", "rpdo_cob_ids", "slaves"):
+        assert (via_canopen.reader, via_ini.reader) == ("canopen", "ini")
+        for key in ("node_id", "heartbeat_ms", "consumers", "guard_time_ms", "life_time_factor",
+                    "tpdo_cob_ids", "rpdo_cob_ids", "slaves", "nmt_master"):
             assert getattr(via_ini, key) == getattr(via_canopen, key), (path.name, key)
+        assert via_ini.notes[1:] == via_canopen.notes, path.name  # [0]: canopen was not used
 
 
 def test_consumer_entry_and_slave_assignment(tmp_path: Path) -> None:
@@ -85,6 +97,7 @@ def test_consumer_entry_and_slave_assignment(tmp_path: Path) -> None:
     assert [n for n, _ in network.expected()] == [1, 3, 4]
 
 
+@needs_corpus
 def test_explicit_keys_win_over_the_device_file(tmp_path: Path) -> None:
     net = tmp_path / "net.toml"
     dcf = EDS / "lely/co-nmt-slave.dcf"
@@ -101,6 +114,7 @@ def test_missing_device_file_is_a_usage_error(tmp_path: Path) -> None:
         load_network(str(net))
 
 
+@needs_corpus
 def test_dcf_heartbeat_drives_h001_and_h003(checker, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """Node 2's DCF says 100 ms; it heartbeats every 300 ms: H003, and with the factor
     rule on the configured period every gap is an H001 timeout."""
@@ -111,4 +125,133 @@ def test_dcf_heartbeat_drives_h001_and_h003(checker, tmp_path: Path) -> None:  #
     assert found == [("H003", 2, 2.4)]
     assert checker.findings(candump(frames), select="H003") == []  # nothing configured
     h001 = checker.findings(candump(frames), network=net, select="H001")
-    assert h001[0] == ("H001", 2, 0.15) and len(h001) == 8
+    assert h001[0] == ("H001", 2, 0.45) and len(h001) == 7  # the boot-up starts no gap
+
+
+def test_compact_storage_as_lely_dcfgen_writes_it() -> None:
+    """1016h and 1F81h as `CompactSubObj=127` + `[xxxxValue]` (canopen 2.4.1 ignores the
+    Value sections): the consumer times and the slaves come from the INI text."""
+    master = load_device_file(str(LELY_MASTER))
+    assert master.reader == "canopen" and master.notes == []
+    assert master.node_id == 1  # [DeviceComissioning] NodeID
+    assert master.consumers == {2: 300.0, 10: 150.0}  # 1=0x0002012C, 2=0x000A0096
+    assert master.slaves == [2, 3, 10]  # sub-index 10 is decimal: node 10, not 16
+    assert master.nmt_master  # 1F80h = 0x00000003
+    assert master.heartbeat_ms == 500.0
+
+
+def test_compact_storage_feeds_the_network(tmp_path: Path) -> None:
+    net = tmp_path / "net.toml"
+    net.write_text(f'[nodes.1]\ndcf = "{LELY_MASTER}"\n')
+    network = load_network(str(net))
+    assert [n for n, _ in network.expected()] == [1, 2, 3, 10]
+    assert (network.nodes[2][0].consumer_timeout_ms, network.nodes[2][0].consumer_node) == (300, 1)
+    assert network.nodes[10][0].consumer_timeout_ms == 150.0
+    assert network.notes == []
+
+
+def test_parameter_value_nodeid_and_unreadable_values() -> None:
+    slave = load_device_file(str(SLAVE))
+    assert slave.node_id == 5
+    assert slave.heartbeat_ms == 250.0  # ParameterValue=250 over DefaultValue=0
+    assert slave.guard_time_ms == 100.0  # empty ParameterValue: DefaultValue=0x64
+    assert slave.life_time_factor == 8  # octal 010
+    assert slave.tpdo_cob_ids == {1: 0x185, 2: 0x285, 3: None}  # 0x80000000+$NODEID+0x380
+    assert slave.rpdo_cob_ids == {1: 0x205}
+    assert not slave.nmt_master  # 1F80h = 0x08: self-starting slave, bit 0 clear
+    assert slave.consumers == {1: 200.0}  # sub 2; sub 1 cannot be read ...
+    assert slave.notes == ["1016h sub 1: cannot read ParameterValue=0x0001zz00 (not a number); "
+                           "ignored"]  # ... and says so
+    as_node_7 = load_device_file(str(SLAVE), 7)
+    assert as_node_7.tpdo_cob_ids == {1: 0x187, 2: 0x287, 3: None}
+    assert as_node_7.notes[0] == ("[DeviceComissioning] NodeID=5, but the file is used for "
+                                  "node 7: $NODEID is 7")
+
+
+def test_nodeid_unknown_and_invalid_node_id(tmp_path: Path) -> None:
+    dcf = tmp_path / "x.dcf"
+    dcf.write_text("[DeviceComissioning]\nNodeID=255\n"
+                   "[1800]\nSubNumber=2\nParameterName=TPDO1\nObjectType=0x9\n"
+                   "[1800sub0]\nParameterName=n\nDataType=0x0005\nAccessType=ro\nDefaultValue=1\n"
+                   "[1800sub1]\nParameterName=COB-ID\nDataType=0x0007\nAccessType=rw\n"
+                   "DefaultValue=$NODEID+0x180\n")
+    values = load_device_file(str(dcf))
+    assert values.node_id is None and values.tpdo_cob_ids == {}
+    assert "[DeviceComissioning] NodeID=255 is not a node-ID 1..127; ignored" in values.notes
+    assert ("1800h sub 1: cannot read DefaultValue=$NODEID+0x180 (uses $NODEID but the node-ID "
+            "is not known); ignored") in values.notes
+
+
+def test_compact_storage_oddities_are_notes(tmp_path: Path) -> None:
+    """A `[1F81Name]` keyed by node-ID (canopen 2.4.1 raises on it), a hex key, a sub-index
+    beyond CompactSubObj, a wrong NrOfEntries, a producer listed twice in 1016h: the readable
+    entries count, the rest are notes. Entries not listed take the object's own DefaultValue
+    (CiA 306)."""
+    dcf = tmp_path / "m.dcf"
+    dcf.write_text(
+        "[DeviceComissioning]\nNodeID=1\n"
+        "[1016]\nParameterName=Consumer heartbeat time\nObjectType=0x08\nDataType=0x0007\n"
+        "AccessType=rw\nCompactSubObj=127\n"
+        "[1016Value]\nNrOfEntries=2\n1=0x000200C8\n2=0x00020064\n"
+        "[1F81]\nParameterName=NMT slave assignment\nObjectType=0x08\nDataType=0x0007\n"
+        "AccessType=rw\nCompactSubObj=4\nDefaultValue=0x00000001\n"
+        "[1F81Name]\nNrOfEntries=2\n2=Drive\n12=Sensor\n"
+        "[1F81Value]\nNrOfEntries=2\n2=0x00000000\n0x03=0x00000005\n12=0x00000005\n"
+        "[1F80]\nParameterName=NMT startup\nDataType=0x0007\nAccessType=rw\n"
+        "DefaultValue=0x00000000\nParameterValue=0x00000001\n")
+    values = load_device_file(str(dcf))
+    assert values.reader == "ini"  # canopen: NoOptionError for '1' in [1F81Name]
+    assert values.consumers == {2: 100.0}
+    assert values.slaves == [1, 3, 4]  # 2 is listed as 0; 1, 3 (hex key ignored), 4 by default
+    assert values.nmt_master
+    assert values.notes[1:] == [
+        "1F81h [1F81Value]: NrOfEntries=2 but 3 entries",
+        "1F81h [1F81Value] 0x03=0x00000005: '0x03' is not a decimal sub-index; ignored",
+        "1F81h [1F81Value] 12=0x00000005: sub-index 12 outside 1..4 (CompactSubObj); ignored",
+        "1016h sub 2: node 2 is also in sub 1; the shorter time is taken",
+    ]
+
+
+def test_array_sub_indices_are_not_made_up(tmp_path: Path) -> None:
+    """canopen answers any missing sub-index of an array with a copy of sub 1; only the
+    sub-indices the file has count."""
+    dcf = tmp_path / "m.dcf"
+    dcf.write_text(
+        "[1F81]\nSubNumber=3\nParameterName=NMT slave assignment\nObjectType=0x8\n"
+        "[1F81sub0]\nParameterName=n\nDataType=0x0005\nAccessType=ro\nDefaultValue=3\n"
+        "[1F81sub1]\nParameterName=node 1\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x5\n"
+        "[1F81sub3]\nParameterName=node 3\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x5\n")
+    values = load_device_file(str(dcf), 9)
+    assert values.reader == "canopen"
+    assert values.slaves == [1, 3]
+
+
+@needs_corpus
+def test_nmt_startup_bit_0_in_real_files() -> None:
+    gw = load_device_file(str(EDS / "lely/co-gw_txt-master.dcf"))  # ParameterValue=0x00000001
+    assert gw.nmt_master and gw.reader == "ini"
+    assert not load_device_file(str(EDS / "lely/co-nmt-slave.dcf")).nmt_master  # 0x00000004
+
+
+def test_samples_are_no_masters() -> None:
+    for path in sorted(SAMPLES.glob("devices/*.dcf")):
+        values = load_device_file(str(path))
+        assert not values.nmt_master and values.notes == [], path.name
+        assert values.node_id == int(path.stem.removeprefix("node"))
+
+
+LELY_SAMPLE = SAMPLES / "lely" / "master.dcf"
+
+
+@pytest.mark.skipif(not LELY_SAMPLE.is_file(), reason="samples/lely/master.dcf not recorded")
+def test_lely_dcfgen_output() -> None:
+    """The master DCF Lely's dcfgen wrote from samples/lely/master.yml (compact 1016h, 1F81h)."""
+    master = load_device_file(str(LELY_SAMPLE))
+    assert (master.reader, master.notes) == ("canopen", [])
+    assert master.consumers == {2: 300.0, 3: 300.0}  # 3 x 100 ms
+    assert master.slaves == [2, 3, 4]
+    assert master.nmt_master and master.heartbeat_ms == 200.0
+    network = load_network(None, {1: str(LELY_SAMPLE)})
+    assert network.master_for("vcan0") == (1, "device-file",
+                                           f"node 1 {LELY_SAMPLE}: 1F80h bit 0 set")
+    assert network.nodes[2][0].consumer_timeout_ms == 300.0
