@@ -223,3 +223,25 @@ def test_late_heartbeat_and_catch_up_is_not_a_duplicate_node(checker) -> None:
 def test_two_producers_out_of_phase_are_a_duplicate_node(checker) -> None:
     fr = [(0.0, "702#00")] + hb(2, 0.1, 2.0) + hb(2, 0.13, 2.0)
     assert checker.findings(candump(sorted(fr)), select="N002") == [("N002", 2, 0.3)]
+
+
+def test_unreadable_device_file_values_are_in_every_report(tmp_path: Path) -> None:
+    import json
+    import subprocess
+    import sys
+
+    dcf = Path(__file__).parent / "data" / "devices" / "slave_values.dcf"
+    net = tmp_path / "net.toml"
+    net.write_text(f'[nodes.2]\ndcf = "{dcf}"\n')
+    log = tmp_path / "start.log"
+    log.write_text(candump(cia302()))
+    args = [sys.executable, "-m", "nmtcheck", "check", str(log), "--network", str(net)]
+    text = subprocess.run(args, capture_output=True, text=True).stdout
+    report = json.loads(subprocess.run(args + ["--format", "json"], capture_output=True,
+                                       text=True).stdout)
+    notes = report["network"]["notes"]
+    assert notes and all(n.startswith("node 2 ") for n in notes)
+    assert "values that could not be read" in text and notes[0] in text
+    html = tmp_path / "r.html"
+    subprocess.run(args + ["-o", str(html)], capture_output=True, text=True)
+    assert "network-notes" in html.read_text()
