@@ -618,7 +618,8 @@ def _answers_reset(valid: list[NmtFrame], before: int, node: int, b_idx: int, b_
                    params: TimelineParams) -> bool:
     """Whether a reset command to `node` (direct or broadcast) came in the B002 window
     before its boot-up: a node that obeys a broadcast reset is not its sender."""
-    for f in reversed(valid[:before]):
+    for j in range(before - 1, -1, -1):
+        f = valid[j]
         if f.idx > b_idx:
             continue
         if f.ts < b_ts - params.reset_window_s - EPS:
@@ -630,11 +631,17 @@ def _answers_reset(valid: list[NmtFrame], before: int, node: int, b_idx: int, b_
 
 def _disobeyed(t: EcTable, valid: list[NmtFrame], i: int, node: int,
                params: TimelineParams) -> bool:
-    """Whether the node's own frames show it did not obey broadcast `valid[i]`."""
+    """Whether the node's own frames show it did not obey broadcast `valid[i]`.
+
+    Walks only the few frames around the command (lazily), so a hostile log with a
+    million boot-ups and broadcasts stays linear enough.
+    """
     f = valid[i]
-    data = np.flatnonzero(~t.rtr & (t.dlc == 1))
+    data = t.__dict__.get("_data_pos")
+    if data is None:  # data frames of DLC 1: boot-ups and heartbeats
+        data = t.__dict__["_data_pos"] = np.flatnonzero(~t.rtr & (t.dlc == 1))
     p = int(np.searchsorted(t.idx[data], f.idx, side="right"))
-    after, before = data[p:].tolist(), data[:p].tolist()
+    after = (int(q) for q in data[p:p + 256])  # the answer is in the next few frames
     if f.cs in RESETS:
         for q in after:
             boot = int(t.value[q]) == 0
@@ -644,13 +651,17 @@ def _disobeyed(t: EcTable, valid: list[NmtFrame], i: int, node: int,
             return not boot or dt > params.bootup_timeout_s + EPS
         return False
     prior = None
-    for q in reversed(before):
+    for q in data[max(p - 256, 0):p][::-1].tolist():
         prior = STATE_OF_CODE.get(int(t.value[q]) & 0x7F)
         if prior is not None:
             break
     if prior is None or prior == COMMAND_STATE[f.cs]:
         return False
-    next_cmd = next((g.idx for g in valid[i + 1:] if g.target in (0, node)), None)
+    next_cmd = None
+    for j in range(i + 1, len(valid)):
+        if valid[j].target in (0, node):
+            next_cmd = valid[j].idx
+            break
     for q in after:
         if next_cmd is not None and int(t.idx[q]) > next_cmd or int(t.value[q]) == 0:
             return False
