@@ -941,6 +941,7 @@ def _evidence(m: NodeModel, windows: list[tuple[float, float]]) -> np.ndarray:
                                _STATE_OF_BYTE[ec.value[pos] & 0xFF], -1))
     keep = np.ones(len(pos), bool)
     keep[1:] = target[1:] != target[:-1]
+    keep |= kind == BOOTUP  # sparse, and each one ends what came before it
     if windows:
         sts = ec.ts[pos]
         w = np.asarray(windows, np.float64)
@@ -1018,6 +1019,8 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> list[In
                     and STATE_OF_CODE.get(f.code) == last_cmd[1]):
                 m.ec.stale[f.pos] = True
                 continue
+            if f.kind == "bootup":
+                last_cmd = None  # nothing after a boot-up was queued before the command
             if f.reports_state and (f.kind == "bootup" or f.code in STATE_OF_CODE):
                 state = STATE_OF_CODE[0x00] if f.kind == "bootup" else STATE_OF_CODE[f.code]
                 source = {"bootup": "bootup", "heartbeat": "heartbeat", "guard": "guarding"}[f.kind]
