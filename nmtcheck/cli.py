@@ -21,12 +21,20 @@ import click
 
 from nmtcheck import __version__
 from nmtcheck.checks import BY_CODE, RULES
-from nmtcheck.engine import InputResult, check_input, check_inputs, select_rules, summary
+from nmtcheck.config import Config, discover
+from nmtcheck.engine import (
+    InputResult,
+    check_input,
+    check_inputs,
+    check_patterns,
+    select_rules,
+    summary,
+)
 from nmtcheck.errors import NmtcheckError, UsageError
 from nmtcheck.network import Network, load_network
-from nmtcheck.profiles import DEFAULT_PROFILE, Profile, load_profile
+from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
-from nmtcheck.reporters import format_for_path, renderer
+from nmtcheck.reporters import FORMATS, format_for_path, renderer, statistics_renderer
 
 EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
 SEVERITY_ORDER = ["error", "warning", "info"]
@@ -41,10 +49,17 @@ def _common(f: Callable[..., Any]) -> Callable[..., Any]:
     for opt in reversed([
         click.option("--input-format", type=click.Choice(INPUT_FORMATS), default=None,
                      help="Log format (default: detected from the content)."),
-        click.option("--rules", "rules_profile", default=DEFAULT_PROFILE, show_default=True,
-                     help="Rule profile: a name in rules/ or a TOML file."),
+        click.option("--rules", "rules_profile", default=None,
+                     help="Rule profile: a name in rules/ or a TOML file "
+                          "[default: the configuration's, else 'default']."),
         click.option("--network", "network_file", default=None,
                      help="Network description (TOML): expected nodes and their timing."),
+        click.option("--config", "config_file", default=None, metavar="FILE",
+                     help="Configuration file (nmtcheck.toml or a pyproject.toml with "
+                          "[tool.nmtcheck]) [default: found upward from the current "
+                          "directory, up to the repository root]."),
+        click.option("--isolated", is_flag=True,
+                     help="Ignore every configuration file."),
         click.option("--dcf", multiple=True, metavar="NODE=PATH",
                      help="EDS/DCF file of a node (adds it to the network). Repeatable."),
         click.option("--strict", is_flag=True, help="The first unparseable record is fatal."),
@@ -56,17 +71,33 @@ def _common(f: Callable[..., Any]) -> Callable[..., Any]:
     return f
 
 
-def _load(rules_profile: str, network_file: str | None,
-          dcf: tuple[str, ...] = ()) -> tuple[Profile, Network | None]:
-    profile = load_profile(rules_profile)
+def _load(rules_profile: str | None, network_file: str | None, dcf: tuple[str, ...] = (),
+          config: Config | None = None) -> tuple[Profile, Network | None, dict[str, object]]:
+    """The profile and network in force (the command line wins over the configuration
+    file), and what the reports say about where they came from."""
+    overrides: list[str] = []
+    if rules_profile is not None or config is None:
+        name = rules_profile or DEFAULT_PROFILE
+        profile = load_profile(name)
+    else:
+        # The file's `rules` is resolved against its directory; its [rules.CODE] and
+        # [timeline] tables form a profile that extends the one it names.
+        name = config.profile or DEFAULT_PROFILE
+        profile = derived_profile(config.label, name, config.directory, config.rule_tables,
+                                  config.timeline)
+        overrides = [*sorted(config.rule_tables), *(["timeline"] if config.timeline else [])]
     dcf_args: dict[int, str] = {}
     for item in dcf:
         node, sep, path = item.partition("=")
         if not sep or not node.strip().isdigit() or not path:
             raise UsageError(f"--dcf {item}: expected NODE=PATH, e.g. --dcf 3=node3.dcf")
         dcf_args[int(node)] = path
+    if network_file is None and config is not None:
+        network_file = config.network
     network = load_network(network_file, dcf_args) if network_file or dcf_args else None
-    return profile, network
+    info: dict[str, object] = {"file": config.display() if config else None, "profile": name,
+                               "overrides": overrides}
+    return profile, network, info
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -81,31 +112,49 @@ def cli(ctx: click.Context, debug: bool) -> None:
 @cli.command()
 @click.argument("logs", nargs=-1, required=True)
 @_common
-@click.option("--format", "fmt", default="text", show_default=True,
-              help="text, json, csv, html, junit, sarif, github, markdown, or auto "
-                   "(github under GitHub Actions, else text).")
+@click.option("--format", "fmt", default=None,
+              help="text, concise, json, csv, html, junit, sarif, github, markdown, or auto "
+                   "(github under GitHub Actions, else text) [default: text].")
 @click.option("-o", "--output", "outputs", multiple=True,
               help="Also write a report to PATH; the format follows the suffix. Repeatable.")
-@click.option("--select", multiple=True, help="Only these rule codes or letter prefixes.")
-@click.option("--ignore", multiple=True, help="Skip these rule codes or letter prefixes.")
+@click.option("--select", multiple=True,
+              help="Only these rules: codes, prefixes (H, I) or names (heartbeat-timeout).")
+@click.option("--ignore", multiple=True,
+              help="Skip these rules: codes, prefixes or names. The more specific of "
+                   "--select/--ignore wins.")
 @click.option("--fail-on", type=click.Choice(["error", "warning", "info", "never"]),
-              default="error", show_default=True,
-              help="Exit 1 when a finding of this severity or higher exists.")
+              default=None,
+              help="Exit 1 when a finding of this severity or higher exists [default: error].")
+@click.option("--statistics", is_flag=True,
+              help="One line per rule with its count instead of every finding.")
 @click.option("-q", "--quiet", is_flag=True, help="Only the findings and the verdict.")
 @click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
               help="Check this many logs at once, in separate processes (0: one per core).")
-def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
-          network_file: str | None, dcf: tuple[str, ...], strict: bool, channel: str | None,
-          topics: tuple[str, ...], fmt: str, outputs: tuple[str, ...], select: tuple[str, ...],
-          ignore: tuple[str, ...], fail_on: str, quiet: bool, jobs: int) -> None:
+def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | None,
+          network_file: str | None, config_file: str | None, isolated: bool,
+          dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
+          fmt: str | None, outputs: tuple[str, ...], select: tuple[str, ...],
+          ignore: tuple[str, ...], fail_on: str | None, statistics: bool, quiet: bool,
+          jobs: int) -> None:
     """Analyse each LOG (`-`: standard input; quoted globs are expanded), print the findings
     and set the exit code."""
+    config = discover(config_file, isolated)
+    if config is not None and config.format is not None and config.format not in FORMATS:
+        raise UsageError(f"{config.label}: format: unknown format {config.format!r} "
+                         f"(available: {', '.join(FORMATS)})")
+    fmt = fmt or (config.format if config else None) or "text"
+    fail_on = fail_on or (config.fail_on if config else None) or "error"
+    selected = _split(select) if select else (config.select or [] if config else [])
+    ignored = _split(ignore) if ignore else (config.ignore or [] if config else [])
+    if config is not None:  # a bad pattern in the file is named with the file
+        check_patterns([] if select else config.select or [], f"{config.label}: select")
+        check_patterns([] if ignore else config.ignore or [], f"{config.label}: ignore")
     logs = expand_logs(logs)
     if "-" in logs:
         jobs = 1  # worker processes do not share this process's standard input
-    profile, network = _load(rules_profile, network_file, dcf)
-    rules = select_rules(profile, _split(select), _split(ignore))
-    stdout_render = renderer(fmt)
+    profile, network, config_info = _load(rules_profile, network_file, dcf, config)
+    rules = select_rules(profile, selected, ignored)
+    stdout_render = renderer(fmt) if not statistics else statistics_renderer(fmt)
     files = [(path, renderer(format_for_path(path))) for path in outputs]
     reader_options: dict[str, object] = {"topics": list(topics)} if topics else {}
     progress = ProgressBar(len(logs)) if sys.stderr.isatty() and not quiet else None
@@ -118,7 +167,8 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
             progress.close()
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet,
                                   "rules": {r.code: profile[r.code].severity for r in rules},
-                                  "network_notes": list(network.notes) if network else []}
+                                  "network_notes": list(network.notes) if network else [],
+                                  "config": config_info}
     for path, render in files:
         try:
             Path(path).write_text(render(results, options), encoding="utf-8")
@@ -136,11 +186,13 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str,
 @_common
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text",
               show_default=True)
-def timeline(log: str, input_format: str | None, rules_profile: str, network_file: str | None,
+def timeline(log: str, input_format: str | None, rules_profile: str | None,
+             network_file: str | None, config_file: str | None, isolated: bool,
              dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
              fmt: str) -> None:
     """Print the per-node NMT state timeline of LOG."""
-    profile, network = _load(rules_profile, network_file, dcf)
+    profile, network, _info = _load(rules_profile, network_file, dcf,
+                                    discover(config_file, isolated))
     res = check_input(log, 0, profile, [], network, input_format, strict, channel,
                       {"topics": list(topics)} if topics else {})
     click.echo(render_timeline(res, fmt), nl=False)
@@ -225,7 +277,7 @@ def rules_cmd(code: str | None, fmt: str) -> None:
         click.echo(rule_table(defaults) if fmt == "markdown" else "\n".join(
             f"{r.code}  {r.name:<28} {defaults[r.code].severity:<8} {r.summary}" for r in RULES))
         return
-    r = BY_CODE.get(code.upper())
+    r = BY_CODE.get(code.upper()) or next((x for x in RULES if x.name == code.lower()), None)
     if r is None:
         raise UsageError(f"rules: unknown rule code {code!r} (known: {', '.join(BY_CODE)})")
     lines = [f"{r.code} {r.name} (default severity: {defaults[r.code].severity})", "", r.doc]

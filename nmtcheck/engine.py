@@ -29,7 +29,7 @@ class Finding:
     rule: str
     name: str
     severity: str
-    channel: str
+    channel: str | None  # None: the input itself (I-rules)
     node: int | None
     time: float
     frame_index: int | None
@@ -48,23 +48,42 @@ class InputResult:
         return [m for cm in self.model.channels for m in cm.nodes.values()]
 
 
-def select_rules(profile: Profile, select: list[str], ignore: list[str]) -> list[Rule]:
-    """Enabled rules after --select/--ignore (codes or letter prefixes)."""
-    def matches(code: str, patterns: list[str]) -> bool:
-        return any(code.startswith(pat.upper()) for pat in patterns)
+EXACT = 100  # the specificity of a whole code or a rule name
 
-    for pat in select + ignore:
-        if not any(r.code.startswith(pat.upper()) for r in RULES):
-            raise UsageError(f"--select/--ignore: {pat!r} matches no rule code")
+
+def _specificity(rule: Rule, pattern: str) -> int:
+    """How specifically `pattern` names `rule`: the prefix length for a code prefix, EXACT
+    for the whole code or the rule's name, -1 if it does not match."""
+    if pattern.lower() == rule.name or pattern.upper() == rule.code:
+        return EXACT
+    return len(pattern) if rule.code.startswith(pattern.upper()) else -1
+
+
+def check_patterns(patterns: list[str], where: str = "--select/--ignore") -> None:
+    """Every pattern names at least one rule (else a usage error naming `where`)."""
+    for pat in patterns:
+        if not any(_specificity(r, pat) >= 0 for r in RULES):
+            raise UsageError(f"{where}: {pat!r} matches no rule code or name")
+
+
+def select_rules(profile: Profile, select: list[str], ignore: list[str]) -> list[Rule]:
+    """Enabled rules after --select/--ignore: codes, letter prefixes or rule names.
+
+    As in ruff, the most specific pattern that matches a rule decides (`--ignore H
+    --select H001` checks H001 and no other H rule); at equal specificity --ignore wins.
+    Without --select the profile's enabled rules are the base; a rule the profile turns
+    off is checked only when --select names it (or a prefix of it)."""
+    check_patterns(select + ignore)
     chosen = []
     for r in RULES:
-        if not profile[r.code].enabled and not (select and matches(r.code, select)):
-            continue
-        if select and not matches(r.code, select):
-            continue
-        if matches(r.code, ignore):
-            continue
-        chosen.append(r)
+        chosen_by = max((_specificity(r, p) for p in select), default=-1)
+        ignored_by = max((_specificity(r, p) for p in ignore), default=-1)
+        if select:
+            keep = chosen_by >= 0 and chosen_by > ignored_by
+        else:
+            keep = profile[r.code].enabled and ignored_by < 0
+        if keep:
+            chosen.append(r)
     return chosen
 
 
@@ -128,7 +147,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         for r in rules:
             problems.extend((r, p) for p in r.check(model, profile[r.code].params))
         _locate(model, problems)
-        nodes = {(cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
+        nodes: dict[tuple[str | None, int], NodeModel] = {
+            (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
         for r, p in problems:
             if p.node is not None and not r.exempt_from_unknown:
                 m = nodes.get((p.channel, p.node))

@@ -75,6 +75,8 @@ def _check_value(where: str, value: Any, want: type) -> Any:
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
             raise UsageError(f"{where}: expected a list of integers (CAN-IDs, e.g. 0x7E4)")
         return value
+    if want is int and isinstance(value, int) and not isinstance(value, bool) and value < 0:
+        raise UsageError(f"{where}: expected a whole number >= 0, got {value!r}")
     if isinstance(value, want) and not isinstance(value, bool) or (want is bool
                                                                  and isinstance(value, bool)):
         return value
@@ -103,7 +105,25 @@ def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> P
         if not isinstance(base, str):
             raise UsageError(f"{path}: extends: expected a profile name or path")
         profile = load_profile(base, (*_seen, path.resolve()))
-    timeline = data.get("timeline", {})
+    apply_tables(profile, str(path), data.get("rules", {}), data.get("timeline", {}))
+    if not _seen:
+        complete(profile, str(path))
+    return profile
+
+
+def derived_profile(where: str, base: str, base_dir: Path, rules: Any,
+                    timeline: Any = None) -> Profile:
+    """A profile that extends `base` (a name, or a path relative to `base_dir`) with
+    `[rules.CODE]` and `[timeline]` tables held elsewhere (a configuration file, `where`)."""
+    profile = load_profile(base, (base_dir / "<configuration>",))
+    apply_tables(profile, where, rules, {} if timeline is None else timeline)
+    complete(profile, where)
+    return profile
+
+
+def apply_tables(profile: Profile, where: str, rules: Any, timeline: Any) -> None:
+    """Apply a profile's `[timeline]` and `[rules.CODE]` tables; errors name `where`."""
+    path = where
     if not isinstance(timeline, dict):
         raise UsageError(f"{path}: timeline: expected a table [timeline]")
     for key, value in timeline.items():
@@ -111,7 +131,6 @@ def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> P
             raise UsageError(f"{path}: [timeline] {key}: unknown parameter "
                              f"(known: {', '.join(TIMELINE_PARAMS)})")
         profile.timeline[key] = _check_value(f"{path}: [timeline] {key}", value, float)
-    rules = data.get("rules", {})
     if not isinstance(rules, dict):
         raise UsageError(f"{path}: rules: expected tables [rules.CODE]")
     for code, table in rules.items():
@@ -123,23 +142,25 @@ def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> P
         settings = profile.setdefault(code, RuleSettings(severity=rule.severity))
         params = {p.name: p for p in rule.params}
         for key, value in table.items():
-            where = f"{path}: [rules.{code}] {key}"
+            where_key = f"{path}: [rules.{code}] {key}"
             if key == "enabled":
-                settings.enabled = _check_value(where, value, bool)
+                settings.enabled = _check_value(where_key, value, bool)
             elif key == "severity":
                 if value not in SEVERITIES:
-                    raise UsageError(f"{where}: expected one of {', '.join(SEVERITIES)}")
+                    raise UsageError(f"{where_key}: expected one of {', '.join(SEVERITIES)}")
                 settings.severity = value
             elif key in params:
-                settings.params[key] = _check_value(where, value, params[key].type)
+                settings.params[key] = _check_value(where_key, value, params[key].type)
             else:
                 known = ", ".join(["enabled", "severity", *params]) or "none"
-                raise UsageError(f"{where}: unknown parameter (known: {known})")
-    if not _seen:
-        for rule in BY_CODE.values():
-            settings = profile.setdefault(rule.code, RuleSettings(severity=rule.severity))
-            missing = [p.name for p in rule.params if p.name not in settings.params]
-            if missing:
-                raise UsageError(f"{path}: [rules.{rule.code}] no value for {', '.join(missing)} "
-                                 f"(extend 'default')")
-    return profile
+                raise UsageError(f"{where_key}: unknown parameter (known: {known})")
+
+
+def complete(profile: Profile, where: str) -> None:
+    """Every rule has settings and every parameter a value (from `default`)."""
+    for rule in BY_CODE.values():
+        settings = profile.setdefault(rule.code, RuleSettings(severity=rule.severity))
+        missing = [p.name for p in rule.params if p.name not in settings.params]
+        if missing:
+            raise UsageError(f"{where}: [rules.{rule.code}] no value for {', '.join(missing)} "
+                             f"(extend 'default')")

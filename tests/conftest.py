@@ -15,9 +15,44 @@ from nmtcheck.profiles import load_profile
 from nmtcheck.readers import InputStats, open_input
 
 REPO = Path(__file__).resolve().parent.parent
-SHARED = REPO.parent / "shared"
+SHARED = REPO.parent / "shared"  # the steering folder beside the checkout: not in a clone
 CORPUS = SHARED / "corpus"
 SAMPLES = REPO / "samples"
+# Small copies of the few ../shared files the tests cannot do without, under the same
+# relative paths (provenance and licences: tests/data/README.md).
+DATA = REPO / "tests" / "data"
+
+NO_CORPUS = ("needs the shared test corpus ../shared/corpus (logs, device files), which is not "
+             "part of the repository (a fresh clone has no ../shared beside it)")
+# For tests that go through the whole corpus (or files of it with no copy in tests/data).
+needs_corpus = pytest.mark.skipif(not CORPUS.is_dir(), reason=NO_CORPUS)
+
+
+def shared_path(rel: str) -> Path | None:
+    """`../shared/<rel>` when that is there, else its copy `tests/data/<rel>`, else None."""
+    for base in (SHARED, DATA):
+        if (base / rel).exists():
+            return base / rel
+    return None
+
+
+def _no_shared(rel: str) -> str:
+    return (f"needs ../shared/{rel}, which is not part of the repository (a fresh clone has no "
+            "../shared beside it) and has no copy in tests/data")
+
+
+def shared_file(rel: str) -> Path:
+    """`shared_path(rel)`, or skip the calling test, saying which file is missing."""
+    path = shared_path(rel)
+    if path is None:
+        pytest.skip(_no_shared(rel))
+    return path
+
+
+def needs_shared(*rels: str) -> pytest.MarkDecorator:
+    """Skip unless every `rel` is in ../shared or has a copy in tests/data."""
+    missing = [rel for rel in rels if shared_path(rel) is None]
+    return pytest.mark.skipif(bool(missing), reason=_no_shared(missing[0]) if missing else "")
 
 
 def read_columns(path: Path | str, **kw: object) -> tuple[InputStats, dict[str, np.ndarray]]:

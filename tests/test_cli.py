@@ -116,7 +116,7 @@ def test_timeline_formats(tmp_path: Path) -> None:
 def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
     res = run("rules", cwd=tmp_path)
     assert res.returncode == 0
-    assert len(res.stdout.strip().splitlines()) == 21  # the SPEC §3 catalogue
+    assert len(res.stdout.strip().splitlines()) == 26  # the SPEC §3 catalogue
     doc = run("rules", "H001", cwd=tmp_path)
     assert "heartbeat-timeout" in doc.stdout and "timeout_factor" in doc.stdout
     assert "Why it matters" in doc.stdout and "Example" in doc.stdout

@@ -17,7 +17,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from conftest import CORPUS
+from conftest import CORPUS, needs_corpus
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import FrameBatch
@@ -25,7 +25,7 @@ from nmtcheck.readers import InputStats, open_input
 
 THIRD = CORPUS / "third_party"
 
-pytestmark = pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
+pytestmark = needs_corpus
 
 
 def read(path: Path) -> tuple[InputStats, dict[str, np.ndarray]]:

@@ -6,18 +6,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from conftest import CORPUS, SAMPLES, candump
+from conftest import CORPUS, DATA, SAMPLES, candump, needs_corpus, shared_file, shared_path
 
 from nmtcheck.devicefile import load_device_file
 from nmtcheck.errors import UsageError
 from nmtcheck.network import load_network
 
 EDS = CORPUS / "eds"
-ALL_FILES = sorted([*EDS.glob("*/*.eds"), *EDS.glob("*/*.dcf")])
+# the whole EDS/DCF corpus, or without ../shared the permissive files copied to tests/data
+EDS_DIR = EDS if EDS.is_dir() else DATA / "corpus" / "eds"
+ALL_FILES = sorted([*EDS_DIR.glob("*/*.eds"), *EDS_DIR.glob("*/*.dcf")])
 DEVICES = Path(__file__).resolve().parent / "data" / "devices"
 LELY_MASTER = DEVICES / "lely_master.dcf"  # compact storage, as Lely's dcfgen writes it
 SLAVE = DEVICES / "slave_values.dcf"
-needs_corpus = pytest.mark.skipif(not EDS.is_dir(), reason="shared corpus not available")
 
 
 @pytest.mark.parametrize("path", ALL_FILES, ids=lambda p: f"{p.parent.name}/{p.name}")
@@ -27,18 +28,22 @@ def test_every_corpus_file_loads(path: Path) -> None:
     assert values.reader in ("canopen", "ini")
 
 
-@needs_corpus
 @pytest.mark.parametrize("name", ["canopennode/DS301_profile.eds", "lely/co-gw_txt-master.dcf"])
 def test_files_canopen_rejects_are_read_anyway_with_a_note(name: str) -> None:
-    values = load_device_file(str(EDS / name), 5)
+    values = load_device_file(str(shared_file(f"corpus/eds/{name}")), 5)
     assert values.reader == "ini"
     assert values.notes and "canopen could not import it" in values.notes[0]
 
 
-@needs_corpus
 def test_values_from_real_files() -> None:
-    lely = load_device_file(str(EDS / "lely/co-nmt-slave.dcf"))
+    lely = load_device_file(str(shared_file("corpus/eds/lely/co-nmt-slave.dcf")))
     assert (lely.node_id, lely.heartbeat_ms) == (2, 100.0)  # ParameterValue=100 wins over 0
+    pdo = load_device_file(str(shared_file("corpus/eds/lely/co-pdo-transmit.dcf")), 7)
+    assert pdo.tpdo_cob_ids == {1: 0x187}  # $NODEID+0x180 resolved with the given node-ID
+
+
+@needs_corpus  # OreSat's files are GPL-3.0 and e35.eds is 131 kB: not copied to tests/data
+def test_values_from_real_files_oresat_and_e35() -> None:
     oresat = load_device_file(str(EDS / "oresat/battery.dcf"), 5)
     assert oresat.heartbeat_ms == 1000.0
     assert oresat.tpdo_cob_ids == {1: 0x185, 2: 0x285, 3: 0x385, 4: 0x485}
@@ -46,12 +51,10 @@ def test_values_from_real_files() -> None:
     assert (e35.guard_time_ms, e35.life_time_factor) == (100.0, 4)
     # a COB-ID with bit 31 set: the PDO is not valid
     assert e35.rpdo_cob_ids[2] is None
-    pdo = load_device_file(str(EDS / "lely/co-pdo-transmit.dcf"), 7)
-    assert pdo.tpdo_cob_ids == {1: 0x187}  # $NODEID+0x180 resolved with the given node-ID
 
 
 def _corpus(*names: str) -> list[Path]:
-    return [EDS / n for n in names] if EDS.is_dir() else []
+    return [p for n in names if (p := shared_path(f"corpus/eds/{n}")) is not None]
 
 
 def test_canopen_and_ini_readers_agree(tmp_path: Path) -> None:
@@ -97,10 +100,9 @@ def test_consumer_entry_and_slave_assignment(tmp_path: Path) -> None:
     assert [n for n, _ in network.expected()] == [1, 3, 4]
 
 
-@needs_corpus
 def test_explicit_keys_win_over_the_device_file(tmp_path: Path) -> None:
     net = tmp_path / "net.toml"
-    dcf = EDS / "lely/co-nmt-slave.dcf"
+    dcf = shared_file("corpus/eds/lely/co-nmt-slave.dcf")
     net.write_text(f'[nodes.2]\ndcf = "{dcf}"\nheartbeat_ms = 250\n')
     assert load_network(str(net)).nodes[2][0].heartbeat_ms == 250.0
     net.write_text(f'[nodes.2]\ndcf = "{dcf}"\n')
@@ -114,11 +116,10 @@ def test_missing_device_file_is_a_usage_error(tmp_path: Path) -> None:
         load_network(str(net))
 
 
-@needs_corpus
 def test_dcf_heartbeat_drives_h001_and_h003(checker, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """Node 2's DCF says 100 ms; it heartbeats every 300 ms: H003, and with the factor
     rule on the configured period every gap is an H001 timeout."""
-    dcf = EDS / "lely/co-nmt-slave.dcf"
+    dcf = shared_file("corpus/eds/lely/co-nmt-slave.dcf")
     frames = [(0.0, "702#00")] + [(0.3 * i, "702#7F") for i in range(1, 9)]
     net = f'[nodes.2]\ndcf = "{dcf}"\n'
     found = checker.findings(candump(frames), network=net, select="H003")
@@ -226,11 +227,11 @@ def test_array_sub_indices_are_not_made_up(tmp_path: Path) -> None:
     assert values.slaves == [1, 3]
 
 
-@needs_corpus
 def test_nmt_startup_bit_0_in_real_files() -> None:
-    gw = load_device_file(str(EDS / "lely/co-gw_txt-master.dcf"))  # ParameterValue=0x00000001
+    gw = load_device_file(str(shared_file("corpus/eds/lely/co-gw_txt-master.dcf")))  # 0x00000001
     assert gw.nmt_master and gw.reader == "ini"
-    assert not load_device_file(str(EDS / "lely/co-nmt-slave.dcf")).nmt_master  # 0x00000004
+    slave = shared_file("corpus/eds/lely/co-nmt-slave.dcf")
+    assert not load_device_file(str(slave)).nmt_master  # 0x00000004
 
 
 def test_samples_are_no_masters() -> None:

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import CORPUS, SAMPLES
+from conftest import CORPUS, SAMPLES, needs_corpus
 from mcap.writer import Writer as McapWriter
 from test_readers_mcap import ROS2_FRAME_MSG
 from test_readers_pcap import (
@@ -160,7 +160,7 @@ def test_sample_gives_the_same_verdict(log: Path, kind: str, tmp_path: Path) -> 
     assert [iv[:3] for iv in timeline(a)], "a sample without any node timeline"
 
 
-@pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
+@needs_corpus
 def test_gmlan_trace_candump_and_pcap_give_identical_frames() -> None:
     a = columns(THIRD / "scapy/gmlan_trace.candump.gz")
     b = columns(THIRD / "scapy/gmlan_trace.pcap.gz")

@@ -142,9 +142,13 @@ def test_mcap_record_claiming_4_gib_is_read_in_pieces(tmp_path: Path) -> None:
                          text=True, timeout=120,
                          env={"PYTHONPATH": str(Path(__file__).resolve().parent.parent),
                               "OPENBLAS_NUM_THREADS": "1"})
-    assert res.stderr == "" and res.returncode == 0, res.stderr
-    entry = json.loads(res.stdout)["inputs"][0]
+    assert res.stderr == "" and res.returncode in (0, 1), res.stderr
+    report = json.loads(res.stdout)
+    entry = report["inputs"][0]
     assert entry["truncated"] and entry["skipped"] == 1
+    rules = {f["rule"] for f in report["findings"]}
+    assert {"I002", "I003"} <= rules  # reported as truncated and skipped (SPEC §3 I-rules)
+    assert res.returncode == (1 if "I001" in rules else 0)
 
 
 @pytest.mark.parametrize("message", [
@@ -166,8 +170,10 @@ def test_a_damaged_mcap_schema_prints_nothing_on_stderr(tmp_path: Path) -> None:
     res = subprocess.run([sys.executable, "-m", "nmtcheck", "check", "x.mcap", "--format",
                           "json"], cwd=tmp_path, capture_output=True, text=True, timeout=120,
                          env={"PYTHONPATH": str(Path(__file__).resolve().parent.parent)})
-    assert res.returncode == 0 and res.stderr == ""
-    assert json.loads(res.stdout)["inputs"][0]["skipped"] == len(FRAMES)
+    assert res.returncode == 1 and res.stderr == ""  # I001: nothing could be checked
+    report = json.loads(res.stdout)
+    assert report["inputs"][0]["skipped"] == len(FRAMES)
+    assert {f["rule"] for f in report["findings"]} == {"I001", "I003"}
 
 
 def test_small_gzip_cut_mid_stream(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ from typing import cast
 import can
 import numpy as np
 import pytest
-from conftest import CORPUS
+from conftest import CORPUS, needs_corpus
 from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
@@ -407,7 +407,7 @@ PYTHON_CAN_WRONG = {
 }
 
 
-@pytest.mark.skipif(not CORPUS_BLF, reason="shared corpus not available")
+@needs_corpus
 @pytest.mark.parametrize("name", CORPUS_BLF)
 def test_corpus_matches_python_can(name: str) -> None:
     path = THIRD / "python-can" / name
@@ -439,7 +439,7 @@ CORPUS_EXPECTED = {
 }
 
 
-@pytest.mark.skipif(not CORPUS_BLF, reason="shared corpus not available")
+@needs_corpus
 @pytest.mark.parametrize("name", CORPUS_BLF)
 def test_corpus_pinned_stats(name: str) -> None:
     stats, cols = read(THIRD / "python-can" / name, strict=True)
@@ -448,7 +448,7 @@ def test_corpus_pinned_stats(name: str) -> None:
     assert stats.skipped == 0 and stats.remote_frames == 0
 
 
-@pytest.mark.skipif(not CORPUS_BLF, reason="shared corpus not available")
+@needs_corpus
 def test_issue_1905_values() -> None:
     stats, cols = read(THIRD / "python-can" / "issue_1905.blf")
     assert set(cols["can_id"].tolist()) == {0x6A9} and (cols["dlc"] == 64).all()

@@ -15,14 +15,13 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from conftest import CORPUS
+from conftest import CORPUS, needs_corpus
 from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
 from nmtcheck.readers import InputStats, detect_format
 
 THIRD = CORPUS / "third_party"
-needs_corpus = pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
 
 
 Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]

@@ -17,13 +17,12 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from conftest import CORPUS
 from conftest import read_columns as read
+from conftest import shared_file
 
 from nmtcheck.errors import InputError
 from nmtcheck.readers import InputStats, detect_format, open_input
 
-THIRD = CORPUS / "third_party"
 HAVE_ZSTD = importlib.util.find_spec("zstandard") is not None
 
 
@@ -191,7 +190,7 @@ def test_unknown_format(tmp_path: Path, content: bytes) -> None:
     "savvycan/CarBusAnalyzer.trc",  # CR-only text trace with a PEAK suffix
 ])
 def test_unsupported_corpus_files_are_rejected(rel: str) -> None:
-    path = THIRD / rel
+    path = shared_file(f"corpus/third_party/{rel}")
     with pytest.raises(InputError) as exc:
         open_input(str(path))
     assert str(exc.value).startswith(f"{path}: ")

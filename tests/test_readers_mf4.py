@@ -19,7 +19,7 @@ from typing import Any
 import can
 import numpy as np
 import pytest
-from conftest import CORPUS, REPO
+from conftest import CORPUS, REPO, needs_corpus
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import FrameBatch
@@ -69,7 +69,7 @@ def assert_same(a: list[tuple[Any, ...]], b: list[tuple[Any, ...]]) -> None:
         assert x[1:] == y[1:], (x, y)
 
 
-@pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
+@needs_corpus
 @pytest.mark.parametrize("rel", sorted(CORPUS_MF4))
 def test_canedge_files_match_python_can(rel: str) -> None:
     stats, cols = read(THIRD / rel)
@@ -82,7 +82,7 @@ def test_canedge_files_match_python_can(rel: str) -> None:
     assert_same(ours(stats, cols), python_can(THIRD / rel))
 
 
-@pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
+@needs_corpus
 def test_unfinalised_canedge_file() -> None:
     """17BD1DB7…170.MF4 is "UnFinMF": still read, by content, whatever its suffix says."""
     path = THIRD / f"{CSS}/17BD1DB7_00000006_00000170.MF4"

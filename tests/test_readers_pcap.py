@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import CORPUS
+from conftest import CORPUS, needs_corpus
 from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
@@ -365,7 +365,7 @@ SCAPY = {
 }
 
 
-@pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
+@needs_corpus
 @pytest.mark.parametrize("rel", sorted(SCAPY))
 def test_scapy_captures(rel: str) -> None:
     stats, cols = read(THIRD / rel)
@@ -377,7 +377,7 @@ def test_scapy_captures(rel: str) -> None:
     assert rows(stats, cols) == _reference(rel)
 
 
-@pytest.mark.skipif(not THIRD.is_dir(), reason="shared corpus not available")
+@needs_corpus
 def test_scapy_canfd_capture_content() -> None:
     """canfd.pcap: SLL, protocol CAN FD, ID 123h with 12 bytes, sent and looped back."""
     stats, cols = read(THIRD / "scapy/canfd.pcap.gz")

@@ -16,7 +16,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from conftest import CORPUS
+from conftest import CORPUS, needs_corpus, shared_file
 from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
@@ -27,7 +27,7 @@ THIRD = CORPUS / "third_party"
 PCAN = THIRD / "python-can"
 HAVE_CORPUS = THIRD.is_dir()
 CORPUS_TRC = sorted(p.name for p in PCAN.glob("*.trc")) if HAVE_CORPUS else []
-needs_corpus = pytest.mark.skipif(not HAVE_CORPUS, reason="shared corpus not available")
+CAR_BUS_ANALYZER = "corpus/third_party/savvycan/CarBusAnalyzer.trc"  # copied to tests/data
 
 START_DAYS = 44548.6028595139  # 2021-12-18 14:28:07.062 (the corpus files' $STARTTIME)
 START = start_time_from_ole_days(START_DAYS)
@@ -111,9 +111,8 @@ def test_converted_asc_file_channels_and_start() -> None:
     assert float(cols["ts"][1]) == pytest.approx(start + 17.876708, abs=1e-6)
 
 
-@needs_corpus
 def test_car_bus_analyzer_trc_is_rejected_not_misread() -> None:
-    path = THIRD / "savvycan" / "CarBusAnalyzer.trc"
+    path = shared_file(CAR_BUS_ANALYZER)
     assert detect_format(path.read_bytes()[:65536]) is None
     with pytest.raises(InputError) as exc:
         open_input(str(path))
@@ -127,9 +126,8 @@ def test_car_bus_analyzer_trc_is_rejected_not_misread() -> None:
         list(can.TRCReader(str(path)))  # python-can fails on it too, with a traceback
 
 
-@needs_corpus
 def test_car_bus_analyzer_trc_exits_2_with_one_line(tmp_path: Path) -> None:
-    path = THIRD / "savvycan" / "CarBusAnalyzer.trc"
+    path = shared_file(CAR_BUS_ANALYZER)
     res = subprocess.run([sys.executable, "-m", "nmtcheck", "check", str(path)], cwd=tmp_path,
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2 and "Traceback" not in res.stderr

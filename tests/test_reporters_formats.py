@@ -15,7 +15,7 @@ from pathlib import Path
 
 import jsonschema
 import pytest
-from conftest import SAMPLES, SHARED, Checker, candump
+from conftest import SAMPLES, Checker, candump, shared_file
 from lxml import etree
 
 from nmtcheck.checks import RULES
@@ -34,7 +34,7 @@ from nmtcheck.reporters import (
 )
 from nmtcheck.reporters.common import group_findings, heartbeat_stats
 
-SARIF_SCHEMA = SHARED / "schemas" / "sarif-schema-2.1.0.json"
+SARIF_SCHEMA = "schemas/sarif-schema-2.1.0.json"  # ../shared/schemas, or its copy in tests/data
 SAMPLE_NAMES = ["healthy", "heartbeat_loss", "pdo_preop", "guard_toggle", "ignored_command",
                 "reset_no_bootup"]
 
@@ -121,7 +121,7 @@ def _repeated_timeouts(tmp_path: Path, gaps: int) -> InputResult:
 # SARIF ---------------------------------------------------------------------------------
 
 def test_sarif_is_valid_against_the_2_1_0_schema() -> None:
-    schema = json.loads(SARIF_SCHEMA.read_text(encoding="utf-8"))
+    schema = json.loads(shared_file(SARIF_SCHEMA).read_text(encoding="utf-8"))
     log = json.loads(sarif.render(ALL, OPTIONS))
     jsonschema.validate(log, schema, cls=jsonschema.Draft4Validator)
     run = log["runs"][0]
@@ -160,13 +160,16 @@ def test_junit_validates_and_lists_every_rule_for_every_node() -> None:
     etree.XMLSchema(etree.fromstring(JUNIT_XSD.encode())).assertValid(root)
     suites = root.findall("testsuite")
     assert [s.get("name") for s in suites] == [str(SAMPLES / f"{n}.log") for n in SAMPLE_NAMES]
-    node_rules = [r for r in RULES if r.code != "C001"]
+    node_rules = [r for r in RULES if r.code != "C001" and not r.code.startswith("I")]
+    input_rules = [r for r in RULES if r.code.startswith("I")]
     for res, suite in zip(ALL, suites, strict=True):
         cases = suite.findall("testcase")
         assert int(suite.get("tests")) == len(cases)
         assert int(suite.get("failures")) == len(suite.findall("testcase/failure"))
-        assert len(cases) == len(res.nodes()) * len(node_rules) + 2  # + network C001, C002
+        # + network C001, C002, + one case per input rule (classname `input`)
+        assert len(cases) == len(res.nodes()) * len(node_rules) + 2 + len(input_rules)
         names = {(c.get("classname"), c.get("name")) for c in cases}
+        assert {("input", f"{r.code} {r.name}") for r in input_rules} <= names
         for m in res.nodes():
             assert (f"can0.node{m.node:03d}", "H001 heartbeat-timeout") in names
         assert ("can0.network", "C001 restricted-can-id") in names

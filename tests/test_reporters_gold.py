@@ -19,13 +19,16 @@ from nmtcheck.profiles import load_profile
 from nmtcheck.reporters import MODULES, renderer
 
 GOLD = Path(__file__).resolve().parent / "gold"
-SUFFIX = {"text": "txt", "json": "json", "csv": "csv", "html": "html", "junit": "xml",
-          "sarif": "sarif", "github": "github.txt", "markdown": "md"}
+SUFFIX = {"text": "txt", "concise": "concise.txt", "json": "json", "csv": "csv", "html": "html",
+          "junit": "xml", "sarif": "sarif", "github": "github.txt", "markdown": "md"}
 CASES = {
     "healthy": ["healthy"],  # no finding: every format's "all clear"
     "heartbeat_loss": ["heartbeat_loss"],  # one finding with an OFFLINE interval
     "all": ["healthy", "heartbeat_loss", "pdo_preop", "guard_toggle", "ignored_command",
             "reset_no_bootup"],  # several inputs, one finding of each kind
+    # a candump log read as TRC (every record skipped: I001, I003 with channel and node
+    # null) next to a normal one
+    "input": ["heartbeat_loss:trc", "heartbeat_loss"],
 }
 DATE = re.compile(r"\d{4}-\d{2}-\d{2}[ T]\d{2}:\d{2}:\d{2}(?:\.\d+)?(?: UTC|Z)?")
 
@@ -40,8 +43,12 @@ def _results(names: list[str], monkeypatch: pytest.MonkeyPatch) -> list[InputRes
     monkeypatch.chdir(REPO)  # relative paths, as a CI job in a checkout passes them
     profile = load_profile("default")
     rules = select_rules(profile, [], [])
-    return [check_input(f"samples/{name}.log", i, profile, rules)
-            for i, name in enumerate(names)]
+    results = []
+    for i, name in enumerate(names):
+        name, _sep, input_format = name.partition(":")
+        results.append(check_input(f"samples/{name}.log", i, profile, rules,
+                                   input_format=input_format or None))
+    return results
 
 
 def test_every_format_has_a_gold_suffix() -> None:
@@ -52,7 +59,9 @@ def test_every_format_has_a_gold_suffix() -> None:
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_gold(case: str, fmt: str, monkeypatch: pytest.MonkeyPatch) -> None:
     results = _results(CASES[case], monkeypatch)
-    options: dict[str, object] = {"fail_on": "error", "quiet": False}
+    options: dict[str, object] = {"fail_on": "error", "quiet": False,  # as the CLI passes them
+                                  "config": {"file": None, "profile": "default",
+                                             "overrides": []}}
     actual = scrub(renderer(fmt)(results, options))
     gold = GOLD / f"{case}.{SUFFIX[fmt]}"
     if os.environ.get("NMTCHECK_UPDATE_GOLD"):

@@ -21,6 +21,13 @@ from nmtcheck.checks.heartbeat import (
     heartbeat_timeout,
     heartbeat_too_early,
 )
+from nmtcheck.checks.inputs import (
+    frames_lost,
+    nothing_to_check,
+    skipped_records,
+    timestamps_backwards,
+    truncated_input,
+)
 from nmtcheck.checks.network import duplicate_node_id, missing_node
 from nmtcheck.checks.state import (
     comm_while_stopped,
@@ -52,6 +59,11 @@ RULES: list[Rule] = [
     unknown_nmt_state,
     missing_node,
     duplicate_node_id,
+    nothing_to_check,
+    truncated_input,
+    skipped_records,
+    frames_lost,
+    timestamps_backwards,
 ]
 
 BY_CODE: dict[str, Rule] = {r.code: r for r in RULES}

@@ -32,7 +32,7 @@ class Param:
 class Problem:
     """One finding as a check sees it: where and what, not how loud."""
 
-    channel: str
+    channel: str | None  # None: the input itself (I-rules)
     node: int | None
     time: float
     message: str

@@ -51,6 +51,7 @@ class InputStats:
     fd_frames: int = 0
     dropped: int = 0  # frames the logger says it lost (candump DROPCOUNT)
     backwards_timestamps: int = 0
+    first_backwards: tuple[int, int, float] | None = None  # frame index, line, time
     truncated: bool = False  # the input ends early (cut off, or a damaged compressed stream)
     start: float | None = None
     end: float | None = None
@@ -98,6 +99,10 @@ def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
     back = int(np.count_nonzero(ts[1:] < ts[:-1]))
     if stats.end is not None and ts[0] < stats.end:
         back += 1
+    if back and stats.first_backwards is None:
+        prev = np.concatenate([[stats.end if stats.end is not None else ts[0]], ts[:-1]])
+        k = int(np.flatnonzero(ts < prev)[0])
+        stats.first_backwards = (int(batch.index[k]), int(batch.line[k]), float(ts[k]))
     if stats.start is None:
         stats.start = float(ts[0])
     stats.end = float(ts[-1])
@@ -144,6 +149,12 @@ FORMAT_MODULES: dict[str, str] = {
     "cl2000": "nmtcheck.readers.cl2000",
 }
 FORMATS = tuple(FORMAT_MODULES)
+# The formats that are lines of text: detection looks past leading lines for these only.
+TEXT_FORMATS = ("candump", "asc", "trc", "candump-screen", "csv", "cl2000")
+# Text detection looks past at most this many leading lines (within the first HEAD_BYTES)
+# that no format takes for its start: a note or comment added by hand, a banner. They are
+# skipped records (with their line numbers), not an unknown format (SPEC section 1).
+MAX_LEADING_LINES = 64
 
 
 def format_module(name: str) -> ModuleType:
@@ -160,6 +171,39 @@ def detect_format(head: bytes) -> str | None:
     for name in FORMAT_MODULES:
         if format_module(name).sniff(head):
             return name
+    return None
+
+
+def _past_leading_lines(head: bytes) -> Iterator[int]:
+    """Offsets in `head` just past each of its first MAX_LEADING_LINES lines (LF-ended, as
+    the readers split them) that is not blank: where a text log may start after them."""
+    pos = 0
+    for _ in range(MAX_LEADING_LINES):
+        end = head.find(b"\n", pos)
+        if end < 0:
+            return
+        blank = not head[pos:end].strip()  # sniffers pass over blank lines themselves
+        pos = end + 1
+        if not blank:
+            yield pos
+
+
+def detect(head: bytes) -> tuple[str, int] | None:
+    """The format of a log from its first bytes, and the offset in `head` where the lines
+    that format reads start: 0, or, for a text format, past up to MAX_LEADING_LINES leading
+    lines that no format takes for its start (a hand-written note, a banner)."""
+    fmt = detect_format(head)
+    if fmt is not None:
+        return fmt, 0
+    if not is_text(head):
+        return None
+    for start in _past_leading_lines(head):
+        rest = head[start:]
+        if not rest.strip():
+            return None
+        for name in TEXT_FORMATS:
+            if format_module(name).sniff(rest):
+                return name, start
     return None
 
 
@@ -339,6 +383,7 @@ class Source:
     compression: str = ""  # "", "gzip", "bzip2", "xz" or "zstd"
     file_path: str | None = None  # the path on disk when uncompressed (for seeking libraries)
     options: dict[str, Any] = field(default_factory=dict)  # e.g. {"topics": [...]} from --topic
+    first_line: int = 1  # the line number of the stream's first line (after leading lines)
 
     def lines(self) -> Iterator[bytes]:
         """Raw lines (LF or CRLF endings); read errors become InputError."""
@@ -403,7 +448,10 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
         if damage is not None and damage.damage is not None:
             raise InputError(display, f"cannot decompress ({compression}): {damage.damage}")
         raise InputError(display, "empty file: no records to check")
-    fmt = input_format or detect_format(head)
+    fmt: str | None = input_format
+    start = 0  # bytes of leading lines that are no record, before the format's first line
+    if fmt is None and (found := detect(head)) is not None:
+        fmt, start = found
     if fmt is not None and fmt not in FORMAT_MODULES:
         raw.close()
         raise InputError(display, f"unknown input format {fmt!r} (supported: {', '.join(FORMATS)})")
@@ -422,8 +470,17 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
 
     def batches() -> Iterator[FrameBatch]:
         try:
+            first_line = 1
+            if start:  # leading lines that are no record: skipped records, in order
+                leading = _read_up_to(buffered, start).split(b"\n")[:-1]
+                for lineno, line in enumerate(leading, 1):
+                    if line.strip():
+                        stats.skip(lineno, "a line before the first record "
+                                           "(a note or a banner?)")
+                first_line = len(leading) + 1
             source = Source(display, buffered, errors, compression,
-                            None if compression or path == "-" else path, options or {})
+                            None if compression or path == "-" else path, options or {},
+                            first_line)
             yield from reader(source, stats)
             if damage is not None and damage.damage is not None:
                 stats.truncated = True  # read up to the damage of the compressed stream

@@ -91,12 +91,13 @@ _EVENT = re.compile(rb"^\s*\d+\.\d+\s+(\d+|CANFD)\s+")
 
 
 def sniff(head: bytes) -> bool:
-    """An ASC log starts with its `date`/`base`/trigger-block header or with event lines."""
+    """An ASC log starts with its `date`/`base`/trigger-block header or with event lines;
+    `//` comment lines before them are the format's own (the reader passes over them too)."""
     if not is_text(head):
         return False
     for raw in head.splitlines()[:50]:
         line = raw.strip()
-        if line:
+        if line and (not line.startswith(b"//") or _HEADER.match(line)):
             return _HEADER.match(line) is not None or _EVENT.match(line) is not None
     return False
 
@@ -184,7 +185,7 @@ def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     state = _State()
-    for lineno, raw in enumerate(source.lines(), 1):
+    for lineno, raw in enumerate(source.lines(), source.first_line):
         row = _parse_line(raw, lineno, stats, state)
         if row is not None:
             yield lineno, row

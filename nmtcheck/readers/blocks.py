@@ -214,7 +214,7 @@ def parsed_blocks(source: Source, parse: Callable[[Block], T],
         lines = _block(chunk)
         return lines, parse(lines)
 
-    line = 1
+    line = source.first_line
     for block, parsed in _parallel(job, it, (head, parse(head)), first[1]):
         block.first_line = line  # numbered here, in order: a worker cannot know it
         line += len(block)

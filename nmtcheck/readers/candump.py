@@ -180,7 +180,7 @@ def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 
 def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
-    for lineno, raw in enumerate(source.lines(), 1):
+    for lineno, raw in enumerate(source.lines(), source.first_line):
         row = _parse_line(raw, lineno, stats)
         if row is not None:
             ts, iface, can_id, ext, rtr, err, fd, dlc, data = row

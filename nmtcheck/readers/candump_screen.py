@@ -196,7 +196,7 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     lines = source.lines()
     head = list(islice(lines, DETECT_LINES))
     clock = _Clock(deltas=_looks_like_deltas(head))
-    for lineno, raw in enumerate(chain(head, lines), 1):
+    for lineno, raw in enumerate(chain(head, lines), source.first_line):
         if raw[:1] == b"\t" or not raw.strip():
             continue  # -e: the explanation of the error frame above
         stamp, tokens = _split(raw)

@@ -103,7 +103,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     layout = _Layout()
-    for lineno, raw in enumerate(source.lines(), 1):
+    for lineno, raw in enumerate(source.lines(), source.first_line):
         line = raw.strip()
         if not line:
             continue

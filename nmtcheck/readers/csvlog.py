@@ -137,7 +137,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     savvycan: _SavvyCan | None = None
     header_seen = False
-    for lineno, raw in enumerate(source.lines(), 1):
+    for lineno, raw in enumerate(source.lines(), source.first_line):
         line = raw.strip()
         if not line:
             continue

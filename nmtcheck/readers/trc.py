@@ -228,7 +228,7 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     header = _Header()
     layout: _V2Layout | None = None
     started = False  # the first record line fixes the version's layout
-    for lineno, raw in enumerate(source.lines(), 1):
+    for lineno, raw in enumerate(source.lines(), source.first_line):
         line = raw.strip()
         if not line:
             continue

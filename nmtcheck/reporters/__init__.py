@@ -12,8 +12,8 @@ from nmtcheck.errors import UsageError
 
 Renderer = Callable[[list[InputResult], dict[str, object]], str]
 # format name -> module in this package (imported only when the format is used)
-MODULES = {"text": "text", "json": "json", "csv": "csv", "html": "html", "junit": "junit",
-           "sarif": "sarif", "github": "github", "markdown": "markdown"}
+MODULES = {"text": "text", "concise": "concise", "json": "json", "csv": "csv", "html": "html",
+           "junit": "junit", "sarif": "sarif", "github": "github", "markdown": "markdown"}
 FORMATS = (*MODULES, "auto")
 PLANNED: tuple[str, ...] = ()
 # Longest first where one suffix ends another (".sarif.json" before ".json").
@@ -35,6 +35,13 @@ def renderer(name: str) -> Renderer:
     if module is None:
         raise UsageError(f"--format {name}: unknown format (available: {', '.join(FORMATS)})")
     return cast(Renderer, importlib.import_module(f"nmtcheck.reporters.{module}").render)
+
+
+def statistics_renderer(name: str) -> Renderer:
+    """`--statistics`: one line per rule with its count (JSON for `--format json`)."""
+    from nmtcheck.reporters import statistics
+
+    return statistics.render_json if name == "json" else statistics.render
 
 
 def format_for_path(path: str) -> str:

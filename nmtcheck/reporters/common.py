@@ -20,6 +20,28 @@ NETWORK_RULES = ("C001", "C002")
 NETWORK_ONLY_RULES = ("C001",)
 
 
+def is_input_rule(code: str) -> bool:
+    """I-rules judge the input itself: their findings name no channel and no node."""
+    return code.startswith("I")
+
+
+def where_label(channel: str | None, node: int | None) -> str:
+    """'can0 node 5', 'can0 network', or 'input' for a finding about the input itself."""
+    return "input" if channel is None else f"{channel} {node_label(node)}"
+
+
+def config_line(options: dict[str, object] | None) -> str | None:
+    """Which configuration file was used and the profile in force, when a file was used."""
+    cfg = (options or {}).get("config")
+    if not isinstance(cfg, dict) or not cfg.get("file"):
+        return None
+    extra = cfg.get("overrides") or []
+    assert isinstance(extra, list)
+    return (f"configuration: {cfg['file']} (profile {cfg.get('profile') or 'default'}"
+            + (f", with its own [rules] tables for {', '.join(map(str, extra))}" if extra
+               else "") + ")")
+
+
 def network_notes(options: dict[str, object] | None) -> list[str]:
     """What could not be read from the network and device files (shown, never dropped)."""
     notes = (options or {}).get("network_notes") or []
@@ -89,7 +111,7 @@ class FindingGroup:
     rule: str
     name: str
     severity: str
-    channel: str
+    channel: str | None  # None: the input itself (I-rules)
     node: int | None
     findings: list[Finding] = field(default_factory=list)
 
@@ -104,7 +126,7 @@ class FindingGroup:
 
 def group_findings(findings: Iterable[Finding]) -> list[FindingGroup]:
     """Group by (input, channel, node, rule), in order of each group's first finding."""
-    groups: dict[tuple[int, str, int | None, str], FindingGroup] = {}
+    groups: dict[tuple[int, str | None, int | None, str], FindingGroup] = {}
     for f in findings:
         key = (f.input, f.channel, f.node, f.rule)
         g = groups.get(key)
@@ -191,6 +213,8 @@ def nodes_by_channel(result: InputResult, always_network: bool = False
     for m in result.nodes():
         out.setdefault(m.channel, set()).add(m.node)
     for f in result.findings:
+        if f.channel is None:
+            continue  # an I-rule finding belongs to the input, not to a channel
         if f.node is None:
             network.add(f.channel)
         else:

@@ -18,7 +18,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     for res in results:
         start = res.stats.start or 0.0
         for f in res.findings:
-            w.writerow([f.input, res.stats.path, f.rule, f.name, f.severity, f.channel,
+            w.writerow([f.input, res.stats.path, f.rule, f.name, f.severity, f.channel or "",
                         "" if f.node is None else f.node, f"{f.time:.6f}",
                         f"{f.time - start:.6f}", "" if f.frame_index is None else f.frame_index,
                         f.line or "", f.message])

@@ -7,7 +7,7 @@ line follows so the job log still reads on its own.
 from __future__ import annotations
 
 from nmtcheck.engine import InputResult, summary
-from nmtcheck.reporters.common import counts_phrase, fail_on, is_failing, node_label, offset
+from nmtcheck.reporters.common import counts_phrase, fail_on, is_failing, offset, where_label
 
 COMMANDS = {"error": "error", "warning": "warning", "info": "notice"}
 
@@ -29,7 +29,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             props = [f"file={escape_property(res.stats.path)}"]
             if f.line:
                 props.append(f"line={f.line}")
-            title = f"{f.rule} {f.name} ({f.channel} {node_label(f.node)})"
+            title = f"{f.rule} {f.name} ({where_label(f.channel, f.node)})"
             props.append(f"title={escape_property(title)}")
             message = f"{f.message} [at {offset(res, f.time):.3f} s]"
             lines.append(f"::{COMMANDS[f.severity]} {','.join(props)}::{escape_data(message)}")

@@ -28,6 +28,7 @@ from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
     checked_rules,
+    config_line,
     duration,
     fail_on,
     group_findings,
@@ -39,6 +40,7 @@ from nmtcheck.reporters.common import (
     nodes_by_channel,
     offset,
     resets,
+    where_label,
 )
 from nmtcheck.reporters.json import report_dict
 from nmtcheck.timeline import HEARTBEAT, STATES, NodeModel
@@ -117,10 +119,17 @@ def _group_view(res: InputResult, g: FindingGroup, gid: str) -> dict[str, Any]:
     return {
         "id": gid, "input": g.input, "path": res.stats.path, "rule": g.rule, "name": g.name,
         "severity": g.severity, "severity_rank": SEVERITY_ORDER.index(g.severity),
-        "channel": g.channel, "node": g.node, "where": node_label(g.node),
-        "node_key": f"{g.input}/{g.channel}/{'' if g.node is None else g.node}",
+        "channel": g.channel, "node": g.node,
+        "where": "input" if g.channel is None else node_label(g.node),
+        "place": where_label(g.channel, g.node),
+        "node_key": (f"{g.input}/input" if g.channel is None
+                     else f"{g.input}/{g.channel}/{'' if g.node is None else g.node}"),
+        "sort_node": ("" if g.channel is None else f"{g.channel}/"
+                      + ("zzz" if g.node is None else f"{g.node:03d}")),
         "count": g.count, "time": _r(offset(res, f.time)), "line": f.line or None,
-        "message": f.message, "timeline": timeline_id(res, g.channel),
+        # I-rule findings belong to no channel: no timeline to jump to
+        "message": f.message,
+        "timeline": None if g.channel is None else timeline_id(res, g.channel),
         "occurrences": [{"time": _r(offset(res, o.time)), "line": o.line or None,
                          "message": o.message} for o in shown],
         "hidden": g.count - len(shown),
@@ -228,8 +237,11 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
         "several_inputs": len(results) > 1, "network_notes": network_notes(options),
         "rule_options": sorted({g["rule"] for g in groups}),
-        "node_options": sorted({(g["input"], g["channel"], -1 if g["node"] is None else g["node"],
-                                 g["node_key"], g["where"]) for g in groups}),
+        "node_options": [(i, place, key) for i, _c, _n, key, place in sorted(
+            {(g["input"], g["channel"] or "", -2 if g["channel"] is None else
+              -1 if g["node"] is None else g["node"], g["node_key"], g["place"])
+             for g in groups})],
+        "config": config_line(options),
         "page_data": script_json(page_data),
         "css": Markup(_asset("report.css")), "js": Markup(_asset("report.js")),
     }

@@ -48,8 +48,8 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
             "start": _r(s.start if s.start is not None else 0.0),
             "end": _r(s.end if s.end is not None else 0.0),
             "remote_frames": s.remote_frames, "fd_frames": s.fd_frames, "ignored": s.ignored,
-            "dropped": s.dropped, "backwards_timestamps": s.backwards_timestamps,
-            "truncated": s.truncated,
+            "dropped": s.dropped, "backwards": s.backwards_timestamps,
+            "backwards_timestamps": s.backwards_timestamps, "truncated": s.truncated,
             "skipped_lines": s.skipped_lines, "channels": s.channels,
         })
         for m in res.nodes():
@@ -80,7 +80,18 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
             "events": sorted(events, key=lambda e: (e["input"], e["frame_index"])),
             "channels": channels,
             "network": {"notes": list(network_notes(options))},
+            "config": _config(options),
             "summary": summary(results)}
+
+
+def _config(options: dict[str, object] | None) -> dict[str, Any]:
+    """Which configuration file was used (null: none) and the rule profile in force
+    (null when the caller did not say: a library call without the CLI's options)."""
+    cfg = (options or {}).get("config")
+    if not isinstance(cfg, dict):
+        return {"file": None, "profile": None, "overrides": []}
+    return {"file": cfg.get("file"), "profile": cfg.get("profile"),
+            "overrides": list(cfg.get("overrides") or [])}
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:

@@ -1,7 +1,8 @@
 """JUnit XML for CI dashboards (Jenkins, GitLab): what was checked, and what failed.
 
 One `<testsuite>` per input and one `<testcase>` per (rule x node), passing ones
-included, so a dashboard lists every check that ran. A test case fails when it
+included, so a dashboard lists every check that ran; the input rules (I) get one
+case each with classname `input`. A test case fails when it
 has a finding at or above `--fail-on`, exactly as the exit code does; findings
 below it are kept in the passing case's `<system-out>`.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 
 from nmtcheck import __version__
+from nmtcheck.checks.base import Rule
 from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
     NETWORK_ONLY_RULES,
@@ -19,6 +21,7 @@ from nmtcheck.reporters.common import (
     duration,
     fail_on,
     is_failing_severity,
+    is_input_rule,
     node_label,
     nodes_by_channel,
     offset,
@@ -31,15 +34,18 @@ def _finding_text(res: InputResult, f: Finding) -> str:
             f"({res.stats.path} {where}): {f.message}")
 
 
-def _classname(channel: str, node: int | None) -> str:
-    """Jenkins reads dots as package.class: channel, then node (zero-padded so it sorts)."""
+def _classname(channel: str | None, node: int | None) -> str:
+    """Jenkins reads dots as package.class: channel, then node (zero-padded so it sorts);
+    `input` for the rules about the input itself."""
+    if channel is None:
+        return "input"
     return f"{channel}." + ("network" if node is None else f"node{node:03d}")
 
 
 def _suite(res: InputResult, options: dict[str, object]) -> ET.Element:
     threshold = fail_on(options)
     rules = checked_rules(options)
-    by_case: dict[tuple[str, int | None, str], list[Finding]] = {}
+    by_case: dict[tuple[str | None, int | None, str], list[Finding]] = {}
     for f in res.findings:
         by_case.setdefault((f.channel, f.node, f.rule), []).append(f)
     s = res.stats
@@ -50,32 +56,38 @@ def _suite(res: InputResult, options: dict[str, object]) -> ET.Element:
                        ("error_frames", s.error_frames), ("channels", ",".join(s.channels)),
                        ("fail_on", threshold)):
         ET.SubElement(props, "property", name=key, value=str(value))
-    tests = failures = 0
-    for channel, nodes in nodes_by_channel(res, always_network=True).items():
+    cases: list[tuple[str | None, int | None, Rule]] = [
+        (None, None, rule) for rule, _severity in rules if is_input_rule(rule.code)]
+    for name, nodes in nodes_by_channel(res, always_network=True).items():
         for node in nodes:
             for rule, _severity in rules:
-                found = by_case.get((channel, node, rule.code), [])
-                if not found and (rule.code in NETWORK_ONLY_RULES if node is not None
-                                  else rule.code not in NETWORK_RULES):
+                if is_input_rule(rule.code) or not by_case.get((name, node, rule.code)) and (
+                        rule.code in NETWORK_ONLY_RULES if node is not None
+                        else rule.code not in NETWORK_RULES):
                     continue  # a rule is checked for the network, or per node, or both
-                case = ET.SubElement(suite, "testcase", classname=_classname(channel, node),
-                                     name=f"{rule.code} {rule.name}", file=s.path)
-                tests += 1
-                failing = [f for f in found if is_failing_severity(f.severity, threshold)]
-                if failing:
-                    failures += 1
-                    first = failing[0]
-                    if first.line:
-                        case.set("line", str(first.line))
-                    message = first.message + (f" (and {len(failing) - 1} more)"
-                                               if len(failing) > 1 else "")
-                    failure = ET.SubElement(case, "failure", type=rule.code,
-                                            message=f"{node_label(node)}: {message}")
-                    failure.text = "\n".join(_finding_text(res, f) for f in failing)
-                rest = [f for f in found if f not in failing]
-                if rest:
-                    ET.SubElement(case, "system-out").text = "\n".join(
-                        _finding_text(res, f) for f in rest)
+                cases.append((name, node, rule))
+    tests = failures = 0
+    for channel, node, rule in cases:
+        found = by_case.get((channel, node, rule.code), [])
+        case = ET.SubElement(suite, "testcase", classname=_classname(channel, node),
+                             name=f"{rule.code} {rule.name}", file=s.path)
+        tests += 1
+        failing = [f for f in found if is_failing_severity(f.severity, threshold)]
+        if failing:
+            failures += 1
+            first = failing[0]
+            if first.line:
+                case.set("line", str(first.line))
+            message = first.message + (f" (and {len(failing) - 1} more)"
+                                       if len(failing) > 1 else "")
+            label = "input" if channel is None else node_label(node)
+            failure = ET.SubElement(case, "failure", type=rule.code,
+                                    message=f"{label}: {message}")
+            failure.text = "\n".join(_finding_text(res, f) for f in failing)
+        rest = [f for f in found if f not in failing]
+        if rest:
+            ET.SubElement(case, "system-out").text = "\n".join(
+                _finding_text(res, f) for f in rest)
     for key, value in (("tests", tests), ("failures", failures), ("errors", 0), ("skipped", 0)):
         suite.set(key, str(value))
     return suite

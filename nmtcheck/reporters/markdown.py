@@ -15,9 +15,9 @@ from nmtcheck.reporters.common import (
     group_findings,
     heartbeat_stats,
     is_failing,
-    node_label,
     offset,
     resets,
+    where_label,
 )
 
 MAX_GROUPS = 50  # a comment people read, not the full report: the rest is counted
@@ -59,7 +59,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             f = g.first
             out.append(f"| {g.severity} | {g.rule} {g.name} | "
                        + (f"`{cell(res.stats.path)}` | " if several else "")
-                       + f"{cell(g.channel)} {node_label(g.node)} | "
+                       + f"{cell(where_label(g.channel, g.node))} | "
                        f"{offset(res, f.time):.3f} s | {f.line or '–'} | {g.count} | "
                        f"{cell(f.message)} |")
         if len(groups) > MAX_GROUPS:

@@ -63,19 +63,19 @@ def sarif_log(results: list[InputResult], options: dict[str, object]) -> dict[st
                 "artifactLocation": {**artifact_location(res.stats.path), "index": res.index}}
             if f.line:
                 physical["region"] = {"startLine": f.line}
+            location: dict[str, Any] = {"physicalLocation": physical}
+            if f.channel is not None:  # I-rules: the log file itself is the location
+                location["logicalLocations"] = [{
+                    "name": "network" if f.node is None else f"node {f.node}",
+                    "fullyQualifiedName": f"{f.channel}/"
+                                          + ("network" if f.node is None else f"{f.node}"),
+                    "kind": "module",
+                }]
             result: dict[str, Any] = {
                 "ruleId": f.rule,
                 "level": LEVELS[f.severity],
                 "message": {"text": f.message},
-                "locations": [{
-                    "physicalLocation": physical,
-                    "logicalLocations": [{
-                        "name": "network" if f.node is None else f"node {f.node}",
-                        "fullyQualifiedName": f"{f.channel}/"
-                                              + ("network" if f.node is None else f"{f.node}"),
-                        "kind": "module",
-                    }],
-                }],
+                "locations": [location],
                 "properties": {"channel": f.channel, "node": f.node, "time": f.time,
                                "offsetSeconds": round(offset(res, f.time), 6),
                                "frameIndex": f.frame_index, "severity": f.severity},

@@ -4,16 +4,19 @@ from __future__ import annotations
 
 from itertools import groupby
 
-from nmtcheck.engine import InputResult, summary
+from nmtcheck.engine import Finding, InputResult, summary
 from nmtcheck.reporters.common import (
+    config_line,
     configured_vs_measured,
     final_state,
     is_failing,
     master_line,
     network_notes,
+    where_label,
 )
 
 MAX_EVENTS_SHOWN = 50
+REPEATS_SHOWN = 3  # findings of one rule on one node listed before the rest is rolled up
 
 
 def _input_line(res: InputResult) -> list[str]:
@@ -69,28 +72,62 @@ def _node_events(res: InputResult) -> list[str]:
     return ["  node events (not findings):", *out] if out else []
 
 
+def _finding_line(f: Finding, start: float) -> str:
+    where = f"line {f.line}" if f.line else f"frame {f.frame_index}"
+    return (f"    {f.time - start:10.6f} s  {where:<12} {f.severity:<7} "
+            f"{f.rule} {f.name}: {f.message}")
+
+
+def _findings(res: InputResult) -> list[str]:
+    """Findings grouped by channel and node (the input's own first), each group headed by
+    the file's path so a grep across many reports finds it; from the fourth finding of one
+    rule on one node on, a single line counts the rest (--format concise lists them all)."""
+    start = res.stats.start or 0.0
+    out: list[str] = []
+
+    def key(f: Finding) -> tuple[int, str, int]:
+        return (0 if f.channel is None else 1, f.channel or "", -1 if f.node is None else f.node)
+
+    for _key, grouped in groupby(sorted(res.findings, key=key), key=key):
+        group = list(grouped)
+        out.append(f"  {res.stats.path} {where_label(group[0].channel, group[0].node)}:")
+        by_rule: dict[str, list[Finding]] = {}
+        rank: list[int] = []  # each finding's position among its rule's (linear, not k^2)
+        for f in group:
+            same = by_rule.setdefault(f.rule, [])
+            rank.append(len(same))
+            same.append(f)
+        for f, k in zip(group, rank, strict=True):
+            same = by_rule[f.rule]
+            if k < REPEATS_SHOWN or len(same) == REPEATS_SHOWN + 1:
+                out.append(_finding_line(f, start))
+            elif k == REPEATS_SHOWN:
+                last = same[-1]
+                where = f"line {last.line}" if last.line else f"frame {last.frame_index}"
+                out.append(f"    … {len(same) - REPEATS_SHOWN} more {f.rule} {f.name} "
+                           f"({f.severity}) up to {last.time - start:.6f} s, {where} "
+                           "(--format concise lists every one)")
+    return out
+
+
 def render(results: list[InputResult], options: dict[str, object]) -> str:
     fail_on = str(options.get("fail_on", "error"))
     quiet = bool(options.get("quiet", False))
     out: list[str] = []
+    config = config_line(options)
+    if config and not quiet:
+        out.append(config)
     notes = network_notes(options)
     if notes:
         out.append("network description: values that could not be read:")
         out += [f"  {n}" for n in notes]
     for res in results:
         out += _input_line(res)
-        start = res.stats.start or 0.0
         if not quiet:
             out += [f"  {master_line(cm)}" for cm in res.model.channels]
             out += _node_table(res)
             out += _node_events(res)
-        key = lambda f: (f.channel, -1 if f.node is None else f.node)  # noqa: E731
-        for (channel, node), group in groupby(sorted(res.findings, key=key), key=key):
-            out.append(f"  {channel} " + ("network" if node == -1 else f"node {node}") + ":")
-            for f in group:
-                where = f"line {f.line}" if f.line else f"frame {f.frame_index}"
-                out.append(f"    {f.time - start:10.6f} s  {where:<12} {f.severity:<7} "
-                           f"{f.rule} {f.name}: {f.message}")
+        out += _findings(res)
         out.append("")
     counts = summary(results)
     total = sum(counts.values())
@@ -99,4 +136,3 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     out.append(f"{verdict}: {counts['error']} error(s), {counts['warning']} warning(s), "
                f"{counts['info']} info in {total} finding(s) (--fail-on {fail_on})")
     return "\n".join(out) + "\n"
-

@@ -1,0 +1,231 @@
+"""Input rules (I): problems of the log itself, not of the network.
+
+They judge what the reader counted (`model.stats`, an `InputStats`) and how many
+frames CANopen decoding saw. Their findings have channel and node None: one per
+input and rule, exempt from the UNKNOWN rule (SPEC §3). Time and frame are those
+of the first record concerned.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from nmtcheck.checks.base import Param, Problem, rule
+from nmtcheck.timeline import InputModel
+
+# Formats whose records are lines: their record numbers are line numbers a viewer can open.
+TEXT_FORMATS = frozenset({"candump", "asc", "trc", "candump-screen", "csv", "cl2000"})
+LINES_SHOWN = 5
+
+
+def _frame_lines(chunk: dict[str, np.ndarray]) -> np.ndarray:
+    """The line number of every frame of one `frame_times` chunk."""
+    if "line" in chunk:
+        return np.asarray(chunk["line"], np.int64)
+    n = len(chunk["ts"])
+    return int(chunk["line_first"][0]) + int(chunk["line_step"][0]) * np.arange(n, dtype=np.int64)
+
+
+def _first_frame(model: InputModel) -> tuple[float, int | None, int | None]:
+    """(time, frame index, line) of the input's first frame, or (0.0, None, None)."""
+    stats = model.stats
+    if not stats.frames:
+        return 0.0, None, None
+    for chunk in model.decoded.frame_times:
+        if len(chunk["ts"]):
+            return float(chunk["ts"][0]), int(chunk["base"][0]), int(_frame_lines(chunk)[0])
+    return float(stats.start or 0.0), 0, None
+
+
+def _last_frame(model: InputModel) -> tuple[float, int | None, int | None]:
+    """(time, frame index, line) of the input's last frame, or (0.0, None, None)."""
+    stats = model.stats
+    if not stats.frames:
+        return 0.0, None, None
+    last: dict[str, np.ndarray] | None = None
+    for chunk in model.decoded.frame_times.reaching(float(stats.end or 0.0)):
+        if len(chunk["ts"]):
+            last = chunk
+    if last is None:
+        return float(stats.end or 0.0), stats.frames - 1, None
+    n = len(last["ts"])
+    return float(last["ts"][-1]), int(last["base"][0]) + n - 1, int(_frame_lines(last)[-1])
+
+
+def _frame_after_line(model: InputModel, line: int) -> tuple[float, int | None]:
+    """(time, index) of the first frame after record `line`: where a skipped record sits in
+    time; the last frame if none follows, (0.0, None) without frames."""
+    prev: tuple[float, int | None] = (0.0, None)
+    for chunk in model.decoded.frame_times:
+        ts = chunk["ts"]
+        if not len(ts):
+            continue
+        lines = _frame_lines(chunk)
+        after = np.flatnonzero(lines > line)
+        if after.size:
+            k = int(after[0])
+            return float(ts[k]), int(chunk["base"][0]) + k
+        prev = (float(ts[-1]), int(chunk["base"][0]) + len(ts) - 1)
+    return prev
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
+@rule("I001", "nothing-to-check", "error", exempt_from_unknown=True)
+def nothing_to_check(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """The input holds no 11-bit CAN frame: nothing was checked.
+
+    **What it checks.** The input's format is known (detected, or given with
+    `--input-format`) but it holds no 11-bit data or remote frame: only extended
+    or error frames, only records that are no frames, or every record was skipped
+    as unparseable. One finding per input, at its first record. An empty file is
+    not this rule: it stays an input error (exit 2).
+
+    **Why it matters.** A CI gate must not take "no finding" for a pass when no
+    CANopen frame was looked at: a log of another protocol, the wrong
+    `--input-format`, or a log the reader could not understand all look clean
+    otherwise.
+
+    **Example.** `nmtcheck check candump.log --input-format trc`: every line is a
+    skipped record, 0 frames are checked.
+    """
+    stats = model.stats
+    if stats is None or model.decoded.standard_frames:
+        return
+    ts, idx, line = _first_frame(model)
+    if idx is None and stats.skipped_lines and stats.format in TEXT_FORMATS:
+        line = stats.skipped_lines[0]
+    parts = [_plural(stats.frames, "frame")]
+    if stats.extended:
+        parts.append(f"{stats.extended} extended")
+    if stats.error_frames:
+        parts.append(f"{_plural(stats.error_frames, 'error frame')}")
+    if stats.skipped:
+        parts.append(f"{_plural(stats.skipped, 'skipped record')}")
+    if stats.ignored:
+        parts.append(f"{_plural(stats.ignored, 'non-frame record')}")
+    hint = (" (is --input-format right?)" if stats.skipped and not stats.frames else "")
+    yield Problem(None, None, ts, f"no 11-bit CAN data or remote frame to check in this "
+                  f"{stats.format} input ({', '.join(parts)}){hint}", idx, line)
+
+
+@rule("I002", "truncated-input", "warning", exempt_from_unknown=True)
+def truncated_input(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """The input ends early: inside a record, a compressed stream or a container.
+
+    **What it checks.** The reader met the end of the input inside a record (a
+    BLF object, an MCAP record), a compressed stream (`.gz`, `.bz2`, `.xz`,
+    `.zst`) or a container, and read it up to there. One finding per input, at
+    the last record read. `--strict` makes this an input error (exit 2).
+
+    **Why it matters.** A log cut off while recording or copying is checked only
+    up to the cut: verdicts near the end (a timeout still running, a boot-up
+    never seen) may be missing, and the recording is not what was on the bus.
+
+    **Example.** A `.log.gz` copied while the logger was still writing it.
+    """
+    stats = model.stats
+    if stats is None or not stats.truncated:
+        return
+    ts, idx, line = _last_frame(model)
+    where = (f"after {_plural(stats.frames, 'frame')}" if stats.frames
+             else "before its first frame")
+    yield Problem(None, None, ts, f"the input ends early (cut off or damaged) {where}: "
+                  "it was read up to there, verdicts near the end may be missing", idx, line)
+
+
+@rule("I003", "skipped-records", "warning",
+      Param("max_skipped", int, "how many unparseable records are tolerated"),
+      exempt_from_unknown=True)
+def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """Records of the input could not be parsed.
+
+    **What it checks.** More than `max_skipped` records could not be parsed; the
+    message gives their count and the first line numbers (for binary formats, the
+    record numbers where known). Records that a format defines and that are no
+    frames (ASC status and statistics lines, `TxRq`, comments inside the log) are
+    not skipped records. One finding per input, at the frame after the first
+    skipped record. `--strict` makes the first one an input error (exit 2).
+
+    **Why it matters.** A frame hidden in an unparseable line is a frame the rules
+    never saw: a heartbeat gap or a missing boot-up may be the reader's, not the
+    network's. A log edited by hand or damaged in transfer shows up here.
+
+    **Example.** A candump log with a line `garbage here` between two frames.
+    """
+    stats = model.stats
+    if stats is None or stats.skipped <= int(p.get("max_skipped", 0)):
+        return
+    text = stats.format in TEXT_FORMATS
+    numbers = [n for n in stats.skipped_lines if n > 0]
+    where = ""
+    if numbers:
+        shown = ", ".join(map(str, numbers[:LINES_SHOWN]))
+        more = ", …" if stats.skipped > min(len(numbers), LINES_SHOWN) else ""
+        where = (f" (first at line{'s' if len(numbers) > 1 else ''} {shown}{more})" if text
+                 else f" (first at record{'s' if len(numbers) > 1 else ''} {shown}{more})")
+    ts, idx = (_frame_after_line(model, numbers[0]) if numbers and text
+               else _first_frame(model)[:2])
+    line = numbers[0] if numbers and text else None
+    yield Problem(None, None, ts, f"{_plural(stats.skipped, 'record')} could not be parsed as "
+                  f"{stats.format}{where}", idx, line)
+
+
+@rule("I004", "frames-lost", "warning", exempt_from_unknown=True)
+def frames_lost(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """The logger reported frames it dropped.
+
+    **What it checks.** The log says that the logger lost frames: candump
+    `DROPCOUNT`, BLF data-lost events, CANedge/CL2000 `Lost` counts. One finding
+    per input with the total count. The readers do not keep the moment of the
+    first loss, so the finding sits at the input's first frame.
+
+    **Why it matters.** A heartbeat gap, a missing boot-up or an unanswered
+    guarding request in that window may be the logger's loss, not the network's:
+    judge timing findings of such a log with care, or record again with a larger
+    receive buffer.
+
+    **Example.** `DROPCOUNT: 12` in a candump log.
+    """
+    stats = model.stats
+    if stats is None or not stats.dropped:
+        return
+    ts, idx, line = _first_frame(model)
+    yield Problem(None, None, ts, f"the logger reported {_plural(stats.dropped, 'frame')} "
+                  "lost (the moment of the first loss is not recorded: the finding is at the "
+                  "first frame); timing findings may be the logger's", idx, line)
+
+
+@rule("I005", "timestamps-backwards", "warning", exempt_from_unknown=True)
+def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """Timestamps go backwards between consecutive records.
+
+    **What it checks.** A frame's timestamp is earlier than the one before it in
+    the file. Frames are kept in file order; the message gives the count and the
+    first place. One finding per input, at the first frame that goes back.
+
+    **Why it matters.** Merged, concatenated or re-ordered logs make every timing
+    rule unreliable: gaps, early heartbeats and command windows are measured
+    between frames that were not neighbours on the bus.
+
+    **Example.** Two candump logs of one session joined with `cat` in the wrong
+    order.
+    """
+    stats = model.stats
+    if stats is None or not stats.backwards_timestamps:
+        return
+    first = stats.first_backwards
+    if first is None:
+        ts, idx, line = _first_frame(model)
+    else:
+        idx, line, ts = first
+    where = f" (first at line {line})" if line and stats.format in TEXT_FORMATS else (
+        f" (first at frame {idx})" if idx is not None else "")
+    yield Problem(None, None, ts, f"timestamps go backwards "
+                  f"{_plural(stats.backwards_timestamps, 'time')}{where}: frames are kept in "
+                  "file order, timing findings may be unreliable", idx, line or None)

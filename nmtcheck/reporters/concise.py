@@ -1,0 +1,35 @@
+r"""One line per finding for CI logs, grep and editors (`--format concise`).
+
+`PATH:LINE: TIME CODE [severity] node N: message` — TIME in seconds from the
+input's first frame; LINE is empty for binary formats (`run.blf:: …`). A finding
+of the network rather than a node (C001, C002 on a frame of the wrong length)
+says `network:`; a finding about the input itself (I-rules) has no node part.
+When an input has several channels the node part names the channel too
+(`node 5 on can1:`). Vim's `errorformat=%f:%l:\ %m` and Emacs' compilation mode
+follow these lines. A verdict line ends the output.
+"""
+
+from __future__ import annotations
+
+from nmtcheck.engine import Finding, InputResult, summary
+from nmtcheck.reporters.common import counts_phrase, fail_on, is_failing, node_label, offset
+
+
+def finding_line(res: InputResult, f: Finding) -> str:
+    if f.channel is None:
+        who = ""
+    else:
+        who = node_label(f.node) + (f" on {f.channel}" if len(res.stats.channels) > 1 else "")
+        who += ": "
+    return (f"{res.stats.path}:{f.line or ''}: {offset(res, f.time):.6f}s {f.rule} "
+            f"[{f.severity}] {who}{f.message}")
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    lines = [finding_line(res, f) for res in results for f in res.findings]
+    threshold = fail_on(options)
+    verdict = "FAIL" if is_failing(results, threshold) else "PASS"
+    inputs = len(results)
+    lines.append(f"nmtcheck {verdict}: {counts_phrase(summary(results))} in "
+                 f"{inputs} input{'s' if inputs != 1 else ''} (--fail-on {threshold})")
+    return "\n".join(lines) + "\n"
