@@ -6,12 +6,15 @@ input error (one line on stderr, never a traceback unless --debug).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import glob
 import io
 import json
 import os
+import signal
 import sys
+import tempfile
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -35,6 +38,7 @@ from nmtcheck.network import Network, load_network
 from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
 from nmtcheck.reporters import FORMATS, format_for_path, renderer, statistics_renderer
+from nmtcheck.reporters.common import spreadsheet_safe
 
 EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
 SEVERITY_ORDER = ["error", "warning", "info"]
@@ -169,11 +173,14 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
                                   "rules": {r.code: profile[r.code].severity for r in rules},
                                   "network_notes": list(network.notes) if network else [],
                                   "config": config_info}
+    written: list[str] = []
     for path, render in files:
         try:
-            Path(path).write_text(render(results, options), encoding="utf-8")
+            write_atomically(Path(path), render(results, options))
         except OSError as exc:
-            raise UsageError(f"--output {path}: cannot write: {exc.strerror}") from None
+            done = f" (written: {', '.join(written)})" if written else " (none written)"
+            raise UsageError(f"--output {path}: cannot write: {exc.strerror}{done}") from None
+        written.append(path)
     click.echo(stdout_render(results, options), nl=False)
     counts = summary(results)
     if fail_on != "never" and any(
@@ -240,6 +247,43 @@ class ProgressBar:
         self._bar.close()
 
 
+def write_atomically(path: Path, text: str) -> None:
+    """Write a report beside its target and rename it into place: a full disk or a killed
+    run never leaves a truncated report or destroys the previous one, and `-o link.json`
+    replaces the link instead of writing through it into the file it points to."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+class Terminated(BaseException):
+    """SIGTERM, SIGHUP or SIGINT as an exception, so that `finally` blocks and the temporary
+    directories' finalizers run (CI cancellation sends SIGTERM)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum: int, _frame: object) -> None:
+    raise Terminated(signum)
+
+
 def render_timeline(res: InputResult, fmt: str) -> str:
     start = res.stats.start or 0.0
     rows = [(m.channel, m.node, iv.state, iv.start, iv.end, iv.source)
@@ -253,7 +297,7 @@ def render_timeline(res: InputResult, fmt: str) -> str:
         w = csv.writer(out, lineterminator="\n")
         w.writerow(["channel", "node", "state", "start", "end", "source"])
         for c, n, s, a, b, src in rows:
-            w.writerow([c, n, s, f"{a:.6f}", f"{b:.6f}", src])
+            w.writerow([spreadsheet_safe(c), n, s, f"{a:.6f}", f"{b:.6f}", src])
         return out.getvalue()
     lines = [f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
     for m in res.nodes():
@@ -301,8 +345,14 @@ def rule_table(defaults: Profile) -> str:
 def main() -> None:
     """Entry point: one-line errors with exit code 2, never a traceback."""
     debug = "--debug" in sys.argv[1:]
+    for name in ("SIGTERM", "SIGHUP", "SIGINT"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), _raise_terminated)
     try:
         cli.main(standalone_mode=False)
+    except Terminated as exc:  # shells expect 128 + the signal's number (130 for Ctrl-C)
+        click.echo(f"nmtcheck: interrupted ({signal.Signals(exc.signum).name})", err=True)
+        sys.exit(128 + exc.signum)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     except click.exceptions.Abort:

@@ -102,6 +102,8 @@ class ForkedParser(Generic[T]):
         if self._pid == 0:  # the worker: it leaves by os._exit, so nothing buffered is flushed
             try:
                 signal.signal(signal.SIGINT, signal.SIG_IGN)  # the reading process stops it
+                for name in ("SIGTERM", "SIGHUP"):  # not the reading process's handlers
+                    signal.signal(getattr(signal, name), signal.SIG_DFL)
                 self._jobs.close()
                 self._done.close()
                 self._serve(jobs_reader, done_writer)

@@ -3,6 +3,7 @@ per-node heartbeat statistics, computed once here so every format tells the same
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -40,6 +41,23 @@ def config_line(options: dict[str, object] | None) -> str | None:
     return (f"configuration: {cfg['file']} (profile {cfg.get('profile') or 'default'}"
             + (f", with its own [rules] tables for {', '.join(map(str, extra))}" if extra
                else "") + ")")
+
+
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+_XML_INVALID = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff\ud800-\udfff]")
+
+
+def spreadsheet_safe(cell: object) -> str:
+    """A text cell a spreadsheet will not run as a formula (OWASP CSV injection): one that
+    starts with = + - @ tab or CR gets a leading apostrophe. Numbers are not text cells."""
+    text = "" if cell is None else str(cell)
+    return "'" + text if text.startswith(_FORMULA_START) else text
+
+
+def xml_safe(text: str) -> str:
+    """Text XML 1.0 can hold: characters it forbids (control characters from a channel
+    name, say) are written as \\xNN so the document stays well-formed."""
+    return _XML_INVALID.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
 def network_notes(options: dict[str, object] | None) -> list[str]:

@@ -6,6 +6,7 @@ import csv
 import io
 
 from nmtcheck.engine import InputResult
+from nmtcheck.reporters.common import spreadsheet_safe as safe
 
 COLUMNS = ["input", "path", "rule", "name", "severity", "channel", "node", "time", "offset",
            "frame_index", "line", "message"]
@@ -18,8 +19,8 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     for res in results:
         start = res.stats.start or 0.0
         for f in res.findings:
-            w.writerow([f.input, res.stats.path, f.rule, f.name, f.severity, f.channel or "",
-                        "" if f.node is None else f.node, f"{f.time:.6f}",
+            w.writerow([f.input, safe(res.stats.path), f.rule, f.name, f.severity,
+                        safe(f.channel), "" if f.node is None else f.node, f"{f.time:.6f}",
                         f"{f.time - start:.6f}", "" if f.frame_index is None else f.frame_index,
-                        f.line or "", f.message])
+                        f.line or "", safe(f.message)])
     return out.getvalue()

@@ -25,6 +25,7 @@ from nmtcheck.reporters.common import (
     node_label,
     nodes_by_channel,
     offset,
+    xml_safe,
 )
 
 
@@ -99,6 +100,10 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     for key in ("tests", "failures", "errors", "skipped"):
         root.set(key, str(sum(int(s.get(key, "0")) for s in suites)))
     root.extend(suites)
+    for el in root.iter():  # any byte of a channel or file name: still well-formed XML
+        el.text = None if el.text is None else xml_safe(el.text)
+        for key, value in el.attrib.items():
+            el.set(key, xml_safe(value))
     ET.indent(root, space="  ")
     return ('<?xml version="1.0" encoding="UTF-8"?>\n'
             + ET.tostring(root, encoding="unicode") + "\n")

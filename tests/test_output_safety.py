@@ -1,0 +1,123 @@
+"""Reports that cannot hurt whoever opens them, written atomically, and clean interruption:
+CSV cells a spreadsheet would run as formulas, JUnit XML from any byte in a name,
+`-o` through a temporary file and a rename, SIGTERM/SIGINT/SIGHUP exit codes and
+temporary files."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+from conftest import REPO, SAMPLES
+
+from nmtcheck.cli import write_atomically
+
+
+def run(*args: str, cwd: Path, env: dict[str, str] | None = None
+        ) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "nmtcheck", *args], cwd=cwd,
+                          capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})})
+
+
+def _log_on(channel: str) -> str:
+    """samples/heartbeat_loss.log (an H001) with its interface renamed."""
+    return (SAMPLES / "heartbeat_loss.log").read_text().replace(" can0 ", f" {channel} ")
+
+
+@pytest.mark.parametrize("evil", ["=1+2", "@SUM(1)", "+cmd", "-2+3", "=cmd|'/Ccalc'!A0"])
+def test_csv_cells_never_start_a_formula(tmp_path: Path, evil: str) -> None:
+    log = tmp_path / f"{evil.replace('/', '_')}.log"
+    log.write_text(_log_on(evil))
+    res = run("check", "--format", "csv", "--", log.name, cwd=tmp_path)
+    assert res.returncode == 1, res.stderr
+    rows = list(csv.DictReader(io.StringIO(res.stdout)))
+    assert rows and rows[0]["channel"] == "'" + evil and rows[0]["path"].startswith("'")
+    for row in rows:
+        for key in ("path", "channel", "message"):
+            assert not row[key].startswith(("=", "+", "-", "@")), (key, row[key])
+    timeline = run("timeline", "--format", "csv", "--", log.name, cwd=tmp_path)
+    cells = [r["channel"] for r in csv.DictReader(io.StringIO(timeline.stdout))]
+    assert cells and all(c == "'" + evil for c in cells)
+
+
+def test_junit_is_well_formed_for_control_characters_in_names(tmp_path: Path) -> None:
+    (tmp_path / "trace.log").write_text(_log_on("ca\x01n0"))
+    res = run("check", "trace.log", "--format", "junit", cwd=tmp_path)
+    assert res.returncode == 1, res.stderr
+    root = ET.fromstring(res.stdout.encode())  # raises on a document that is not well-formed
+    assert any("ca\\x01n0" in (case.get("classname") or "") for case in root.iter("testcase"))
+
+
+def test_reports_replace_a_symlink_instead_of_writing_through_it(tmp_path: Path) -> None:
+    target = tmp_path / "precious.json"
+    target.write_text("keep me\n")
+    (tmp_path / "link.json").symlink_to(target)
+    res = run("check", str(SAMPLES / "healthy.log"), "-o", "link.json", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert target.read_text() == "keep me\n"
+    link = tmp_path / "link.json"
+    assert not link.is_symlink() and '"findings"' in link.read_text()
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
+
+
+def test_a_failed_write_keeps_the_previous_report(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    report = tmp_path / "report.json"
+    report.write_text("previous\n")
+
+    def disk_full(_fd: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", disk_full)
+    with pytest.raises(OSError):
+        write_atomically(report, "new and longer\n" * 1000)
+    assert report.read_text() == "previous\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]
+
+
+def test_which_outputs_were_written_when_one_fails(tmp_path: Path) -> None:
+    (tmp_path / "out.csv").mkdir()  # a directory where a file should go: the rename fails
+    res = run("check", str(SAMPLES / "healthy.log"), "-o", "a.json", "-o", "out.csv",
+              cwd=tmp_path)
+    assert res.returncode == 2
+    assert "out.csv" in res.stderr and "written: a.json" in res.stderr
+    assert (tmp_path / "a.json").is_file()
+
+
+def _big_log(path: Path, frames: int = 1_500_000) -> None:
+    """Enough PDO traffic that the node-frame store spills to disk early."""
+    lines = [f"({1000 + i * 0.0001:.6f}) can0 18{2 + i % 3}#0102030405060708\n"
+             for i in range(frames)]
+    path.write_text("(999.000000) can0 702#00\n(999.000000) can0 703#00\n"
+                    "(999.000000) can0 704#00\n(999.001000) can0 000#0100\n" + "".join(lines))
+
+
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130),
+                                           (signal.SIGHUP, 129)])
+def test_a_signal_ends_the_run_cleanly(tmp_path: Path, sig: signal.Signals, code: int) -> None:
+    log = tmp_path / "big.log"
+    _big_log(log)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "nmtcheck", "check", str(log), "-q"],
+                            cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "PYTHONPATH": str(REPO),
+                                            "TMPDIR": str(tmp)})
+    deadline = time.monotonic() + 60
+    while not any(tmp.iterdir()) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)  # until the first spill directory exists
+    assert proc.poll() is None, "finished before it spilled: make the log bigger"
+    proc.send_signal(sig)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == code
+    assert err == f"nmtcheck: interrupted ({sig.name})\n"
+    assert list(tmp.iterdir()) == []
