@@ -95,4 +95,15 @@ def _config(options: dict[str, object] | None) -> dict[str, Any]:
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
-    return json.dumps(report_dict(results, options), indent=2) + "\n"
+    """The report, one list entry per line: `json.dumps` with an indent runs in pure
+    Python (40 s for 200 k findings and intervals); entry by entry it runs in C."""
+    report = report_dict(results, options)
+    parts = []
+    for key, value in report.items():
+        if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            entries = ",\n".join("    " + json.dumps(v) for v in value)
+            parts.append(f"  {json.dumps(key)}: [\n{entries}\n  ]")
+        else:
+            parts.append(f"  {json.dumps(key)}: " + json.dumps(value, indent=2).replace(
+                "\n", "\n  "))
+    return "{\n" + ",\n".join(parts) + "\n}\n"
