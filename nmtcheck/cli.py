@@ -26,6 +26,7 @@ from nmtcheck import __version__
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.config import Config, discover
 from nmtcheck.engine import (
+    MAX_FINDINGS_PER_RULE,
     InputResult,
     check_input,
     check_inputs,
@@ -134,12 +135,16 @@ def cli(ctx: click.Context, debug: bool) -> None:
 @click.option("-q", "--quiet", is_flag=True, help="Only the findings and the verdict.")
 @click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
               help="Check this many logs at once, in separate processes (0: one per core).")
+@click.option("--max-findings", type=click.IntRange(min=0), default=MAX_FINDINGS_PER_RULE,
+              show_default=True,
+              help="Keep at most this many findings per rule and input (0: all); every report "
+                   "states how many more were left out, and they still count for the verdict.")
 def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | None,
           network_file: str | None, config_file: str | None, isolated: bool,
           dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
           fmt: str | None, outputs: tuple[str, ...], select: tuple[str, ...],
           ignore: tuple[str, ...], fail_on: str | None, statistics: bool, quiet: bool,
-          jobs: int) -> None:
+          jobs: int, max_findings: int) -> None:
     """Analyse each LOG (`-`: standard input; quoted globs are expanded), print the findings
     and set the exit code."""
     config = discover(config_file, isolated)
@@ -165,13 +170,15 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
     try:
         results = check_inputs(logs, jobs or os.cpu_count() or 1, profile, rules,
                                progress=progress, network=network, input_format=input_format,
-                               strict=strict, channel=channel, reader_options=reader_options)
+                               strict=strict, channel=channel, reader_options=reader_options,
+                               max_findings=max_findings)
     finally:
         if progress:
             progress.close()
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet,
                                   "rules": {r.code: profile[r.code].severity for r in rules},
                                   "network_notes": list(network.notes) if network else [],
+                                  "max_findings": max_findings,
                                   "config": config_info}
     written: list[str] = []
     for path, render in files:

@@ -37,12 +37,26 @@ class Finding:
     message: str
 
 
+MAX_FINDINGS_PER_RULE = 10000  # per input; the rest is counted, never silently dropped
+
+
+@dataclass
+class Omitted:
+    """Findings of one rule past the per-rule cap: counted and stated in every report."""
+
+    rule: str
+    name: str
+    severity: str
+    count: int
+
+
 @dataclass
 class InputResult:
     index: int
     stats: InputStats
     model: InputModel
     findings: list[Finding] = field(default_factory=list)
+    omitted: list[Omitted] = field(default_factory=list)
 
     def nodes(self) -> list[NodeModel]:
         return [m for cm in self.model.channels for m in cm.nodes.values()]
@@ -116,7 +130,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                 network: Network | None = None, input_format: str | None = None,
                 strict: bool = False, channel: str | None = None,
                 reader_options: dict[str, Any] | None = None,
-                progress: Callable[[int], object] | None = None) -> InputResult:
+                progress: Callable[[int], object] | None = None,
+                max_findings: int = MAX_FINDINGS_PER_RULE) -> InputResult:
     opened = open_input(path, input_format, strict, reader_options)
     pdo_ids = {c for cfg, _channel in (network.nodes.values() if network else ())
                for c in [*cfg.tpdo_cob_ids.values(), *cfg.rpdo_cob_ids.values()] if c is not None}
@@ -144,16 +159,24 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             model.channels = [cm for cm in model.channels if cm.name == channel]
         result = InputResult(index, stats, model)
         problems: list[tuple[Rule, Problem]] = []
-        for r in rules:
-            problems.extend((r, p) for p in r.check(model, profile[r.code].params))
-        _locate(model, problems)
         nodes: dict[tuple[str | None, int], NodeModel] = {
             (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
-        for r, p in problems:
-            if p.node is not None and not r.exempt_from_unknown:
-                m = nodes.get((p.channel, p.node))
-                if m is None or m.state_at(p.time) == UNKNOWN:
+        for r in rules:
+            kept = left = 0
+            for p in r.check(model, profile[r.code].params):
+                if p.node is not None and not r.exempt_from_unknown:
+                    m = nodes.get((p.channel, p.node))
+                    if m is None or m.state_at(p.time) == UNKNOWN:
+                        continue
+                if max_findings and kept >= max_findings:
+                    left += 1
                     continue
+                kept += 1
+                problems.append((r, p))
+            if left:
+                result.omitted.append(Omitted(r.code, r.name, profile[r.code].severity, left))
+        _locate(model, problems)
+        for r, p in problems:
             settings: RuleSettings = profile[r.code]
             result.findings.append(Finding(index, r.code, r.name, settings.severity, p.channel,
                                            p.node, p.time, p.frame_index, p.line, p.message))
@@ -247,4 +270,6 @@ def summary(results: list[InputResult]) -> dict[str, int]:
     for res in results:
         for f in res.findings:
             counts[f.severity] += 1
+        for o in res.omitted:  # left out of the reports, not out of the verdict
+            counts[o.severity] += o.count
     return counts

@@ -60,6 +60,14 @@ def xml_safe(text: str) -> str:
     return _XML_INVALID.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
+def omitted_lines(results: list[InputResult], options: dict[str, object]) -> list[str]:
+    """One line per rule and input whose findings passed the cap (stated, never hidden)."""
+    cap = options.get("max_findings")
+    return [f"{res.stats.path}: {o.count} more {o.rule} {o.name} ({o.severity}) finding(s) "
+            f"left out of this report (--max-findings {cap}); they count for the verdict"
+            for res in results for o in res.omitted]
+
+
 def network_notes(options: dict[str, object] | None) -> list[str]:
     """What could not be read from the network and device files (shown, never dropped)."""
     notes = (options or {}).get("network_notes") or []

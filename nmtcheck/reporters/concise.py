@@ -12,7 +12,14 @@ follow these lines. A verdict line ends the output.
 from __future__ import annotations
 
 from nmtcheck.engine import Finding, InputResult, summary
-from nmtcheck.reporters.common import counts_phrase, fail_on, is_failing, node_label, offset
+from nmtcheck.reporters.common import (
+    counts_phrase,
+    fail_on,
+    is_failing,
+    node_label,
+    offset,
+    omitted_lines,
+)
 
 
 def finding_line(res: InputResult, f: Finding) -> str:
@@ -27,6 +34,7 @@ def finding_line(res: InputResult, f: Finding) -> str:
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
     lines = [finding_line(res, f) for res in results for f in res.findings]
+    lines += omitted_lines(results, options)
     threshold = fail_on(options)
     verdict = "FAIL" if is_failing(results, threshold) else "PASS"
     inputs = len(results)

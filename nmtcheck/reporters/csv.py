@@ -23,4 +23,8 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
                         safe(f.channel), "" if f.node is None else f.node, f"{f.time:.6f}",
                         f"{f.time - start:.6f}", "" if f.frame_index is None else f.frame_index,
                         f.line or "", safe(f.message)])
+        for o in res.omitted:  # a row that says how many were left out, not a silent cut
+            w.writerow([res.index, safe(res.stats.path), o.rule, o.name, o.severity, "", "",
+                        "", "", "", "", f"{o.count} more finding(s) left out of this report "
+                        f"(--max-findings {options.get('max_findings')})"])
     return out.getvalue()

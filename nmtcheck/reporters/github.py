@@ -7,7 +7,14 @@ line follows so the job log still reads on its own.
 from __future__ import annotations
 
 from nmtcheck.engine import InputResult, summary
-from nmtcheck.reporters.common import counts_phrase, fail_on, is_failing, offset, where_label
+from nmtcheck.reporters.common import (
+    counts_phrase,
+    fail_on,
+    is_failing,
+    offset,
+    omitted_lines,
+    where_label,
+)
 
 COMMANDS = {"error": "error", "warning": "warning", "info": "notice"}
 
@@ -33,6 +40,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             props.append(f"title={escape_property(title)}")
             message = f"{f.message} [at {offset(res, f.time):.3f} s]"
             lines.append(f"::{COMMANDS[f.severity]} {','.join(props)}::{escape_data(message)}")
+    lines += [f"::notice::{escape_data(line)}" for line in omitted_lines(results, options)]
     threshold = fail_on(options)
     verdict = "FAIL" if is_failing(results, threshold) else "PASS"
     inputs = len(results)

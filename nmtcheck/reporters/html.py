@@ -39,6 +39,7 @@ from nmtcheck.reporters.common import (
     node_label,
     nodes_by_channel,
     offset,
+    omitted_lines,
     resets,
     where_label,
 )
@@ -236,6 +237,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "inputs": inputs, "timelines": timelines, "groups": groups, "nodes": nodes,
         "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
         "several_inputs": len(results) > 1, "network_notes": network_notes(options),
+        "omitted": omitted_lines(results, options),
         "rule_options": sorted({g["rule"] for g in groups}),
         "node_options": [(i, place, key) for i, _c, _n, key, place in sorted(
             {(g["input"], g["channel"] or "", -2 if g["channel"] is None else

@@ -81,6 +81,9 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
             "channels": channels,
             "network": {"notes": list(network_notes(options))},
             "config": _config(options),
+            "omitted": [{"input": res.index, "rule": o.rule, "name": o.name,
+                         "severity": o.severity, "count": o.count}
+                        for res in results for o in res.omitted],
             "summary": summary(results)}
 
 

@@ -57,6 +57,8 @@ def _suite(res: InputResult, options: dict[str, object]) -> ET.Element:
                        ("error_frames", s.error_frames), ("channels", ",".join(s.channels)),
                        ("fail_on", threshold)):
         ET.SubElement(props, "property", name=key, value=str(value))
+    for o in res.omitted:  # findings past --max-findings: counted, stated
+        ET.SubElement(props, "property", name=f"omitted.{o.rule}", value=str(o.count))
     cases: list[tuple[str | None, int | None, Rule]] = [
         (None, None, rule) for rule, _severity in rules if is_input_rule(rule.code)]
     for name, nodes in nodes_by_channel(res, always_network=True).items():

@@ -16,6 +16,7 @@ from nmtcheck.reporters.common import (
     heartbeat_stats,
     is_failing,
     offset,
+    omitted_lines,
     resets,
     where_label,
 )
@@ -66,6 +67,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             rest = sum(g.count for g in groups[MAX_GROUPS:])
             out += ["", f"… and {rest} more finding(s) in {len(groups) - MAX_GROUPS} more "
                         "group(s): see the full report."]
+    out += [f"\n{cell(line)}" for line in omitted_lines(results, options)]
     out += ["", "<details><summary>Nodes</summary>", "",
             "| input | channel | node | error control | heartbeat median (ms) | min | max "
             "| boot-ups | resets | final state |",

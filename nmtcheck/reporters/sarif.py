@@ -54,7 +54,8 @@ def sarif_log(results: list[InputResult], options: dict[str, object]) -> dict[st
             "roles": ["analysisTarget"],
             "properties": {"format": s.format, "frames": s.frames, "skipped": s.skipped,
                            "errorFrames": s.error_frames, "channels": s.channels,
-                           "start": s.start, "end": s.end},
+                           "start": s.start, "end": s.end,
+                           "omitted": {o.rule: o.count for o in res.omitted}},
         })
     out_results = []
     for res in results:

@@ -14,6 +14,9 @@ def rule_counts(results: list[InputResult]) -> list[tuple[str, str, str, int]]:
     """(code, name, severity, count) per rule (and configured severity), most first."""
     counts: Counter[tuple[str, str, str]] = Counter(
         (f.rule, f.name, f.severity) for res in results for f in res.findings)
+    for res in results:
+        for o in res.omitted:  # every finding counts, also those left out of the reports
+            counts[(o.rule, o.name, o.severity)] += o.count
     return sorted(((c, n, s, k) for (c, n, s), k in counts.items()),
                   key=lambda row: (-row[3], row[0]))
 

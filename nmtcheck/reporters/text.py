@@ -12,6 +12,7 @@ from nmtcheck.reporters.common import (
     is_failing,
     master_line,
     network_notes,
+    omitted_lines,
     where_label,
 )
 
@@ -128,6 +129,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             out += _node_table(res)
             out += _node_events(res)
         out += _findings(res)
+        out += [f"  … {line}" for line in omitted_lines([res], options)]
         out.append("")
     counts = summary(results)
     total = sum(counts.values())
