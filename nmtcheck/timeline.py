@@ -261,6 +261,7 @@ class NodeModel:
     last_seen: float | None = None
     period_s: float | None = None
     period_source: str = "none"  # configured | measured | none
+    median_s: float | None = None  # the median heartbeat interval, whatever is configured
     timeouts: list[Timeout] = field(default_factory=list)
     intervals: list[Interval] = field(default_factory=list)
     writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
@@ -372,7 +373,7 @@ class NodeModel:
         in force if non-zero, else the whole-trace median (NaN if neither is known)."""
         series = self.config_series(np.asarray(times, np.float64),
                                     lambda cfg: cfg.heartbeat_ms)
-        fallback = self.period_s if self.period_s and self.period_s > 0 else np.nan
+        fallback = self.median_s if self.median_s and self.median_s > 0 else np.nan
         return np.where(series > 0, series / 1000.0, fallback)
 
     def interval_starts(self) -> np.ndarray:
@@ -796,13 +797,16 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
 
 
 def _find_period(m: NodeModel) -> None:
-    """Configured producer time, else the median heartbeat interval (no boot-up/reset inside)."""
+    """Configured producer time, else the median heartbeat interval (no boot-up/reset inside).
+
+    The median is kept apart too: it is the period where 1017h = 0 is in force.
+    """
+    intervals = m.heartbeat_intervals()
+    m.median_s = float(np.median(intervals)) if intervals.size else None
     if m.config.heartbeat_ms:
         m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
-        return
-    intervals = m.heartbeat_intervals()
-    if intervals.size:
-        m.period_s, m.period_source = float(np.median(intervals)), "measured"
+    elif m.median_s is not None:
+        m.period_s, m.period_source = m.median_s, "measured"
     else:
         m.period_s, m.period_source = None, "none"
 
@@ -834,13 +838,19 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
         return
     # A write of a non-zero 1017h starts a gap only when none runs: right after a boot-up,
     # a reset or a 0 write, or first of all. Other such writes change nothing.
+    # A heartbeat while 1017h = 0 is in force (disabled by SDO) starts no gap either.
+    hb_ms = m.config_series(ts, lambda cfg: cfg.heartbeat_ms)
+    silent = (what == _HB) & (hb_ms == 0)
     prev = np.concatenate([[_BOOT], what[:-1]])
-    opens = (what == _HB) | ((what == _ON) & np.isin(prev, (_BOOT, _RESET, _OFF)))
+    prev_silent = np.concatenate([[False], silent[:-1]])
+    opens = ((what == _HB) & ~silent) | ((what == _ON) & (
+        np.isin(prev, (_BOOT, _RESET, _OFF)) | prev_silent))
     ends = np.flatnonzero(what != _ON)  # every event but a non-zero write ends a gap
     gap = np.flatnonzero(opens)
     k = np.searchsorted(ends, gap, side="right")
     closed = k < len(ends)
-    until = np.where(closed, ts[ends[np.minimum(k, len(ends) - 1)]], end)
+    until = np.full(len(gap), end, np.float64)
+    until[closed] = ts[ends[k[closed]]]
     # A heartbeat sent while a 1017h write is being confirmed already follows the new value
     # (stacks apply it before they answer): its gap is timed by that value.
     at = ts[gap].copy()
@@ -990,6 +1000,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> list[In
 
     offline_until: float | None = None
     last_cmd: tuple[float, str] | None = None  # the latest command: ts, state before it
+    pre_offline: str | None = None  # the state N had when it went OFFLINE
     for ts, _idx, _order, what, obj in steps:
         cur = out[-1].state
         if what == "timeout":
@@ -997,6 +1008,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> list[In
             if cur in (UNKNOWN, OFFLINE):
                 continue
             saved = (cur, out[-1].source)
+            pre_offline = cur  # what a stale report after a command here would still say
             offline_until = obj.ended_by
             go(ts, OFFLINE, "timeout")
         elif what == "back":
@@ -1005,7 +1017,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> list[In
                 saved = None
         elif what == "cmd":
             assert isinstance(obj, Command)
-            last_cmd = (ts, saved[0] if cur == OFFLINE and saved is not None else cur)
+            last_cmd = (ts, pre_offline if cur == OFFLINE and pre_offline else cur)
             target = COMMAND_STATE[obj.cs]
             if cur == OFFLINE:
                 saved = (target, "command")

@@ -1,4 +1,6 @@
-"""FROZEN TEST ORACLE -- DO NOT EDIT: the pre-columnar implementation at afef50f.
+"""TEST ORACLE: the pre-columnar, object-per-frame implementation (afef50f), revised once
+for the SPEC revision of 2026-11 (stale reports, the NMT master, heartbeat period in force;
+H001, H002, N002, B001).
 
 This is nmtcheck's timeline and rule catalogue as of commit afef50f, before fd98c85
 turned each node's error-control frames (701h-77Fh) into numpy columns and vectorised
@@ -17,8 +19,28 @@ current package: the readers (`open_input`: both sides read the same frames), th
 constants of `nmtcheck.frames`, EMCY/SDO texts (`nmtcheck.emcy`, `nmtcheck.sdo`),
 `Param`/`Problem`/`Rule`/`rule`, `Finding`, profiles and network files.
 
+SPEC revision (2026-11), written here independently of the package, simply, one object
+per frame; every place is marked `# SPEC 2026-11`. The interpretations both sides follow:
+
+A. TimelineParams gains obey_s (S004 obey_ms), master_window_s (profile `[timeline]
+   master_window_ms`), reset_window_s (B002) and bootup_timeout_s (B001); `build` takes
+   `masters` = channel name -> (node, source, detail) known from the files; ChannelModel
+   gains `master` (node, source, detail) and `master_note`.
+B. The master of a channel without a known one is inferred (`_infer_master`); broadcast
+   commands are never applied to a channel's master, direct ones are.
+C. Stale reports (`_intervals`): a heartbeat or guarding response at most obey_s after the
+   latest command applied to N (file order) that reports N's state just before that
+   command (the state before OFFLINE if it was OFFLINE) changes nothing on the timeline
+   and is ignored by S004, S005, N002's state alternation and B001 (a).
+D. The heartbeat period in force at t (`NodeModel.period_at`): 1017h in force if > 0,
+   else the whole-trace median; H002 per pair, guarding classification, H001.
+E. H001 gaps (`_heartbeat_timeouts`): start at a heartbeat, or at a confirmed non-zero
+   1017h write when no gap runs; end at a heartbeat or boot-up, or without a finding at a
+   reset or a 1017h = 0 write; the limit is fixed at the gap's start.
+F. N002 intervals: also shorts within 20 % of each other and longs too.
+
 If the current package changes behaviour on purpose, the test that compares against
-this oracle must change (or be narrowed) -- not this file.
+this oracle must change (or be narrowed), and this file only with a new SPEC.
 """
 
 from __future__ import annotations
@@ -498,6 +520,9 @@ class EcFrame:
     dlc: int
     value: int  # data byte 0
     kind: str = ""  # request | bootup | heartbeat | guard | malformed
+    # SPEC 2026-11 (C): a report of the state from before the latest command, sent within
+    # obey_s of it: not evidence (set by _intervals)
+    stale: bool = False
 
     @property
     def code(self) -> int:
@@ -590,6 +615,7 @@ class NodeModel:
     last_seen: float | None = None
     period_s: float | None = None
     period_source: str = "none"  # configured | measured | none
+    median_s: float | None = None  # SPEC 2026-11 (D): the whole-trace median interval
     timeouts: list[Timeout] = field(default_factory=list)
     intervals: list[Interval] = field(default_factory=list)
     writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
@@ -655,17 +681,30 @@ class NodeModel:
             return True
         return len(self.heartbeats) >= 2
 
-    def hb_timeout_s(self, timeout_factor: float, at: float | None = None) -> float | None:
-        """The heartbeat timeout in force at `at`: consumer time, else factor x period.
+    def period_at(self, ts: float) -> float | None:
+        """SPEC 2026-11 (D): the heartbeat period in force at `ts`: the producer time (1017h)
+        in force if > 0 (SDO-written and confirmed, else from the files), else the
+        whole-trace median; None if neither is known or it is not positive."""
+        hb = self.config_at(ts).heartbeat_ms
+        if hb is not None and hb > 0:
+            return hb / 1000.0
+        if self.median_s is not None and self.median_s > 0:
+            return self.median_s
+        return None
 
-        None when there is none, or when 1017h was set to 0 by SDO (heartbeat disabled).
+    def hb_timeout_s(self, timeout_factor: float, at: float) -> float | None:
+        """The heartbeat timeout in force at `at`: the smallest non-zero consumer time in
+        force, else factor x the period in force (SPEC 2026-11, D and E).
+
+        None when there is none, or when 1017h = 0 written by SDO is in force (heartbeat
+        disabled: N is no producer until a non-zero write or its next boot-up).
         """
-        cfg = self.config if at is None else self.config_at(at)
+        cfg = self.config_at(at)
         if cfg.heartbeat_ms == 0.0:
             return None
         if cfg.consumer_timeout_ms:
             return cfg.consumer_timeout_ms / 1000.0
-        period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
+        period = self.period_at(at)
         return timeout_factor * period if period else None
 
     def _starts(self) -> np.ndarray:
@@ -697,6 +736,11 @@ class TimelineParams:
     timeout_factor: float = 1.5
     early_factor: float = 0.5
     response_timeout_s: float = 1.0
+    # SPEC 2026-11 (A)
+    obey_s: float = 0.1  # S004 obey_ms: reports this soon after a command may be stale
+    master_window_s: float = 1.0  # [timeline] master_window_ms: master boot-up -> broadcast
+    reset_window_s: float = 10.0  # B002 reset_window_ms
+    bootup_timeout_s: float = 5.0  # B001 bootup_timeout_ms
 
 
 @dataclass
@@ -705,6 +749,9 @@ class ChannelModel:
     name: str
     nmt: list[NmtFrame]
     nodes: dict[int, NodeModel]
+    # SPEC 2026-11 (A): (node, source network|device-file|inferred, detail), or None
+    master: tuple[int, str, str] | None = None
+    master_note: str = ""  # why none was inferred
 
 
 @dataclass
@@ -732,8 +779,13 @@ def _nmt_problem(rtr: bool, dlc: int, cs: int, target: int) -> str | None:
 
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
-          params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig]) -> InputModel:
-    """Build every node's model and timeline from the decoded input."""
+          params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig],
+          masters: dict[str, tuple[int, str, str]] | None = None) -> InputModel:
+    """Build every node's model and timeline from the decoded input.
+
+    SPEC 2026-11 (A): `masters` = channel name -> (node, source, detail) of the NMT master
+    known from the network file or the device files; other channels' masters are inferred.
+    """
     ev = decoded.events
     models: list[ChannelModel] = []
     timeouts_to_end: list[tuple[NodeModel, Timeout]] = []
@@ -794,7 +846,16 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         for n, reqs in requests_only.items():
             if n in nodes:  # node showed up through other traffic: keep its requests, in order
                 nodes[n].ec = sorted(nodes[n].ec + reqs, key=lambda f: f.idx)
-        # Commands per node, broadcasts only for nodes seen before the command.
+        # SPEC 2026-11 (B): the channel's NMT master, known or inferred.
+        master: tuple[int, str, str] | None = None
+        master_note = ""
+        known = (masters or {}).get(name)
+        if known is not None:
+            master = (int(known[0]), str(known[1]), str(known[2]))
+        else:
+            master, master_note = _infer_master(nmt, nodes, params)
+        # Commands per node, broadcasts only for nodes seen before the command and never to
+        # the channel's master (it does not receive its own frames); direct ones always.
         for frame in nmt:
             if frame.problem is not None:
                 continue
@@ -802,28 +863,118 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                 if frame.target == n or (
                     frame.target == 0 and m.first_show_idx is not None
                     and m.first_show_idx < frame.idx
+                    and (master is None or n != master[0])
                 ):
                     m.commands.append(Command(frame.ts, frame.idx, frame.line, frame.cs,
                                               frame.target == 0))
         _sdo_config(sdo_rows, nodes, node_model)
+        # SPEC 2026-11 (D): the guarding classification needs the period in force, which
+        # needs the written values' validity (until the next boot-up: boot-ups are known
+        # after the first pass), which needs the whole-trace median of the first pass.
         for m in nodes.values():
-            _classify(m, params, period_s=None)
-            _find_period(m)
-            _classify(m, params, period_s=m.period_s)
-            _find_period(m)
+            _classify(m, params, with_period=False)
         _write_validity(nodes)
+        for m in nodes.values():
+            _find_period(m)
+            _classify(m, params, with_period=True)
+            _find_period(m)
         for m in nodes.values():
             _heartbeat_timeouts(m, params, end)
             _guard_timeouts(m, params, end)
             for t in m.timeouts:
                 timeouts_to_end.append((m, t))
-        models.append(ChannelModel(chan, name, nmt, dict(sorted(nodes.items()))))
+        models.append(ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master,
+                                   master_note))
 
     _offline_ends(decoded, timeouts_to_end)
     for cm in models:
         for m in cm.nodes.values():
-            m.intervals = _intervals(m, start, end)
+            m.intervals = _intervals(m, start, end, params.obey_s)
     return InputModel(decoded, start, end, models)
+
+
+# SPEC 2026-11 (B): master inference ---------------------------------------------------------
+
+def _reported_state(f: EcFrame) -> str | None:
+    """The state a data frame on 700h+N reports: boot-up -> PRE-OPERATIONAL, else the
+    byte's bits 0..6 (00h/7Fh -> PRE-OPERATIONAL, 04h, 05h); None for other codes."""
+    if f.value == 0x00:
+        return PRE_OPERATIONAL
+    return STATE_OF_CODE.get(f.value & 0x7F)
+
+
+def _infer_master(nmt: list[NmtFrame], nodes: dict[int, NodeModel], params: TimelineParams
+                  ) -> tuple[tuple[int, str, str] | None, str]:
+    """The one node that starts like an NMT master, or None and why not.
+
+    For each valid broadcast F (file order): B = the channel's last boot-up before F, with
+    no other valid NMT frame between B and F, and F at most master_window_s after B; B's
+    node M qualifies if (2) no valid reset to 0 or M came within reset_window_s before B
+    and (3) M's own frames show it did not obey F.
+    """
+    valid = [f for f in nmt if f.problem is None]
+    # every node's error-control data frames (DLC 1, not remote), in file order
+    frames = {n: [f for f in m.ec if not f.rtr and f.dlc == 1] for n, m in nodes.items()}
+    bootups = sorted(((f, n) for n, fs in frames.items() for f in fs if f.value == 0x00),
+                     key=lambda x: x[0].idx)
+    qualify: dict[int, str] = {}
+    prev_idx = -1  # the previous valid NMT frame
+    for i, cmd in enumerate(valid):
+        if cmd.target == 0:
+            before = [x for x in bootups if x[0].idx < cmd.idx]
+            for boot, node in reversed(before):  # beyond the SPEC (README): every one
+                if not (boot.idx > prev_idx and cmd.ts - boot.ts <= params.master_window_s + EPS):
+                    break
+                if (node not in qualify
+                        and not _answers_a_reset(valid, boot, node, params)
+                        and _did_not_obey(frames[node], valid, i, node, params)):
+                    qualify.setdefault(node, f"boot-up at {boot.ts:.6f}, then broadcast "
+                                             f"{COMMAND_NAMES[cmd.cs]} at {cmd.ts:.6f} "
+                                             f"not obeyed")
+        prev_idx = cmd.idx
+    if len(qualify) == 1:
+        (node, why), = qualify.items()
+        return (node, "inferred", why), ""
+    if qualify:
+        return None, "several nodes qualify: " + ", ".join(str(n) for n in sorted(qualify))
+    return None, "no node qualifies"
+
+
+def _answers_a_reset(valid: list[NmtFrame], boot: EcFrame, node: int,
+                     params: TimelineParams) -> bool:
+    """(2): a valid reset to 0 or `node` before the boot-up (file order), within
+    reset_window_s of it."""
+    return any(f.cs in RESETS and f.target in (0, node) and f.idx < boot.idx
+               and f.ts >= boot.ts - params.reset_window_s - EPS for f in valid)
+
+
+def _did_not_obey(frames: list[EcFrame], valid: list[NmtFrame], i: int, node: int,
+                  params: TimelineParams) -> bool:
+    """(3): `node`'s frames after broadcast valid[i] show it did not obey it."""
+    cmd = valid[i]
+    after = [f for f in frames if f.idx > cmd.idx]
+    if cmd.cs in RESETS:
+        # frames within obey_s may have been queued before the command: not counted
+        rest = [f for f in after if f.value == 0x00 or f.ts - cmd.ts > params.obey_s + EPS]
+        if not rest:
+            return False
+        first = rest[0]
+        return first.value != 0x00 or first.ts - cmd.ts > params.bootup_timeout_s + EPS
+    # start / stop / enter pre-operational: the state M reported last before the command
+    before_state = None
+    for f in reversed([f for f in frames if f.idx < cmd.idx]):
+        before_state = _reported_state(f)
+        if before_state is not None:
+            break
+    if before_state is None or before_state == COMMAND_STATE[cmd.cs]:
+        return False
+    next_cmd = next((f for f in valid[i + 1:] if f.target in (0, node)), None)
+    boot = next((f for f in after if f.value == 0x00), None)  # beyond the SPEC (README)
+    heartbeats = [f for f in after if f.value != 0x00
+                  and f.ts > cmd.ts + params.obey_s + EPS
+                  and (next_cmd is None or f.idx < next_cmd.idx)
+                  and (boot is None or f.idx < boot.idx)]
+    return bool(heartbeats) and _reported_state(heartbeats[0]) == before_state
 
 
 def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
@@ -837,7 +988,7 @@ def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
         if can_id >= 0x601:  # request to server N
             n = can_id - 0x600
             if cmd & 0xE0 == 0x20 and sdo.is_config_index(index, sub):
-                pending[n] = (index, sub, sdo.expedited_value(data), ts)
+                pending[n] = (index, sub, sdo.expedited_value(data), ts, idx)
             else:
                 pending.pop(n, None)
             continue
@@ -862,6 +1013,8 @@ def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
                                           f" confirmed; its value is not applied"))
                 continue
             m.writes.append(ConfigWrite(ts, idx, line, n, index, sub, value))
+            m.writes[-1].request_idx = req[4]
+            m.writes[-1].request_ts = req[3]
             m.events.append(NodeEvent(ts, idx, line, "sdo-write",
                                       f"{sdo.object_name(index, sub)} = {value} "
                                       f"({value:X}h) written by SDO"))
@@ -881,8 +1034,13 @@ def _write_validity(nodes: dict[int, NodeModel]) -> None:
                     producer.consumer_writes.append(w)
 
 
-def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> None:
-    """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2)."""
+def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> None:
+    """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2).
+
+    SPEC 2026-11 (D): "follows N's previous heartbeat by less than early_factor x period"
+    uses the period in force at that previous heartbeat; the first pass (`with_period`
+    False) uses none.
+    """
     pending: EcFrame | None = None
     hb_since_boot = 0
     last_hb: EcFrame | None = None
@@ -906,6 +1064,7 @@ def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> N
         is_guard = False
         if answerable:
             if hb_since_boot >= 2:
+                period_s = m.period_at(last_hb.ts) if with_period and last_hb else None
                 early = (period_s is not None and last_hb is not None
                          and f.ts - last_hb.ts < params.early_factor * period_s - EPS)
                 is_guard = bool(f.value & 0x80) or early
@@ -921,56 +1080,63 @@ def _classify(m: NodeModel, params: TimelineParams, period_s: float | None) -> N
 
 
 def _find_period(m: NodeModel) -> None:
-    """Configured producer time, else the median heartbeat interval (no boot-up/reset inside)."""
+    """Configured producer time, else the median heartbeat interval (no boot-up/reset inside).
+
+    SPEC 2026-11 (D): the median is kept apart too (`median_s`): the period in force falls
+    back to it where no non-zero 1017h is in force.
+    """
+    intervals = [b.ts - a.ts for a, b in m.heartbeat_pairs()]
+    m.median_s = float(statistics.median(intervals)) if intervals else None
     if m.config.heartbeat_ms:
         m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
         return
-    intervals = [b.ts - a.ts for a, b in m.heartbeat_pairs()]
     if intervals:
-        m.period_s, m.period_source = float(statistics.median(intervals)), "measured"
+        m.period_s, m.period_source = m.median_s, "measured"
     else:
         m.period_s, m.period_source = None, "none"
 
 
 def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
-    """H001: each gap after a heartbeat or boot-up that exceeds the timeout."""
+    """H001, SPEC 2026-11 (E): each heartbeat gap that outlasts the timeout fixed at its start.
+
+    Walk N's heartbeats, boot-ups, reset commands and confirmed 1017h writes in file order.
+    A gap starts at a heartbeat, or at a non-zero 1017h write when no gap runs (a boot-up
+    starts none). It ends at the next heartbeat (which starts the next one) or boot-up;
+    a reset or a 1017h = 0 write ends it too, and a timeout that expired before them still
+    counts. A non-zero write while a gap runs changes nothing. While a 1017h = 0 written
+    by SDO is in force N is no producer (SPEC §3): its heartbeats start no gap then.
+    """
     if not m.is_producer:
         return
-    marks: list[tuple[float, int, str]] = [(f.ts, f.idx, "hb") for f in m.ec
-                                           if f.kind in ("heartbeat", "bootup")]
-    marks += [(c.ts, c.idx, "reset") for c in m.commands if c.is_reset]
-    # A confirmed 1017h write ends the gap too; a non-zero one starts the heartbeat anew.
-    marks += [(w.ts, w.idx, "hb" if w.value else "reset") for w in m.writes
+    marks: list[tuple[int, float, str]] = []
+    marks += [(f.idx, f.ts, f.kind) for f in m.ec if f.kind in ("heartbeat", "bootup")]
+    marks += [(c.idx, c.ts, "reset") for c in m.commands if c.is_reset]
+    marks += [(w.idx, w.ts, "write-on" if w.value else "write-off") for w in m.writes
               if w.index == 0x1017]
-    marks.sort(key=lambda x: x[1])
-    changes = sorted({w.ts for w in m.writes + m.consumer_writes})
-    open_gap: tuple[float, int] | None = None
-    for ts, idx, what in marks:
-        # A reset ends the gap: the wait for the boot-up is B001's, but a timeout that
-        # expired before the reset (often the reason for it) still counts.
-        if open_gap is not None:
-            _gap_timeout(m, params, open_gap, ts, changes, closed=True)
-        open_gap = (ts, idx) if what == "hb" else None
-    if open_gap is not None:
-        _gap_timeout(m, params, open_gap, end, changes, closed=False)
-
-
-def _gap_timeout(m: NodeModel, params: TimelineParams, gap: tuple[float, int], until: float,
-                 changes: list[float], closed: bool) -> None:
-    """Record an H001 timeout if the gap [gap start, until] outlasts the timeout in force.
-
-    The timeout follows configuration confirmed during the gap (a consumer entry or
-    1017h written by SDO): it expires at the first moment the silence exceeds the
-    limit valid at that moment.
-    """
-    start, start_idx = gap
-    limit = m.hb_timeout_s(params.timeout_factor, start)
-    for c in changes:
-        if not start < c < until:
+    marks.sort()
+    gap: tuple[float, int, float | None] | None = None  # start ts, start idx, limit
+    for idx, ts, what in marks:
+        if what == "write-on":
+            if gap is None:
+                gap = (ts, idx, m.hb_timeout_s(params.timeout_factor, ts))
             continue
-        if limit is not None and c >= start + limit + EPS:
-            break  # already expired under the old configuration
-        limit = m.hb_timeout_s(params.timeout_factor, c)
+        if gap is not None:
+            _gap_timeout(m, gap, ts, closed=True)
+            gap = None
+        if what == "heartbeat" and m.config_at(ts).heartbeat_ms != 0.0:
+            at = ts
+            for w in m.writes:  # beyond the SPEC (README)
+                if w.index == 0x1017 and w.request_ts <= ts < w.ts:
+                    at = w.ts
+            gap = (ts, idx, m.hb_timeout_s(params.timeout_factor, at))
+    if gap is not None:
+        _gap_timeout(m, gap, end, closed=False)
+
+
+def _gap_timeout(m: NodeModel, gap: tuple[float, int, float | None], until: float,
+                 closed: bool) -> None:
+    """Record an H001 timeout if the gap [start, until] outlasts its limit."""
+    start, start_idx, limit = gap
     if limit and until - start > limit + EPS:
         m.timeouts.append(Timeout("H001", start + limit, start, start_idx, limit,
                                   until - start if closed else None))
@@ -1028,8 +1194,14 @@ def _offline_ends(decoded: Decoded, items: list[tuple[NodeModel, Timeout]]) -> N
         t.ended_by = best
 
 
-def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
-    """Walk the node's evidence in order and cut the timeline into state intervals."""
+def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> list[Interval]:
+    """Walk the node's evidence in order and cut the timeline into state intervals.
+
+    SPEC 2026-11 (C): a heartbeat or guarding response at most `obey_s` after the latest
+    command applied to N before it (file order) that reports the state N had just before
+    that command (if N was OFFLINE then: the state before OFFLINE) is stale: marked, and
+    treated like a frame that reports no state.
+    """
     steps: list[tuple[float, int, int, str, object]] = []
     for f in m.ec:
         if f.kind != "request":
@@ -1056,6 +1228,21 @@ def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
         out.append(Interval(max(ts, start), end, state, source))
 
     offline_until: float | None = None
+    before_offline: str | None = None  # the state N had when it went OFFLINE
+    before_command: dict[int, str | None] = {}  # command idx -> N's state just before it
+    commands = sorted(m.commands, key=lambda c: c.idx)
+
+    def stale(f: EcFrame, state: str) -> bool:
+        latest = None
+        for c in commands:
+            if c.idx < f.idx:
+                latest = c
+        if latest is not None and any(g.kind == "bootup" and latest.idx < g.idx < f.idx
+                                      for g in m.ec):
+            return False  # beyond the SPEC (README)
+        return (latest is not None and f.ts - latest.ts <= obey_s + EPS
+                and before_command.get(latest.idx) == state)
+
     for ts, _idx, _order, what, obj in steps:
         cur = out[-1].state
         if what == "timeout":
@@ -1063,6 +1250,7 @@ def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
             if cur in (UNKNOWN, OFFLINE):
                 continue
             saved = (cur, out[-1].source)
+            before_offline = cur
             offline_until = obj.ended_by
             go(ts, OFFLINE, "timeout")
         elif what == "back":
@@ -1071,6 +1259,7 @@ def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
                 saved = None
         elif what == "cmd":
             assert isinstance(obj, Command)
+            before_command[obj.idx] = before_offline if cur == OFFLINE else cur
             target = COMMAND_STATE[obj.cs]
             if cur == OFFLINE:
                 saved = (target, "command")
@@ -1079,8 +1268,12 @@ def _intervals(m: NodeModel, start: float, end: float) -> list[Interval]:
         else:
             assert isinstance(obj, EcFrame)
             f = obj
-            if f.reports_state and (f.kind == "bootup" or f.code in STATE_OF_CODE):
-                state = STATE_OF_CODE[0x00] if f.kind == "bootup" else STATE_OF_CODE[f.code]
+            state = (STATE_OF_CODE[0x00] if f.kind == "bootup"
+                     else STATE_OF_CODE.get(f.code) if f.reports_state else None)
+            if state is not None and f.kind != "bootup" and stale(f, state):
+                f.stale = True  # a boot-up is never stale
+                continue  # beyond the SPEC (README) (the 'back' step ends OFFLINE)
+            if state is not None:
                 source = {"bootup": "bootup", "heartbeat": "heartbeat", "guard": "guarding"}[f.kind]
                 go(ts, state, source)
                 saved = None
@@ -1140,7 +1333,9 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
             resets = [c for c in m.commands if c.is_reset]
             bootups = m.bootups
             boot_idx = [b.idx for b in bootups]
-            life = [f for f in m.ec if f.kind in ("heartbeat", "guard", "malformed")]
+            # SPEC 2026-11 (C): a stale report is no sign of life after the reset
+            life = [f for f in m.ec if f.kind in ("heartbeat", "guard", "malformed")
+                    and not f.stale]
             life_idx = [f.idx for f in life]
             for i, c in enumerate(resets):
                 next_reset = resets[i + 1].idx if i + 1 < len(resets) else None
@@ -1584,12 +1779,12 @@ def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     """A heartbeat producer fell silent for longer than its consumers wait.
 
     **What it checks.** N produces heartbeats (two or more seen, or a producer time
-    configured) and a gap after one of its heartbeats or its boot-up exceeds the
-    timeout: the consumer time if configured (the smallest non-zero one for N),
-    else `timeout_factor` x the producer period (configured, else the median of
-    N's heartbeat intervals). The gap ends at N's next heartbeat or boot-up; a
-    reset command to N ends it (waiting for the boot-up is B001's), so only a
-    timeout that expired before the reset counts. The trace continuing past the
+    configured) and a gap after one of its heartbeats (or after a confirmed non-zero
+    1017h write when no gap runs; a boot-up starts none) exceeds the timeout fixed at
+    the gap's start: the consumer time in force (the smallest non-zero one for N),
+    else `timeout_factor` x the period in force. The gap ends at N's next heartbeat or
+    boot-up; a reset command to N or a 1017h = 0 write ends it, so only a timeout that
+    expired before counts. The trace continuing past the
     timeout after N's last heartbeat counts too. One finding per gap, at the
     moment the timeout expired; the node is OFFLINE from then until its next frame.
 
@@ -1625,8 +1820,9 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
     """Two heartbeats of a node come much closer together than its period.
 
     **What it checks.** Two consecutive heartbeats of N are closer than
-    `early_factor` x the producer period, except the first heartbeat after a
-    boot-up, after an NMT command to N, or one that reports a different state
+    `early_factor` x N's heartbeat period in force at the first of them, except the
+    first heartbeat after a boot-up, after an NMT command to N, or one that reports a
+    different state
     (stacks may send one at once on a state change).
 
     **Why it matters.** A producer that sends too often wastes bus bandwidth and
@@ -1638,31 +1834,32 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
     factor = p["early_factor"]
     for cm in model.channels:
         for m in cm.nodes.values():
-            if not m.period_s:
-                continue
-            limit = factor * m.period_s
-            cmd_idx = [c.idx for c in m.commands]
-            early: list[tuple[EcFrame, EcFrame]] = []
+            # SPEC 2026-11 (D): each pair against the period in force at its first heartbeat
+            cmd_idx = sorted([c.idx for c in m.commands]
+                             + [w.request_idx for w in m.writes if w.index == 0x1017])
+            early: list[tuple[EcFrame, EcFrame, float]] = []
             prev: EcFrame | None = None
             for f in m.ec:
                 if f.kind == "bootup":
                     prev = None
                 elif f.kind == "heartbeat":
                     if (prev is not None and f.code == prev.code
-                            and not any_between(cmd_idx, prev.idx, f.idx)
-                            and f.ts - prev.ts < limit - EPS):
-                        early.append((prev, f))
+                            and not any_between(cmd_idx, prev.idx, f.idx)):
+                        period = m.period_at(prev.ts)
+                        if period is not None and f.ts - prev.ts < factor * period - EPS:
+                            early.append((prev, f, period))
                     prev = f
-            def chained(a: tuple[EcFrame, EcFrame], b: tuple[EcFrame, EcFrame],
+
+            def chained(a: tuple[EcFrame, EcFrame, float], b: tuple[EcFrame, EcFrame, float],
                         m: NodeModel = m) -> bool:
                 return a[1] is b[0] and m.interval_index(a[1].ts) == m.interval_index(b[1].ts)
 
             for run in runs(early, chained):
-                prev_f, f = run[0]
+                prev_f, f, period = run[0]
                 yield Problem(cm.name, m.node, f.ts,
                               f"heartbeat ({state_name(f.code)}) {f.ts - prev_f.ts:.3f} s after "
-                              f"the previous one (period {m.period_s:.3f} s, limit "
-                              f"{limit:.3f} s){count_note(len(run), 'heartbeats')}",
+                              f"the previous one (period {period:.3f} s, limit "
+                              f"{factor * period:.3f} s){count_note(len(run), 'heartbeats')}",
                               f.idx, f.line)
 
 
@@ -1692,11 +1889,11 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
             for prev, f in m.heartbeat_pairs():
                 value = m.config_at(prev.ts).heartbeat_ms
                 if value:
-                    by_value.setdefault(value, []).append((f.ts - prev.ts, f))
+                    by_value.setdefault(value, []).append((f.ts - prev.ts, f, prev))
             for value, items in by_value.items():
                 if len(items) < 5:
                     continue
-                median = statistics.median(d for d, _ in items)
+                median = statistics.median(d for d, *_ in items)
                 configured = value / 1000.0
                 if abs(median - configured) > tolerance * configured + EPS:
                     last = items[-1][1]
@@ -1705,6 +1902,30 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
                                   f"{len(items)} intervals) but its producer time is "
                                   f"{configured:.3f} s (tolerance {tolerance:.0%})",
                                   last.idx, last.line)
+                    continue
+                # beyond the SPEC (README): a run of >= 5 consecutive intervals off one way
+                best = None
+                for off in ([d > configured * (1 + tolerance) + EPS for d, *_ in items],
+                            [d < configured * (1 - tolerance) - EPS for d, *_ in items]):
+                    lo = None
+                    for k, o in enumerate(off + [False]):
+                        if o and lo is None:
+                            lo = k
+                        elif not o and lo is not None:
+                            if k - lo >= 5 and (best is None or k - lo > best[1] - best[0]):
+                                best = (lo, k)
+                            lo = None
+                if best is None:
+                    continue
+                lo, hi = best
+                median = statistics.median(d for d, *_ in items[lo:hi])
+                last = items[hi - 1][1]
+                yield Problem(cm.name, m.node, last.ts,
+                              f"node {m.node} heartbeats every {median:.3f} s (median of "
+                              f"{hi - lo} consecutive intervals from "
+                              f"{items[lo][2].ts - model.start:.3f} s) but its producer time is "
+                              f"{configured:.3f} s (tolerance {tolerance:.0%})",
+                              last.idx, last.line)
 
 
 # =================================================================================================
@@ -1760,8 +1981,9 @@ def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     """Two devices seem to share one node-ID.
 
     **What it checks.** Within N's heartbeats the reported state goes A, B, A, B with
-    no NMT command to N or boot-up in between, or over at least 4 consecutive
-    intervals N's heartbeat intervals alternate short/long with long >= 1.5 x short.
+    no NMT command to N or boot-up in between (stale reports left out), or over at least
+    4 consecutive intervals N's heartbeat intervals alternate short/long with long >= 1.5
+    x short, the shorts within 20 % of each other and the longs too.
     One finding per node, at the first evidence.
 
     **Why it matters.** Two devices with the same node-ID collide on every COB-ID of
@@ -1774,13 +1996,16 @@ def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
         for m in cm.nodes.values():
             hit: tuple[EcFrame, str] | None = None
             for seg in _segments(m.ec, [c.idx for c in m.commands]):
-                codes = [f.code for f in seg]
-                for i in range(len(seg) - 3):
+                # SPEC 2026-11 (C): the state alternation ignores stale reports
+                fresh = [f for f in seg if not f.stale]
+                codes = [f.code for f in fresh]
+                for i in range(len(fresh) - 3):
                     a, b = codes[i], codes[i + 1]
                     if a != b and codes[i + 2] == a and codes[i + 3] == b:
-                        hit = hit or (seg[i + 3], f"its heartbeat alternates between "
+                        hit = hit or (fresh[i + 3], f"its heartbeat alternates between "
                                       f"{state_name(a)} and {state_name(b)}")
                         break
+                seg = fresh  # beyond the SPEC (README)
                 gaps = [y.ts - x.ts for x, y in zip(seg, seg[1:], strict=False)]
                 for i in range(len(gaps) - 3):
                     w = gaps[i:i + 4]
@@ -1790,6 +2015,12 @@ def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
                              else "S" if w[k + 1] >= 1.5 * w[k] - EPS
                              else "" for k in range(3)]
                     alt = all(steps) and steps[0] == steps[2] != steps[1]
+                    # SPEC 2026-11 (F): the two shorts within 20 % of each other, the
+                    # two longs too (a stalled fixed-rate producer's late + catch-up
+                    # heartbeat is not two producers)
+                    if alt:
+                        pairs = (w[0], w[2]), (w[1], w[3])
+                        alt = all(max(x) <= 1.2 * min(x) + EPS for x in pairs)
                     if alt:
                         f = seg[i + 4]
                         if hit is None or f.idx < hit[0].idx:
@@ -2036,7 +2267,7 @@ def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
                 k = bisect.bisect_right(all_cmd_idx, c.idx)
                 newer = all_cmd_idx[k] if k < len(all_cmd_idx) else None
                 for f in m.ec[bisect.bisect_right(ec_idx, c.idx):]:
-                    if not f.reports_state:
+                    if not f.reports_state or f.stale:  # SPEC 2026-11 (C)
                         continue
                     if (newer is not None and f.idx > newer) or f.kind == "bootup":
                         break
@@ -2067,6 +2298,8 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[P
     """
     for cm in model.channels:
         for m in cm.nodes.values():
+            if cm.master is not None and m.node == cm.master[0]:
+                continue  # beyond the SPEC (README)
             cmd_idx = [c.idx for c in m.commands]
             prev: EcFrame | None = None
             for f in m.ec:
@@ -2074,6 +2307,8 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[P
                     prev = None
                     continue
                 if f.kind not in ("heartbeat", "guard") or f.code not in STATE_OF_CODE:
+                    continue
+                if f.stale:  # SPEC 2026-11 (C)
                     continue
                 if (prev is not None and STATE_OF_CODE[f.code] != STATE_OF_CODE[prev.code]
                         and not any_between(cmd_idx, prev.idx, f.idx)):
@@ -2115,12 +2350,23 @@ RULES: list[Rule] = [
 BY_CODE: dict[str, Rule] = {r.code: r for r in RULES}
 
 
+def _timeline_table_ms(profile: Profile, key: str, default: float) -> float:
+    """A parameter of the profile's `[timeline]` table (SPEC §5), in ms."""
+    return float(getattr(profile, "timeline", {}).get(key, default))
+
+
 def timeline_params(profile: Profile) -> TimelineParams:
-    """The timeline uses three rules' parameters: the timeouts define OFFLINE (SPEC §2)."""
+    """The timeline uses rules' parameters (SPEC §2): the timeouts define OFFLINE; S004's
+    obey_ms makes reports stale; B002's reset_window_ms and B001's bootup_timeout_ms and the
+    `[timeline]` master_window_ms infer the NMT master (SPEC 2026-11, A)."""
     return TimelineParams(
         timeout_factor=profile["H001"].params["timeout_factor"],
         early_factor=profile["H002"].params["early_factor"],
         response_timeout_s=profile["G002"].params["response_timeout_ms"] / 1000.0,
+        obey_s=profile["S004"].params["obey_ms"] / 1000.0,
+        master_window_s=_timeline_table_ms(profile, "master_window_ms", 1000.0) / 1000.0,
+        reset_window_s=profile["B002"].params["reset_window_ms"] / 1000.0,
+        bootup_timeout_s=profile["B001"].params["bootup_timeout_ms"] / 1000.0,
     )
 
 
@@ -2131,12 +2377,24 @@ class ReferenceResult:
     findings: list[Finding] = field(default_factory=list)
 
 
+def _as_master(value: Any) -> tuple[int, str, str]:
+    """(node, source, detail) from a tuple or an object with those attributes."""
+    if isinstance(value, tuple):
+        node, source, *rest = value
+        return int(node), str(source), str(rest[0]) if rest else ""
+    return int(value.node), str(value.source), str(getattr(value, "detail", ""))
+
+
 def reference_check(path: str, profile: Profile, codes: list[str] | None = None,
-                    network: Network | None = None) -> ReferenceResult:
+                    network: Network | None = None,
+                    masters: dict[str, Any] | None = None) -> ReferenceResult:
     """`nmtcheck.engine.check_input` of afef50f, run with this file's timeline and rules.
 
     `codes`: the rules to run (default: all), in catalogue order as the engine runs them.
     The network's node configurations are copied into this file's `NodeConfig`.
+    `masters`: channel name -> (node, source, detail) of the known NMT masters (SPEC
+    2026-11, A); the reading of network and device files is the package's, so by default
+    they come from `network.master_for(channel)`.
     """
     rules = [r for r in RULES if codes is None or r.code in codes]
     opened = open_input(path)
@@ -2153,7 +2411,12 @@ def reference_check(path: str, profile: Profile, codes: list[str] | None = None,
                 end = max(end, float(decoded.events["ts"].max()))
         configs = ({key: NodeConfig(**{f.name: getattr(cfg, f.name) for f in fields(NodeConfig)})
                     for key, cfg in network.configs().items()} if network else {})
-        model = build(decoded, stats.channels, start, end, timeline_params(profile), configs)
+        if masters is None and network is not None:
+            masters = {name: found for name in stats.channels
+                       if (found := network.master_for(name)) is not None}
+        known = {name: _as_master(v) for name, v in (masters or {}).items()}
+        model = build(decoded, stats.channels, start, end, timeline_params(profile), configs,
+                      known)
         model.params = {code: s.params for code, s in profile.items()}
         model.expected = network.expected() if network else []
         result = ReferenceResult(stats, model)

@@ -1,12 +1,15 @@
 """Differential test: the columnar error-control code of fd98c85 against the object-per-frame
-code it replaced (afef50f, frozen in tests/reference_model.py).
+code it replaced (afef50f, kept in tests/reference_model.py, revised for the SPEC of 2026-11:
+stale reports, the NMT master, the heartbeat period in force, H001 gaps, N002 intervals).
 
 Random candump traces of 1-4 nodes (boot-ups, heartbeats 04h/05h/7Fh with jitter, early
 and equal-timestamp frames, invalid codes, bit 7, wrong DLC, node guarding with toggling
 and missing responses, NMT commands direct and broadcast, silences, SDO writes of
-1017h/1016h/100Ch/100Dh, the odd TPDO) run through the current pipeline and through the
-reference; every finding (all rules) and every node's timeline, classification, period
-and timeouts must be the same. Timestamps sit on a coarse grid so that frames, commands
+1017h/1016h/100Ch/100Dh, the odd TPDO; a master's boot-up with a broadcast after it,
+1017h written after a boot-up, commands just before a heartbeat, twin producers) run
+through the current pipeline and through the reference; every finding (all rules), every
+channel's master and every node's timeline, classification, stale reports, period and
+timeouts must be the same. Timestamps sit on a coarse grid so that frames, commands
 and timeout moments often coincide.
 
 NMTCHECK_HYPOTHESIS=explore runs 40 times as many random examples.
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,10 +44,32 @@ RULES = select_rules(PROFILE, [], [])
 # --- running both implementations -------------------------------------------------------
 
 
+def _stale(m: Any) -> list[int]:
+    """Frame indices of the node's stale reports (SPEC §2): a column of the package's
+    EcTable, a flag of the reference's EcFrame."""
+    ec = m.ec
+    if isinstance(ec, list):
+        return [f.idx for f in ec if f.stale]
+    return [int(i) for i in ec.idx[ec.stale]]
+
+
+def _master_view(cm: Any) -> tuple[Any, ...]:
+    """(node, source) of the channel's master; if none, whether several nodes qualified and
+    which (the numbers in the note), as the texts of the two sides may differ."""
+    if cm.master is not None:
+        m = cm.master
+        return (m[0], m[1]) if isinstance(m, tuple) else (m.node, m.source)
+    note = cm.master_note
+    if "several" in note:
+        return ("several", sorted(int(x) for x in re.findall(r"\d+", note)))
+    return ("none",)
+
+
 def _node_view(m: Any) -> dict[str, Any]:
     return {
         "intervals": [(iv.state, iv.start, iv.end, iv.source) for iv in m.intervals],
         "ec": [(f.idx, f.kind) for f in m.ec],
+        "stale": _stale(m),
         "period": (m.period_s, m.period_source),
         "timeouts": [(t.rule, t.moment, t.after_ts, t.after_idx, t.limit_s, t.gap_s,
                       t.requests, t.ended_by) for t in m.timeouts],
@@ -52,12 +78,16 @@ def _node_view(m: Any) -> dict[str, Any]:
     }
 
 
-def _outcome(res: Any) -> tuple[list[tuple[Any, ...]], dict[tuple[str, int], dict[str, Any]]]:
+def _outcome(res: Any) -> tuple[list[tuple[Any, ...]], dict[tuple[str, int], dict[str, Any]],
+                               dict[str, tuple[Any, ...]]]:
+    # the I-rules judge the input (read by the package's readers on both sides), not the
+    # network: the reference does not have them
     findings = [(f.rule, f.channel, f.node, f.time, f.frame_index, f.line, f.message,
-                 f.severity) for f in res.findings]
+                 f.severity) for f in res.findings if not f.rule.startswith("I")]
     nodes = {(cm.name, n): _node_view(m) for cm in res.model.channels
              for n, m in cm.nodes.items()}
-    return findings, nodes
+    masters = {cm.name: _master_view(cm) for cm in res.model.channels}
+    return findings, nodes, masters
 
 
 def compare(tmp: Path, text: str, network: str | Path | None = None,
@@ -70,7 +100,10 @@ def compare(tmp: Path, text: str, network: str | Path | None = None,
     if params:
         profile = copy.deepcopy(PROFILE)
         for code, name, value in params:
-            profile[code].params[name] = value
+            if code == "timeline":
+                profile.timeline[name] = value
+            else:
+                profile[code].params[name] = value
     log = tmp / "trace.log"
     log.write_text(text)
     net = None
@@ -82,10 +115,11 @@ def compare(tmp: Path, text: str, network: str | Path | None = None,
         net = load_network(str(network))
     new = _outcome(check_input(str(log), 0, profile, RULES, net))
     old = _outcome(reference_check(str(log), profile, network=net))
+    assert new[2] == old[2], "channel masters differ (new, old)"
     assert new[0] == old[0], "findings differ (new, old)"
     assert new[1].keys() == old[1].keys(), "nodes differ"
     for key in old[1]:
-        for what in ("intervals", "ec", "period", "timeouts", "commands", "writes"):
+        for what in ("intervals", "ec", "stale", "period", "timeouts", "commands", "writes"):
             assert new[1][key][what] == old[1][key][what], f"{what} of node {key} differ"
     return len(new[0])
 
@@ -125,6 +159,7 @@ TUNABLE = {  # parameters the timeline or the vectorised rules use, and values t
     ("S004", "obey_ms"): [0.0, 300.0], ("B001", "bootup_timeout_ms"): [150.0, 500.0],
     ("B001", "late_start_ms"): [50.0, 500.0], ("B002", "reset_window_ms"): [100.0, 300.0],
     ("B003", "repeat_window_ms"): [100.0, 300.0],
+    ("timeline", "master_window_ms"): [0.0, 40.0, 2000.0],  # the profile's [timeline]
 }
 
 
@@ -140,6 +175,57 @@ def _sdo_write(node: int, t: int, index: int, sub: int, value: int, size: int,
     elif answer == "80":
         out.append((t + 1000, f"{0x580 + node:03X}#80{body}22000008"))
     return out
+
+
+def _master_start(draw: st.DrawFn, nodes: list[int], channels: list[str], grid: int,
+                  horizon: int, second: int | None, pair: bool = False
+                  ) -> tuple[int, list[tuple[int, str]]]:
+    """A node starting like an NMT master (SPEC §2): its boot-up, within master_window_ms a
+    broadcast, and then its heartbeats go on in its old state, or it obeys (boot-up after
+    a reset, the commanded state) - with variations that break each condition. `second`:
+    the node that started so before (a second candidate: mostly another node, and no
+    reset, which would make its boot-up an answer to the first one's); `pair`: a second
+    one will follow. Returns the node."""
+    node = draw(st.sampled_from([*nodes, 1, 1, 9] if second is None
+                                else [n for n in (1, 9, 4) if n != second]))
+    bus = draw(st.sampled_from(channels))
+    ec = f"{0x700 + node:03X}"
+    period = draw(st.sampled_from([50_000, 100_000]))
+    if second is None:
+        t = draw(st.integers(0, max(horizon, grid) // grid)) * grid
+    else:  # mostly after the first one's start
+        t = max(horizon + draw(st.sampled_from([-500_000, grid, 500_000, 11_000_000])), 0)
+    out = []
+    if not pair and draw(st.integers(0, 4)) == 0:  # a reset before: the boot-up answers it
+        out.append((max(t - draw(st.sampled_from([grid, 500_000])), 0),
+                    f"000#{draw(st.sampled_from([0x81, 0x82])):02X}"
+                    f"{draw(st.sampled_from([0, node])):02X}"))
+    out.append((t, f"{ec}#00"))
+    t += draw(st.sampled_from([0, grid, 50_000, 300_000, 1_000_000, 1_200_000]))
+    if draw(st.integers(0, 5)) == 0:  # another NMT command in between
+        out.append((t, f"000#01{draw(st.sampled_from(nodes)):02X}"))
+        t += grid
+    cs = draw(st.sampled_from([0x01, 0x02, 0x02, 0x81] if second is not None or pair
+                              else [0x82, 0x82, 0x81, 0x01, 0x01, 0x02, 0x80]))
+    out.append((t, f"000#{cs:02X}00"))
+    state = 0x7F
+    obeys = draw(st.sampled_from(["no", "no", "no", "yes", "late"]))
+    t += draw(st.sampled_from([1, 1000, grid, period]))
+    for k in range(draw(st.integers(2, 12))):
+        if k == 0 and obeys != "no":
+            if cs in (0x81, 0x82):
+                if obeys == "yes":
+                    out.append((t, f"{ec}#00"))
+                else:  # after bootup_timeout_ms: still a master (goes on, boots late)
+                    t += 5_100_000
+                    out.append((t, f"{ec}#00"))
+            else:
+                state = {0x01: 0x05, 0x02: 0x04, 0x80: 0x7F}[cs]
+                if obeys == "late":
+                    out.append((t, f"{ec}#7F"))  # within obey_ms maybe: stale
+        out.append((t, f"{ec}#{state:02X}"))
+        t += period
+    return node, [(t_, bus + f) for t_, f in out]
 
 
 @st.composite
@@ -163,11 +249,41 @@ def traces(draw: st.DrawFn) -> Trace:
         for _ in range(draw(st.integers(1, 10))):
             action = draw(st.sampled_from(
                 ["bootup", "heartbeats", "heartbeats", "heartbeats", "odd", "silence",
-                 "guarding", "guarding", "mixed", "sdo", "tpdo"]))
+                 "guarding", "guarding", "mixed", "sdo", "tpdo", "bootup_1017", "twins"]))
             if action == "bootup":
                 frames.append((t, f"{ec}#00"))
                 toggle = 0
                 t += draw(st.sampled_from([0, grid, period]))
+            elif action == "bootup_1017":
+                # a boot-up, the master writes 1017h (or 0) some time later, the first
+                # heartbeat comes on time or late (H001 gaps start at the write)
+                frames.append((t, f"{ec}#00"))
+                toggle = 0
+                t += draw(st.sampled_from([grid, period, 3 * period, 700_000]))
+                value = draw(st.sampled_from([period // 1000, period // 1000, 2 * period // 1000,
+                                              0]))
+                frames += _sdo_write(node, t, 0x1017, 0, value, 2,
+                                     draw(st.sampled_from(["60", "60", "60", "none"])))
+                t += 1000 + draw(st.sampled_from([0, period // 2, period, 2 * period,
+                                                  1_000_000]))
+            elif action == "twins":
+                # two producers out of phase (short/long intervals alternating, jitter) or a
+                # fixed-rate producer that stalls once and catches up
+                short = draw(st.sampled_from([period // 5, period // 3, period * 2 // 5]))
+                if draw(st.booleans()):
+                    steps = [short, period - short] * draw(st.integers(2, 5))
+                    steps = [d + draw(st.sampled_from([0, 0, -2000, 2000, short // 4]))
+                             for d in steps]
+                else:
+                    steps = [period] * draw(st.integers(0, 3)) + [period * 2 - short, short] + [
+                        period] * draw(st.integers(1, 4))
+                codes = [state] * len(steps)
+                if draw(st.integers(0, 3)) == 0:  # the twins report different states
+                    twin = draw(st.sampled_from(STATES))
+                    codes = [state if k % 2 == 0 else twin for k in range(len(steps))]
+                for d, code in zip(steps, codes, strict=True):
+                    frames.append((t, f"{ec}#{code:02X}"))
+                    t += max(d, 0)
             elif action == "heartbeats":
                 if draw(st.booleans()):
                     state = draw(st.sampled_from(STATES))
@@ -243,12 +359,30 @@ def traces(draw: st.DrawFn) -> Trace:
                 t += draw(st.sampled_from([0, grid]))
         frames[at:] = [(t_, bus + f) for t_, f in frames[at:]]
         horizon = max(horizon, t)
-    # NMT commands, often exactly at the time of some other frame
+    # a master: its boot-up, a broadcast soon after, and its heartbeats going on (or it
+    # obeys after all); sometimes a second node starts the same way (two candidates)
+    started: int | None = None
+    after = horizon
+    starts = draw(st.sampled_from([0, 0, 1, 1, 2, 2]))
+    for k in range(starts):
+        started, more = _master_start(draw, nodes, channels, grid, after, started,
+                                      pair=starts == 2 and k == 0)
+        after = more[2][0]  # about the broadcast: a second one starts after it
+        frames += more
+    # NMT commands, often exactly at the time of some other frame, just before a
+    # heartbeat (stale reports) or just after a boot-up (a master's broadcast)
     for _ in range(draw(st.integers(0, 6))):
         cs = draw(st.sampled_from([0x01, 0x02, 0x80, 0x81, 0x82]))
         target = draw(st.sampled_from([0, *nodes]))
-        if frames and draw(st.booleans()):
+        where = draw(st.sampled_from(["frame", "frame", "grid", "grid", "before", "bootup"]))
+        bootups = [f for f in frames if f[1].endswith("#00") and "000#" not in f[1]]
+        if where == "bootup" and bootups:
+            t = draw(st.sampled_from(bootups))[0] + draw(st.sampled_from([0, grid, 50_000]))
+            target = draw(st.sampled_from([0, 0, target]))
+        elif where in ("frame", "before") and frames:
             t = draw(st.sampled_from(frames))[0]
+            if where == "before":  # the frame follows the command within obey_ms
+                t = max(t - draw(st.sampled_from([1, 1000, grid, 50_000, 100_000])), 0)
         else:
             t = draw(st.integers(0, max(horizon, grid) // grid)) * grid
         frames.append((t, f"{draw(st.sampled_from(channels))}000#{cs:02X}{target:02X}"))
@@ -274,6 +408,8 @@ def traces(draw: st.DrawFn) -> Trace:
                          f"life_time_factor = {draw(st.integers(1, 3))}\n")
             parts.append(f"[nodes.{node}]\n{body}")
         network = "".join(parts)
+        if draw(st.integers(0, 3)) == 0:  # the master named (perhaps another node)
+            network = f"master = {draw(st.sampled_from([*nodes, 1]))}\n" + network
     params = ()
     if draw(st.integers(0, 3)) == 0:
         chosen = draw(st.lists(st.sampled_from(sorted(TUNABLE)), min_size=1, max_size=4,
@@ -382,6 +518,167 @@ def test_tricky_traces_with_configuration_match(tmp_path: Path) -> None:
     assert total > 10
 
 
+# --- SPEC 2026-11: the NMT master, stale reports, period in force, H001 gaps, N002 -----
+
+def _sdo_1017(node: int, t: float, value_ms: int) -> list[tuple[float, str]]:
+    """A confirmed expedited write of 1017h (1 ms later)."""
+    return [(t, f"{0x600 + node:03X}#2B171000{value_ms & 0xFF:02X}{value_ms >> 8:02X}0000"),
+            (round(t + 0.001, 6), f"{0x580 + node:03X}#6017100000000000")]
+
+
+# name -> (frames, what the reference must find: rule codes (a multiset, in time order,
+# of the findings of the nodes named), the channel's master view, stale frame count)
+SPEC_CASES: dict[str, tuple[list[tuple[float, str]], dict[str, Any]]] = {
+    # A/B: slaves 2 and 3 up, then the master (1) boots and resets all; its heartbeats go
+    # on, the slaves obey (silent, then boot); a start-all later: the slaves go
+    # OPERATIONAL, the master stays PRE-OPERATIONAL (no S004, no B001 for it)
+    "master_bootup_then_reset_all": (
+        [(0.0, "702#00"), (0.01, "703#00")] + _hb(2, 0.1, 0.6) + _hb(3, 0.11, 0.6)
+        + [(0.5, "701#00"), (0.6, "000#8200")] + _hb(1, 0.7, 3.0)
+        + [(0.8, "702#00"), (0.85, "703#00")] + _hb(2, 0.9, 1.55) + _hb(3, 0.95, 1.6)
+        + [(1.5, "000#0100")] + _hb(2, 1.6, 3.0, "05") + _hb(3, 1.65, 3.0, "05"),
+        {"master": (1, "inferred"), "rules_of": {1: [], 2: [], 3: []}}),
+    # B: a start broadcast right after the boot-up, not obeyed by its sender
+    "master_start_not_obeyed": (
+        [(0.0, "705#00"), (0.0, "701#00"), (0.2, "000#0100")] + _hb(1, 0.3, 1.5)
+        + _hb(5, 0.1, 1.5, "05")[:1] + _hb(5, 0.25, 1.5, "05"),
+        {"master": (1, "inferred"), "rules_of": {1: []}}),
+    # B: two nodes start like a master: none is inferred, the broadcasts apply to both
+    # (a reset-all before node 4's boot-up would make that boot-up an answer to it)
+    "two_candidate_masters": (
+        [(0.0, "701#00"), (0.1, "000#0100")] + _hb(1, 0.2, 4.0)
+        + [(2.0, "704#00"), (2.05, "000#0200")] + _hb(4, 2.1, 4.0),
+        {"master": ("several", [1, 4])}),
+    # B (3): the node obeys the reset (boot-up again): not a master
+    "bootup_reset_all_obeyed": (
+        [(0.0, "701#00"), (0.1, "000#8200"), (0.3, "701#00")] + _hb(1, 0.4, 1.0),
+        {"master": ("none",)}),
+    # B (2): the boot-up answers a reset-all before it: not a master
+    "bootup_answers_a_reset": (
+        [(0.0, "701#7F"), (0.05, "000#8100"), (0.1, "701#00"), (0.2, "000#0100")]
+        + _hb(1, 0.3, 1.0),
+        {"master": ("none",)}),
+    # B (1): another NMT command between the boot-up and the broadcast; and a broadcast
+    # later than master_window_ms
+    "bootup_command_between_or_too_late": (
+        [(0.0, "701#00"), (0.05, "000#0102"), (0.1, "000#0100")] + _hb(1, 0.2, 1.0)
+        + [(1.5, "706#00"), (2.6, "000#0200")] + _hb(6, 1.6, 3.0),
+        {"master": ("none",)}),
+    # B (3): after a broadcast reset the sender's heartbeat within obey_ms does not count,
+    # the next one does
+    "master_reset_heartbeat_within_obey": (
+        [(0.0, "701#00"), (0.1, "000#8100"), (0.15, "701#7F"), (0.3, "701#7F")],
+        {"master": (1, "inferred")}),
+    # C: a guarding response 1 us after a start still says PRE-OPERATIONAL: stale (no
+    # S005 when the node answers OPERATIONAL next, no timeline change)
+    "stale_guard_response_after_start": (
+        [(0.0, "705#00"), (0.1, "705#R"), (0.101, "705#7F"), (0.3, "705#R"),
+         (0.3005, "000#0105"), (0.300501, "705#FF"), (0.5, "705#R"), (0.501, "705#05"),
+         (0.7, "705#R"), (0.701, "705#85")],
+        {"stale": 1, "rules_of": {5: []}}),
+    # C: a heartbeat right after a stop still says OPERATIONAL; one after a reset is no
+    # sign of life (no B001) but starts a heartbeat gap that the boot-up 0.3 s later ends
+    # too late (H001); one after a command while OFFLINE reports the state before (H001)
+    "stale_heartbeats": (
+        [(0.0, "702#00"), (0.05, "000#0102")] + _hb(2, 0.1, 1.0, "05")
+        + [(1.0, "000#0202"), (1.02, "702#05")] + _hb(2, 1.1, 2.0, "04")
+        + [(2.0, "000#8102"), (2.001, "702#04"), (2.3, "702#00")] + _hb(2, 2.4, 3.0)
+        + [(3.5, "000#0102"), (3.55, "702#7F")] + _hb(2, 3.6, 4.0, "05"),
+        {"stale": 3, "rules_of": {2: ["H001", "H001"]}}),
+    # E: no gap from the boot-up; the gap starts at the confirmed 1017h write, the first
+    # heartbeat comes late
+    "bootup_then_late_first_heartbeat_after_1017_write": (
+        [(0.0, "702#00")] + _sdo_1017(2, 0.4, 100) + _hb(2, 0.9, 2.0),
+        {"rules_of": {2: ["H001"]}}),
+    # E: a boot-up and a late first heartbeat without any write: no H001
+    "bootup_then_late_first_heartbeat": (
+        [(0.0, "702#00"), (0.0, "703#00")] + _hb(2, 2.0, 3.0) + _hb(3, 0.1, 3.0),
+        {"rules_of": {2: []}}),
+    # E: a longer 1017h written while a gap runs does not move the limit fixed at the
+    # gap's start; a 0 write ends a gap (one that already expired is still found); a
+    # reset ends one
+    "h001_limit_fixed_at_gap_start": (
+        [(0.0, "702#00")] + _hb(2, 0.1, 1.0) + _sdo_1017(2, 1.0, 500) + _hb(2, 1.3, 2.0, period=0.5)
+        + _sdo_1017(2, 2.6, 0) + [(2.7, "702#7F")] + _sdo_1017(2, 2.72, 100)
+        + [(3.0, "702#7F"), (3.05, "000#8102"), (3.5, "702#00")],
+        {"rules_of": {2: ["H001", "H001", "H001"]}}),
+    # F: a fixed-rate producer stalls once and catches up: not two producers
+    "stalled_fixed_rate_producer": (
+        _hb(4, 0.0, 0.5) + [(0.68, "704#7F"), (0.7, "704#7F")] + _hb(4, 0.8, 1.5),
+        {"no_rule": "N002"}),
+    # F: two producers out of phase (shorts and longs each within 20 %)
+    "two_producers_out_of_phase": (
+        [(round(k * 0.05 + (0.02 if k % 2 else 0.0), 6), "704#05") for k in range(10)],
+        {"rule": "N002"}),
+    # F: short/long but the shorts differ by more than 20 %
+    "alternating_uneven_shorts": (
+        [(t, "704#05") for t in (0.0, 0.02, 0.1, 0.13, 0.2, 0.22, 0.3)],
+        {"no_rule": "N002"}),
+    # D: 1017h written, then a longer one; heartbeats twice as often as the new value
+    # wants are early against it, whatever the whole-trace median says
+    "h002_after_1017_written_then_changed": (
+        [(0.0, "703#00")] + _sdo_1017(3, 0.05, 100) + _hb(3, 0.1, 1.0, "7F")
+        + _sdo_1017(3, 1.0, 500) + _hb(3, 1.1, 3.0, "7F", period=0.2),
+        {"rule": "H002"}),
+    # D: the guarding classification uses the period in force at the previous heartbeat:
+    # 1017h = 200 ms written, a frame 60 ms after a heartbeat with a request pending is a
+    # guarding response (the median of the 40 ms heartbeats before would say heartbeat)
+    "guard_response_against_the_period_in_force": (
+        [(0.0, "706#00")] + _hb(6, 0.04, 1.0, period=0.04) + _sdo_1017(6, 1.0, 200)
+        + _hb(6, 1.2, 2.2, period=0.2) + [(1.63, "706#R"), (1.66, "706#7F")],
+        {"stale": 0, "rule": "G004"}),
+    # A/B: the master named in the network file: broadcasts do not apply to it, and no
+    # inference (node 4 would qualify)
+    "master_from_the_network_file": (
+        [(0.0, "701#00"), (0.0, "702#00")] + _hb(1, 0.1, 2.0) + _hb(2, 0.1, 2.0)
+        + [(0.5, "704#00"), (0.55, "000#0100")] + _hb(4, 0.6, 2.0) + _hb(2, 0.6, 2.0, "05"),
+        {"network": "master = 1\n", "master": (1, "network"), "rules_of": {1: []}}),
+    # A: a channel's own master wins over the top-level one
+    "master_of_a_channel_from_the_network_file": (
+        [(0.0, "701#00"), (0.0, "can1 702#00"), (0.1, "000#0100"), (0.1, "can1 000#0100")]
+        + _hb(1, 0.2, 1.0) + [(t, "can1 " + f) for t, f in _hb(2, 0.2, 1.0)],
+        {"network": "master = 1\n[channels.can1]\nmaster = 2\n", "master": (1, "network"),
+         "rules_of": {1: [], 2: []}}),
+    # A: master_window_ms in the profile's [timeline] table: 40 ms is too short here
+    "master_window_from_the_profile": (
+        [(0.0, "701#00"), (0.1, "000#8200")] + _hb(1, 0.2, 1.0),
+        {"params": (("timeline", "master_window_ms", 40.0),), "master": ("none",)}),
+    # B: after a boot-up, the master's broadcast and its heartbeats going on: within obey_ms
+    # (S004's) they do not count yet; with obey_ms 300 the only one is inside it
+    "master_with_a_longer_obey_ms": (
+        [(0.0, "701#00"), (0.1, "000#0100"), (0.3, "701#7F")],
+        {"params": (("S004", "obey_ms", 300.0),), "master": ("none",)}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SPEC_CASES))
+def test_spec_2026_11_cases_match_the_object_reference(name: str, tmp_path: Path) -> None:
+    frames, want = SPEC_CASES[name]
+    text = text_of(ms(sorted(frames, key=lambda f: f[0])))
+    log = tmp_path / "trace.log"
+    log.write_text(text)
+    profile = copy.deepcopy(PROFILE)
+    for code, param, value in want.get("params", ()):
+        (profile.timeline if code == "timeline" else profile[code].params)[param] = value
+    net = None
+    if "network" in want:
+        (tmp_path / "net.toml").write_text(want["network"])
+        net = load_network(str(tmp_path / "net.toml"))
+    ref = reference_check(str(log), profile, network=net)
+    cm = ref.model.channels[0]
+    if "master" in want:
+        assert _master_view(cm) == want["master"]
+    if "stale" in want:
+        assert sum(len(_stale(m)) for m in cm.nodes.values()) == want["stale"]
+    for node, rules in want.get("rules_of", {}).items():
+        assert [f.rule for f in ref.findings if f.node == node] == rules
+    if "rule" in want:
+        assert want["rule"] in {f.rule for f in ref.findings}
+    if "no_rule" in want:
+        assert want["no_rule"] not in {f.rule for f in ref.findings}
+    compare(tmp_path, text, want.get("network"), want.get("params", ()))
+
+
 def test_healthy_trace_and_samples_match(tmp_path: Path) -> None:
     text = text_of(ms(healthy()))
     compare(tmp_path, text)
@@ -402,5 +699,5 @@ def test_no_heartbeat_timeout_from_a_period_that_is_not_positive(checker) -> Non
     res = checker.run(text_of([(0, "701#04"), (-1, "701#04")]))
     node = res.model.channels[0].nodes[1]
     assert node.period_s is not None and node.period_s < 0
-    assert [f.rule for f in res.findings] == []
+    assert [f.rule for f in res.findings] == ["I005"]  # timestamps-backwards: the input's
     assert [iv.state for iv in node.intervals] == ["STOPPED"]
