@@ -245,3 +245,35 @@ def test_unreadable_device_file_values_are_in_every_report(tmp_path: Path) -> No
     html = tmp_path / "r.html"
     subprocess.run(args + ["-o", str(html)], capture_output=True, text=True)
     assert "network-notes" in html.read_text()
+
+
+# --- cases the differential test against the reference model found ----------------------
+
+def test_a_node_whose_only_traffic_is_a_1017h_write(checker) -> None:
+    fr = [(0.0, "605#2B17100032000000"), (0.001, "585#6017100000000000")]
+    assert checker.findings(candump(fr)) == []
+
+
+def test_heartbeats_while_1017h_is_0_start_no_gap(checker) -> None:
+    """Heartbeat disabled by SDO: the heartbeat at 0.7 s opens no gap, so the non-zero
+    write at 0.721 s does, and the node answers only 0.28 s later."""
+    fr = [(0.0, "702#00"), (0.1, "702#7F"), (0.2, "702#7F"), (0.3, "702#7F"),
+          (0.4, "602#2B17100000000000"), (0.401, "582#6017100000000000"), (0.7, "702#7F"),
+          (0.72, "602#2B17100064000000"), (0.721, "582#6017100000000000"), (1.0, "702#7F")]
+    assert checker.findings(candump(fr), select="H001") == [("H001", 2, 0.871)]
+
+
+def test_two_commands_while_offline_compare_with_the_state_before_offline(checker) -> None:
+    fr = [(0.0, "702#04"), (0.1, "702#04"), (0.2, "702#04"), (0.5, "000#0102"),
+          (0.5, "000#0102"), (0.55, "702#04"), (0.65, "702#05")]
+    res = checker.run(candump(fr))
+    assert [(f.rule, f.node) for f in res.findings if f.rule != "H001"] == []
+    assert [iv.state for iv in res.nodes()[0].intervals][-1] == "OPERATIONAL"
+
+
+def test_the_median_is_the_period_where_1017h_is_0(checker) -> None:
+    fr = [(0.0, "702#7F"), (0.05, "702#7F"), (0.1, "702#7F"), (0.15, "702#7F"),
+          (0.2, "702#7F"), (0.21, "602#2B17100000000000"), (0.211, "582#6017100000000000"),
+          (0.25, "702#7F"), (0.28, "702#7F")]
+    net = "[nodes.2]\nheartbeat_ms = 100\n"
+    assert checker.findings(candump(fr), network=net, select="H002") == []
