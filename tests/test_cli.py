@@ -10,25 +10,15 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import SAMPLES, candump
+from conftest import SAMPLES, assert_one_line_error, candump
+from conftest import run_cli as run
 
 HEALTHY = SAMPLES / "healthy.log"
 HB_LOSS = SAMPLES / "heartbeat_loss.log"
 
 
-def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    """The real command line, run outside the checkout so the installed package is used."""
-    return subprocess.run([sys.executable, "-m", "nmtcheck", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=120)
 
 
-def assert_one_line_error(res: subprocess.CompletedProcess[str], *needles: str) -> None:
-    assert res.returncode == 2, res.stdout + res.stderr
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1, res.stderr
-    assert "Traceback" not in res.stderr
-    for needle in needles:
-        assert needle in lines[0], lines[0]
 
 
 def test_healthy_sample_passes(tmp_path: Path) -> None:

@@ -4,29 +4,19 @@ upward from the current directory up to the repository root; the command line wi
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from conftest import SAMPLES
+from conftest import SAMPLES, assert_one_line_error
+from conftest import run_cli as run
 
 from nmtcheck.config import find_config
 
 HB_LOSS = SAMPLES / "heartbeat_loss.log"
 
 
-def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "nmtcheck", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=120)
 
 
-def assert_one_line_error(res: subprocess.CompletedProcess[str], *needles: str) -> None:
-    assert res.returncode == 2, res.stdout + res.stderr
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
-    for needle in needles:
-        assert needle in lines[0], lines[0]
 
 
 @pytest.fixture

@@ -68,6 +68,16 @@ def omitted_lines(results: list[InputResult], options: dict[str, object]) -> lis
             for res in results for o in res.omitted]
 
 
+def verdict_line(results: list[InputResult], options: dict[str, object]) -> str:
+    """`FAIL: 1 error, 0 warnings, 0 info in 2 inputs (--fail-on error)`: what the exit code
+    says, the same words in every line-based format."""
+    threshold = fail_on(options)
+    verdict = "FAIL" if is_failing(results, threshold) else "PASS"
+    inputs = len(results)
+    return (f"{verdict}: {counts_phrase(summary(results))} in {inputs} "
+            f"input{'s' if inputs != 1 else ''} (--fail-on {threshold})")
+
+
 def network_notes(options: dict[str, object] | None) -> list[str]:
     """What could not be read from the network and device files (shown, never dropped)."""
     notes = (options or {}).get("network_notes") or []

@@ -11,14 +11,12 @@ follow these lines. A verdict line ends the output.
 
 from __future__ import annotations
 
-from nmtcheck.engine import Finding, InputResult, summary
+from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
-    counts_phrase,
-    fail_on,
-    is_failing,
     node_label,
     offset,
     omitted_lines,
+    verdict_line,
 )
 
 
@@ -35,9 +33,5 @@ def finding_line(res: InputResult, f: Finding) -> str:
 def render(results: list[InputResult], options: dict[str, object]) -> str:
     lines = [finding_line(res, f) for res in results for f in res.findings]
     lines += omitted_lines(results, options)
-    threshold = fail_on(options)
-    verdict = "FAIL" if is_failing(results, threshold) else "PASS"
-    inputs = len(results)
-    lines.append(f"nmtcheck {verdict}: {counts_phrase(summary(results))} in "
-                 f"{inputs} input{'s' if inputs != 1 else ''} (--fail-on {threshold})")
+    lines.append("nmtcheck " + verdict_line(results, options))
     return "\n".join(lines) + "\n"

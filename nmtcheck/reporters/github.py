@@ -6,13 +6,11 @@ line follows so the job log still reads on its own.
 
 from __future__ import annotations
 
-from nmtcheck.engine import InputResult, summary
+from nmtcheck.engine import InputResult
 from nmtcheck.reporters.common import (
-    counts_phrase,
-    fail_on,
-    is_failing,
     offset,
     omitted_lines,
+    verdict_line,
     where_label,
 )
 
@@ -41,9 +39,5 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             message = f"{f.message} [at {offset(res, f.time):.3f} s]"
             lines.append(f"::{COMMANDS[f.severity]} {','.join(props)}::{escape_data(message)}")
     lines += [f"::notice::{escape_data(line)}" for line in omitted_lines(results, options)]
-    threshold = fail_on(options)
-    verdict = "FAIL" if is_failing(results, threshold) else "PASS"
-    inputs = len(results)
-    lines.append(f"nmtcheck {verdict}: {counts_phrase(summary(results))} in "
-                 f"{inputs} input{'s' if inputs != 1 else ''} (--fail-on {threshold})")
+    lines.append("nmtcheck " + verdict_line(results, options))
     return "\n".join(lines) + "\n"

@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 from collections import Counter
 
-from nmtcheck.engine import InputResult, summary
-from nmtcheck.reporters.common import counts_phrase, fail_on, is_failing
+from nmtcheck.engine import InputResult
+from nmtcheck.reporters.common import verdict_line
 
 
 def rule_counts(results: list[InputResult]) -> list[tuple[str, str, str, int]]:
@@ -26,10 +26,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     width = max((len(str(k)) for *_x, k in rows), default=1)
     names = max((len(n) for _c, n, _s, _k in rows), default=0)
     lines = [f"{k:>{width}}  {c}  {n:<{names}}  [{s}]" for c, n, s, k in rows]
-    threshold = fail_on(options)
-    verdict = "FAIL" if is_failing(results, threshold) else "PASS"
-    lines.append(f"{verdict}: {counts_phrase(summary(results))} in {len(results)} "
-                 f"input{'s' if len(results) != 1 else ''} (--fail-on {threshold})")
+    lines.append(verdict_line(results, options))
     return "\n".join(lines) + "\n"
 
 
