@@ -356,6 +356,14 @@ def node_frame_lines(chunk: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarr
     return chunk["idx"][rows] * chunk["line_step"][0] + chunk["line_off"][0]
 
 
+def frame_time_lines(chunk: dict[str, np.ndarray]) -> np.ndarray:
+    """The line number of every frame of one `frame_times` chunk (see `_lines`)."""
+    if "line" in chunk:
+        return np.asarray(chunk["line"], np.int64)
+    n = len(chunk["ts"])
+    return int(chunk["line_first"][0]) + int(chunk["line_step"][0]) * np.arange(n, dtype=np.int64)
+
+
 def _line_at(chunk: dict[str, np.ndarray], pos: int) -> int:
     if "line" in chunk:
         return int(chunk["line"][pos])

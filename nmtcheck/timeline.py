@@ -585,8 +585,10 @@ def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: Timeli
     valid = [f for f in nmt if f.problem is None]
     if not any(f.target == 0 for f in valid):
         return None, "not inferred: no broadcast NMT command"
-    boots = sorted((int(t.idx[p]), float(t.ts[p]), n) for n, t in tables.items()
-                   for p in np.flatnonzero(~t.rtr & (t.dlc == 1) & (t.value == 0)).tolist())
+    # each node's data frames of DLC 1 (boot-ups and heartbeats), once per channel
+    reports = {n: np.flatnonzero(~t.rtr & (t.dlc == 1)) for n, t in tables.items()}
+    boots = sorted((int(tables[n].idx[p]), float(tables[n].ts[p]), n)
+                   for n, pos in reports.items() for p in pos[tables[n].value[pos] == 0].tolist())
     boot_idx = [b[0] for b in boots]
     found: dict[int, str] = {}
     prev_idx = -1
@@ -601,7 +603,7 @@ def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: Timeli
                 k -= 1
                 if node not in found and not _answers_reset(valid, i, node, b_idx, b_ts,
                                                             params) and _disobeyed(
-                        tables[node], valid, i, node, params):
+                        tables[node], reports[node], valid, i, node, params):
                     found[node] = (f"boot-up at {b_ts - start:.6f} s, then broadcast "
                                    f"{COMMAND_NAMES[f.cs]} at {f.ts - start:.6f} s that node "
                                    f"{node} did not obey")
@@ -630,17 +632,15 @@ def _answers_reset(valid: list[NmtFrame], before: int, node: int, b_idx: int, b_
     return False
 
 
-def _disobeyed(t: EcTable, valid: list[NmtFrame], i: int, node: int,
+def _disobeyed(t: EcTable, data: np.ndarray, valid: list[NmtFrame], i: int, node: int,
                params: TimelineParams) -> bool:
-    """Whether the node's own frames show it did not obey broadcast `valid[i]`.
+    """Whether the node's own frames (`data`: positions of its boot-ups and heartbeats)
+    show it did not obey broadcast `valid[i]`.
 
-    Walks only the few frames around the command (lazily), so a hostile log with a
-    million boot-ups and broadcasts stays linear enough.
+    Walks only the few frames around the command, so a hostile log with a million
+    boot-ups and broadcasts stays linear enough.
     """
     f = valid[i]
-    data = t.__dict__.get("_data_pos")
-    if data is None:  # data frames of DLC 1: boot-ups and heartbeats
-        data = t.__dict__["_data_pos"] = np.flatnonzero(~t.rtr & (t.dlc == 1))
     p = int(np.searchsorted(t.idx[data], f.idx, side="right"))
     after = (int(q) for q in data[p:p + 256])  # the answer is in the next few frames
     if f.cs in RESETS:

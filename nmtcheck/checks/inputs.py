@@ -14,19 +14,11 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, rule
+from nmtcheck.decode import frame_time_lines
+from nmtcheck.readers import TEXT_FORMATS
 from nmtcheck.timeline import InputModel
 
-# Formats whose records are lines: their record numbers are line numbers a viewer can open.
-TEXT_FORMATS = frozenset({"candump", "asc", "trc", "candump-screen", "csv", "cl2000"})
 LINES_SHOWN = 5
-
-
-def _frame_lines(chunk: dict[str, np.ndarray]) -> np.ndarray:
-    """The line number of every frame of one `frame_times` chunk."""
-    if "line" in chunk:
-        return np.asarray(chunk["line"], np.int64)
-    n = len(chunk["ts"])
-    return int(chunk["line_first"][0]) + int(chunk["line_step"][0]) * np.arange(n, dtype=np.int64)
 
 
 def _first_frame(model: InputModel) -> tuple[float, int | None, int | None]:
@@ -34,10 +26,9 @@ def _first_frame(model: InputModel) -> tuple[float, int | None, int | None]:
     stats = model.stats
     if not stats.frames:
         return 0.0, None, None
-    for chunk in model.decoded.frame_times:
-        if len(chunk["ts"]):
-            return float(chunk["ts"][0]), int(chunk["base"][0]), int(_frame_lines(chunk)[0])
-    return float(stats.start or 0.0), 0, None
+    start = float(stats.start or 0.0)
+    hit = model.decoded.first_frame_at_or_after([start])[0]
+    return (start, *hit) if hit is not None else (start, 0, None)
 
 
 def _last_frame(model: InputModel) -> tuple[float, int | None, int | None]:
@@ -52,7 +43,7 @@ def _last_frame(model: InputModel) -> tuple[float, int | None, int | None]:
     if last is None:
         return float(stats.end or 0.0), stats.frames - 1, None
     n = len(last["ts"])
-    return float(last["ts"][-1]), int(last["base"][0]) + n - 1, int(_frame_lines(last)[-1])
+    return float(last["ts"][-1]), int(last["base"][0]) + n - 1, int(frame_time_lines(last)[-1])
 
 
 def _frame_after_line(model: InputModel, line: int) -> tuple[float, int | None]:
@@ -63,7 +54,7 @@ def _frame_after_line(model: InputModel, line: int) -> tuple[float, int | None]:
         ts = chunk["ts"]
         if not len(ts):
             continue
-        lines = _frame_lines(chunk)
+        lines = frame_time_lines(chunk)
         after = np.flatnonzero(lines > line)
         if after.size:
             k = int(after[0])

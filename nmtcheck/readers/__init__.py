@@ -96,12 +96,12 @@ def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
     if batch is None or len(batch) == 0:
         return None
     ts = batch.ts
-    back = int(np.count_nonzero(ts[1:] < ts[:-1]))
-    if stats.end is not None and ts[0] < stats.end:
-        back += 1
+    # each frame against the one before it (the previous batch's last for the first)
+    prev = np.concatenate([[stats.end if stats.end is not None else ts[0]], ts[:-1]])
+    backwards = np.flatnonzero(ts < prev)
+    back = len(backwards)
     if back and stats.first_backwards is None:
-        prev = np.concatenate([[stats.end if stats.end is not None else ts[0]], ts[:-1]])
-        k = int(np.flatnonzero(ts < prev)[0])
+        k = int(backwards[0])
         stats.first_backwards = (int(batch.index[k]), int(batch.line[k]), float(ts[k]))
     if stats.start is None:
         stats.start = float(ts[0])
