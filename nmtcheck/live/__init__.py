@@ -1,0 +1,1 @@
+"""Live checking: nmtcheck monitor, check --follow and the python-can Listener."""
