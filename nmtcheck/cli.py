@@ -16,7 +16,7 @@ import signal
 import sys
 import tempfile
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -35,10 +35,17 @@ from nmtcheck.engine import (
     summary,
 )
 from nmtcheck.errors import NmtcheckError, UsageError
+from nmtcheck.fleet.commands import fleet, fleet_options, fleet_requested
+from nmtcheck.live.command import monitor as live_monitor
 from nmtcheck.network import Network, load_network
 from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
-from nmtcheck.reporters import FORMATS, format_for_path, renderer, statistics_renderer
+from nmtcheck.reporters import (
+    FORMATS,
+    format_for_path,
+    statistics_renderer,
+    streamer,
+)
 from nmtcheck.reporters.common import spreadsheet_safe
 
 EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
@@ -115,8 +122,9 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 
 @cli.command()
-@click.argument("logs", nargs=-1, required=True)
+@click.argument("logs", nargs=-1, required=False)
 @_common
+@fleet_options
 @click.option("--format", "fmt", default=None,
               help="text, concise, json, csv, html, junit, sarif, github, markdown, or auto "
                    "(github under GitHub Actions, else text) [default: text].")
@@ -135,6 +143,9 @@ def cli(ctx: click.Context, debug: bool) -> None:
 @click.option("-q", "--quiet", is_flag=True, help="Only the findings and the verdict.")
 @click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
               help="Check this many logs at once, in separate processes (0: one per core).")
+@click.option("--follow", is_flag=True,
+              help="With `-`: read standard input as it arrives (candump -L can0 | nmtcheck "
+                   "check --follow -), live findings on stderr, the full check at its end.")
 @click.option("--max-findings", type=click.IntRange(min=0), default=MAX_FINDINGS_PER_RULE,
               show_default=True,
               help="Keep at most this many findings per rule and input (0: all); every report "
@@ -144,7 +155,7 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
           dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
           fmt: str | None, outputs: tuple[str, ...], select: tuple[str, ...],
           ignore: tuple[str, ...], fail_on: str | None, statistics: bool, quiet: bool,
-          jobs: int, max_findings: int) -> None:
+          jobs: int, max_findings: int, follow: bool = False, **fleet_args: Any) -> None:
     """Analyse each LOG (`-`: standard input; quoted globs are expanded), print the findings
     and set the exit code."""
     config = discover(config_file, isolated)
@@ -158,20 +169,39 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
     if config is not None:  # a bad pattern in the file is named with the file
         check_patterns([] if select else config.select or [], f"{config.label}: select")
         check_patterns([] if ignore else config.ignore or [], f"{config.label}: ignore")
+    if fleet_requested(fleet_args):  # --results: a fleet run (nmtcheck/fleet/)
+        from nmtcheck.fleet.commands import run_fleet_check
+
+        profile, network, _info = _load(rules_profile, network_file, dcf, config)
+        sys.exit(run_fleet_check(
+            logs, fleet_args, profile, select_rules(profile, selected, ignored), network,
+            fail_on, input_format=input_format, strict=strict, channel=channel,
+            reader_options={"topics": list(topics)} if topics else {},
+            max_findings=max_findings, quiet=quiet, outputs=outputs, statistics=statistics))
+    if not logs:
+        raise click.UsageError("Missing argument 'LOGS...'.")
     logs = expand_logs(logs)
     if "-" in logs:
         jobs = 1  # worker processes do not share this process's standard input
     profile, network, config_info = _load(rules_profile, network_file, dcf, config)
     rules = select_rules(profile, selected, ignored)
-    stdout_render = renderer(fmt) if not statistics else statistics_renderer(fmt)
-    files = [(path, renderer(format_for_path(path))) for path in outputs]
+    stdout_render = streamer(fmt) if not statistics else statistics_renderer(fmt)
+    files = [(path, streamer(format_for_path(path))) for path in outputs]
     reader_options: dict[str, object] = {"topics": list(topics)} if topics else {}
-    progress = ProgressBar(len(logs)) if sys.stderr.isatty() and not quiet else None
+    progress = (ProgressBar(len(logs)) if sys.stderr.isatty() and not quiet and not follow
+                else None)
     try:
-        results = check_inputs(logs, jobs or os.cpu_count() or 1, profile, rules,
-                               progress=progress, network=network, input_format=input_format,
-                               strict=strict, channel=channel, reader_options=reader_options,
-                               max_findings=max_findings)
+        if follow:  # nmtcheck/live/follow.py: live findings, then this same check
+            from nmtcheck.live.follow import follow_logs
+
+            results = follow_logs(logs, profile, rules, network=network,
+                                  input_format=input_format, strict=strict, channel=channel,
+                                  max_findings=max_findings)
+        else:
+            results = check_inputs(logs, jobs or os.cpu_count() or 1, profile, rules,
+                                   progress=progress, network=network,
+                                   input_format=input_format, strict=strict, channel=channel,
+                                   reader_options=reader_options, max_findings=max_findings)
     finally:
         if progress:
             progress.close()
@@ -188,7 +218,8 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
             done = f" (written: {', '.join(written)})" if written else " (none written)"
             raise UsageError(f"--output {path}: cannot write: {exc.strerror}{done}") from None
         written.append(path)
-    click.echo(stdout_render(results, options), nl=False)
+    for chunk in stdout_render(results, options):
+        click.echo(chunk, nl=False)
     counts = summary(results)
     if fail_on != "never" and any(
             counts[s] for s in SEVERITY_ORDER[: SEVERITY_ORDER.index(fail_on) + 1]):
@@ -254,14 +285,17 @@ class ProgressBar:
         self._bar.close()
 
 
-def write_atomically(path: Path, text: str) -> None:
+def write_atomically(path: Path, text: str | Iterable[str]) -> None:
     """Write a report beside its target and rename it into place: a full disk or a killed
     run never leaves a truncated report or destroys the previous one, and `-o link.json`
     replaces the link instead of writing through it into the file it points to."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
+            if isinstance(text, str):
+                f.write(text)
+            else:  # a report in pieces: it is never whole in memory
+                f.writelines(text)
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_umask())
@@ -347,6 +381,10 @@ def rule_table(defaults: Profile) -> str:
     rows += [f"| {r.code} | {r.name} | {defaults[r.code].severity} | {r.summary} |"
              for r in RULES]
     return "\n".join(rows)
+
+
+cli.add_command(fleet)  # nmtcheck fleet summary (nmtcheck/fleet/commands.py)
+cli.add_command(live_monitor)  # nmtcheck monitor (nmtcheck/live/command.py)
 
 
 def main() -> None:

@@ -8,19 +8,28 @@ UNKNOWN exemption is applied in one place for every rule.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+import numpy as np
+
 from nmtcheck.checks import BY_CODE, RULES
-from nmtcheck.checks.base import SEVERITIES, Problem, Rule
+from nmtcheck.checks.base import SEVERITIES, Problem, Problems, Rule
 from nmtcheck.decode import decode
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.frames import FrameBatch
 from nmtcheck.network import Network
 from nmtcheck.profiles import Profile, RuleSettings
 from nmtcheck.readers import InputStats, open_input
-from nmtcheck.timeline import UNKNOWN, InputModel, Master, NodeModel, TimelineParams, build
+from nmtcheck.timeline import (
+    STATE_INDEX,
+    UNKNOWN,
+    InputModel,
+    Master,
+    NodeModel,
+    TimelineParams,
+    build,
+)
 
 
 @dataclass
@@ -161,9 +170,21 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         problems: list[tuple[Rule, Problem]] = []
         nodes: dict[tuple[str | None, int], NodeModel] = {
             (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
+        unknown = STATE_INDEX[UNKNOWN]
         for r in rules:
             kept = left = 0
             for p in r.check(model, profile[r.code].params):
+                if isinstance(p, Problems):
+                    rows = np.arange(len(p))
+                    if p.node is not None and not r.exempt_from_unknown:
+                        m = nodes.get((p.channel, p.node))
+                        rows = rows[:0] if m is None else rows[
+                            m.intervals.state[m.interval_indices(p.time)] != unknown]
+                    room = len(rows) if not max_findings else max(max_findings - kept, 0)
+                    problems.extend((r, p.problem(i)) for i in rows[:room].tolist())
+                    kept += min(room, len(rows))
+                    left += max(len(rows) - room, 0)
+                    continue
                 if p.node is not None and not r.exempt_from_unknown:
                     m = nodes.get((p.channel, p.node))
                     if m is None or m.state_at(p.time) == UNKNOWN:
@@ -199,7 +220,9 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
     """`check_input` for each path (index = position; `options` are its keyword arguments),
     results in order. With jobs > 1 the inputs are checked in that many processes: checking
     many logs is CPU-bound and scales with the cores. The first input that fails (in order)
-    raises, as in a serial run."""
+    raises, as in a serial run. A worker that dies (a crash in a library, the OOM killer)
+    costs only the logs it was checking, which are tried again; a log that kills its worker
+    every time is an input error naming it, never a BrokenProcessPool for every other log."""
     if jobs <= 1 or len(paths) <= 1:
         results = []
         for i, path in enumerate(paths):
@@ -209,23 +232,35 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
                 kw["progress"] = progress.frames
             results.append(check_input(path, i, profile, rules, **kw))
         return results
-    with ProcessPoolExecutor(min(jobs, len(paths))) as pool:
+    from nmtcheck.fleet.executors import Crashed, ResilientPool
+
+    pool = ResilientPool(min(jobs, len(paths)))
+    try:
         # Rules travel as codes: their decorated check functions do not pickle.
         codes = [r.code for r in rules]
-        futures = [pool.submit(_check_in_worker, path, i, profile, codes, options)
-                   for i, path in enumerate(paths)]
-        results = []
-        for path, future in zip(paths, futures, strict=True):
-            outcome = future.result()
-            if isinstance(outcome, _Failure):
-                for f in futures:
-                    f.cancel()
-                raise outcome.error()
-            if progress:
-                progress.start_input(path)
-                progress.frames(outcome.stats.frames)
-            results.append(outcome)
-        return results
+        for i, path in enumerate(paths):
+            pool.submit(i, _check_in_worker, path, i, profile, codes, options)
+        outcomes: dict[int, Any] = {}
+        while len(outcomes) < len(paths):
+            for key, outcome in pool.done():
+                assert isinstance(key, int)
+                outcomes[key] = outcome
+                if progress and isinstance(outcome, InputResult):
+                    progress.start_input(paths[key])
+                    progress.frames(outcome.stats.frames)
+            first_bad = min((i for i, o in outcomes.items()
+                             if not isinstance(o, InputResult)), default=None)
+            if first_bad is not None and all(i in outcomes for i in range(first_bad)):
+                bad = outcomes[first_bad]
+                if isinstance(bad, _Failure):
+                    raise bad.error()
+                if isinstance(bad, Crashed):
+                    raise InputError(paths[first_bad], f"{bad.reason}; the other logs were "
+                                     "checked (run it alone to see the crash)")
+                raise bad
+        return [outcomes[i] for i in range(len(paths))]
+    finally:
+        pool.close()
 
 
 class Progress(Protocol):

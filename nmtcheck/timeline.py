@@ -88,6 +88,91 @@ class Command:
         return COMMAND_NAMES[self.cs] + (" (broadcast)" if self.broadcast else "")
 
 
+
+_KNOWN_CS = np.zeros(256, bool)
+_KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
+_RESET_CS = np.zeros(256, bool)
+_RESET_CS[list(RESETS)] = True
+
+
+class NmtTable:
+    """A channel's frames on CAN-ID 000h as columns, valid or not (a hostile log may
+    hold millions of them): a `NmtFrame` is made only for what a rule reports."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
+                 dlc: np.ndarray, cs: np.ndarray, target: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.rtr = np.asarray(rtr, bool)
+        self.dlc = np.asarray(dlc, np.int16)
+        self.cs = np.asarray(cs, np.uint8)
+        self.target = np.asarray(target, np.uint8)
+        self.valid = ~self.rtr & (self.dlc == 2) & _KNOWN_CS[self.cs] & (self.target <= 127)
+
+    @classmethod
+    def empty(cls) -> NmtTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> NmtFrame:
+        rtr, dlc, cs, target = (bool(self.rtr[pos]), int(self.dlc[pos]), int(self.cs[pos]),
+                                int(self.target[pos]))
+        return NmtFrame(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]), rtr, dlc,
+                        cs, target, _nmt_problem(rtr, dlc, cs, target))
+
+    def __iter__(self) -> Iterator[NmtFrame]:
+        return (self[i] for i in range(len(self)))
+
+
+class CommandTable:
+    """The valid NMT commands that apply to one node, as columns: a log of nothing but
+    NMT commands gives every node one per frame."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, cs: np.ndarray,
+                 broadcast: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.cs = np.asarray(cs, np.uint8)
+        self.broadcast = np.asarray(broadcast, bool)
+        self.is_reset = _RESET_CS[self.cs]
+
+    @classmethod
+    def empty(cls) -> CommandTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z)
+
+    @classmethod
+    def of(cls, nmt: NmtTable, pos: np.ndarray) -> CommandTable:
+        return cls(nmt.ts[pos], nmt.idx[pos], nmt.line[pos], nmt.cs[pos], nmt.target[pos] == 0)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> Command:
+        return Command(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
+                       int(self.cs[pos]), bool(self.broadcast[pos]))
+
+    def __iter__(self) -> Iterator[Command]:
+        return (self[i] for i in range(len(self)))
+
+    def name(self, pos: int) -> str:
+        return COMMAND_NAMES[int(self.cs[pos])] + (" (broadcast)" if self.broadcast[pos] else "")
+
+    @property
+    def reset_idx(self) -> np.ndarray:
+        """File positions of the reset commands (sorted: commands are in file order)."""
+        return self.idx[self.is_reset]
+
+    @property
+    def reset_ts(self) -> np.ndarray:
+        return self.ts[self.is_reset]
+
+
 REQUEST, BOOTUP, HEARTBEAT, GUARD, MALFORMED = range(5)
 EC_KIND_NAMES = ("request", "bootup", "heartbeat", "guard", "malformed")  # by EcTable.kind
 
@@ -231,6 +316,40 @@ class Interval:
     source: str
 
 
+SOURCES = ("start", "command", "timeout", "bootup", "heartbeat", "guarding")
+SOURCE_INDEX = {s: i for i, s in enumerate(SOURCES)}
+
+
+class IntervalTable:
+    """A node's state intervals as columns (state and source as indices into `STATES`
+    and `SOURCES`): a node that changes state on every heartbeat has millions of them.
+    An `Interval` is made only when one is looked at."""
+
+    def __init__(self, start: np.ndarray, end: np.ndarray, state: np.ndarray,
+                 source: np.ndarray) -> None:
+        self.start = np.asarray(start, np.float64)
+        self.end = np.asarray(end, np.float64)
+        self.state = np.asarray(state, np.int8)
+        self.source = np.asarray(source, np.int8)
+
+    @classmethod
+    def empty(cls) -> IntervalTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.start)
+
+    def __getitem__(self, pos: int) -> Interval:
+        return Interval(float(self.start[pos]), float(self.end[pos]), STATES[self.state[pos]],
+                        SOURCES[self.source[pos]])
+
+    def __iter__(self) -> Iterator[Interval]:
+        for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
+                                self.source.tolist(), strict=True):
+            yield Interval(a, b, STATES[st], SOURCES[so])
+
+
 @dataclass
 class NodeConfig:
     """What is known of a node's configuration (network file for now)."""
@@ -254,7 +373,7 @@ class NodeModel:
     node: int
     config: NodeConfig
     ec: EcTable = field(default_factory=EcTable.empty)
-    commands: list[Command] = field(default_factory=list)
+    commands: CommandTable = field(default_factory=CommandTable.empty)
     first_show_idx: int | None = None
     first_show_ts: float | None = None
     first_tx: tuple[int, float, int] | None = None  # idx, ts, kind of N's first frame
@@ -263,7 +382,7 @@ class NodeModel:
     period_source: str = "none"  # configured | measured | none
     median_s: float | None = None  # the median heartbeat interval, whatever is configured
     timeouts: list[Timeout] = field(default_factory=list)
-    intervals: list[Interval] = field(default_factory=list)
+    intervals: IntervalTable = field(default_factory=IntervalTable.empty)
     writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
     consumer_writes: list[ConfigWrite] = field(default_factory=list)  # 1016h entries naming N
     events: list[NodeEvent] = field(default_factory=list)
@@ -321,8 +440,7 @@ class NodeModel:
         pos = np.flatnonzero((kind == HEARTBEAT) | (kind == BOOTUP))
         a, b = pos[:-1], pos[1:]
         ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
-        resets = np.asarray([c.idx for c in self.commands if c.is_reset], np.int64)
-        ok &= ~between(resets, self.ec.idx[a], self.ec.idx[b])
+        ok &= ~between(self.commands.reset_idx, self.ec.idx[a], self.ec.idx[b])
         pairs = (a[ok], b[ok])
         self.__dict__["_pairs"] = (kind, pairs)
         return pairs
@@ -377,17 +495,11 @@ class NodeModel:
         return np.where(series > 0, series / 1000.0, fallback)
 
     def interval_starts(self) -> np.ndarray:
-        """Interval start times, built once per timeline (lookups happen per frame)."""
-        cached = self.__dict__.get("_starts_cache")
-        if cached is None or cached[0] is not self.intervals or len(cached[1]) != len(
-                self.intervals):
-            cached = (self.intervals, np.asarray([iv.start for iv in self.intervals]))
-            self.__dict__["_starts_cache"] = cached
-        return cached[1]
+        return self.intervals.start
 
     def state_at(self, ts: float) -> str:
         """State after the evidence of a frame at `ts` (intervals starting at ts included)."""
-        return self.intervals[self.interval_index(ts)].state
+        return STATES[self.intervals.state[self.interval_index(ts)]]
 
     def interval_index(self, ts: float) -> int:
         return max(int(np.searchsorted(self.interval_starts(), ts, side="right")) - 1, 0)
@@ -428,7 +540,7 @@ class Master:
 class ChannelModel:
     chan: int
     name: str
-    nmt: list[NmtFrame]
+    nmt: NmtTable
     nodes: dict[int, NodeModel]
     master: Master | None = None
     master_note: str = ""  # why no master is known, or how it was chosen
@@ -472,7 +584,6 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     timeouts_to_end: list[tuple[NodeModel, Timeout]] = []
     for chan, name in enumerate(channels):
         rows = ev[ev["chan"] == chan]
-        nmt: list[NmtFrame] = []
         nodes: dict[int, NodeModel] = {}
 
         def node_model(n: int, name: str = name, chan: int = chan,
@@ -495,27 +606,19 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         for n, table in ec_tables.items():
             if not table.rtr.all():  # a node exists once it sends; requests alone do not
                 node_model(n)
+        is_nmt = rows["can_id"] == 0
+        nmt = _nmt_table(rows[is_nmt])
+        _first_shown_by_commands(nmt, node_model)
         sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
-        for r in rows.tolist():
+        for r in rows[~is_nmt].tolist():
             ts, idx, line, _chan, can_id, rtr, dlc, data = r
             data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
             if 0x081 <= can_id <= 0x0FF:
                 code, text = emcy.describe(data, dlc)
                 node_model(can_id - 0x080).events.append(
                     NodeEvent(ts, idx, line, "emcy", text, code))
-                continue
-            if 0x581 <= can_id <= 0x67F:
+            elif 0x581 <= can_id <= 0x67F:
                 sdo_rows.append((ts, idx, line, can_id, dlc, data))
-                continue
-            if can_id == 0:
-                cs, target = int(data[0]), int(data[1])
-                frame = NmtFrame(ts, idx, line, rtr, dlc, cs, target,
-                                 _nmt_problem(rtr, dlc, cs, target))
-                nmt.append(frame)
-                if frame.problem is None and target != 0:
-                    m = node_model(target)
-                    if m.first_show_idx is None or idx < m.first_show_idx:
-                        m.first_show_idx, m.first_show_ts = idx, ts
         _sdo_config(sdo_rows, nodes, node_model)
         for n, table in ec_tables.items():
             if n in nodes:  # requests to a node nothing else shows are not kept
@@ -545,24 +648,40 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     return InputModel(decoded, start, end, models)
 
 
-def _apply_commands(nmt: list[NmtFrame], nodes: dict[int, NodeModel],
+def _nmt_table(rows: np.ndarray) -> NmtTable:
+    data = rows["data"]
+    return NmtTable(rows["ts"], rows["idx"], rows["line"], rows["rtr"], rows["dlc"],
+                    data[:, 0], data[:, 1])
+
+
+def _first_shown_by_commands(nmt: NmtTable, node_model: Callable[[int], NodeModel]) -> None:
+    """A valid direct command shows its target node exists, from that command on."""
+    direct = np.flatnonzero(nmt.valid & (nmt.target != 0))
+    if not direct.size:
+        return
+    targets = nmt.target[direct]
+    for n in np.unique(targets).tolist():
+        first = direct[np.argmax(targets == n)]
+        m = node_model(n)
+        idx = int(nmt.idx[first])
+        if m.first_show_idx is None or idx < m.first_show_idx:
+            m.first_show_idx, m.first_show_ts = idx, float(nmt.ts[first])
+
+
+def _apply_commands(nmt: NmtTable, nodes: dict[int, NodeModel],
                     master: Master | None) -> None:
     """Each valid command to the nodes it applies to: a direct one to its target, a
     broadcast to every node seen before it but the channel's master, which does not
     receive its own frames (SPEC §2)."""
-    for frame in nmt:
-        if frame.problem is not None:
-            continue
-        for n, m in nodes.items():
-            if frame.target == n or (
-                frame.target == 0 and (master is None or n != master.node)
-                and m.first_show_idx is not None and m.first_show_idx < frame.idx
-            ):
-                m.commands.append(Command(frame.ts, frame.idx, frame.line, frame.cs,
-                                          frame.target == 0))
+    broadcast = nmt.valid & (nmt.target == 0)
+    for n, m in nodes.items():
+        mine = nmt.valid & (nmt.target == n)
+        if (master is None or n != master.node) and m.first_show_idx is not None:
+            mine |= broadcast & (m.first_show_idx < nmt.idx)
+        m.commands = CommandTable.of(nmt, np.flatnonzero(mine))
 
 
-def _channel_master(name: str, nmt: list[NmtFrame], tables: dict[int, EcTable],
+def _channel_master(name: str, nmt: NmtTable, tables: dict[int, EcTable],
                     params: TimelineParams, known: dict[str, Master], start: float
                     ) -> tuple[Master | None, str]:
     """The channel's master from the files, else inferred; with a note on how or why not."""
@@ -571,7 +690,7 @@ def _channel_master(name: str, nmt: list[NmtFrame], tables: dict[int, EcTable],
     return infer_master(nmt, tables, params, start)
 
 
-def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: TimelineParams,
+def infer_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelineParams,
                  start: float = 0.0) -> tuple[Master | None, str]:
     """A master announces itself by its start-up: its own boot-up, at once a broadcast
     command, and then it does not obey that command (it never receives its own frames).
@@ -582,32 +701,31 @@ def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: Timeli
     slaves' boot-ups follow the master's by microseconds, so every one is a candidate
     and the slaves drop out by obeying the broadcast.
     """
-    valid = [f for f in nmt if f.problem is None]
-    if not any(f.target == 0 for f in valid):
+    if not (nmt.valid & (nmt.target == 0)).any():
         return None, "not inferred: no broadcast NMT command"
+    valid = _Valid(nmt)
     # each node's data frames of DLC 1 (boot-ups and heartbeats), once per channel
     reports = {n: np.flatnonzero(~t.rtr & (t.dlc == 1)) for n, t in tables.items()}
     boots = sorted((int(tables[n].idx[p]), float(tables[n].ts[p]), n)
                    for n, pos in reports.items() for p in pos[tables[n].value[pos] == 0].tolist())
     boot_idx = [b[0] for b in boots]
     found: dict[int, str] = {}
-    prev_idx = -1
-    for i, f in enumerate(valid):
-        if f.target == 0:
-            # every boot-up since the previous command and within the window: at a common
-            # power-on the slaves' boot-ups may come after the master's
-            k = bisect.bisect_left(boot_idx, f.idx) - 1
-            while k >= 0 and boot_idx[k] > prev_idx and (
-                    f.ts - boots[k][1] <= params.master_window_s + EPS):
-                b_idx, b_ts, node = boots[k]
-                k -= 1
-                if node not in found and not _answers_reset(valid, i, node, b_idx, b_ts,
-                                                            params) and _disobeyed(
-                        tables[node], reports[node], valid, i, node, params):
-                    found[node] = (f"boot-up at {b_ts - start:.6f} s, then broadcast "
-                                   f"{COMMAND_NAMES[f.cs]} at {f.ts - start:.6f} s that node "
-                                   f"{node} did not obey")
-        prev_idx = f.idx
+    for i in np.flatnonzero(valid.target == 0).tolist():
+        f_idx, f_ts, f_cs = valid.idx[i], valid.ts[i], valid.cs[i]
+        prev_idx = valid.idx[i - 1] if i else -1
+        # every boot-up since the previous command and within the window: at a common
+        # power-on the slaves' boot-ups may come after the master's
+        k = bisect.bisect_left(boot_idx, f_idx) - 1
+        while k >= 0 and boot_idx[k] > prev_idx and (
+                f_ts - boots[k][1] <= params.master_window_s + EPS):
+            b_idx, b_ts, node = boots[k]
+            k -= 1
+            if node not in found and not _answers_reset(valid, i, node, b_idx, b_ts,
+                                                        params) and _disobeyed(
+                    tables[node], reports[node], valid, i, node, params):
+                found[node] = (f"boot-up at {b_ts - start:.6f} s, then broadcast "
+                               f"{COMMAND_NAMES[f_cs]} at {f_ts - start:.6f} s that node "
+                               f"{node} did not obey")
     if len(found) == 1:
         (node, why), = found.items()
         return Master(node, "inferred", why), why
@@ -617,22 +735,45 @@ def infer_master(nmt: list[NmtFrame], tables: dict[int, EcTable], params: Timeli
     return None, "not inferred: no node starts like a master"
 
 
-def _answers_reset(valid: list[NmtFrame], before: int, node: int, b_idx: int, b_ts: float,
+class _Valid:
+    """The valid commands of a channel as plain lists (the master inference walks a few
+    of them at a time, by position)."""
+
+    def __init__(self, nmt: NmtTable) -> None:
+        v = nmt.valid
+        self.ts: list[float] = nmt.ts[v].tolist()
+        self.idx: list[int] = nmt.idx[v].tolist()
+        self.cs: list[int] = nmt.cs[v].tolist()
+        self.target = nmt.target[v]
+
+    def next_to(self, i: int, node: int) -> int | None:
+        """File position of the first command after the i-th that reaches `node` (direct
+        or broadcast), looked for in growing windows: usually it is close."""
+        j, step = i + 1, 64
+        while j < len(self.idx):
+            seg = self.target[j:j + step]
+            hit = np.flatnonzero((seg == 0) | (seg == node))
+            if hit.size:
+                return self.idx[j + int(hit[0])]
+            j, step = j + step, step * 2
+        return None
+
+
+def _answers_reset(valid: _Valid, before: int, node: int, b_idx: int, b_ts: float,
                    params: TimelineParams) -> bool:
     """Whether a reset command to `node` (direct or broadcast) came in the B002 window
     before its boot-up: a node that obeys a broadcast reset is not its sender."""
     for j in range(before - 1, -1, -1):
-        f = valid[j]
-        if f.idx > b_idx:
+        if valid.idx[j] > b_idx:
             continue
-        if f.ts < b_ts - params.reset_window_s - EPS:
+        if valid.ts[j] < b_ts - params.reset_window_s - EPS:
             return False
-        if f.cs in RESETS and f.target in (0, node):
+        if valid.cs[j] in RESETS and int(valid.target[j]) in (0, node):
             return True
     return False
 
 
-def _disobeyed(t: EcTable, data: np.ndarray, valid: list[NmtFrame], i: int, node: int,
+def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
                params: TimelineParams) -> bool:
     """Whether the node's own frames (`data`: positions of its boot-ups and heartbeats)
     show it did not obey broadcast `valid[i]`.
@@ -640,13 +781,13 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: list[NmtFrame], i: int, node
     Walks only the few frames around the command, so a hostile log with a million
     boot-ups and broadcasts stays linear enough.
     """
-    f = valid[i]
-    p = int(np.searchsorted(t.idx[data], f.idx, side="right"))
+    f_idx, f_ts, f_cs = valid.idx[i], valid.ts[i], valid.cs[i]
+    p = int(np.searchsorted(t.idx[data], f_idx, side="right"))
     after = (int(q) for q in data[p:p + 256])  # the answer is in the next few frames
-    if f.cs in RESETS:
+    if f_cs in RESETS:
         for q in after:
             boot = int(t.value[q]) == 0
-            dt = float(t.ts[q]) - f.ts
+            dt = float(t.ts[q]) - f_ts
             if not boot and dt <= params.obey_s + EPS:
                 continue  # may have been queued before the command
             return not boot or dt > params.bootup_timeout_s + EPS
@@ -656,17 +797,13 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: list[NmtFrame], i: int, node
         prior = STATE_OF_CODE.get(int(t.value[q]) & 0x7F)
         if prior is not None:
             break
-    if prior is None or prior == COMMAND_STATE[f.cs]:
+    if prior is None or prior == COMMAND_STATE[f_cs]:
         return False
-    next_cmd = None
-    for j in range(i + 1, len(valid)):
-        if valid[j].target in (0, node):
-            next_cmd = valid[j].idx
-            break
+    next_cmd = valid.next_to(i, node)
     for q in after:
         if next_cmd is not None and int(t.idx[q]) > next_cmd or int(t.value[q]) == 0:
             return False
-        if float(t.ts[q]) - f.ts <= params.obey_s + EPS:
+        if float(t.ts[q]) - f_ts <= params.obey_s + EPS:
             continue
         return STATE_OF_CODE.get(int(t.value[q]) & 0x7F) == prior
     return False
@@ -732,8 +869,7 @@ def _write_validity(nodes: dict[int, NodeModel]) -> None:
     """A written value holds until the node's next boot-up or reset; 1016h entries also
     count for the producer they name."""
     for m in nodes.values():
-        ends = sorted(m.ec.ts[m.ec.kind == BOOTUP].tolist()
-                      + [c.ts for c in m.commands if c.is_reset])
+        ends = sorted(m.ec.ts[m.ec.kind == BOOTUP].tolist() + m.commands.reset_ts.tolist())
         for w in m.writes:
             w.until = next((t for t in ends if t > w.ts), float("inf"))
             if w.index == 0x1016:
@@ -826,7 +962,8 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
         return
     ec = m.ec
     pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
-    extra = [(c.ts, c.idx, _RESET) for c in m.commands if c.is_reset]
+    extra = [(t, i, _RESET) for t, i in zip(m.commands.reset_ts.tolist(),
+                                            m.commands.reset_idx.tolist(), strict=True)]
     extra += [(w.ts, w.idx, _ON if w.value else _OFF) for w in m.writes if w.index == 0x1017]
     ts = np.concatenate([ec.ts[pos], np.asarray([e[0] for e in extra], np.float64)])
     idx = np.concatenate([ec.idx[pos], np.asarray([e[1] for e in extra], np.int64)])
@@ -853,10 +990,12 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     until[closed] = ts[ends[k[closed]]]
     # A heartbeat sent while a 1017h write is being confirmed already follows the new value
     # (stacks apply it before they answer): its gap is timed by that value.
+    # A gap opened by a confirmed write is timed by the value in force after it.
     at = ts[gap].copy()
+    by_heartbeat = what[gap] == _HB
     for w in m.writes:
         if w.index == 0x1017:
-            at[(ts[gap] >= w.request_ts) & (ts[gap] < w.ts)] = w.ts
+            at[by_heartbeat & (ts[gap] >= w.request_ts) & (ts[gap] < w.ts)] = w.ts
     limit = m.config_series(at, lambda cfg: m.hb_timeout(cfg, params.timeout_factor))
     fire = (limit > 0) & (until - ts[gap] > limit + EPS)
     for g, lim, u, c in zip(gap[fire].tolist(), limit[fire].tolist(), until[fire].tolist(),
@@ -964,84 +1103,109 @@ def _evidence(m: NodeModel, windows: list[tuple[float, float]]) -> np.ndarray:
     return pos[keep]
 
 
-def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> list[Interval]:
+_CODE_STATE = np.full(128, -1, np.int8)  # state index a code (data byte & 7Fh) reports
+for _code, _state in STATE_OF_CODE.items():
+    _CODE_STATE[_code] = STATE_INDEX[_state]
+_EC_SOURCE = {BOOTUP: SOURCE_INDEX["bootup"], HEARTBEAT: SOURCE_INDEX["heartbeat"],
+              GUARD: SOURCE_INDEX["guarding"]}
+_EV_TIMEOUT, _EV_EC, _EV_BACK = 0, 1, 2  # order of steps at one moment; commands are 1 too
+_EV_CMD = 3
+
+
+def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> IntervalTable:
     """Walk the node's evidence in order and cut the timeline into state intervals.
 
     A heartbeat or guarding response up to `obey_s` after a command that reports the
     state from before the command was queued before the node processed it: it is marked
-    stale in `m.ec.stale` and is no evidence (SPEC §2).
+    stale in `m.ec.stale` and is no evidence (SPEC §2). The walk sees plain ints and
+    floats, never objects: a node may change state on every heartbeat.
     """
-    steps: list[tuple[float, int, int, str, object]] = []
-    windows = [(c.ts, c.ts + obey_s) for c in m.commands] + [
+    ec, cmds = m.ec, m.commands
+    windows = [(t, t + obey_s) for t in cmds.ts.tolist()] + [
         (t, t) for t in [t.moment for t in m.timeouts]
         + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
-    for f in m.ec.frames(_evidence(m, windows)):
-        steps.append((f.ts, f.idx, 1, "ec", f))
-    for c in m.commands:
-        steps.append((c.ts, c.idx, 1, "cmd", c))
-    for t in m.timeouts:
-        steps.append((t.moment, -1, 0, "timeout", t))
-        if t.ended_by is not None:
-            steps.append((t.ended_by, -1, 2, "back", t))
-    steps.sort(key=lambda s: (s[0], s[2], s[1]))
+    pos = _evidence(m, windows)
+    backs = [t for t in m.timeouts if t.ended_by is not None]
+    # the steps as columns: time, order at one moment, file position, what, reference
+    ts = np.concatenate([ec.ts[pos], cmds.ts, [t.moment for t in m.timeouts],
+                         [t.ended_by for t in backs]]).astype(np.float64)
+    order = np.concatenate([np.ones(len(pos) + len(cmds), np.int8),
+                            np.zeros(len(m.timeouts), np.int8), np.full(len(backs), 2, np.int8)])
+    idx = np.concatenate([ec.idx[pos], cmds.idx,
+                          np.full(len(m.timeouts) + len(backs), -1, np.int64)])
+    what = np.concatenate([np.full(len(pos), _EV_EC, np.int8), np.full(len(cmds), _EV_CMD, np.int8),
+                           np.full(len(m.timeouts), _EV_TIMEOUT, np.int8),
+                           np.full(len(backs), _EV_BACK, np.int8)])
+    ref = np.concatenate([pos, np.arange(len(cmds)), np.arange(len(m.timeouts)),
+                          [m.timeouts.index(t) for t in backs]]).astype(np.int64)
+    steps = np.lexsort((idx, order, ts))
+    kind = ec.kind.tolist()
+    code_state = _CODE_STATE[ec.value & 0x7F].tolist()
+    cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()]
+    ended_by = [t.ended_by for t in m.timeouts]
 
-    out: list[Interval] = [Interval(start, end, UNKNOWN, "start")]
-    saved: tuple[str, str] | None = None  # state to return to after OFFLINE
+    unknown, offline, pre_op = STATE_INDEX[UNKNOWN], STATE_INDEX[OFFLINE], STATE_INDEX[
+        PRE_OPERATIONAL]
+    src_timeout, src_command = SOURCE_INDEX["timeout"], SOURCE_INDEX["command"]
+    starts: list[float] = [start]
+    states: list[int] = [unknown]
+    sources: list[int] = [SOURCE_INDEX["start"]]
 
-    def go(ts: float, state: str, source: str) -> None:
-        cur = out[-1]
-        if cur.state == state:
+    def go(at: float, state: int, source: int) -> None:
+        if states[-1] == state:
             return
-        if ts <= cur.start:  # the current interval would be empty: replace it
-            out.pop()
-            if out and out[-1].state == state:
+        if at <= starts[-1]:  # the current interval would be empty: replace it
+            starts.pop()
+            states.pop()
+            sources.pop()
+            if states and states[-1] == state:
                 return
-        out.append(Interval(max(ts, start), end, state, source))
+        starts.append(max(at, start))
+        states.append(state)
+        sources.append(source)
 
+    saved: tuple[int, int] | None = None  # state and source to return to after OFFLINE
     offline_until: float | None = None
-    last_cmd: tuple[float, str] | None = None  # the latest command: ts, state before it
-    pre_offline: str | None = None  # the state N had when it went OFFLINE
-    for ts, _idx, _order, what, obj in steps:
-        cur = out[-1].state
-        if what == "timeout":
-            assert isinstance(obj, Timeout)
-            if cur in (UNKNOWN, OFFLINE):
+    last_cmd: tuple[float, int] | None = None  # the latest command: ts, state before it
+    pre_offline: int | None = None  # the state N had when it went OFFLINE
+    stale = ec.stale
+    for at, w, r in zip(ts[steps].tolist(), what[steps].tolist(), ref[steps].tolist(),
+                        strict=True):
+        cur = states[-1]
+        if w == _EV_EC:
+            k = kind[r]
+            state = code_state[r]
+            if k in (HEARTBEAT, GUARD) and last_cmd is not None and (
+                    at - last_cmd[0] <= obey_s + EPS) and state == last_cmd[1]:
+                stale[r] = True
                 continue
-            saved = (cur, out[-1].source)
-            pre_offline = cur  # what a stale report after a command here would still say
-            offline_until = obj.ended_by
-            go(ts, OFFLINE, "timeout")
-        elif what == "back":
-            if cur == OFFLINE and saved is not None and offline_until == ts:
-                go(ts, saved[0], saved[1])
-                saved = None
-        elif what == "cmd":
-            assert isinstance(obj, Command)
-            last_cmd = (ts, pre_offline if cur == OFFLINE and pre_offline else cur)
-            target = COMMAND_STATE[obj.cs]
-            if cur == OFFLINE:
-                saved = (target, "command")
-            else:
-                go(ts, target, "command")
-        else:
-            assert isinstance(obj, EcFrame)
-            f = obj
-            if (f.kind in ("heartbeat", "guard") and last_cmd is not None
-                    and ts - last_cmd[0] <= obey_s + EPS
-                    and STATE_OF_CODE.get(f.code) == last_cmd[1]):
-                m.ec.stale[f.pos] = True
-                continue
-            if f.kind == "bootup":
+            if k == BOOTUP:
                 last_cmd = None  # nothing after a boot-up was queued before the command
-            if f.reports_state and (f.kind == "bootup" or f.code in STATE_OF_CODE):
-                state = STATE_OF_CODE[0x00] if f.kind == "bootup" else STATE_OF_CODE[f.code]
-                source = {"bootup": "bootup", "heartbeat": "heartbeat", "guard": "guarding"}[f.kind]
-                go(ts, state, source)
+                go(at, pre_op, _EC_SOURCE[k])
                 saved = None
-            elif cur == OFFLINE and saved is not None:
-                go(ts, saved[0], saved[1])
+            elif k in (HEARTBEAT, GUARD) and state >= 0:
+                go(at, state, _EC_SOURCE[k])
                 saved = None
-    for a, b in zip(out, out[1:], strict=False):
-        a.end = b.start
-    out[-1].end = max(end, out[-1].start)
-    return out
+            elif cur == offline and saved is not None:
+                go(at, *saved)
+                saved = None
+        elif w == _EV_CMD:
+            last_cmd = (at, pre_offline if cur == offline and pre_offline is not None else cur)
+            if cur == offline:
+                saved = (cmd_state[r], src_command)
+            else:
+                go(at, cmd_state[r], src_command)
+        elif w == _EV_TIMEOUT:
+            if cur in (unknown, offline):
+                continue
+            saved = (cur, sources[-1])
+            pre_offline = cur  # what a stale report after a command here would still say
+            offline_until = ended_by[r]
+            go(at, offline, src_timeout)
+        elif cur == offline and saved is not None and offline_until == at:  # back
+            go(at, *saved)
+            saved = None
+    begin = np.asarray(starts, np.float64)
+    finish = np.append(begin[1:], max(end, starts[-1]))
+    return IntervalTable(begin, finish, np.asarray(states, np.int8),
+                         np.asarray(sources, np.int8))

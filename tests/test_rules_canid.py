@@ -95,7 +95,7 @@ def test_c002_malformed_command_is_not_applied(checker):
     assert found(res) == [("C002", None, 0.45)]
     node = res.model.channels[0].nodes[2]
     assert [iv.state for iv in node.intervals] == ["PRE-OPERATIONAL"]
-    assert node.commands == []
+    assert len(node.commands) == 0
 
 
 def test_c002_malformed_broadcast_is_not_applied(checker):

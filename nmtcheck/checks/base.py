@@ -40,7 +40,32 @@ class Problem:
     line: int | None = None
 
 
-Check = Callable[[InputModel, dict[str, Any]], Iterator[Problem]]
+@dataclass
+class Problems:
+    """Many problems of one node as columns, in the order a check found them.
+
+    A vectorised check yields these so that a million offending frames never become a
+    million objects: the engine makes a `Problem` (and calls `message`) only for those
+    it keeps under the per-rule cap, and counts the rest.
+    """
+
+    channel: str | None
+    node: int | None
+    time: np.ndarray
+    message: Callable[[int], str]  # the i-th problem's message
+    frame_index: np.ndarray | None = None  # None: moments
+    line: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+    def problem(self, i: int) -> Problem:
+        return Problem(self.channel, self.node, float(self.time[i]), self.message(i),
+                       None if self.frame_index is None else int(self.frame_index[i]),
+                       None if self.line is None else int(self.line[i]))
+
+
+Check = Callable[[InputModel, dict[str, Any]], Iterator["Problem | Problems"]]
 
 
 @dataclass(frozen=True)

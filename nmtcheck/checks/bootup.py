@@ -56,47 +56,50 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     timeout = p["bootup_timeout_ms"] / 1000.0
     nodes = [m for cm in model.channels for m in cm.nodes.values()]
     # One pass over the node-frame store answers every reset's "first frame after it".
-    queries = [(m.key, c.ts, c.idx) for m in nodes for c in m.commands if c.is_reset]
+    queries = [(m.key, t, i) for m in nodes for t, i in zip(
+        m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist(), strict=True)]
     answers = iter(model.decoded.first_node_frame_after(queries))
     for cm in model.channels:
         for m in cm.nodes.values():
-            resets = [c for c in m.commands if c.is_reset]
-            ec = m.ec
-            bootups = m.bootups if resets else []
+            cmds, ec = m.commands, m.ec
+            rpos = np.flatnonzero(cmds.is_reset)  # plain lists: a log may reset a million times
+            r_ts, r_idx = cmds.ts[rpos].tolist(), cmds.idx[rpos].tolist()
+            bootups = m.bootups if len(rpos) else []
             boot_idx = [b.idx for b in bootups]
             life = ec.where(HEARTBEAT, GUARD, MALFORMED)  # signs of life but the boot-up
             life = life[~ec.stale[life]]  # a report queued before the reset is none
             life_idx = ec.idx[life]
-            for i, c in enumerate(resets):
-                next_reset = resets[i + 1].idx if i + 1 < len(resets) else None
-                k = bisect.bisect_right(boot_idx, c.idx)
+            sign_at = np.searchsorted(life_idx, cmds.idx[rpos], side="right").tolist()
+            for i, (c_ts, c_idx) in enumerate(zip(r_ts, r_idx, strict=True)):
+                next_reset = r_idx[i + 1] if i + 1 < len(r_idx) else None
+                k = bisect.bisect_right(boot_idx, c_idx)
                 boot = bootups[k] if k < len(bootups) else None
                 limit_idx = min(x for x in (boot.idx if boot else None, next_reset, 1 << 62)
                                 if x is not None)
-                k = int(np.searchsorted(life_idx, c.idx, side="right"))
-                sign = ec[life[k]] if k < len(life) and life_idx[k] < limit_idx else None
+                k = sign_at[i]
+                sign = life[k] if k < len(life) and life_idx[k] < limit_idx else None
                 other = next(answers)
-                if other is not None and other[1] < limit_idx and (sign is None
-                                                                   or other[1] < sign.idx):
+                if other is not None and other[1] < limit_idx and (
+                        sign is None or other[1] < ec.idx[sign]):
                     yield Problem(cm.name, m.node, other[0],
                                   f"{KIND_NAMES[other[3]]} from node {m.node} "
-                                  f"{other[0] - c.ts:.3f} s after {c.name} without a boot-up",
-                                  other[1], other[2])
+                                  f"{other[0] - c_ts:.3f} s after {cmds.name(rpos[i])} "
+                                  f"without a boot-up", other[1], other[2])
                     continue
                 if sign is not None:
-                    yield Problem(cm.name, m.node, sign.ts,
-                                  f"{sign.kind} from node {m.node} {sign.ts - c.ts:.3f} s after "
-                                  f"{c.name} without a boot-up", sign.idx, sign.line)
+                    f = ec[sign]
+                    yield Problem(cm.name, m.node, f.ts,
+                                  f"{f.kind} from node {m.node} {f.ts - c_ts:.3f} s after "
+                                  f"{cmds.name(rpos[i])} without a boot-up", f.idx, f.line)
                     continue
-                if next_reset is not None and (boot is None or next_reset < boot.idx):
-                    nr = resets[i + 1]
-                    if nr.ts - c.ts <= timeout + EPS:
-                        continue  # a newer reset restarts the wait
-                if (boot is None or boot.ts - c.ts > timeout + EPS) and (
-                        model.end > c.ts + timeout + EPS):
-                    yield Problem(cm.name, m.node, c.ts + timeout,
+                if next_reset is not None and (boot is None or next_reset < boot.idx) and (
+                        r_ts[i + 1] - c_ts <= timeout + EPS):
+                    continue  # a newer reset restarts the wait
+                if (boot is None or boot.ts - c_ts > timeout + EPS) and (
+                        model.end > c_ts + timeout + EPS):
+                    yield Problem(cm.name, m.node, c_ts + timeout,
                                   f"no boot-up from node {m.node} within {timeout:.3f} s "
-                                  f"after {c.name}")
+                                  f"after {cmds.name(rpos[i])}")
             # (b) the node was already running when it first appeared, without a boot-up
             if m.first_tx is not None and m.first_tx[2] == KIND_EC:
                 k = int(np.searchsorted(ec.idx, m.first_tx[0]))
@@ -114,7 +117,7 @@ def _repeats(m: NodeModel, window: float) -> list[list[EcFrame]]:
     """Runs of 00h frames that follow each other within the window with no reset between."""
     runs: list[list[EcFrame]] = []
     prev: EcFrame | None = None
-    resets = sorted(c.idx for c in m.commands if c.is_reset)
+    resets = m.commands.reset_idx.tolist()
     for b in m.bootups:
         if prev is not None and b.ts - prev.ts <= window + EPS and not any_between(
                 resets, prev.idx, b.idx):
@@ -176,12 +179,12 @@ def unexpected_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
         for m in cm.nodes.values():
             repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms))
                         for b in run[1:]}
-            resets = [c for c in m.commands if c.is_reset]
+            r_ts, r_idx = m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist()
             unanswered: list[float] = []
             ri = 0
             for b in m.bootups:
-                while ri < len(resets) and resets[ri].idx < b.idx:
-                    unanswered.append(resets[ri].ts)
+                while ri < len(r_idx) and r_idx[ri] < b.idx:
+                    unanswered.append(r_ts[ri])
                     ri += 1
                 unanswered = [t for t in unanswered if b.ts - t <= window + EPS]
                 if unanswered:

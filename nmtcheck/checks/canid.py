@@ -74,7 +74,7 @@ def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Prob
         return f.target if 1 <= f.target <= 127 and not f.rtr and f.dlc == 2 else None
 
     for cm in model.channels:
-        bad = [f for f in cm.nmt if f.problem is not None]
+        bad = [cm.nmt[i] for i in np.flatnonzero(~cm.nmt.valid).tolist()]
 
         def same_run(a: NmtFrame, b: NmtFrame, cm: ChannelModel = cm) -> bool:
             n = node_of(a)

@@ -41,7 +41,7 @@ def guard_toggle(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
             if not (ec.kind[pos] == GUARD).any():
                 continue
             expected: int | None = None
-            resets = sorted([c.idx for c in m.commands if c.is_reset])
+            resets = m.commands.reset_idx.tolist()
             ri = 0
             bad: list[tuple[int, int, str]] = []  # (response number, position, why)
             prev_boot = True  # the previous guard/boot-up frame is a boot-up (or none)
@@ -119,7 +119,7 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
         for m in cm.nodes.values():
             ec = m.ec
             resets = np.sort(np.concatenate([
-                np.asarray([c.idx for c in m.commands if c.is_reset], np.int64),
+                m.commands.reset_idx,
                 ec.idx[ec.kind == BOOTUP]]))
             reqs = ec.where(REQUEST)
             if len(reqs) < 2:

@@ -84,7 +84,7 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
             # the period in force at the first heartbeat: a confirmed 1017h beats the median
             period = m.periods_at(ec.ts[a])
             limit = factor * period
-            cmd_idx = np.asarray([c.idx for c in m.commands], np.int64)
+            cmd_idx = m.commands.idx
             with np.errstate(invalid="ignore"):
                 early = ((ec.kind[a] == HEARTBEAT) & (ec.kind[b] == HEARTBEAT)
                          & (ec.code[a] == ec.code[b]) & (period > 0)

@@ -85,7 +85,7 @@ def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:
     if len(hb) < 4:
         return None
     boots = ec.where(BOOTUP)
-    cmd_idx = np.asarray(sorted(c.idx for c in m.commands), np.int64)
+    cmd_idx = m.commands.idx
     cut = np.zeros(len(hb), bool)
     cut[1:] = (np.searchsorted(boots, hb[1:]) != np.searchsorted(boots, hb[:-1])) | between(
         cmd_idx, ec.idx[hb[:-1]], ec.idx[hb[1:]])

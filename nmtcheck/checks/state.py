@@ -7,14 +7,13 @@ timeline with `searchsorted`; only offending runs become Python objects.
 
 from __future__ import annotations
 
-import bisect
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Problem, count_note, rule
+from nmtcheck.checks.base import Param, Problem, Problems, count_note, rule
 from nmtcheck.decode import (
     KIND_EMCY,
     KIND_NAMES,
@@ -26,6 +25,7 @@ from nmtcheck.decode import (
 from nmtcheck.frames import RPDO_BASES, TPDO_BASES
 from nmtcheck.timeline import (
     BOOTUP,
+    COMMAND_STATE,
     EPS,
     GUARD,
     HEARTBEAT,
@@ -34,6 +34,7 @@ from nmtcheck.timeline import (
     PRE_OPERATIONAL,
     STATE_INDEX,
     STATE_OF_CODE,
+    STATES,
     STOPPED,
     InputModel,
     NodeModel,
@@ -128,16 +129,22 @@ def _candidates(model: InputModel) -> dict[str, np.ndarray]:
     cached = model.__dict__.get("_state_candidates")
     if cached is not None:
         return cached
-    checked = {STATE_INDEX[s] for s in _CHECKED_STATES}
-    windows = []
+    checked = [STATE_INDEX[s] for s in _CHECKED_STATES]
+    lo_parts, hi_parts = [], []
     for cm in model.channels:
         for m in cm.nodes.values():
-            last = len(m.intervals) - 1
-            for i, iv in enumerate(m.intervals):
-                if STATE_INDEX[iv.state] in checked:  # the first/last interval also take
-                    windows.append((-np.inf if i == 0 else iv.start,  # stray timestamps
-                                    np.inf if i == last else iv.end))
-    windows.sort()
+            ivs = m.intervals
+            if not len(ivs):
+                continue
+            lo, hi = ivs.start.copy(), ivs.end.copy()
+            lo[0], hi[-1] = -np.inf, np.inf  # the first/last interval also take stray times
+            keep = np.isin(ivs.state, checked)
+            lo_parts.append(lo[keep])
+            hi_parts.append(hi[keep])
+    lo_all = np.concatenate(lo_parts) if lo_parts else np.zeros(0)
+    hi_all = np.concatenate(hi_parts) if hi_parts else np.zeros(0)
+    by_start = np.lexsort((hi_all, lo_all))
+    windows = zip(lo_all[by_start].tolist(), hi_all[by_start].tolist(), strict=True)
     merged: list[list[float]] = []  # union over all nodes: a cheap first filter on time
     for a, b in windows:
         if merged and a <= merged[-1][1]:
@@ -186,7 +193,7 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
         if m is None:
             continue
         starts = m.interval_starts()
-        codes = np.asarray([STATE_INDEX[iv.state] for iv in m.intervals], np.int8)
+        codes = m.intervals.state
         since = np.full(len(codes), -np.inf)  # when the grace period of each interval began
         for i in range(len(codes)):
             if grace_from is None:
@@ -302,36 +309,42 @@ def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
     obey = p["obey_ms"] / 1000.0
     for cm in model.channels:
         for m in cm.nodes.values():
-            cmds = [c for c in m.commands if not c.is_reset]
-            if not cmds:
+            cmds = m.commands
+            todo = np.flatnonzero(~cmds.is_reset)  # positions, not objects: there may be
+            if not todo.size:  # a million commands
                 continue
-            all_cmd_idx = sorted(c.idx for c in m.commands)
             ec = m.ec
             reports = ec.where(BOOTUP, HEARTBEAT, GUARD)  # frames that report a state
             reports = reports[~ec.stale[reports]]  # queued before a command: no evidence
             rep_idx = ec.idx[reports]
-            for c in cmds:
-                target = {0x01: OPERATIONAL, 0x02: STOPPED, 0x80: PRE_OPERATIONAL}[c.cs]
-                k = bisect.bisect_right(all_cmd_idx, c.idx)
-                newer = all_cmd_idx[k] if k < len(all_cmd_idx) else None
-                for p_ in reports[int(np.searchsorted(rep_idx, c.idx, side="right")):]:
-                    if (newer is not None and ec.idx[p_] > newer) or ec.kind[p_] == BOOTUP:
+            rep_ts = ec.ts[reports]
+            rep_boot = ec.kind[reports] == BOOTUP
+            rep_state = _STATE_OF_CODE[ec.code[reports]]
+            first = np.searchsorted(rep_idx, cmds.idx[todo], side="right").tolist()
+            for j, k in zip(todo.tolist(), first, strict=True):
+                c_ts = float(cmds.ts[j])
+                target = STATE_INDEX[COMMAND_STATE[int(cmds.cs[j])]]
+                newer = int(cmds.idx[j + 1]) if j + 1 < len(cmds) else None
+                for q in range(k, len(reports)):
+                    if (newer is not None and rep_idx[q] > newer) or rep_boot[q]:
                         break
-                    state = STATE_OF_CODE.get(int(ec.value[p_]) & 0x7F)
-                    if state is None:
+                    state = int(rep_state[q])
+                    if state < 0:
                         continue
                     if state == target:
                         break
-                    if ec.ts[p_] - c.ts > obey + EPS:
-                        f = ec[p_]
+                    if rep_ts[q] - c_ts > obey + EPS:
+                        f = ec[reports[q]]
                         yield Problem(cm.name, m.node, f.ts,
-                                      f"node {m.node} reports {state} {f.ts - c.ts:.3f} s after "
-                                      f"NMT {c.name} (expected {target})", f.idx, f.line)
+                                      f"node {m.node} reports {STATES[state]} "
+                                      f"{f.ts - c_ts:.3f} s after NMT {cmds.name(j)} "
+                                      f"(expected {STATES[target]})", f.idx, f.line)
                         break
 
 
 @rule("S005", "unexplained-state-change", "info")
-def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def unexplained_state_change(model: InputModel, p: dict[str, Any]
+                             ) -> Iterator[Problem | Problems]:
     """A node changed its NMT state on its own.
 
     **What it checks.** N's reported state changes between two of its error-control
@@ -356,12 +369,18 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]) -> Iterator[P
             state = _STATE_OF_CODE[ec.code[pos]]
             pos, kind, state = (x[(kind == BOOTUP) | (state >= 0)] for x in (pos, kind, state))
             a, b = pos[:-1], pos[1:]
-            cmd_idx = np.asarray([c.idx for c in m.commands], np.int64)
+            cmd_idx = m.commands.idx
             change = np.flatnonzero((kind[:-1] != BOOTUP) & (kind[1:] != BOOTUP)
                                     & (state[:-1] != state[1:])
                                     & ~between(cmd_idx, ec.idx[a], ec.idx[b]))
-            for i in change.tolist():
-                prev, f = ec[a[i]], ec[b[i]]
-                yield Problem(cm.name, m.node, f.ts,
-                              f"node {m.node} changed from {state_name(prev.code)} to "
-                              f"{state_name(f.code)} without an NMT command", f.idx, f.line)
+            if not change.size:
+                continue
+            prev_code, code = ec.code[a[change]], ec.code[b[change]]
+
+            def message(i: int, node: int = m.node, prev_code: np.ndarray = prev_code,
+                        code: np.ndarray = code) -> str:
+                return (f"node {node} changed from {state_name(int(prev_code[i]))} to "
+                        f"{state_name(int(code[i]))} without an NMT command")
+
+            at = b[change]
+            yield Problems(cm.name, m.node, ec.ts[at], message, ec.idx[at], ec.line[at])

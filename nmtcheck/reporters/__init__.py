@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import importlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import cast
 
 from nmtcheck.engine import InputResult
 from nmtcheck.errors import UsageError
 
 Renderer = Callable[[list[InputResult], dict[str, object]], str]
+Streamer = Callable[[list[InputResult], dict[str, object]], Iterable[str]]
 # format name -> module in this package (imported only when the format is used)
 MODULES = {"text": "text", "concise": "concise", "json": "json", "csv": "csv", "html": "html",
            "junit": "junit", "sarif": "sarif", "github": "github", "markdown": "markdown"}
@@ -35,6 +36,17 @@ def renderer(name: str) -> Renderer:
     if module is None:
         raise UsageError(f"--format {name}: unknown format (available: {', '.join(FORMATS)})")
     return cast(Renderer, importlib.import_module(f"nmtcheck.reporters.{module}").render)
+
+
+def streamer(name: str) -> Streamer:
+    """The report in pieces to write one after the other, for the formats that can hold
+    more than fits in memory at once (a module's `stream`); the others in one piece."""
+    render = renderer(name)
+    module = importlib.import_module(render.__module__)
+    stream = getattr(module, "stream", None)
+    if stream is not None:
+        return cast(Streamer, stream)
+    return lambda results, options: [render(results, options)]
 
 
 def statistics_renderer(name: str) -> Renderer:

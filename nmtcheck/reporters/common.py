@@ -233,7 +233,7 @@ def configured_vs_measured(m: NodeModel, end: float) -> ConfiguredVsMeasured:
 
 def resets(m: NodeModel) -> int:
     """Reset node / reset communication commands that reached the node (direct or broadcast)."""
-    return sum(1 for c in m.commands if c.is_reset)
+    return int(np.count_nonzero(m.commands.is_reset))
 
 
 def final_state(m: NodeModel) -> str:

@@ -43,8 +43,9 @@ from nmtcheck.reporters.common import (
     resets,
     where_label,
 )
-from nmtcheck.reporters.json import report_dict
+from nmtcheck.reporters.json import report_sections
 from nmtcheck.timeline import HEARTBEAT, STATES, NodeModel
+from nmtcheck.timeline import SOURCES as TIMELINE_SOURCES
 
 # Colours of the NMT states on the timeline and in the legend (colour-blind safe-ish:
 # the fault states are the dark/saturated ones, and wide intervals carry their name).
@@ -58,6 +59,10 @@ STATE_COLORS = {
 }
 SEVERITY_COLORS = {"error": "#b3261e", "warning": "#e69138", "info": "#3d85c6"}
 SOURCES = ("start", "bootup", "heartbeat", "guarding", "command", "timeout")
+_SOURCE_OF = [SOURCES.index(s) for s in TIMELINE_SOURCES]  # timeline's index -> the page's
+# A browser cannot draw millions of intervals in a row; a node that changes state on every
+# heartbeat gets its first ones drawn and the timeline says how many are not.
+MAX_DRAWN_INTERVALS = 20000
 MAX_OCCURRENCES = 200  # per finding group: markers and listed messages; the count says the rest
 HISTOGRAM_BINS = 24
 TEMPLATE = "report.html.j2"
@@ -183,15 +188,24 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     page and `--format json` can never disagree.
     """
     threshold = fail_on(options)
-    report = report_dict(results, options)
+    report = report_sections(results, options)
     inputs = [{**entry, "index": i, "duration": duration(res), "findings": len(res.findings)}
               for i, (entry, res) in enumerate(zip(report["inputs"], results, strict=True))]
     intervals: dict[tuple[int, str, int], list[list[float | int]]] = {}
-    for iv in report["timeline"]:
-        begin = inputs[iv["input"]]["start"]
-        intervals.setdefault((iv["input"], iv["channel"], iv["node"]), []).append(
-            [_r(iv["start"] - begin), _r(iv["end"] - begin), STATES.index(iv["state"]),
-             SOURCES.index(iv["source"])])
+    left_out: dict[tuple[int, str], int] = {}  # intervals not drawn, by input and channel
+    for res in results:
+        begin = inputs[res.index]["start"]
+        for m in res.nodes():
+            ivs = m.intervals
+            shown = min(len(ivs), MAX_DRAWN_INTERVALS)
+            if shown < len(ivs):
+                key = (res.index, m.channel)
+                left_out[key] = left_out.get(key, 0) + len(ivs) - shown
+            intervals[(res.index, m.channel, m.node)] = [
+                [_r(round(a, 6) - begin), _r(round(b, 6) - begin), st, _SOURCE_OF[so]]
+                for a, b, st, so in zip(ivs.start[:shown].tolist(), ivs.end[:shown].tolist(),
+                                        ivs.state[:shown].tolist(), ivs.source[:shown].tolist(),
+                                        strict=True)]
     models = {(res.index, m.channel, m.node): m for res in results for m in res.nodes()}
     nodes = [_node_view(entry, models[(entry["input"], entry["channel"], entry["node"])])
              for entry in report["nodes"]]
@@ -218,6 +232,11 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                               "id": timeline_id(res, channel), "input": res.index,
                               "path": res.stats.path, "channel": channel,
                               "duration": _r(duration(res)), "rows": rows})
+            hidden = left_out.get((res.index, channel), 0)
+            if hidden:
+                timelines[-1]["left_out"] = (f"{hidden} state intervals not drawn (at most "
+                                             f"{MAX_DRAWN_INTERVALS} per node; the JSON "
+                                             f"report has all)")
     rules = [{"code": r.code, "name": r.name, "severity": sev, "summary": r.summary,
               "doc": doc_html(r.doc), "findings": sum(1 for res in results
                                                       for f in res.findings if f.rule == r.code)}

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from typing import Any
 
 from nmtcheck import __version__
 from nmtcheck.engine import InputResult, summary
 from nmtcheck.reporters.common import configured_vs_measured, network_notes
-from nmtcheck.timeline import NodeModel
+from nmtcheck.timeline import SOURCES, STATES, NodeModel
 
 REPORT_VERSION = 1
 
@@ -28,11 +29,18 @@ def _configured_vs_measured(m: NodeModel, end: float) -> dict[str, Any]:
 
 def report_dict(results: list[InputResult], options: dict[str, object] | None = None
                 ) -> dict[str, Any]:
+    """The whole report as one dict (the HTML report and the Python API read it)."""
+    return {key: list(value) if isinstance(value, Iterator) else value
+            for key, value in report_sections(results, options).items()}
+
+
+def report_sections(results: list[InputResult], options: dict[str, object] | None = None
+                    ) -> dict[str, Any]:
+    """The report's top-level entries; the long lists (timeline, events) as generators,
+    so that a node with a million state intervals is written, not held."""
     inputs: list[dict[str, Any]] = []
     nodes: list[dict[str, Any]] = []
-    timeline: list[dict[str, Any]] = []
     findings: list[dict[str, Any]] = []
-    events: list[dict[str, Any]] = []
     channels: list[dict[str, Any]] = []
     for res in results:
         for cm in res.model.channels:
@@ -61,14 +69,6 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
                 "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
                 **_configured_vs_measured(m, res.model.end),
             })
-            for e in m.events:
-                events.append({"input": res.index, "channel": m.channel, "node": m.node,
-                               "kind": e.kind, "time": _r(e.ts), "frame_index": e.idx,
-                               "line": e.line or None, "code": e.code, "message": e.text})
-            for iv in m.intervals:
-                timeline.append({"input": res.index, "channel": m.channel, "node": m.node,
-                                 "state": iv.state, "start": _r(iv.start), "end": _r(iv.end),
-                                 "source": iv.source})
         for f in res.findings:
             findings.append({"input": f.input, "rule": f.rule, "name": f.name,
                              "severity": f.severity, "channel": f.channel, "node": f.node,
@@ -76,8 +76,8 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
                              "line": f.line or None, "message": f.message})
     return {"tool": {"name": "nmtcheck", "version": __version__},
             "report_version": REPORT_VERSION, "inputs": inputs, "nodes": nodes,
-            "timeline": timeline, "findings": findings,
-            "events": sorted(events, key=lambda e: (e["input"], e["frame_index"])),
+            "timeline": _timeline(results), "findings": findings,
+            "events": _events(results),
             "channels": channels,
             "network": {"notes": list(network_notes(options))},
             "config": _config(options),
@@ -85,6 +85,38 @@ def report_dict(results: list[InputResult], options: dict[str, object] | None = 
                          "severity": o.severity, "count": o.count}
                         for res in results for o in res.omitted],
             "summary": summary(results)}
+
+
+def _timeline(results: list[InputResult]) -> Iterator[dict[str, Any]]:
+    for res in results:
+        for m in res.nodes():
+            for iv in m.intervals:
+                yield {"input": res.index, "channel": m.channel, "node": m.node,
+                       "state": iv.state, "start": _r(iv.start), "end": _r(iv.end),
+                       "source": iv.source}
+
+
+def _timeline_lines(results: list[InputResult]) -> Iterator[str]:
+    """`json.dumps` of each `_timeline` entry, made from the interval columns without
+    a dict per interval (the same text: keys in order, floats as `repr`)."""
+    for res in results:
+        for m in res.nodes():
+            ivs = m.intervals
+            head = json.dumps({"input": res.index, "channel": m.channel, "node": m.node})[:-1]
+            for a, b, st, so in zip(ivs.start.tolist(), ivs.end.tolist(), ivs.state.tolist(),
+                                    ivs.source.tolist(), strict=True):
+                yield (f'{head}, "state": "{STATES[st]}", "start": {round(a, 6)!r}, '
+                       f'"end": {round(b, 6)!r}, "source": "{SOURCES[so]}"}}')
+
+
+def _events(results: list[InputResult]) -> Iterator[dict[str, Any]]:
+    for res in results:  # by input, then in file order
+        per_node = [(e.idx, m, e) for m in res.nodes() for e in m.events]
+        per_node.sort(key=lambda t: t[0])
+        for _idx, m, e in per_node:
+            yield {"input": res.index, "channel": m.channel, "node": m.node,
+                   "kind": e.kind, "time": _r(e.ts), "frame_index": e.idx,
+                   "line": e.line or None, "code": e.code, "message": e.text}
 
 
 def _config(options: dict[str, object] | None) -> dict[str, Any]:
@@ -97,16 +129,31 @@ def _config(options: dict[str, object] | None) -> dict[str, Any]:
             "overrides": list(cfg.get("overrides") or [])}
 
 
-def render(results: list[InputResult], options: dict[str, object]) -> str:
-    """The report, one list entry per line: `json.dumps` with an indent runs in pure
-    Python (40 s for 200 k findings and intervals); entry by entry it runs in C."""
-    report = report_dict(results, options)
-    parts = []
-    for key, value in report.items():
-        if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
-            entries = ",\n".join("    " + json.dumps(v) for v in value)
-            parts.append(f"  {json.dumps(key)}: [\n{entries}\n  ]")
+def stream(results: list[InputResult], options: dict[str, object]) -> Iterator[str]:
+    """The report in pieces, one list entry per line: `json.dumps` with an indent runs in
+    pure Python (40 s for 200 k findings and intervals); entry by entry it runs in C."""
+    yield "{\n"
+    first = True
+    for key, value in report_sections(results, options).items():
+        if not first:
+            yield ",\n"
+        first = False
+        if key == "timeline":
+            value = _timeline_lines(results)
+        elif isinstance(value, Iterator) or (
+                isinstance(value, list) and value and all(isinstance(v, dict) for v in value)):
+            value = (json.dumps(v) for v in value)
         else:
-            parts.append(f"  {json.dumps(key)}: " + json.dumps(value, indent=2).replace(
-                "\n", "\n  "))
-    return "{\n" + ",\n".join(parts) + "\n}\n"
+            yield f"  {json.dumps(key)}: " + json.dumps(value, indent=2).replace("\n", "\n  ")
+            continue
+        yield f"  {json.dumps(key)}: ["
+        empty = True
+        for entry in value:
+            yield ("\n    " if empty else ",\n    ") + entry
+            empty = False
+        yield "]" if empty else "\n  ]"
+    yield "\n}\n"
+
+
+def render(results: list[InputResult], options: dict[str, object]) -> str:
+    return "".join(stream(results, options))

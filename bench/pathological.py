@@ -1,0 +1,409 @@
+"""Pathological logs: nmtcheck's time and peak memory when every frame is an event (issue #16).
+
+    python bench/pathological.py --sizes 1M                     # every kind and output
+    python bench/pathological.py --sizes 1M,5M --kinds clean,flapping --outputs json
+    python bench/pathological.py --nmtcheck /tmp/venv-patho/bin/nmtcheck --write --label Before
+
+Writes candump logs (vectorised, like bench/generate.py) under --data (default
+/tmp/nmtcheck-patho, kept between runs) of these kinds, each exactly N frames:
+
+- clean: the speed benchmark's realistic traffic (bench/traffic.py), a few findings;
+- flapping: heartbeats of 16 nodes (20 ms), every heartbeat reports another state
+  than the node's last one (05h, 7Fh, 04h, ...): a state change (S005) per frame;
+- commands: every NMT command specifier (01h, 02h, 80h, 81h, 82h) to every node-ID
+  0-127 in turn on 000h, one frame in five a heartbeat of one of 16 nodes;
+- findings: 000h frames of every DLC but 2, in turn: a malformed NMT command
+  (C002) per frame, each its own finding because neighbours differ in DLC;
+- nodes127: heartbeats (05h) of 127 nodes every 100 ms, nothing else.
+
+Then runs `NMTCHECK check LOG --format text` (stdout to /dev/null) with one report
+file per run (`-o report.json`, ... ; `text` alone writes none) through a small
+launcher that applies a memory limit (RLIMIT_AS) and a timeout to the whole process
+group, and measures wall time, the peak of the summed RSS of the process tree
+(sampled from /proc every 20 ms) and the largest ru_maxrss of any one process
+(RUSAGE_CHILDREN). Sizes above 1 M are run for a kind and output only when its 1 M
+run succeeded within --big-if-1m-under seconds. Prints a Markdown table; --write
+puts it into bench/PATHOLOGICAL.md (--append adds a section instead).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import shlex
+import subprocess
+import sys
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from generate import candump_lines, write_text  # noqa: E402
+from run import machine, parse_size  # noqa: E402
+from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
+
+KINDS = ("clean", "flapping", "commands", "findings", "nodes127")
+OUTPUTS = ("text", "json", "html", "sarif", "csv")
+COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
+FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
+BAD_DLC = np.asarray([0, 1, 3, 4, 5, 6, 7, 8], np.uint8)  # every DLC an NMT command must not have
+
+
+def _frames(i: np.ndarray, us: np.ndarray, can_id: np.ndarray, dlc: np.ndarray,
+            data: np.ndarray) -> Frames:
+    data = data.astype(np.uint8)
+    data[np.arange(8)[None, :] >= dlc[:, None]] = 0
+    return Frames(T0_US + us.astype(np.int64), can_id.astype(np.uint16), dlc.astype(np.uint8),
+                  data)
+
+
+def flapping(i: np.ndarray) -> Frames:
+    """16 nodes, 20 ms heartbeats; a boot-up each, then every heartbeat a new state."""
+    nodes = 16
+    node = i % nodes + 1
+    rnd = i // nodes
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = np.where(rnd == 0, 0x00, FLAP[(rnd - 1) % 3])
+    return _frames(i, i * 20_000 // nodes, 0x700 + node, np.ones(len(i), np.uint8), data)
+
+
+def commands(i: np.ndarray) -> Frames:
+    """Every command specifier to every node-ID 0..127 in turn (1 ms apart); every fifth
+    frame a heartbeat (05h) of one of 16 nodes."""
+    hb = i % 5 == 4
+    c = (i // 5) * 4 + i % 5  # index among the commands
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = np.where(hb, 0x05, COMMANDS[c % 5])
+    data[:, 1] = np.where(hb, 0, (c // 5) % 128)
+    can_id = np.where(hb, 0x700 + (i // 5) % 16 + 1, 0)
+    dlc = np.where(hb, 1, 2)
+    return _frames(i, i * 1000, can_id, dlc, data)
+
+
+def findings(i: np.ndarray) -> Frames:
+    """Malformed NMT commands 200 us apart, DLC cycling through 0, 1, 3, ..., 8."""
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = 0x01
+    data[:, 1] = i % 127 + 1
+    data[:, 2:] = (i % 251)[:, None]
+    return _frames(i, i * 200, np.zeros(len(i), np.int64), BAD_DLC[i % len(BAD_DLC)], data)
+
+
+def nodes127(i: np.ndarray) -> Frames:
+    """Heartbeats (05h) of nodes 1..127, each every 100 ms, nothing else."""
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = 0x05
+    return _frames(i, i * 100_000 // 127, 0x700 + i % 127 + 1, np.ones(len(i), np.uint8), data)
+
+
+MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
+    "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127}
+
+
+def chunks(kind: str, n: int) -> Iterator[Frames]:
+    if kind == "clean":
+        yield from traffic(n)
+        return
+    make = MAKERS[kind]
+    for a in range(0, n, CHUNK_FRAMES):
+        yield make(np.arange(a, min(n, a + CHUNK_FRAMES), dtype=np.int64))
+
+
+def label(n: int) -> str:
+    return f"{n // 10**6}M" if n % 10**6 == 0 else str(n)
+
+
+def generate(kind: str, n: int, data: Path) -> Path:
+    """The candump log (written unless already there)."""
+    path = data / f"{kind}-{label(n)}.log"
+    if not path.exists():
+        data.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".log.part")
+        write_text(tmp, chunks(kind, n), candump_lines)
+        os.replace(tmp, path)
+    return path
+
+
+# Runs `argv` (from a JSON spec in argv[1]) in its own session under RLIMIT_AS, kills the
+# group on timeout, samples the summed RSS of the process tree from /proc every 20 ms and
+# prints one JSON line. It imports nothing big: a child's ru_maxrss starts at its parent's
+# RSS at fork (see bench/run.py), and the tool must not inherit ours.
+LAUNCHER = r"""
+import json, os, resource, signal, subprocess, sys, threading, time
+spec = json.loads(sys.argv[1])
+page = os.sysconf("SC_PAGE_SIZE")
+
+def kids(pid):
+    try:
+        out = []
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{tid}/children") as f:
+                out += [int(x) for x in f.read().split()]
+        return out
+    except OSError:
+        return []
+
+def tree_rss(root):
+    total, todo, seen = 0, [root], set()
+    while todo:
+        pid = todo.pop()
+        if pid in seen:
+            continue
+        seen.add(pid)
+        try:
+            with open(f"/proc/{pid}/statm") as f:
+                total += int(f.read().split()[1]) * page
+        except (OSError, ValueError, IndexError):
+            continue
+        todo += kids(pid)
+    return total, len(seen)
+
+def limit():
+    if spec["mem_bytes"]:
+        resource.setrlimit(resource.RLIMIT_AS, (spec["mem_bytes"], spec["mem_bytes"]))
+
+err = open(spec["stderr"], "wb")
+t0 = time.perf_counter()
+p = subprocess.Popen(spec["argv"], stdout=subprocess.DEVNULL, stderr=err, cwd=spec["cwd"],
+                     start_new_session=True, preexec_fn=limit)
+peak = [0, 0]
+done = threading.Event()
+
+def sample():
+    while not done.is_set():
+        rss, procs = tree_rss(p.pid)
+        peak[0] = max(peak[0], rss)
+        peak[1] = max(peak[1], procs)
+        done.wait(0.02)
+
+threading.Thread(target=sample, daemon=True).start()
+timed_out = False
+try:
+    p.wait(spec["timeout"])
+except subprocess.TimeoutExpired:
+    timed_out = True
+    os.killpg(p.pid, signal.SIGKILL)
+    p.wait()
+seconds = time.perf_counter() - t0
+done.set()
+try:
+    os.killpg(p.pid, signal.SIGKILL)  # workers left behind
+except OSError:
+    pass
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(json.dumps({"code": p.returncode, "seconds": seconds, "tree_peak": peak[0],
+                  "procs": peak[1], "maxrss_kb": ru.ru_maxrss, "timed_out": timed_out}))
+"""
+
+OOM_MARKS = ("MemoryError", "Unable to allocate", "Cannot allocate memory", "std::bad_alloc")
+
+
+@dataclass
+class Row:
+    n: int
+    kind: str
+    output: str
+    status: str = "ok"  # ok, timeout, out of memory, failed (code), skipped (...)
+    seconds: float | None = None
+    tree_mb: float | None = None
+    single_mb: float | None = None
+    procs: int = 0
+    code: int | None = None
+    report_mb: float | None = None
+    kept: int | None = None
+    omitted: int | None = None
+    by_rule: Counter[str] = field(default_factory=Counter)
+    timeline: int | None = None
+    events: int | None = None
+    note: str = ""
+
+
+def read_json_report(path: Path, row: Row) -> None:
+    try:
+        rep = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        row.note = f"report unreadable: {exc}"
+        return
+    row.kept = len(rep.get("findings", []))
+    row.omitted = sum(int(o.get("count", 0)) for o in rep.get("omitted", []))
+    row.by_rule = Counter(f.get("rule", "?") for f in rep.get("findings", []))
+    for o in rep.get("omitted", []):
+        row.by_rule[o.get("rule", "?")] += int(o.get("count", 0))
+    row.timeline = len(rep.get("timeline", []))
+    row.events = len(rep.get("events", []))
+
+
+def run_one(nmtcheck: list[str], log: Path, kind: str, n: int, output: str, work: Path,
+            timeout: float, mem_mb: int, extra: list[str]) -> Row:
+    row = Row(n, kind, output)
+    work.mkdir(parents=True, exist_ok=True)
+    report = work / f"report-{kind}-{label(n)}.{output}"
+    report.unlink(missing_ok=True)
+    argv = [*nmtcheck, "check", str(log), "--format", "text", *extra]
+    if output != "text":
+        argv += ["-o", str(report)]
+    stderr = work / f"stderr-{kind}-{label(n)}-{output}.txt"
+    spec = {"argv": argv, "timeout": timeout, "mem_bytes": mem_mb * 2**20, "cwd": str(work),
+            "stderr": str(stderr)}
+    try:
+        out = subprocess.run([sys.executable, "-c", LAUNCHER, json.dumps(spec)],
+                             capture_output=True, text=True, timeout=timeout + 120, cwd=work)
+        res = json.loads(out.stdout.strip().splitlines()[-1])
+    except (subprocess.TimeoutExpired, ValueError, IndexError) as exc:
+        row.status, row.note = "launcher failed", str(exc)[:200]
+        return row
+    row.seconds, row.code, row.procs = res["seconds"], res["code"], res["procs"]
+    row.tree_mb, row.single_mb = res["tree_peak"] / 2**20, res["maxrss_kb"] / 1024
+    err = stderr.read_text(errors="replace") if stderr.exists() else ""
+    if res["timed_out"]:
+        row.status = "timeout"
+    elif any(m in err for m in OOM_MARKS) or (row.code == -9 and mem_mb):
+        row.status = "out of memory"
+    elif row.code not in (0, 1):
+        row.status = f"failed ({row.code})"
+        row.note = err.strip().splitlines()[-1][:200] if err.strip() else ""
+    if report.exists():
+        row.report_mb = report.stat().st_size / 2**20
+        if output == "json" and row.status == "ok":
+            read_json_report(report, row)
+        report.unlink()  # reports of pathological logs are big
+    return row
+
+
+def fmt(x: float | None, spec: str = ".2f") -> str:
+    return "" if x is None else format(x, spec)
+
+
+def render(rows: list[Row]) -> str:
+    clean = {(r.n, r.output): r for r in rows if r.kind == "clean" and r.status == "ok"}
+    json_of = {(r.n, r.kind): r for r in rows if r.output == "json" and r.kept is not None}
+    lines = ["| frames | log | output | time (s) | peak RSS tree (MB) | max RSS 1 proc (MB) "
+             "| procs | exit | findings kept / omitted | report (MB) | time ÷ clean "
+             "| RSS ÷ clean |",
+             "|---:|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+    for r in rows:
+        size = f"{r.n / 1e6:g} M"
+        if r.status.startswith("skipped") or r.seconds is None:
+            lines.append(f"| {size} | {r.kind} | {r.output} | {r.status} | | | | | | | | |")
+            continue
+        exit_ = str(r.code) if r.status == "ok" else f"{r.code}: **{r.status}**"
+        j = json_of.get((r.n, r.kind))
+        counts = (f"{j.kept:,} / {j.omitted:,}" if j is not None else "")
+        c = clean.get((r.n, r.output))
+        ratio_t = ratio_m = ""
+        if c is not None and r.kind != "clean" and r.status == "ok":
+            ratio_t = f"{r.seconds / c.seconds:.1f}×"
+            ratio_m = f"{(r.tree_mb or 0) / (c.tree_mb or 1):.1f}×"
+        time_s = fmt(r.seconds) if r.status == "ok" else f"≥ {r.seconds:.0f}"
+        lines.append(f"| {size} | {r.kind} | {r.output} | {time_s} | {fmt(r.tree_mb, '.0f')} | "
+                     f"{fmt(r.single_mb, '.0f')} | {r.procs} | {exit_} | {counts} | "
+                     f"{fmt(r.report_mb, '.1f')} | {ratio_t} | {ratio_m} |")
+    out = "\n".join(lines) + "\n"
+    yields = [r for r in rows if r.output == "json" and r.kept is not None]
+    if yields:
+        out += ("\nWhat each log yields (from its JSON report; findings per rule count the "
+                "omitted ones too):\n\n| frames | log | timeline entries | events "
+                "| findings by rule |\n|---:|---|---:|---:|---|\n")
+        for r in yields:
+            rules = ", ".join(f"{k} {v:,}" for k, v in sorted(r.by_rule.items()))
+            out += (f"| {r.n / 1e6:g} M | {r.kind} | {r.timeline:,} | {r.events:,} | "
+                    f"{rules or 'none'} |\n")
+    return out
+
+
+def nmtcheck_version(nmtcheck: list[str]) -> str:
+    try:
+        out = subprocess.run([*nmtcheck, "--version"], capture_output=True, text=True,
+                             timeout=60)
+        return out.stdout.strip() or out.stderr.strip()
+    except (OSError, subprocess.TimeoutExpired):
+        return "?"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="1M")
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--outputs", default=",".join(OUTPUTS),
+                    help="text (stdout only) and/or report suffixes written with -o")
+    ap.add_argument("--nmtcheck", default="nmtcheck",
+                    help="the command to run (split like a shell does)")
+    ap.add_argument("--extra", default="", help="more options for `nmtcheck check`")
+    ap.add_argument("--data", type=Path, default=Path("/tmp/nmtcheck-patho"))
+    ap.add_argument("--timeout", type=float, default=600.0, help="seconds per run")
+    ap.add_argument("--mem-mb", type=int, default=4096,
+                    help="address-space limit per process (RLIMIT_AS), 0: none")
+    ap.add_argument("--big-if-1m-under", type=float, default=60.0,
+                    help="run sizes above 1 M only for kinds/outputs whose 1 M run took less")
+    ap.add_argument("--write", action="store_true", help="write bench/PATHOLOGICAL.md")
+    ap.add_argument("--append", action="store_true", help="add a section instead")
+    ap.add_argument("--label", default="", help="the section's title, e.g. Before")
+    ap.add_argument("--results", type=Path, default=HERE / "PATHOLOGICAL.md")
+    ap.add_argument("--generate-only", action="store_true")
+    args = ap.parse_args()
+    sizes = sorted(parse_size(s) for s in args.sizes.split(","))
+    kinds = args.kinds.split(",")
+    outputs = args.outputs.split(",")
+    for k in kinds:
+        if k not in KINDS:
+            ap.error(f"unknown kind {k} (one of {', '.join(KINDS)})")
+    nmtcheck = shlex.split(args.nmtcheck)
+    extra = shlex.split(args.extra)
+    rows: list[Row] = []
+    first: dict[tuple[str, str], Row] = {}
+    for n in sizes:
+        for kind in kinds:
+            print(f"generating {n:,} frames of {kind} …", file=sys.stderr, flush=True)
+            log = generate(kind, n, args.data)
+            if args.generate_only:
+                continue
+            for output in outputs:
+                small = first.get((kind, output))
+                if n > 10**6 and small is not None and (
+                        small.status != "ok" or (small.seconds or 0) > args.big_if_1m_under):
+                    why = small.status if small.status != "ok" else f"{small.seconds:.0f} s"
+                    rows.append(Row(n, kind, output, f"skipped (1 M: {why})"))
+                    continue
+                r = run_one(nmtcheck, log, kind, n, output, args.data / "work", args.timeout,
+                            args.mem_mb, extra)
+                first.setdefault((kind, output), r)
+                rows.append(r)
+                print(f"  {label(n)} {kind} {output}: {r.status} {fmt(r.seconds)} s "
+                      f"tree {fmt(r.tree_mb, '.0f')} MB, 1 proc {fmt(r.single_mb, '.0f')} MB "
+                      f"{r.note}", file=sys.stderr, flush=True)
+    if args.generate_only:
+        return
+    cmd = "python bench/pathological.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    header = (f"Measured {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC on {machine()}; "
+              f"{nmtcheck_version(nmtcheck)} (`{args.nmtcheck}`).\n"
+              f"Command: `{cmd}`.\n\n"
+              f"Each run is `nmtcheck check LOG --format text{' ' + args.extra if extra else ''}"
+              f"` (stdout to /dev/null) plus `-o report.OUTPUT` unless OUTPUT is text, once, "
+              f"under a {args.mem_mb} MB address-space limit and a {args.timeout:g} s timeout. "
+              "*Peak RSS tree*: the largest sum of RSS over the tool's process tree, sampled "
+              "from /proc every 20 ms (shared pages count once per process); *max RSS 1 proc*: "
+              "the largest ru_maxrss of any one process (RUSAGE_CHILDREN); *procs*: the most "
+              "processes seen at once. Findings come from the JSON run of the same log. "
+              "Ratios are to the clean log of the same size and output.\n\n")
+    text = header + render(rows)
+    print(text)
+    if args.write:
+        title = f"## {args.label}\n\n" if args.label else ""
+        if args.append and args.results.exists():
+            args.results.write_text(args.results.read_text().rstrip() + "\n\n" + title + text)
+        else:
+            args.results.write_text(
+                "# Pathological logs (issue #16)\n\nGoal: any 5 M-frame log, however many "
+                "events, state changes, commands or findings it holds, in seconds and under "
+                "500 MB (peak RSS of the whole process tree). Regenerate with the command "
+                "below; `--append --label After` adds a section.\n\n" + title + text)
+
+
+if __name__ == "__main__":
+    main()

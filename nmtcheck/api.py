@@ -1,0 +1,138 @@
+"""The Python API: check logs into pandas DataFrames, read a fleet's results dataset.
+
+    report = nmtcheck.check(["run1.log", "run2.asc"], network="net.toml")
+    report.findings   # one row per finding: the JSON report's fields (SPEC §7) + path
+    report.timeline   # state intervals;  report.nodes: per-node statistics
+    results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats
+
+The columns are the JSON report's field names, so code written against one reads the other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+from typing import Any
+
+import pandas as pd
+
+FINDING_COLUMNS = ["input", "path", "rule", "name", "severity", "channel", "node", "time",
+                   "frame_index", "line", "message"]
+TIMELINE_COLUMNS = ["input", "path", "channel", "node", "state", "start", "end", "source"]
+NODE_COLUMNS = ["input", "path", "channel", "node", "first_seen", "last_seen", "final_state",
+                "bootups", "error_control", "heartbeat_period_ms"]
+SEVERITY_ORDER = ["error", "warning", "info"]
+
+
+@dataclass
+class Report:
+    """The result of `check`: DataFrames of the JSON report's lists, and the summary."""
+
+    findings: pd.DataFrame
+    timeline: pd.DataFrame
+    nodes: pd.DataFrame
+    inputs: pd.DataFrame
+    summary: dict[str, int]
+    results: list[Any] = field(repr=False)  # the engine's InputResults
+
+    def failed(self, fail_on: str = "error") -> bool:
+        """What `nmtcheck check --fail-on` would decide: a finding at or above `fail_on`."""
+        if fail_on == "never":
+            return False
+        return any(self.summary[s] for s in SEVERITY_ORDER[: SEVERITY_ORDER.index(fail_on) + 1])
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON report (SPEC §7) as a dict."""
+        from nmtcheck.reporters.json import report_dict
+
+        return report_dict(self.results)
+
+
+def _frame(rows: list[dict[str, Any]], columns: list[str]) -> pd.DataFrame:
+    df = pd.DataFrame(rows)
+    if df.empty:
+        return pd.DataFrame({c: pd.Series(dtype="object") for c in columns})
+    first = [c for c in columns if c in df.columns]
+    return df[first + [c for c in df.columns if c not in first]]
+
+
+def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}_"))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
+          network: str | PathLike[str] | None = None, rules: str | None = None,
+          select: Sequence[str] = (), ignore: Sequence[str] = (),
+          input_format: str | None = None, strict: bool = False, channel: str | None = None,
+          topics: Sequence[str] = (), jobs: int = 1,
+          max_findings: int | None = None) -> Report:
+    """Check logs as `nmtcheck check` does (no configuration file is read: pass what you
+    need). Errors are raised as nmtcheck.errors.InputError / UsageError."""
+    from nmtcheck.engine import MAX_FINDINGS_PER_RULE, check_inputs, select_rules, summary
+    from nmtcheck.network import load_network
+    from nmtcheck.profiles import DEFAULT_PROFILE, load_profile
+    from nmtcheck.reporters.json import report_dict
+
+    if isinstance(paths, (str, PathLike)):
+        paths = [paths]
+    names = [str(p) for p in paths]
+    profile = load_profile(rules or DEFAULT_PROFILE)
+    selected = select_rules(profile, list(select), list(ignore))
+    net = load_network(str(network)) if network is not None else None
+    results = check_inputs(names, jobs, profile, selected, network=net,
+                           input_format=input_format, strict=strict, channel=channel,
+                           reader_options={"topics": list(topics)} if topics else {},
+                           max_findings=MAX_FINDINGS_PER_RULE if max_findings is None
+                           else max_findings)
+    doc = report_dict(results)
+    path_of = {i: r["path"] for i, r in enumerate(doc["inputs"])}
+
+    def with_path(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [{**_flat(r), "path": path_of.get(r["input"])} for r in rows]
+
+    inputs = _frame([{"input": i, **r} for i, r in enumerate(doc["inputs"])],
+                    ["input", "path", "format", "frames"])
+    return Report(findings=_frame(with_path(doc["findings"]), FINDING_COLUMNS),
+                  timeline=_frame(with_path(doc["timeline"]), TIMELINE_COLUMNS),
+                  nodes=_frame(with_path(doc["nodes"]), NODE_COLUMNS),
+                  inputs=inputs, summary=summary(results), results=results)
+
+
+@dataclass
+class Results:
+    """A fleet's results dataset as DataFrames (see nmtcheck.fleet.dataset for the schema)."""
+
+    runs: pd.DataFrame
+    inputs: pd.DataFrame
+    findings: pd.DataFrame
+    node_stats: pd.DataFrame
+    schema_version: int
+
+
+def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | None = None,
+                 latest: bool = True) -> Results:
+    """The dataset `nmtcheck check --results URL` wrote. With `latest` (default) each log's
+    newest check only: older checks of a log that changed since, or by an older nmtcheck or
+    profile, are left out."""
+    from nmtcheck.errors import UsageError
+    from nmtcheck.fleet.dataset import MARKER, SCHEMA_VERSION, TABLES, Dataset
+    from nmtcheck.fleet.dataset import latest as newest
+
+    ds = Dataset(str(url), storage_options)
+    if not ds.fs.exists(ds.path(MARKER)):
+        raise UsageError(f"{url}: not an nmtcheck results dataset (no {MARKER})")
+    tables = {t: ds.read(t).to_pandas() for t in TABLES}
+    for df in tables.values():
+        if "date" in df.columns:
+            df["date"] = df["date"].astype(str)
+    if latest:
+        tables = newest(tables)
+    return Results(tables["runs"], tables["inputs"], tables["findings"], tables["node_stats"],
+                   SCHEMA_VERSION)

@@ -1,0 +1,232 @@
+"""The results dataset: Parquet tables, hive-partitioned by the log's start date.
+
+    RESULTS/_nmtcheck_dataset.json           {"schema_version": 1, ...}
+    RESULTS/inputs/date=2026-11-23/part-<batch>.parquet
+    RESULTS/findings/date=2026-11-23/part-<batch>.parquet
+    RESULTS/node_stats/date=2026-11-23/part-<batch>.parquet
+    RESULTS/runs/date=2026-11-24/run-<run_id>.parquet
+
+Plain Parquet with fixed schemas, so pandas, pyarrow, DuckDB and Spark read it without
+nmtcheck. A batch's files have names derived from what it checked (the inputs' identities,
+nmtcheck's version and the profile): writing them again replaces them, never duplicates.
+`inputs` is written last and is the commit record the next run's skip list reads.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import uuid
+from collections.abc import Iterable
+from typing import Any
+
+from nmtcheck.fleet.storage import filesystem, is_local
+
+SCHEMA_VERSION = 1
+MARKER = "_nmtcheck_dataset.json"
+TABLES = ("runs", "inputs", "findings", "node_stats")
+SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
+
+# (name, arrow type) per table; the partition column `date` is in the path, not the files.
+_KEY = [("input_id", "string"), ("batch_id", "string"), ("url", "string"),
+        ("device", "string"), ("session", "string"), ("split", "string")]
+COLUMNS: dict[str, list[tuple[str, str]]] = {
+    "runs": [("run_id", "string"), ("started_at", "timestamp"), ("finished_at", "timestamp"),
+             ("nmtcheck_version", "string"), ("profile_digest", "string"),
+             ("executor", "string"), ("sources", "string"), ("files", "int64"),
+             ("skipped", "int64"), ("checked", "int64"), ("ok", "int64"),
+             ("input_error", "int64"), ("crashed", "int64"), ("unsupported", "int64"),
+             ("bytes", "int64"), ("n_error", "int64"), ("n_warning", "int64"),
+             ("n_info", "int64"), ("seconds", "float64")],
+    "inputs": [*_KEY, ("etag", "string"), ("size", "int64"), ("mtime", "timestamp"),
+               ("fingerprint", "string"), ("format", "string"), ("status", "string"),
+               ("error", "string"), ("frames", "int64"), ("skipped", "int64"),
+               ("ignored", "int64"), ("extended", "int64"), ("error_frames", "int64"),
+               ("remote_frames", "int64"), ("fd_frames", "int64"), ("dropped", "int64"),
+               ("backwards", "int64"), ("truncated", "bool"), ("channels", "string"),
+               ("nodes", "int64"), ("start", "float64"), ("end", "float64"),
+               ("start_time", "timestamp"), ("n_error", "int64"), ("n_warning", "int64"),
+               ("n_info", "int64"), ("omitted", "int64"), ("attempts", "int64"),
+               ("nmtcheck_version", "string"), ("profile_digest", "string"),
+               ("run_id", "string"), ("checked_at", "timestamp"), ("seconds", "float64")],
+    "findings": [*_KEY, ("rule", "string"), ("name", "string"), ("severity", "string"),
+                 ("channel", "string"), ("node", "int64"), ("time", "float64"),
+                 ("abs_time", "timestamp"), ("frame_index", "int64"), ("line", "int64"),
+                 ("message", "string")],
+    "node_stats": [*_KEY, ("channel", "string"), ("node", "int64"),
+                   ("first_seen", "float64"), ("last_seen", "float64"),
+                   ("final_state", "string"), ("bootups", "int64"),
+                   ("error_control", "string"), ("heartbeat_period_ms", "float64"),
+                   ("s_unknown", "float64"), ("s_initialising", "float64"),
+                   ("s_pre_operational", "float64"), ("s_operational", "float64"),
+                   ("s_stopped", "float64"), ("s_offline", "float64"),
+                   ("heartbeats", "int64"), ("hb_p50_ms", "float64"), ("hb_p95_ms", "float64"),
+                   ("hb_max_ms", "float64"), ("worst_gap_ms", "float64"),
+                   ("worst_gap_at", "float64"), ("n_error", "int64"), ("n_warning", "int64"),
+                   ("n_info", "int64")],
+}
+STATE_COLUMNS = {"UNKNOWN": "s_unknown", "INITIALISING": "s_initialising",
+                 "PRE-OPERATIONAL": "s_pre_operational", "OPERATIONAL": "s_operational",
+                 "STOPPED": "s_stopped", "OFFLINE": "s_offline"}
+
+
+def schema(table: str) -> Any:
+    import pyarrow as pa
+
+    types = {"string": pa.string(), "int64": pa.int64(), "float64": pa.float64(),
+             "bool": pa.bool_(), "timestamp": pa.timestamp("us", tz="UTC")}
+    return pa.schema([(n, types[t]) for n, t in COLUMNS[table]],
+                     metadata={"nmtcheck.schema_version": str(SCHEMA_VERSION),
+                               "nmtcheck.table": table})
+
+
+def to_table(table: str, rows: list[dict[str, Any]]) -> Any:
+    """Rows as an Arrow table of the table's fixed schema (timestamps given as epoch s)."""
+    import pyarrow as pa
+
+    sch = schema(table)
+    cols = {}
+    for name, kind in COLUMNS[table]:
+        values = [r.get(name) for r in rows]
+        if kind == "timestamp":
+            values = [None if v is None else int(round(v * 1e6)) for v in values]
+            cols[name] = pa.array(values, pa.int64()).cast(sch.field(name).type)
+        else:
+            cols[name] = pa.array(values, sch.field(name).type)
+    return pa.table(cols, schema=sch)
+
+
+def date_of(seconds: float | None) -> str:
+    """The partition value: the UTC date of an epoch time, `unknown` without one."""
+    if seconds is None:
+        return "unknown"
+    return time.strftime("%Y-%m-%d", time.gmtime(seconds))
+
+
+class Dataset:
+    """A results dataset at a directory or URL."""
+
+    def __init__(self, url: str, storage_options: dict[str, Any] | None = None) -> None:
+        self.url = url.rstrip("/") or url
+        self.storage_options = storage_options or {}
+        self.fs, self.root = filesystem(self.url, self.storage_options)
+        self.local = is_local(url)
+
+    def path(self, *parts: str) -> str:
+        return "/".join([self.root.rstrip("/"), *parts])
+
+    def ensure(self) -> None:
+        """Create the dataset (its marker file) or check that it is one of a version this
+        nmtcheck writes."""
+        from nmtcheck.errors import UsageError
+
+        marker = self.path(MARKER)
+        if self.fs.exists(marker):
+            with self.fs.open(marker, "rb") as f:
+                meta = json.loads(f.read() or b"{}")
+            if meta.get("schema_version") != SCHEMA_VERSION:
+                raise UsageError(f"--results {self.url}: dataset schema version "
+                                 f"{meta.get('schema_version')}, this nmtcheck writes "
+                                 f"{SCHEMA_VERSION}: use a new results location")
+            return
+        if self.local:
+            self.fs.makedirs(self.root, exist_ok=True)
+        self._put_bytes(marker, json.dumps({
+            "schema_version": SCHEMA_VERSION, "tables": list(TABLES),
+            "partitioning": "hive: date=YYYY-MM-DD (the log's start date, UTC)",
+        }, indent=2).encode() + b"\n")
+
+    def write(self, table: str, name: str, rows: list[dict[str, Any]]) -> list[str]:
+        """The rows as Parquet files `TABLE/date=D/NAME.parquet`, one per date; returns the
+        paths. Local files are written beside their target and renamed into place."""
+        by_date: dict[str, list[dict[str, Any]]] = {}
+        for r in rows:
+            by_date.setdefault(r["date"], []).append(r)
+        written = []
+        for date, part in sorted(by_date.items()):
+            path = self.path(table, f"date={date}", f"{name}.parquet")
+            self._put_table(path, to_table(table, part))
+            written.append(path)
+        return written
+
+    def _put_table(self, path: str, arrow_table: Any) -> None:
+        import pyarrow.parquet as pq
+
+        parent = path.rsplit("/", 1)[0]
+        if self.local:
+            self.fs.makedirs(parent, exist_ok=True)
+            tmp = f"{parent}/.{uuid.uuid4().hex}.tmp"
+            try:
+                pq.write_table(arrow_table, tmp, compression="zstd")
+                os.replace(tmp, path)
+            finally:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+            return
+        with self.fs.open(path, "wb") as f:
+            pq.write_table(arrow_table, f, compression="zstd")
+
+    def _put_bytes(self, path: str, data: bytes) -> None:
+        with self.fs.open(path, "wb") as f:
+            f.write(data)
+
+    def files(self, table: str) -> list[str]:
+        base = self.path(table)
+        if not self.fs.exists(base):
+            return []
+        return sorted(p for p in self.fs.find(base) if p.endswith(".parquet")
+                      and not p.rsplit("/", 1)[-1].startswith("."))
+
+    def read(self, table: str, columns: Iterable[str] | None = None) -> Any:
+        """One table as Arrow (with its `date` column), empty with the schema when absent."""
+        import pyarrow as pa
+        import pyarrow.dataset as ds
+
+        files = self.files(table)
+        sch = schema(table)
+        full = pa.schema([*sch, pa.field("date", pa.string())])
+        cols = list(columns) if columns is not None else None
+        if not files:
+            empty = full.empty_table()
+            return empty.select(cols) if cols else empty
+        part = ds.partitioning(pa.schema([pa.field("date", pa.string())]), flavor="hive")
+        dataset = ds.dataset(files, schema=full, filesystem=self.fs, format="parquet",
+                             partitioning=part, partition_base_dir=self.path(table))
+        return dataset.to_table(columns=cols)
+
+    def done(self) -> dict[str, dict[str, Any]]:
+        """What the dataset already holds, for the skip list: (url, fingerprint, version,
+        profile) -> that input's status and severity counts (latest check)."""
+        t = self.read("inputs", ["url", "fingerprint", "nmtcheck_version", "profile_digest",
+                                 "status", "checked_at", *SEVERITY_COLUMNS])
+        out: dict[str, dict[str, Any]] = {}
+        if t.num_rows == 0:
+            return out
+        for r in t.sort_by("checked_at").to_pylist():
+            key = done_key(r["url"], r["fingerprint"], r["nmtcheck_version"], r["profile_digest"])
+            out[key] = r
+        return out
+
+
+def done_key(url: str, fingerprint: str, version: str, digest: str) -> str:
+    return "\x1f".join((url, fingerprint, version, digest))
+
+
+def latest(tables: dict[str, Any]) -> dict[str, Any]:
+    """The newest check of each URL (pandas frames): older checks of a log that changed, or
+    of an older nmtcheck or profile, and rows of a batch superseded by a --force re-run with
+    other batches, are left out."""
+    inputs = tables["inputs"]
+    if len(inputs) == 0:
+        return tables
+    newest = (inputs.sort_values(["checked_at", "batch_id"], kind="stable")
+              .drop_duplicates("url", keep="last"))
+    keep = set(zip(newest["input_id"], newest["batch_id"], strict=True))
+    out = dict(tables)
+    out["inputs"] = newest.reset_index(drop=True)
+    for name in ("findings", "node_stats"):
+        df = tables[name]
+        mask = [(a, b) in keep for a, b in zip(df["input_id"], df["batch_id"], strict=True)]
+        out[name] = df[mask].reset_index(drop=True)
+    return out

@@ -1,0 +1,356 @@
+"""Where tasks run: `local[:N]` (the stdlib process pool, made to survive a dead worker),
+`dask-local[:N]` (a Dask LocalCluster of worker processes) and `dask://HOST:PORT` (a running
+Dask cluster). One small interface, so another engine (Ray) is one more class in EXECUTORS.
+
+A worker that dies (segfault in a reader library, the OOM killer) takes the tasks it was
+running with it. Both engines retry them a few times and then give up on the task
+(`Crashed`): the stdlib pool by noting which tasks had started when the pool broke, Dask by
+its scheduler's `allowed-failures` (KilledWorker). Dask is imported only by its executors.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import warnings
+from collections.abc import Callable, Hashable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from nmtcheck.errors import UsageError
+
+ALLOWED_FAILURES = 2  # a task on a worker that died is retried this many times
+
+
+@dataclass
+class Crashed:
+    """A task whose worker died every time it ran it."""
+
+    attempts: int
+    reason: str
+
+
+class Executor(Protocol):
+    name: str
+    slots: int  # tasks that run at once
+
+    def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None: ...
+    def done(self) -> list[tuple[Hashable, Any]]: ...  # blocks until one task ends
+    def pending(self) -> int: ...
+    def shared(self, value: Any) -> Any: ...  # a large argument sent once, not per task
+    def close(self) -> None: ...
+
+
+# --- the stdlib pool --------------------------------------------------------------------
+
+_started: Any = None  # in a pool worker: where it says which task it starts
+
+
+def _init_worker(queue: Any, environ: dict[str, str] | None) -> None:
+    global _started
+    _started = queue
+    if environ is not None:  # the client's environment now, as a forked worker would have it
+        os.environ.clear()
+        os.environ.update(environ)
+
+
+def _run(key: Hashable, fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
+    if _started is not None:
+        _started.put((key, os.getpid()))  # SimpleQueue: written before the work, unbuffered
+    return fn(*args)
+
+
+class ResilientPool:
+    """A ProcessPoolExecutor that survives a dead worker: when the pool breaks, the tasks
+    that had finished keep their results, the tasks that had started are suspects (one
+    attempt used), the rest are resubmitted to a fresh pool at no cost. A task that was
+    running at more than `allowed_failures` breaks ends as `Crashed`."""
+
+    def __init__(self, workers: int, allowed_failures: int = ALLOWED_FAILURES,
+                 mp_context: Any = None) -> None:
+        self.workers = max(1, workers)
+        self.allowed_failures = allowed_failures
+        self._ctx = mp_context or multiprocessing.get_context()
+        self._pool: ProcessPoolExecutor | None = None
+        self._queue: Any = None
+        self._tasks: dict[Future[Any], tuple[Hashable, Callable[..., Any], tuple[Any, ...]]] = {}
+        self._failures: dict[Hashable, int] = {}
+        self._ready: list[tuple[Hashable, Any]] = []
+
+    def _ensure(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            self._queue = self._ctx.SimpleQueue()
+            # a fork server's workers would have the environment of the fork server's start
+            environ = None if self._ctx.get_start_method() == "fork" else dict(os.environ)
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=self._ctx,
+                                             initializer=_init_worker,
+                                             initargs=(self._queue, environ))
+        return self._pool
+
+    def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
+        self._submit(key, fn, args)
+
+    def _submit(self, key: Hashable, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        try:
+            fut = self._ensure().submit(_run, key, fn, args)
+        except BrokenProcessPool:  # broke between two calls: restart, then submit
+            self._restart()
+            fut = self._ensure().submit(_run, key, fn, args)
+        self._tasks[fut] = (key, fn, args)
+
+    def pending(self) -> int:
+        return len(self._tasks) + len(self._ready)
+
+    def attempts(self, key: Hashable) -> int:
+        return self._failures.get(key, 0) + 1
+
+    def done(self) -> list[tuple[Hashable, Any]]:
+        """Ended tasks as (key, result | Crashed | Exception); blocks until there is one."""
+        while not self._ready:
+            if not self._tasks:
+                return []
+            finished, _ = wait(list(self._tasks), return_when=FIRST_COMPLETED)
+            if any(isinstance(f.exception(), BrokenProcessPool) for f in finished):
+                self._recover()
+                continue
+            for f in finished:
+                key, _fn, _args = self._tasks.pop(f)
+                exc = f.exception()
+                self._ready.append((key, f.result() if exc is None else exc))
+        out, self._ready = self._ready, []
+        return out
+
+    def _started_keys(self) -> set[Hashable]:
+        keys = set()
+        try:
+            while self._queue is not None and not self._queue.empty():
+                keys.add(self._queue.get()[0])
+        except (OSError, EOFError):
+            pass
+        return keys
+
+    def _recover(self) -> None:
+        started = self._started_keys()
+        lost = []
+        for f, (key, fn, args) in list(self._tasks.items()):
+            if not f.done():
+                continue
+            exc = f.exception()
+            del self._tasks[f]
+            if exc is None:
+                self._ready.append((key, f.result()))
+            elif isinstance(exc, BrokenProcessPool):
+                lost.append((key, fn, args))
+            else:
+                self._ready.append((key, exc))
+        # The tasks that were running when the pool broke; if the pool could not say (it
+        # broke before a worker wrote), every lost task is a suspect.
+        suspects = {k for k, _fn, _a in lost if k in started} or {k for k, _fn, _a in lost}
+        self._restart()
+        for key, fn, args in lost:
+            if key in suspects:
+                self._failures[key] = self._failures.get(key, 0) + 1
+                if self._failures[key] > self.allowed_failures:
+                    self._ready.append((key, Crashed(
+                        self._failures[key], f"its worker process died each of the "
+                        f"{self._failures[key]} times it ran (a crash or the OOM killer)")))
+                    continue
+            self._submit(key, fn, args)
+
+    def _restart(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = None
+        self._started_keys()  # drop what the dead pool's workers wrote
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+class LocalExecutor:
+    """`local[:N]` (the default): N worker processes of this machine, nothing to install.
+    The workers are started by a fork server, not forked from this process, whose fsspec
+    and progress threads would be copied mid-flight."""
+
+    def __init__(self, workers: int | None = None) -> None:
+        self.slots = workers or os.cpu_count() or 1
+        self.name = f"local:{self.slots}"
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["nmtcheck.fleet.tasks", "nmtcheck.engine"])
+        self._pool = ResilientPool(self.slots, mp_context=ctx)
+
+    def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
+        self._pool.submit(key, fn, *args)
+
+    def done(self) -> list[tuple[Hashable, Any]]:
+        return self._pool.done()
+
+    def pending(self) -> int:
+        return self._pool.pending()
+
+    def shared(self, value: Any) -> Any:
+        return value
+
+    def close(self) -> None:
+        self._pool.close()
+
+
+# --- Dask -------------------------------------------------------------------------------
+
+# What nmtcheck sets on the Dask workers it starts. Dask's defaults cost nmtcheck about 4x:
+# MALLOC_TRIM_THRESHOLD_=65536 (nanny.pre-spawn-environ) makes glibc give memory back to
+# the system after every numpy temporary, and the statistical profiler samples every
+# worker thread every 10 ms.
+DASK_CONFIG: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
+                                            "OPENBLAS_NUM_THREADS": 1},
+    "distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
+}
+
+
+def worker_info() -> dict[str, Any]:
+    """Run on each worker: what the client compares with its own."""
+    import dask
+
+    from nmtcheck import __version__
+
+    return {"nmtcheck": __version__,
+            "malloc_trim": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+            "profile": bool(dask.config.get("distributed.worker.profile.enabled", True))}
+
+
+def _allowed_failures(dask_scheduler: Any) -> int:
+    """Run on the scheduler: how often it lets a task's worker die before KilledWorker."""
+    return int(dask_scheduler.allowed_failures)
+
+
+def _import_dask() -> Any:
+    try:
+        import distributed
+    except ImportError:
+        raise UsageError("--executor dask: Dask is not installed; install it with "
+                         "pip install 'nmtcheck[dask]'") from None
+    return distributed
+
+
+class DaskExecutor:
+    """`dask-local[:N]` starts a LocalCluster of N single-threaded worker processes with
+    nmtcheck's settings; `dask://HOST:PORT` connects to a running scheduler and checks that
+    its workers run this nmtcheck (and warns about the settings that slow it down)."""
+
+    def __init__(self, address: str | None, workers: int | None = None) -> None:
+        distributed = _import_dask()
+        import dask
+
+        self._cluster = None
+        if address is None:
+            n = workers or os.cpu_count() or 1
+            with dask.config.set(DASK_CONFIG):
+                self._cluster = distributed.LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True,
+                    dashboard_address=None, silence_logs=40)
+                self.client = distributed.Client(self._cluster)
+            self.name = f"dask-local:{n}"
+        else:
+            try:
+                self.client = distributed.Client(address, timeout="20s")
+            except OSError as exc:
+                raise UsageError(f"--executor dask://{address.removeprefix('tcp://')}: cannot "
+                                 f"connect to the scheduler: {exc}") from None
+            self.name = f"dask://{address.removeprefix('tcp://')}"
+        self._check_workers(remote=address is not None)
+        self._tries = 1 + int(self.client.run_on_scheduler(_allowed_failures))
+        self.slots = max(1, sum(self.client.nthreads().values()))
+        self._ac = distributed.as_completed()
+        self._futures: dict[Any, Hashable] = {}
+        self._killed = distributed.KilledWorker
+
+    def _check_workers(self, remote: bool) -> None:
+        from nmtcheck import __version__
+
+        try:
+            self.client.get_versions(check=True)  # Dask's own client/scheduler/worker skew
+        except ValueError as exc:
+            raise UsageError(f"--executor {self.name}: {exc}") from None
+        info = self.client.run(worker_info)
+        skew = sorted({i["nmtcheck"] for i in info.values()} - {__version__})
+        if skew:
+            raise UsageError(f"--executor {self.name}: the workers run nmtcheck "
+                             f"{', '.join(skew)}, this client {__version__}: install the same "
+                             "version on both (results name the version that checked them)")
+        if remote:
+            slow = [what for what, bad in (
+                ("MALLOC_TRIM_THRESHOLD_ is set (Dask's nanny.pre-spawn-environ default)",
+                 any(i["malloc_trim"] for i in info.values())),
+                ("the worker profiler is on (distributed.worker.profile.enabled)",
+                 any(i["profile"] for i in info.values())))
+                if bad]
+            if slow:
+                warnings.warn(f"{self.name}: {'; '.join(slow)}: nmtcheck runs up to 4x slower "
+                              "on these workers; start them with "
+                              "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False and without "
+                              "MALLOC_TRIM_THRESHOLD_ in distributed.nanny.pre-spawn-environ",
+                              stacklevel=2)
+
+    def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
+        fut = self.client.submit(fn, *args, pure=False)
+        self._futures[fut] = key
+        self._ac.add(fut)
+
+    def done(self) -> list[tuple[Hashable, Any]]:
+        if not self._futures:
+            return []
+        out = []
+        for fut in [next(self._ac), *self._ac.next_batch(block=False)]:
+            key = self._futures.pop(fut)
+            if fut.status == "finished":
+                out.append((key, fut.result()))
+            else:
+                exc = fut.exception()
+                if isinstance(exc, self._killed):
+                    out.append((key, Crashed(self._tries, f"its Dask worker died each of the "
+                                             f"{self._tries} times it ran it")))
+                else:
+                    out.append((key, exc))
+            fut.release()
+        return out
+
+    def pending(self) -> int:
+        return len(self._futures)
+
+    def shared(self, value: Any) -> Any:
+        # Sent with each task (a few kB): scattered data would be lost with the last worker
+        # holding it when a log kills workers.
+        return value
+
+    def close(self) -> None:
+        self.client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+
+EXECUTORS = ("local[:N]", "dask-local[:N]", "dask://HOST:PORT")
+
+
+def make_executor(spec: str) -> Executor:
+    """An executor from `--executor`."""
+    name, _, arg = spec.partition(":")
+    if name in ("local", "dask-local"):
+        workers = None
+        if arg:
+            if not arg.isdigit() or int(arg) < 1:
+                raise UsageError(f"--executor {spec}: the worker count must be a positive "
+                                 f"number (e.g. {name}:4)")
+            workers = int(arg)
+        return LocalExecutor(workers) if name == "local" else DaskExecutor(None, workers)
+    if name in ("dask", "tcp", "tls") and arg.startswith("//"):
+        address = arg[2:]
+        if not address:
+            raise UsageError(f"--executor {spec}: expected dask://HOST:PORT")
+        return DaskExecutor(("tls://" if name == "tls" else "tcp://") + address)
+    raise UsageError(f"--executor {spec}: unknown executor (available: {', '.join(EXECUTORS)})")

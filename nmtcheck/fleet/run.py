@@ -1,0 +1,281 @@
+"""A fleet run: list the logs, skip those already checked, cut the rest into batches, keep a
+bounded window of tasks in flight on the executor, add up the counts the tasks return.
+
+The client holds the skip list and the counts, never a log's findings: its memory does not
+grow with the number of logs checked (listing is streamed; a glob's own listing is held by
+fsspec while it is walked).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import sys
+import time
+import uuid
+from collections.abc import Hashable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from nmtcheck.fleet.storage import FileInfo
+
+BATCH_FILES = 32  # small logs: enough per task that a task is not all latency
+BATCH_BYTES = 64 << 20  # a batch is fetched to the worker's disk at once
+WINDOW_PER_SLOT = 2  # tasks in flight per executor slot: enough to keep every slot busy
+STATUSES = ("ok", "input_error", "crashed", "unsupported")
+
+
+@dataclass
+class FleetOptions:
+    sources: list[str]
+    results: str
+    manifest: str | None = None
+    executor: str = "local"
+    storage_options: dict[str, Any] = field(default_factory=dict)
+    path_pattern: str | None = None
+    force: bool = False
+    batch_files: int = BATCH_FILES
+    batch_bytes: int = BATCH_BYTES
+    progress: bool = False
+
+
+@dataclass
+class FleetOutcome:
+    files: int = 0
+    skipped: int = 0
+    bytes: int = 0
+    status: dict[str, int] = field(default_factory=lambda: dict.fromkeys(STATUSES, 0))
+    skipped_status: dict[str, int] = field(default_factory=dict)  # of the logs skipped
+    severity: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
+        ("error", "warning", "info"), 0))  # over the whole fleet: checked and skipped logs
+    errors: list[tuple[str, str]] = field(default_factory=list)
+    run_id: str = ""
+    executor: str = ""
+    seconds: float = 0.0
+
+    @property
+    def checked(self) -> int:
+        return self.files - self.skipped
+
+
+def profile_digest(profile: Any, rule_codes: list[str], network: Any,
+                   input_format: str | None, strict: bool, channel: str | None,
+                   reader_options: dict[str, Any], max_findings: int) -> str:
+    """What makes two checks of one log comparable: rules with their severities and
+    parameters, the timeline's parameters, the network description and the reading options."""
+    doc = {"rules": {c: [profile[c].severity, profile[c].params] for c in sorted(rule_codes)},
+           "timeline": profile.timeline, "network": repr(network), "input_format": input_format,
+           "strict": strict, "channel": channel, "reader_options": reader_options,
+           "max_findings": max_findings}
+    text = json.dumps(doc, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _slots(spec: str) -> int:
+    """The executor's parallelism as far as its spec tells (for cutting a short listing)."""
+    import os
+
+    _name, _, arg = spec.partition(":")
+    return int(arg) if arg.isdigit() else os.cpu_count() or 1
+
+
+def _batches(files: Iterator[FileInfo], max_files: int, max_bytes: int, slots: int = 1
+             ) -> Iterator[list[FileInfo]]:
+    """Batches of at most `max_files` logs and `max_bytes`; a listing shorter than
+    slots x max_files is cut so that every slot gets a batch."""
+    head = list(itertools.islice(files, max_files * slots))
+    if len(head) < max_files * slots:
+        max_files = max(1, -(-len(head) // slots))
+    files = itertools.chain(head, files)
+    batch: list[FileInfo] = []
+    size = 0
+    for fi in files:
+        if batch and (len(batch) >= max_files or size + (fi.size or 0) > max_bytes):
+            yield batch
+            batch, size = [], 0
+        batch.append(fi)
+        size += fi.size or 0
+    if batch:
+        yield batch
+
+
+class _Progress:
+    """Files and bytes done, on stderr (tqdm), once the run takes over a second."""
+
+    def __init__(self, enabled: bool) -> None:
+        self._bar = None
+        self._bytes = 0
+        if enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(unit=" files", file=sys.stderr, leave=False, delay=1.0,
+                             mininterval=0.5, dynamic_ncols=True)
+
+    def total(self, n: int) -> None:
+        if self._bar is not None:
+            self._bar.total = n
+            self._bar.refresh()
+
+    def update(self, files: int, nbytes: int) -> None:
+        if self._bar is not None:
+            self._bytes += nbytes
+            self._bar.set_postfix_str(_size(self._bytes), refresh=False)
+            self._bar.update(files)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n} B"
+
+
+def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: Any,
+              input_format: str | None = None, strict: bool = False,
+              channel: str | None = None, reader_options: dict[str, Any] | None = None,
+              max_findings: int = 10000) -> FleetOutcome:
+    """Check every log `opts` names into the results dataset; the counts over the fleet."""
+    from nmtcheck import __version__
+    from nmtcheck.fleet.dataset import Dataset, done_key
+    from nmtcheck.fleet.executors import Crashed, Executor, make_executor
+    from nmtcheck.fleet.storage import PathPattern, absolute, complete, expand
+    from nmtcheck.fleet.tasks import BatchCounts, TaskConfig, check_batch, crashed_batch
+
+    started = time.time()
+    PathPattern(opts.path_pattern)  # a bad pattern is a usage error before any work
+    reader_options = reader_options or {}
+    digest = profile_digest(profile, rule_codes, network, input_format, strict, channel,
+                            reader_options, max_findings)
+    opts.results = absolute(opts.results)  # the workers' working directory is another
+    ds = Dataset(opts.results, opts.storage_options)
+    ds.ensure()
+    done = {} if opts.force else ds.done()
+    run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(started)) + "-" + uuid.uuid4().hex[:8]
+    cfg = TaskConfig(opts.results, opts.storage_options, profile, rule_codes, network,
+                     input_format, strict, channel, reader_options, max_findings,
+                     opts.path_pattern, __version__, digest, run_id)
+    out = FleetOutcome(run_id=run_id)
+    progress = _Progress(opts.progress)
+    listing = expand(opts.sources, opts.manifest, opts.storage_options)
+
+    def todo() -> Iterator[FileInfo]:
+        """The logs to check, counting the skipped ones (their verdicts still count)."""
+        for chunk in _chunks(listing, 256):
+            for fi in complete(chunk, opts.storage_options):
+                out.files += 1
+                prev = done.get(done_key(fi.url, fi.fingerprint, __version__, digest))
+                if prev is None:
+                    yield fi
+                    continue
+                out.skipped += 1
+                for sev in out.severity:
+                    out.severity[sev] += prev[f"n_{sev}"] or 0
+                if prev["status"] in ("input_error", "crashed") and len(out.errors) < 5:
+                    out.errors.append((fi.url, f"{prev['status']} (in an earlier run)"))
+                out.skipped_status[prev["status"]] = out.skipped_status.get(prev["status"], 0) + 1
+        progress.total(out.files - out.skipped)
+
+    # Started at the first batch: a re-run with nothing new starts no worker at all.
+    executor: Executor | None = None
+    shared_cfg: Any = None
+    totals = BatchCounts()
+    batches: dict[Hashable, list[FileInfo]] = {}
+    n = 0
+    # Logs whose task died: tried again at the end, one at a time with nothing beside them,
+    # so that a log that kills its worker cannot take innocent logs down with it (the
+    # stdlib pool loses every running task when one worker dies; Dask counts every task on
+    # a dead worker as suspect).
+    quarantine: list[FileInfo] = []
+    alone = False
+
+    def start() -> Executor:
+        nonlocal executor, shared_cfg
+        if executor is None:
+            executor = make_executor(opts.executor)
+            out.executor = executor.name
+            shared_cfg = executor.shared(cfg)
+        return executor
+
+    def collect() -> None:
+        assert executor is not None
+        for key, result in executor.done():
+            files = batches.pop(key)
+            if isinstance(result, Crashed) and not alone:
+                quarantine.extend(files)
+                continue
+            if isinstance(result, Crashed):
+                result = crashed_batch(files[0], cfg, result.attempts, result.reason)
+            elif isinstance(result, BaseException):
+                from nmtcheck.errors import UsageError
+
+                raise UsageError(f"--results {opts.results}: a task failed: "
+                                 f"{type(result).__name__}: {result}")
+            totals.add(result)
+            progress.update(result.files, result.bytes)
+
+    def submit(files: list[FileInfo]) -> None:
+        nonlocal n
+        n += 1
+        batches[n] = files
+        start().submit(n, check_batch, files, shared_cfg)
+
+    try:
+        for batch in _batches(todo(), opts.batch_files, opts.batch_bytes, _slots(opts.executor)):
+            ex = start()
+            while ex.pending() >= max(2, WINDOW_PER_SLOT * ex.slots):
+                collect()
+            submit(batch)
+        while executor is not None and executor.pending():
+            collect()
+        alone = True
+        for fi in quarantine:
+            submit([fi])
+            while start().pending():
+                collect()
+    finally:
+        progress.close()
+        if executor is not None:
+            executor.close()
+    for k, v in totals.status.items():
+        out.status[k] = out.status.get(k, 0) + v
+    for k, v in totals.severity.items():
+        out.severity[k] += v
+    out.bytes = totals.bytes
+    out.errors = totals.errors + out.errors
+    out.seconds = time.time() - started
+    if out.checked:
+        _write_run(ds, out, opts, digest, __version__, totals)
+    return out
+
+
+def _chunks(it: Iterator[FileInfo], n: int) -> Iterator[list[FileInfo]]:
+    chunk: list[FileInfo] = []
+    for x in it:
+        chunk.append(x)
+        if len(chunk) >= n:
+            yield chunk
+            chunk = []
+    if chunk:
+        yield chunk
+
+
+def _write_run(ds: Any, out: FleetOutcome, opts: FleetOptions, digest: str, version: str,
+               totals: Any) -> None:
+    """One row per run that checked something (a re-run with nothing new writes nothing)."""
+    from nmtcheck.fleet.dataset import date_of
+
+    now = time.time()
+    row = {"run_id": out.run_id, "started_at": now - out.seconds, "finished_at": now,
+           "nmtcheck_version": version, "profile_digest": digest, "executor": out.executor,
+           "sources": json.dumps({"sources": opts.sources, "manifest": opts.manifest}),
+           "files": out.files, "skipped": out.skipped, "checked": out.checked,
+           **{s: totals.status.get(s, 0) for s in STATUSES}, "bytes": totals.bytes,
+           **{f"n_{k}": v for k, v in totals.severity.items()}, "seconds": out.seconds,
+           "date": date_of(now)}
+    ds.write("runs", f"run-{out.run_id}", [row])

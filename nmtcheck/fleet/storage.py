@@ -1,0 +1,300 @@
+"""Where logs and results live: any fsspec URL (s3://, gs://, az://, file://, plain paths).
+
+Listing (globs, manifests), the object's identity (etag, size, mtime) for incremental
+re-runs, the `--path-pattern` fields, and fetching a batch of objects concurrently into a
+local directory: small logs are dominated by the latency of each GET, not by bandwidth.
+Credentials come from the environment (AWS_*, GOOGLE_*, AZURE_*) as each filesystem reads
+them; `--storage-option` refuses credential keys so that none travel in task arguments.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from nmtcheck.errors import UsageError
+
+UNSUPPORTED_SUFFIXES = (".mfe", ".mfm")  # CANedge encrypted MF4: needs the device's key
+CREDENTIAL_WORDS = ("secret", "token", "password", "key", "credential", "sas", "account_key")
+FETCH_THREADS = 16
+
+
+@dataclass(frozen=True)
+class FileInfo:
+    """One log object: its URL as the user named it, and what identifies its content."""
+
+    url: str
+    size: int | None = None
+    etag: str | None = None
+    mtime: float | None = None  # seconds since the epoch (UTC)
+
+    @property
+    def fingerprint(self) -> str:
+        """The object's content identity: the etag where the store has one, else size and
+        modification time (local files)."""
+        if self.etag:
+            return f"etag:{self.etag}"
+        return f"size:{self.size}:mtime:{self.mtime}"
+
+
+def parse_storage_options(items: tuple[str, ...] | list[str]) -> dict[str, Any]:
+    """`--storage-option k=v` pairs; values true/false/ints/floats as such, nested keys with
+    dots (`client_kwargs.endpoint_url=...`). Credential keys are refused: they would be
+    copied into every task sent to the cluster (use the environment instead)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise UsageError(f"--storage-option {item}: expected KEY=VALUE, "
+                             "e.g. --storage-option endpoint_url=http://minio:9000")
+        last = key.rsplit(".", 1)[-1].lower()
+        if any(w in last for w in CREDENTIAL_WORDS) and last not in ("use_ssl",):
+            raise UsageError(f"--storage-option {key}: credentials are not taken on the command "
+                             "line (they would travel in every task); set them in the "
+                             "environment (AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, ...)")
+        target = out
+        parts = key.split(".")
+        for p in parts[:-1]:
+            target = target.setdefault(p, {})
+        target[parts[-1]] = _value(value)
+    return out
+
+
+def _value(text: str) -> Any:
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    return text
+
+
+def filesystem(url: str, storage_options: dict[str, Any] | None = None) -> tuple[Any, str]:
+    """The fsspec filesystem of `url` and the path within it. s3fs takes `endpoint_url` at the
+    top level (as --storage-option gives it) and inside `client_kwargs`."""
+    import fsspec
+    from fsspec.core import split_protocol
+
+    protocol, _ = split_protocol(url)
+    try:
+        fs, path = fsspec.core.url_to_fs(url, **(storage_options or {}))
+    except ImportError as exc:
+        extra = {"s3": "fleet", "s3a": "fleet", "gs": "gcs", "gcs": "gcs", "az": "azure",
+                 "abfs": "azure", "abfss": "azure"}.get(protocol or "", "fleet")
+        raise UsageError(f"{url}: {exc}; install it with pip install 'nmtcheck[{extra}]'"
+                         ) from None
+    except ValueError as exc:
+        raise UsageError(f"{url}: {exc}") from None
+    return fs, path
+
+
+def absolute(url: str) -> str:
+    """A local path or file:// URL made absolute; other URLs as they are."""
+    if not is_local(url):
+        return url
+    if url.startswith("file://"):
+        return "file://" + os.path.abspath(url[len("file://"):])
+    return os.path.abspath(url)
+
+
+def is_local(url: str) -> bool:
+    from fsspec.core import split_protocol
+
+    protocol, _ = split_protocol(url)
+    return protocol in (None, "file", "local")
+
+
+def _info(fs: Any, url: str, entry: dict[str, Any]) -> FileInfo:
+    etag = entry.get("ETag") or entry.get("etag") or entry.get("md5Hash") or None
+    mtime: Any = entry.get("mtime") or entry.get("LastModified") \
+        or entry.get("last_modified") or entry.get("updated") or entry.get("created")
+    if mtime is not None and hasattr(mtime, "timestamp"):
+        mtime = mtime.timestamp()
+    elif isinstance(mtime, str):
+        from datetime import datetime
+
+        try:
+            mtime = datetime.fromisoformat(mtime.replace("Z", "+00:00")).timestamp()
+        except ValueError:
+            mtime = None
+    size = entry.get("size")
+    return FileInfo(url, int(size) if size is not None else None,
+                    str(etag).strip('"') if etag else None,
+                    float(mtime) if mtime is not None else None)
+
+
+def _unstrip(url: str, fs: Any, path: str) -> str:
+    """The URL of a listed path: the protocol the user wrote, local paths absolute (a
+    worker has another working directory, and a re-run from elsewhere must find the same
+    log under the same name)."""
+    if is_local(url):
+        return ("file://" if url.startswith("file://") else "") + os.path.abspath(path)
+    return fs.unstrip_protocol(path)
+
+
+def expand(sources: list[str], manifest: str | None,
+           storage_options: dict[str, Any] | None) -> Iterator[FileInfo]:
+    """Every log the arguments name, with size/etag/mtime: glob patterns are listed (with
+    `**` across folders), plain URLs are looked up, a manifest gives one URL per line
+    (an S3 Inventory CSV's bucket,key columns too) and is streamed, never held whole."""
+    for src in sources:
+        fs, path = filesystem(src, storage_options)
+        if _has_magic(path):
+            found = fs.glob(path, detail=True)
+            names = sorted(p for p, e in found.items() if e.get("type") != "directory")
+            if not names:
+                raise UsageError(f"{src}: no log file matches this pattern")
+            for p in names:
+                yield _info(fs, _unstrip(src, fs, p), found[p])
+            continue
+        try:
+            entry = fs.info(path)
+        except FileNotFoundError:
+            raise UsageError(f"{src}: no such file") from None
+        except OSError as exc:
+            raise UsageError(f"{src}: cannot list: {exc}") from None
+        if entry.get("type") == "directory":
+            raise UsageError(f"{src}: is a directory (use a glob such as '{src.rstrip('/')}/**')")
+        yield _info(fs, _unstrip(src, fs, path) if is_local(src) else src, entry)
+    if manifest is not None:
+        yield from _manifest(manifest, storage_options)
+
+
+def _manifest(manifest: str, storage_options: dict[str, Any] | None) -> Iterator[FileInfo]:
+    fs, path = filesystem(manifest, storage_options)
+    try:
+        handle = fs.open(path, "rt", encoding="utf-8")
+    except FileNotFoundError:
+        raise UsageError(f"--manifest {manifest}: no such file") from None
+    with handle as f:
+        for lineno, raw in enumerate(f, 1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            url = _manifest_url(line)
+            if url is not None and is_local(url):
+                url = absolute(url)
+            if url is None:
+                raise UsageError(f"--manifest {manifest}:{lineno}: expected a URL or an "
+                                 f"S3 Inventory 'bucket,key,...' line, got {line[:80]!r}")
+            size = _inventory_size(line)
+            yield FileInfo(url, size)
+
+
+def _manifest_url(line: str) -> str | None:
+    """A URL or path as is; an S3 Inventory CSV row `"bucket","key",...` as s3://bucket/key."""
+    if "://" in line or not line.startswith('"'):
+        return line
+    cols = [c.strip('"') for c in line.split(",")]
+    if len(cols) >= 2 and cols[0] and cols[1]:
+        from urllib.parse import unquote
+
+        return f"s3://{cols[0]}/{unquote(cols[1])}"
+    return None
+
+
+def _inventory_size(line: str) -> int | None:
+    if not line.startswith('"'):
+        return None
+    cols = [c.strip('"') for c in line.split(",")]
+    return int(cols[3]) if len(cols) > 3 and cols[3].isdigit() else None
+
+
+def _has_magic(path: str) -> bool:
+    return any(c in path for c in "*?[")
+
+
+def complete(infos: list[FileInfo], storage_options: dict[str, Any] | None) -> list[FileInfo]:
+    """Look up size/etag/mtime of entries a manifest named without them (concurrently:
+    each is one HEAD request)."""
+    def look(fi: FileInfo) -> FileInfo:
+        if fi.etag is not None or fi.mtime is not None:
+            return fi
+        try:
+            fs, path = filesystem(fi.url, storage_options)
+            return _info(fs, fi.url, fs.info(path))
+        except (FileNotFoundError, OSError, UsageError):
+            return fi  # the task reports it as an input error
+
+    if all(fi.etag is not None or fi.mtime is not None for fi in infos):
+        return infos
+    with ThreadPoolExecutor(FETCH_THREADS) as pool:
+        return list(pool.map(look, infos))
+
+
+class PathPattern:
+    """`--path-pattern '{device}/{session}/{split}.MF4'`: fields taken from the end of each
+    log's path (CANedge uploads to DEVICE/SESSION/SPLIT.MF4)."""
+
+    FIELDS = ("device", "session", "split")
+
+    def __init__(self, pattern: str | None) -> None:
+        self.pattern = pattern
+        self._re: re.Pattern[str] | None = None
+        if pattern:
+            parts = re.split(r"\{(\w+)\}", pattern)
+            regex = ""
+            for i, part in enumerate(parts):
+                if i % 2 == 0:
+                    regex += re.escape(part)
+                elif part not in self.FIELDS:
+                    raise UsageError(f"--path-pattern {pattern}: unknown field {{{part}}} "
+                                     f"(known: {', '.join('{' + f + '}' for f in self.FIELDS)})")
+                else:
+                    regex += f"(?P<{part}>[^/]+?)"
+            self._re = re.compile(r"(?:^|/)" + regex + r"$", re.IGNORECASE)
+
+    def fields(self, url: str) -> dict[str, str | None]:
+        out: dict[str, str | None] = dict.fromkeys(self.FIELDS)
+        if self._re is not None:
+            m = self._re.search(url.split("?", 1)[0])
+            if m:
+                out.update(m.groupdict())
+        return out
+
+
+def unsupported(url: str) -> str | None:
+    """Why a log cannot be checked at all (not an error in it), or None."""
+    if url.lower().endswith(UNSUPPORTED_SUFFIXES):
+        return ("encrypted CANedge log (.MFE/.MFM): decrypt it first (CSS Electronics' "
+                "mdf2decrypt) and check the .MF4")
+    return None
+
+
+def fetch_all(urls: list[str], directory: Path, storage_options: dict[str, Any] | None
+              ) -> dict[str, tuple[str | None, str | None]]:
+    """Each URL as a local path: local files are read where they are, remote objects are
+    downloaded concurrently into `directory`. Returns url -> (local path, error text)."""
+    out: dict[str, tuple[str | None, str | None]] = {}
+    remote = []
+    for url in urls:
+        if is_local(url):
+            out[url] = (url[len("file://"):] if url.startswith("file://") else url, None)
+        else:
+            remote.append(url)
+
+    def get(item: tuple[int, str]) -> tuple[str, tuple[str | None, str | None]]:
+        i, url = item
+        target = directory / f"{i:06d}-{os.path.basename(url.split('?', 1)[0]) or 'log'}"
+        try:
+            fs, path = filesystem(url, storage_options)
+            fs.get_file(path, str(target))
+        except FileNotFoundError:
+            return url, (None, "no such object")
+        except Exception as exc:  # noqa: BLE001 - one object's failure is that input's error
+            return url, (None, f"cannot fetch: {type(exc).__name__}: {exc}")
+        return url, (str(target), None)
+
+    if remote:
+        with ThreadPoolExecutor(min(FETCH_THREADS, len(remote))) as pool:
+            out.update(pool.map(get, enumerate(remote)))
+    return out

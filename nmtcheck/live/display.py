@@ -1,0 +1,82 @@
+"""What `nmtcheck monitor` and `check --follow` print while the session runs.
+
+A finding is printed the moment it is reported, as one line. On a terminal a node
+table (state, time since the last heartbeat, findings) stays below the lines and is
+redrawn a few times a second; when stdout is not a terminal only the lines are
+printed (a pipe, a CI log, `tee`).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from typing import TextIO
+
+from nmtcheck.live.tracker import LiveFinding, NodeState
+
+_UP_CLEAR = "\x1b[{n}F\x1b[J"  # cursor up n lines to column 0, clear to the end
+
+
+def finding_line(lf: LiveFinding, start: float | None) -> str:
+    node = f"node {lf.node}" if lf.node is not None else "-"
+    return (f"{lf.time - (start or lf.time):9.3f} s  {lf.channel} {node}  {lf.rule} {lf.name}"
+            f"  {lf.message}")
+
+
+def node_table(nodes: list[NodeState], now: float | None) -> list[str]:
+    rows = [f"{'channel':<10} {'node':>4}  {'state':<16} {'heartbeat age':>13}  findings"]
+    for st in nodes:
+        age = ("-" if st.last_heartbeat is None or now is None
+               else f"{max(now - st.last_heartbeat, 0.0):.3f} s")
+        rows.append(f"{st.channel:<10} {st.node:>4}  {st.state:<16} {age:>13}  {st.findings}")
+    return rows
+
+
+class Display:
+    """Thread-safe: findings come from reader and timer threads, redraws from the main one."""
+
+    def __init__(self, out: TextIO | None = None, table: bool | None = None) -> None:
+        self.out = out or sys.stdout
+        self.table = self.out.isatty() if table is None else table
+        self.lock = threading.Lock()
+        self._drawn = 0  # lines of the table on screen
+        self._rows: list[str] = []
+        self.start: float | None = None
+
+    def finding(self, lf: LiveFinding) -> None:
+        with self.lock:
+            self._clear()
+            self.out.write(finding_line(lf, self.start) + "\n")
+            self._draw()
+            self.out.flush()
+
+    def note(self, text: str) -> None:
+        with self.lock:
+            self._clear()
+            self.out.write(text + "\n")
+            self._draw()
+            self.out.flush()
+
+    def refresh(self, nodes: list[NodeState], now: float | None) -> None:
+        if not self.table:
+            return
+        with self.lock:
+            self._clear()
+            self._rows = node_table(nodes, now)
+            self._draw()
+            self.out.flush()
+
+    def close(self) -> None:
+        """Leave the last table on screen (it is the session's final state)."""
+        with self.lock:
+            self._drawn = 0
+
+    def _clear(self) -> None:
+        if self._drawn:
+            self.out.write(_UP_CLEAR.format(n=self._drawn))
+            self._drawn = 0
+
+    def _draw(self) -> None:
+        if self.table and self._rows:
+            self.out.write("\n".join(self._rows) + "\n")
+            self._drawn = len(self._rows)

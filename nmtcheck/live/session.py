@@ -1,0 +1,212 @@
+"""A live session: every frame recorded, the tracker fed, a timer for the timeouts, and
+at the end `engine.check_input` over the recording.
+
+Offline = online by construction: the final findings and reports *are* `nmtcheck check`
+on the recording. The live findings are what the tracker could be sure of early; each
+is reconciled with the final result (confirmed, clock-only: after the last recorded
+frame so no offline check can see it, or not confirmed). Memory is O(nodes): the frames
+are on disk.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import IO, Any
+
+from nmtcheck.checks.base import Rule
+from nmtcheck.engine import MAX_FINDINGS_PER_RULE, Finding, InputResult, check_input
+from nmtcheck.live.frames import LiveFrame, candump_line
+from nmtcheck.live.tracker import LiveFinding, NodeState, Tracker
+from nmtcheck.network import Network
+from nmtcheck.profiles import Profile
+
+TICK_S = 0.005  # how often the timer looks at the deadlines
+GRACE_S = 0.015  # a frame may reach us this late: a timeout fires only once it is this old
+CONFIRM_TOLERANCE_S = 0.1  # live and offline times of one finding differ by at most this
+MAX_LIVE_FINDINGS = 10000  # kept in memory; more are counted (the recording has them all)
+FLUSH_S = 0.5  # the recording reaches the disk at least this often
+
+
+class BusClock:
+    """Bus time now, from the wall clock: the frames' timestamps are the bus's clock
+    (kernel time for socketcan, a driver's for others, a log's for a replay), so the
+    offset is learnt from them; the largest `ts - wall` is the frame that waited least."""
+
+    def __init__(self, wall: Callable[[], float] = time.time) -> None:
+        self.wall = wall
+        self.offset: float | None = None
+
+    def observe(self, ts: float) -> None:
+        off = ts - self.wall()
+        if self.offset is None or off > self.offset:
+            self.offset = off
+
+    def now(self) -> float | None:
+        return None if self.offset is None else self.wall() + self.offset
+
+
+@dataclass
+class Outcome:
+    """The end of a session: the offline result over the recording and the live findings
+    with their reconciliation."""
+
+    result: InputResult | None  # None: no frame was received
+    live: list[LiveFinding]
+    live_dropped: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def counts(self) -> dict[str, int]:
+        out = {"confirmed": 0, "clock-only": 0, "not-confirmed": 0}
+        for lf in self.live:
+            out[lf.confirmed] = out.get(lf.confirmed, 0) + 1
+        return out
+
+
+class Session:
+    """Thread-safe: frames may come from several reader threads, the timer runs beside."""
+
+    def __init__(self, profile: Profile, rules: list[Rule], network: Network | None = None,
+                 record: str | None = None, on_finding: Callable[[LiveFinding], Any] | None = None,
+                 timer: bool = True, input_format: str | None = "candump",
+                 channel: str | None = None, strict: bool = False,
+                 max_findings: int = MAX_FINDINGS_PER_RULE,
+                 clock: BusClock | None = None) -> None:
+        self.profile, self.rules, self.network = profile, rules, network
+        self.input_format, self.channel, self.strict = input_format, channel, strict
+        self.max_findings = max_findings
+        self.on_finding = on_finding
+        self.lock = threading.RLock()
+        self.clock = clock or BusClock()
+        self.tracker = Tracker(profile, rules, network, self._emit)
+        self.live: list[LiveFinding] = []
+        self.live_dropped = 0
+        self.frames = 0
+        self.records = 0  # frames, or lines of a followed log (which may hold none)
+        self.last_ts: float | None = None
+        self.temporary = record is None
+        if record is None:
+            fd, record = tempfile.mkstemp(prefix="nmtcheck-live-", suffix=".log")
+            os.close(fd)
+        self.path = record
+        self._file: IO[bytes] | None = open(record, "wb")  # noqa: SIM115 - closed in close()
+        self._last_flush = time.monotonic()
+        self._stop = threading.Event()
+        self._timer: threading.Thread | None = None
+        if timer:
+            self._timer = threading.Thread(target=self._run_timer, name="nmtcheck-live-timer",
+                                           daemon=True)
+            self._timer.start()
+
+    # -- input -----------------------------------------------------------------------------
+
+    def feed(self, frame: LiveFrame | None, raw: bytes | None = None) -> None:
+        """One frame (recorded as a candump line), or one raw line of a followed log and
+        the frame parsed from it (None for a line that holds none: still recorded)."""
+        with self.lock:
+            if self._file is None:
+                return
+            self._file.write(raw if raw is not None else candump_line(frame).encode()
+                             if frame is not None else b"")
+            self.records += 1
+            if frame is None:
+                return
+            self.frames += 1
+            self.last_ts = frame.ts
+            self.clock.observe(frame.ts)
+            self.tracker.feed(frame)
+
+    def tick(self) -> None:
+        """Fire the timeouts that have certainly expired by now (and flush the recording)."""
+        with self.lock:
+            now = self.clock.now()
+            if now is not None and self.frames:
+                self.tracker.advance(now - GRACE_S)
+            if self._file is not None and time.monotonic() - self._last_flush > FLUSH_S:
+                self._file.flush()
+                self._last_flush = time.monotonic()
+
+    def _run_timer(self) -> None:
+        while not self._stop.wait(TICK_S):
+            self.tick()
+
+    def _emit(self, lf: LiveFinding) -> None:
+        if len(self.live) < MAX_LIVE_FINDINGS:
+            self.live.append(lf)
+        else:
+            self.live_dropped += 1
+        if self.on_finding is not None:
+            self.on_finding(lf)
+
+    # -- views -----------------------------------------------------------------------------
+
+    def nodes(self) -> list[NodeState]:
+        with self.lock:
+            return self.tracker.table()
+
+    @property
+    def start(self) -> float | None:
+        return self.tracker.start
+
+    def check(self) -> InputResult | None:
+        """`nmtcheck check` over the recording so far (None before the first frame)."""
+        with self.lock:
+            if self._file is not None:
+                self._file.flush()
+            if not self.records:
+                return None
+            return check_input(self.path, 0, self.profile, self.rules, self.network,
+                               self.input_format, self.strict, self.channel,
+                               max_findings=self.max_findings)
+
+    def close(self) -> Outcome:
+        """Stop the timer, close the recording, check it, reconcile; a temporary recording
+        is removed."""
+        self._stop.set()
+        if self._timer is not None and self._timer is not threading.current_thread():
+            self._timer.join()
+        with self.lock:
+            self.tick()
+            try:
+                result = self.check()
+            finally:
+                if self._file is not None:
+                    self._file.close()
+                    self._file = None
+                if self.temporary:
+                    with contextlib.suppress(OSError):
+                        os.unlink(self.path)
+            reconcile(self.live, result)
+            return Outcome(result, list(self.live), self.live_dropped)
+
+    def extra_findings(self, result: InputResult | None) -> list[Finding]:
+        """Live findings no offline check can see (after the last recorded frame), as
+        Findings: a test bench must not lose a timeout because the bus went quiet."""
+        reconcile(self.live, result)
+        return [Finding(0, lf.rule, lf.name, lf.severity, lf.channel, lf.node, lf.time, None,
+                        None, lf.message + " [live: after the last recorded frame]")
+                for lf in self.live if lf.confirmed == "clock-only"]
+
+
+def reconcile(live: list[LiveFinding], result: InputResult | None) -> None:
+    """Mark each live finding: confirmed by the offline check (same rule, channel, node,
+    time within CONFIRM_TOLERANCE_S), clock-only (its moment is after the recording's
+    last frame: the offline check cannot know it), or not-confirmed."""
+    findings = result.findings if result is not None else []
+    end = result.stats.end if result is not None and result.stats.end is not None else None
+    by_key: dict[tuple[str, str | None, int | None], list[float]] = {}
+    for f in findings:
+        by_key.setdefault((f.rule, f.channel, f.node), []).append(f.time)
+    for lf in live:
+        times = by_key.get((lf.rule, lf.channel, lf.node), [])
+        if any(abs(t - lf.time) <= CONFIRM_TOLERANCE_S for t in times):
+            lf.confirmed = "confirmed"
+        elif end is None or lf.time > end:
+            lf.confirmed = "clock-only"
+        else:
+            lf.confirmed = "not-confirmed"

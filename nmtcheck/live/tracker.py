@@ -1,0 +1,489 @@
+"""The incremental part of a live session: per-node NMT state fed frame by frame, and the
+findings that are certain the moment they happen (SPEC §2-3, the same parameters as the
+offline engine).
+
+Live findings: H001 (a heartbeat gap at the moment its timeout expires: `advance(now)`
+is called by the session's timer, not only by the next frame), G002, B002, B003, C001,
+C002, C003, C004. Every other rule needs the whole trace (medians, runs, the future) and
+comes from the offline check of the recording at the end. State is O(nodes): nothing
+grows with the traffic.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from nmtcheck.checks.base import Rule
+from nmtcheck.live.frames import LiveFrame
+from nmtcheck.network import Network
+from nmtcheck.profiles import Profile
+from nmtcheck.timeline import (
+    COMMAND_STATE,
+    EPS,
+    INITIALISING,
+    OFFLINE,
+    PRE_OPERATIONAL,
+    RESETS,
+    STATE_OF_CODE,
+    UNKNOWN,
+    NodeConfig,
+    state_name,
+)
+
+RECENT_INTERVALS = 32  # the period of a node with no configured producer time: their median
+_RESERVED = ((0x001, 0x07F), (0x101, 0x180), (0x6E0, 0x6FF), (0x780, 0x7FF))
+
+
+@dataclass
+class LiveFinding:
+    """A finding as the live tracker saw it, and what the final offline check said of it."""
+
+    rule: str
+    name: str
+    severity: str
+    channel: str
+    node: int | None
+    time: float  # the trace's time base, as Finding.time
+    message: str
+    confirmed: str = ""  # set by the session's reconciliation: confirmed | clock-only | not-confirmed
+
+
+@dataclass
+class NodeState:
+    """What the tracker keeps per (channel, node): a few numbers, never the frames."""
+
+    channel: str
+    node: int
+    config: NodeConfig
+    state: str = UNKNOWN
+    saved: str | None = None  # the state to return to after OFFLINE
+    seen: bool = False  # N transmitted something (B002's "any frame earlier")
+    last_frame: float | None = None
+    last_heartbeat: float | None = None  # any 700h+N report, for the node table
+    hb_since_boot: int = 0
+    heartbeats: int = 0
+    prev_hb: float | None = None  # the previous heartbeat since the last boot-up/reset
+    intervals: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_INTERVALS))
+    gap_start: float | None = None
+    gap_limit: float | None = None
+    gap_fired: bool = False
+    written_hb_ms: float | None = None  # 1017h confirmed by SDO (0: heartbeat disabled)
+    consumer_ms: dict[int, float] = field(default_factory=dict)  # consumer -> its 1016h entry
+    sdo_request: tuple[int, int, int | None, float] | None = None  # index, sub, value, ts
+    request: float | None = None  # the pending guarding request's ts
+    request_closed: bool = False
+    guard_run: bool = False
+    boots: int = 0
+    last_boot: float | None = None
+    last_boot_repeat: bool = False
+    reset_since_boot: bool = False
+    unanswered_resets: deque[float] = field(default_factory=lambda: deque(maxlen=64))
+    last_ec_bad: dict[str, bool] = field(default_factory=dict)
+    awaiting_boot: tuple[float, str, str] | None = None  # reset ts, its name, state before it
+    findings: int = 0
+
+    def period(self) -> float | None:
+        """The producer time in force (written, else configured), else the recent median."""
+        hb = self.written_hb_ms if self.written_hb_ms is not None else self.config.heartbeat_ms
+        if hb:
+            return hb / 1000.0
+        return statistics.median(self.intervals) if self.intervals else None
+
+    def producer(self) -> bool:
+        if self.written_hb_ms == 0:
+            return False
+        return bool(self.config.heartbeat_ms) or bool(self.written_hb_ms) or self.heartbeats >= 2
+
+    def timeout(self, factor: float) -> float | None:
+        """SPEC H001: the smallest non-zero consumer time, else factor x the period."""
+        if self.written_hb_ms == 0:
+            return None
+        consumers = [v for v in self.consumer_ms.values() if v]
+        if self.config.consumer_timeout_ms:
+            consumers.append(self.config.consumer_timeout_ms)
+        if consumers:
+            return min(consumers) / 1000.0
+        period = self.period()
+        return factor * period if period else None
+
+
+class Tracker:
+    """Feeds frames in order; `advance(now)` fires the timeouts that expired by `now`."""
+
+    def __init__(self, profile: Profile, rules: list[Rule], network: Network | None,
+                 emit: Callable[[LiveFinding], object]) -> None:
+        self.active = {r.code: r for r in rules}
+        self.severity = {r.code: profile[r.code].severity for r in rules}
+        p: dict[str, dict[str, Any]] = {code: s.params for code, s in profile.items()}
+        self.timeout_factor = float(p["H001"]["timeout_factor"])
+        self.early_factor = float(p["H002"]["early_factor"])
+        self.response_s = float(p["G002"]["response_timeout_ms"]) / 1000.0
+        self.reset_window_s = float(p["B002"]["reset_window_ms"]) / 1000.0
+        self.repeat_ms = float(p["B003"]["repeat_window_ms"])
+        self.allow = {int(x) for x in p["C001"]["allow"]}
+        self.bootup_timeout_s = float(p["B001"]["bootup_timeout_ms"]) / 1000.0
+        self.obey_s = float(p["S004"]["obey_ms"]) / 1000.0
+        self.master_window_s = float(profile.timeline["master_window_ms"]) / 1000.0
+        # per channel: nodes that started like an NMT master (boot-up, then at once a
+        # broadcast): a broadcast reset does not apply to its sender (SPEC §2)
+        self.master_like: dict[str, set[int]] = {}
+        self.boots_on: dict[str, deque[tuple[float, int]]] = {}
+        self.last_command_on: dict[str, float] = {}
+        self.configs = network.configs() if network else {}
+        self.network = network
+        self.masters: dict[str, int | None] = {}
+        self.nodes: dict[tuple[str, int], NodeState] = {}
+        self.c001_seen: set[tuple[str, int]] = set()
+        self.emit = emit
+        self.start: float | None = None
+        self.now = float("-inf")
+
+    # -- helpers ---------------------------------------------------------------------------
+
+    def node(self, channel: str, n: int) -> NodeState:
+        key = (channel, n)
+        st = self.nodes.get(key)
+        if st is None:
+            cfg = self.configs.get((channel, n)) or self.configs.get((None, n)) or NodeConfig()
+            st = self.nodes[key] = NodeState(channel, n, cfg)
+        return st
+
+    def master(self, channel: str) -> int | None:
+        if channel not in self.masters:
+            found = self.network.master_for(channel) if self.network else None
+            self.masters[channel] = found[0] if found else None
+        return self.masters[channel]
+
+    def _find(self, code: str, channel: str, node: NodeState | None, ts: float,
+              message: str, unknown_ok: bool = False) -> None:
+        if code not in self.active:
+            return
+        if node is not None and not unknown_ok and node.state == UNKNOWN:
+            return  # SPEC §3: never for a node whose state is UNKNOWN
+        if node is not None:
+            node.findings += 1
+        self.emit(LiveFinding(code, self.active[code].name, self.severity[code], channel,
+                              node.node if node else None, ts, message))
+
+    def _go_offline(self, st: NodeState) -> None:
+        if st.state not in (UNKNOWN, OFFLINE):
+            st.saved = st.state
+            st.state = OFFLINE
+
+    def _back(self, st: NodeState) -> None:
+        if st.state == OFFLINE:
+            st.state = st.saved or UNKNOWN
+            st.saved = None
+
+    def _set(self, st: NodeState, state: str) -> None:
+        st.state = state
+        st.saved = None
+
+    # -- time ------------------------------------------------------------------------------
+
+    def advance(self, now: float) -> None:
+        """Fire every heartbeat or guarding timeout that has expired by `now` (bus time)."""
+        self.now = max(self.now, now)
+        for st in self.nodes.values():
+            self._expire_gap(st, now)
+            if (st.request is not None and not st.request_closed
+                    and now > st.request + self.response_s + EPS):
+                self._close_request(st, st.request + self.response_s)
+            if st.awaiting_boot is not None and now > (
+                    st.awaiting_boot[0] + self.bootup_timeout_s + EPS):
+                reset_ts, name, _before = st.awaiting_boot
+                st.awaiting_boot = None
+                self._find("B001", st.channel, st, reset_ts + self.bootup_timeout_s,
+                           f"no boot-up from node {st.node} within "
+                           f"{self.bootup_timeout_s:.3f} s after {name}", unknown_ok=True)
+
+    def _expire_gap(self, st: NodeState, now: float) -> None:
+        if (st.gap_start is None or st.gap_fired or st.gap_limit is None
+                or not st.producer() or now <= st.gap_start + st.gap_limit + EPS):
+            return
+        st.gap_fired = True
+        moment = st.gap_start + st.gap_limit
+        limit = st.gap_limit
+        whose = ""
+        consumers = {c: v for c, v in st.consumer_ms.items() if v}
+        if consumers or st.config.consumer_timeout_ms:
+            node = st.config.consumer_node
+            if consumers:
+                node, _ms = min(consumers.items(), key=lambda kv: kv[1])
+            whose = f"consumer time {limit:.3f} s" + (f" of node {node}" if node else "")
+        else:
+            whose = f"timeout {limit:.3f} s"
+        self._find("H001", st.channel, st, moment,
+                   f"no heartbeat from node {st.node} for {limit:.3f} s since "
+                   f"{st.gap_start - (self.start or 0.0):.3f} s ({whose})")
+        self._go_offline(st)
+
+    def _end_gap(self, st: NodeState, ts: float) -> None:
+        """A heartbeat, boot-up, reset or 1017h = 0 at `ts`: a timeout that expired before
+        it still counts (SPEC H001)."""
+        self._expire_gap(st, ts)
+        st.gap_start = st.gap_limit = None
+        st.gap_fired = False
+
+    def _open_gap(self, st: NodeState, ts: float) -> None:
+        st.gap_start, st.gap_limit, st.gap_fired = ts, st.timeout(self.timeout_factor), False
+
+    def _close_request(self, st: NodeState, moment: float) -> None:
+        st.request_closed = True
+        if not st.guard_run:
+            st.guard_run = True
+            self._find("G002", st.channel, st, moment,
+                       f"no node-guarding response from node {st.node} within "
+                       f"{self.response_s:.3f} s")
+            self._go_offline(st)
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def feed(self, f: LiveFrame) -> None:
+        if self.start is None:
+            self.start = f.ts
+        self.advance(f.ts)
+        if f.ext or f.err:
+            return
+        cid = f.can_id
+        if cid not in self.allow and any(lo <= cid <= hi for lo, hi in _RESERVED):
+            key = (f.channel, cid)
+            if key not in self.c001_seen and len(self.c001_seen) < 4096:
+                self.c001_seen.add(key)
+                self._find("C001", f.channel, None, f.ts,
+                           f"CAN-ID {cid:03X}h is reserved by CiA 301 (first use)")
+        if cid == 0:
+            self._nmt(f)
+            return
+        if 0x701 <= cid <= 0x77F:
+            self._error_control(f, self.node(f.channel, cid - 0x700))
+            return
+        n = cid & 0x7F
+        if not n:
+            return
+        if 0x581 <= cid <= 0x5FF or 0x601 <= cid <= 0x67F:
+            self._sdo(f, self.node(f.channel, n))
+        if 0x081 <= cid <= 0x0FF:
+            self._sign_of_life(self.node(f.channel, n), f.ts, what="EMCY")
+        elif 0x581 <= cid <= 0x5FF:
+            self._sign_of_life(self.node(f.channel, n), f.ts, what="SDO response")
+        elif cid in (0x180 + n, 0x280 + n, 0x380 + n, 0x480 + n):
+            self._sign_of_life(self.node(f.channel, n), f.ts, what="TPDO")
+
+    def _sign_of_life(self, st: NodeState, ts: float, reported: str | None = None,
+                      what: str = "frame") -> None:
+        """Any frame N sends; after a reset before its boot-up it is B001 (a), unless it is
+        a state report queued before the reset (SPEC §2 stale reports)."""
+        if st.awaiting_boot is not None and what != "boot-up":
+            reset_ts, name, before = st.awaiting_boot
+            stale = reported is not None and ts - reset_ts <= self.obey_s + EPS and (
+                reported == before)
+            if not stale:
+                st.awaiting_boot = None
+                self._find("B001", st.channel, st, ts,
+                           f"{what} from node {st.node} {ts - reset_ts:.3f} s after {name} "
+                           f"without a boot-up", unknown_ok=True)
+        st.seen = True
+        st.last_frame = ts
+        self._back(st)
+
+    def _nmt(self, f: LiveFrame) -> None:
+        cs, target = (f.data[0], f.data[1]) if len(f.data) >= 2 else (-1, -1)
+        problem = None
+        if f.rtr:
+            problem = "remote frame on CAN-ID 000h (NMT commands are data frames)"
+        elif f.dlc != 2:
+            problem = f"DLC {f.dlc} (an NMT command has DLC 2)"
+        elif cs not in COMMAND_STATE:
+            problem = f"unknown command specifier {cs:02X}h"
+        elif target > 127:
+            problem = f"node-ID {target} above 127"
+        if problem is not None:
+            st = self.nodes.get((f.channel, target)) if f.dlc == 2 and cs not in COMMAND_STATE \
+                else None
+            self._find("C002", f.channel, st, f.ts, f"malformed NMT command: {problem}",
+                       unknown_ok=st is None)
+            return
+        master = self.master(f.channel)
+        like = self.master_like.setdefault(f.channel, set())
+        if not target:
+            # every boot-up since the previous command and within the window: at a common
+            # power-on the slaves boot microseconds after the master (as timeline.infer_master)
+            prev_cmd = self.last_command_on.get(f.channel, float("-inf"))
+            for b_ts, b_node in self.boots_on.get(f.channel, ()):
+                if b_ts > prev_cmd and f.ts - b_ts <= self.master_window_s + EPS:
+                    like.add(b_node)
+        self.last_command_on[f.channel] = f.ts
+        if target:
+            targets = [self.node(f.channel, target)]
+        else:
+            targets = [st for (ch, n), st in self.nodes.items()
+                       if ch == f.channel and n != master and (st.seen or st.state != UNKNOWN)]
+        for st in targets:
+            if cs in RESETS:
+                if target or (master is None and st.node not in like) or master is not None:
+                    name = ("reset node" if cs == 0x81 else "reset communication") + (
+                        "" if target else " (broadcast)")
+                    before = st.saved if st.state == OFFLINE and st.saved else st.state
+                    st.awaiting_boot = (f.ts, name, before)
+                self._end_gap(st, f.ts)
+                st.reset_since_boot = True
+                st.unanswered_resets.append(f.ts)
+                st.prev_hb = None
+                st.request = None
+            new = COMMAND_STATE[cs]
+            if st.state == OFFLINE:
+                st.saved = new
+            else:
+                self._set(st, new)
+
+    def _error_control(self, f: LiveFrame, st: NodeState) -> None:
+        if f.rtr:
+            if st.request is not None and not st.request_closed:
+                self._close_request(st, f.ts)  # the next request before the answer
+            st.request, st.request_closed = f.ts, False
+            return
+        was_seen = st.seen
+        value = f.data[0] if f.data else 0
+        if f.dlc == 1 and value == 0:
+            self._sign_of_life(st, f.ts, what="boot-up")
+        else:
+            self._sign_of_life(st, f.ts, STATE_OF_CODE.get(value & 0x7F) if f.dlc == 1 else None,
+                               "heartbeat" if f.dlc == 1 else "malformed")
+        st.last_heartbeat = f.ts
+        if f.dlc != 1:
+            self._ec_bad(st, "C003", f.ts, f"data frame on {f.can_id:03X}h with DLC {f.dlc} "
+                         f"(error control has DLC 1)")
+            return
+        if value == 0:
+            self._bootup(st, f.ts, was_seen)
+            return
+        code = value & 0x7F
+        guard = False
+        if st.request is not None and f.ts - st.request <= self.response_s + EPS:
+            if st.hb_since_boot >= 2:
+                period = st.period()
+                guard = bool(value & 0x80) or (
+                    period is not None and st.prev_hb is not None
+                    and f.ts - st.prev_hb < self.early_factor * period - EPS)
+            else:
+                guard = True
+        if guard:
+            st.request = None
+            st.guard_run = False
+        else:
+            if value & 0x80:
+                self._ec_bad(st, "C003", f.ts, f"heartbeat {value:02X}h has bit 7 (reserved) set")
+            else:
+                st.last_ec_bad["C003"] = False
+            self._heartbeat(st, f.ts)
+        if code not in STATE_OF_CODE:
+            self._ec_bad(st, "C004", f.ts, f"node {st.node} reports unknown NMT state "
+                         f"{state_name(code)}")
+        else:
+            st.last_ec_bad["C004"] = False
+            self._set(st, STATE_OF_CODE[code])
+
+    def _ec_bad(self, st: NodeState, code: str, ts: float, message: str) -> None:
+        """One finding per run of offending frames (SPEC §3)."""
+        if not st.last_ec_bad.get(code):
+            self._find(code, st.channel, st, ts, message, unknown_ok=True)
+        st.last_ec_bad[code] = True
+
+    def _heartbeat(self, st: NodeState, ts: float) -> None:
+        self._end_gap(st, ts)
+        if st.prev_hb is not None:
+            st.intervals.append(ts - st.prev_hb)
+        st.prev_hb = ts
+        st.hb_since_boot += 1
+        st.heartbeats += 1
+        if st.written_hb_ms != 0:
+            self._open_gap(st, ts)
+
+    def _bootup(self, st: NodeState, ts: float, was_seen: bool) -> None:
+        self._end_gap(st, ts)
+        st.awaiting_boot = None
+        self.boots_on.setdefault(st.channel, deque(maxlen=128)).append((ts, st.node))
+        if st.request is not None and not st.request_closed and (
+                ts - st.request > self.response_s + EPS):
+            self._close_request(st, st.request + self.response_s)
+        st.request, st.guard_run = None, False
+        self._set(st, INITIALISING)
+        self._set(st, PRE_OPERATIONAL)
+        period = st.period()
+        window = (self.repeat_ms / 1000.0 if self.repeat_ms
+                  else max(3 * period if period else 0.0, 1.0))
+        repeat = (st.last_boot is not None and ts - st.last_boot <= window + EPS
+                  and not st.reset_since_boot)
+        while st.unanswered_resets and ts - st.unanswered_resets[0] > self.reset_window_s + EPS:
+            st.unanswered_resets.popleft()
+        if st.unanswered_resets:
+            st.unanswered_resets.popleft()  # each reset explains one boot-up
+        elif repeat:
+            if not st.last_boot_repeat:
+                self._find("B003", st.channel, st, ts,
+                           f"node {st.node} sent boot-up (00h) again within {window:.3f} s "
+                           f"without a reset command")
+        elif was_seen:
+            self._find("B002", st.channel, st, ts,
+                       f"node {st.node} sent a boot-up with no reset command before it "
+                       f"(spontaneous reboot?)")
+        st.last_boot_repeat = repeat
+        st.last_boot = ts
+        st.boots += 1
+        st.reset_since_boot = False
+        st.hb_since_boot = 0
+        st.prev_hb = None
+        st.written_hb_ms = None  # power-on values again (SPEC §6)
+        st.consumer_ms.clear()
+        for other in self.nodes.values():  # N's own 1016h entries no longer hold
+            if other.channel == st.channel:
+                other.consumer_ms.pop(st.node, None)
+
+    def _sdo(self, f: LiveFrame, st: NodeState) -> None:
+        """Confirmed expedited writes of 1016h/1017h change the heartbeat timing (SPEC §6)."""
+        if f.dlc < 4 or len(f.data) < 4:
+            return
+        cmd, index, sub = f.data[0], f.data[1] | f.data[2] << 8, f.data[3]
+        if f.can_id >= 0x601:
+            if cmd & 0xE0 == 0x20 and index in (0x1016, 0x1017):
+                value = None
+                if cmd & 0x02 and len(f.data) >= 8:
+                    size = 4 - ((cmd >> 2) & 0x3) if cmd & 0x01 else 4
+                    value = int.from_bytes(f.data[4:4 + size], "little")
+                st.sdo_request = (index, sub, value, f.ts)
+            else:
+                st.sdo_request = None
+            return
+        req = st.sdo_request
+        if cmd != 0x60 or req is None or req[:2] != (index, sub) or req[2] is None:
+            if cmd == 0x80:
+                st.sdo_request = None
+            return
+        st.sdo_request = None
+        value = req[2]
+        if index == 0x1017:
+            if value == 0:
+                self._end_gap(st, f.ts)
+            elif st.gap_start is None:
+                st.written_hb_ms = float(value)
+                self._open_gap(st, f.ts)
+                return
+            st.written_hb_ms = float(value)
+            if st.gap_start is not None and st.gap_start >= req[3] and not st.gap_fired:
+                # a heartbeat sent while the write was being confirmed follows the new value
+                st.gap_limit = st.timeout(self.timeout_factor)
+        elif index == 0x1016:
+            producer = (value >> 16) & 0xFF
+            if producer and producer != st.node:
+                self.node(st.channel, producer).consumer_ms[st.node] = float(value & 0xFFFF)
+
+    # -- what the node table shows ---------------------------------------------------------
+
+    def table(self) -> list[NodeState]:
+        return sorted((st for st in self.nodes.values() if st.seen or st.state != UNKNOWN),
+                      key=lambda s: (s.channel, s.node))

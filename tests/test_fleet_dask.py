@@ -1,0 +1,96 @@
+"""Fleet runs on a real Dask cluster: a module-wide `distributed.LocalCluster` of worker
+processes, reached as `--executor dask://HOST:PORT` by the real command line, with a log
+that kills its worker every time (the test-only NMTCHECK_TEST_CRASH hook: os._exit)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import SAMPLES
+
+pytest.importorskip("pyarrow")
+distributed = pytest.importorskip("distributed")
+import dask  # noqa: E402
+
+import nmtcheck  # noqa: E402
+from nmtcheck.errors import UsageError  # noqa: E402
+from nmtcheck.fleet.executors import make_executor, worker_info  # noqa: E402
+
+LOGS = ["heartbeat_loss.log", "healthy.log", "guard_toggle.log", "reset_no_bootup.log"]
+
+
+@pytest.fixture(scope="module")
+def scheduler() -> Iterator[str]:
+    """Two single-threaded worker processes with Dask's default worker settings; a worker
+    dies on any log whose name holds CRASHME, and the scheduler gives a task 2 tries."""
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=50,
+                                           env={"NMTCHECK_TEST_CRASH": "CRASHME"})
+    try:
+        yield cluster.scheduler_address
+    finally:
+        cluster.close()
+
+
+def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "nmtcheck", *args], cwd=cwd, text=True,
+                          capture_output=True, timeout=300)
+
+
+def test_dask_cluster_run_retries_then_marks_the_crashing_log(scheduler: str,
+                                                              tmp_path: Path) -> None:
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in LOGS:
+        shutil.copy(SAMPLES / name, logs / name)
+    shutil.copy(SAMPLES / "healthy.log", logs / "CRASHME.log")
+    address = "dask://" + scheduler.removeprefix("tcp://")
+    res = cli("check", "logs/*.log", "--results", "dask-results", "--executor", address,
+              "--isolated", cwd=tmp_path)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert "5 logs: 5 checked" in res.stdout and "crashed 1" in res.stdout
+    # the cluster has Dask's defaults that slow nmtcheck down: the run says so
+    assert "nmtcheck: warning: " in res.stderr and "MALLOC_TRIM_THRESHOLD_ is set" in res.stderr
+    assert "worker profiler is on" in res.stderr
+
+    data = nmtcheck.read_results(tmp_path / "dask-results").inputs.set_index("url")
+    crashme = str(logs / "CRASHME.log")
+    assert data.loc[crashme, "status"] == "crashed"
+    assert data.loc[crashme, "attempts"] == 2
+    assert "Dask worker died" in data.loc[crashme, "error"]
+    assert (data.drop(crashme)["status"] == "ok").all()
+
+    # the same findings as the local pool's
+    (logs / "CRASHME.log").unlink()
+    local = cli("check", "logs/*.log", "--results", "local-results", "--isolated", cwd=tmp_path)
+    assert local.returncode == 1
+
+    def findings(where: str) -> list[tuple[str, str, object, float]]:
+        f = nmtcheck.read_results(tmp_path / where).findings
+        return sorted((r.url, r.rule, r.node, r.time) for r in f.itertuples())
+
+    assert findings("dask-results") == findings("local-results") != []
+
+
+def test_dask_local_starts_workers_without_the_slow_defaults() -> None:
+    ex = make_executor("dask-local:1")
+    try:
+        assert ex.name == "dask-local:1" and ex.slots == 1
+        info = list(ex.client.run(worker_info).values())  # type: ignore[attr-defined]
+        assert info == [{"nmtcheck": nmtcheck.__version__, "malloc_trim": None,
+                         "profile": False}]
+    finally:
+        ex.close()
+
+
+def test_client_worker_version_skew_is_a_usage_error(scheduler: str,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(nmtcheck, "__version__", "0.0.0-client")
+    with pytest.raises(UsageError, match=r"the workers run nmtcheck .*this client 0\.0\.0"):
+        make_executor("dask://" + scheduler.removeprefix("tcp://"))

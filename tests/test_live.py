@@ -1,0 +1,274 @@
+"""Live checking (nmtcheck/live/): the tracker against the offline check on the real-stack
+samples, the candump recording, and `nmtcheck.Monitor` on python-can's virtual bus with a
+python-canopen stack and a Lely recording replayed at its real timing.
+
+Offline = online: every live finding must be among the offline check's findings of the
+session's recording (same rule, channel, node; time within CONFIRM_TOLERANCE_S).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+from conftest import SAMPLES
+
+import nmtcheck
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.live.frames import LiveFrame, candump_line
+from nmtcheck.live.session import CONFIRM_TOLERANCE_S, BusClock, Session
+from nmtcheck.live.tracker import LiveFinding
+from nmtcheck.network import load_network
+from nmtcheck.profiles import load_profile
+from nmtcheck.readers import InputStats
+from nmtcheck.readers.candump import _parse_line
+
+PROFILE = load_profile("default")
+RULES = select_rules(PROFILE, [], [])
+# rules whose every offline finding the tracker must also have seen live, on these samples
+LIVE_RULES = {"H001", "G002", "B001", "B002", "B003", "C001", "C002", "C003"}
+
+
+def frames_of(path: Path) -> list[LiveFrame]:
+    stats = InputStats(str(path))
+    out = []
+    with open(path, "rb") as f:
+        for lineno, raw in enumerate(f, 1):
+            row = _parse_line(raw, lineno, stats)
+            if row is not None:
+                ts, iface, cid, ext, rtr, err, fd, dlc, data = row
+                out.append(LiveFrame(ts, iface.decode(), cid, ext, rtr, err, fd, dlc, data))
+    return out
+
+
+SAMPLE_LOGS = sorted([*SAMPLES.glob("canopen_master/*.log"), *SAMPLES.glob("lely/*.log"),
+                      *SAMPLES.glob("*.log")])
+
+
+@pytest.mark.parametrize("with_network", [False, True], ids=["bare", "network"])
+@pytest.mark.parametrize("path", SAMPLE_LOGS, ids=lambda p: f"{p.parent.name}/{p.stem}")
+def test_accelerated_replay_equals_offline(path: Path, with_network: bool, tmp_path: Path) -> None:
+    """Every sample fed frame by frame (no timer: the next frame is the clock): the final
+    result is `check` on the original log, each live finding is confirmed, and every
+    offline finding of a live rule was reported live."""
+    net = load_network(str(path.parent / "network.toml")) if with_network else None
+    record = tmp_path / "session.log"
+    session = Session(PROFILE, RULES, net, str(record), timer=False)
+    for f in frames_of(path):
+        session.feed(f)
+    outcome = session.close()
+    assert outcome.result is not None
+    original = check_input(str(path), 0, PROFILE, RULES, net)
+    key = [(f.rule, f.node, round(f.time, 6), f.message) for f in original.findings]
+    assert [(f.rule, f.node, round(f.time, 6), f.message)
+            for f in outcome.result.findings] == key
+    assert [lf for lf in outcome.live if lf.confirmed != "confirmed"] == []
+    live = {(lf.rule, lf.node, round(lf.time, 3)) for lf in outcome.live}
+    for f in original.findings:
+        if f.rule in LIVE_RULES:
+            assert any((f.rule, f.node) == (r, n) and abs(t - f.time) <= CONFIRM_TOLERANCE_S
+                       for r, n, t in live), (f.rule, f.node, f.time, sorted(live))
+
+
+def test_samples_give_live_findings() -> None:
+    """The parametrised test above is not vacuous: the samples hold live findings of
+    several rules."""
+    rules = set()
+    for path in SAMPLE_LOGS:
+        s = Session(PROFILE, RULES, None, timer=False)
+        for f in frames_of(path):
+            s.feed(f)
+        rules |= {lf.rule for lf in s.close().live}
+    assert {"H001", "G002", "B001", "B002"} <= rules
+
+
+def test_candump_line_round_trip(tmp_path: Path) -> None:
+    """What the session records reads back as the same frames (RTR, extended, error, FD)."""
+    frames = [LiveFrame(1.5, "can0", 0x705, dlc=1, data=b"\x05"),
+              LiveFrame(1.6, "can0", 0x705, rtr=True),
+              LiveFrame(1.7, "can0", 0x123, rtr=True, dlc=5),
+              LiveFrame(1.8, "can1", 0x1ABCDEF, ext=True, dlc=2, data=b"\x01\x02"),
+              LiveFrame(1.9, "can0", 0x80, err=True, dlc=8, data=bytes(8)),
+              LiveFrame(2.0, "can0", 0x181, fd=True, dlc=12, data=bytes(range(12)))]
+    path = tmp_path / "r.log"
+    path.write_text("".join(candump_line(f) for f in frames))
+    assert frames_of(path) == frames
+
+
+def test_timer_fires_heartbeat_timeout_without_a_next_frame() -> None:
+    """H001 at its expiry from the clock alone: no frame follows the last heartbeat."""
+    wall = [100.0]
+    clock = BusClock(lambda: wall[0])
+    got: list[LiveFinding] = []
+    s = Session(PROFILE, RULES, None, timer=False, clock=clock, on_finding=got.append)
+    for i in range(5):
+        wall[0] = 100.0 + i * 0.1
+        s.feed(LiveFrame(10.0 + i * 0.1, "can0", 0x705, dlc=1, data=b"\x05"))
+    wall[0] = 100.4 + 0.14  # 1.5 x 0.1 s not yet over (plus the grace)
+    s.tick()
+    assert got == []
+    wall[0] = 100.4 + 0.15 + 0.02
+    s.tick()
+    assert [(lf.rule, lf.node, round(lf.time, 6)) for lf in got] == [("H001", 5, 10.55)]
+    assert s.nodes()[0].state == "OFFLINE"
+    outcome = s.close()
+    assert outcome.live[0].confirmed == "clock-only"  # the recording ends at 10.4 s
+
+
+# -- python-can virtual bus: python-canopen stack and Monitor ------------------------------
+
+
+def _local_node(network: canopen.Network, node_id: int) -> canopen.LocalNode:
+    od = canopen.ObjectDictionary()
+    od.add_object(canopen.objectdictionary.ODVariable("Producer heartbeat time", 0x1017))
+    od[0x1017].data_type = canopen.objectdictionary.UNSIGNED16
+    od[0x1017].default = 0
+    od[0x1017].access_type = "rw"
+    node = canopen.LocalNode(node_id, od)
+    network.add_node(node)
+    return node
+
+
+def test_monitor_on_canopen_stack(tmp_path: Path) -> None:
+    """A python-canopen master and three LocalNodes on a virtual bus; node 3 stops its
+    heartbeat, node 2 reboots on its own. Monitor's live findings are confirmed by
+    `nmtcheck check` of its recording, and H001 is reported within 100 ms of expiry."""
+    channel = f"live-{id(tmp_path)}"
+    master = canopen.Network()
+    master.connect(interface="virtual", channel=channel)
+    slaves = canopen.Network()
+    slaves.connect(interface="virtual", channel=channel)
+    bus = can.Bus(interface="virtual", channel=channel)
+    reported: list[tuple[float, LiveFinding]] = []
+    record = tmp_path / "session.log"
+    monitor = nmtcheck.Monitor(record=record, channel="vcan0",
+                               on_finding=lambda lf: reported.append((time.time(), lf)))
+    notifier = can.Notifier(bus, [monitor])
+    try:
+        nodes = {n: _local_node(slaves, n) for n in (2, 3, 4)}
+        for node in nodes.values():
+            node.nmt.state = "INITIALISING"  # boot-up 70N#00
+            node.nmt.state = "PRE-OPERATIONAL"
+            node.nmt.start_heartbeat(100)
+        time.sleep(0.5)
+        master.nmt.send_command(0x01)  # start all
+        for node in nodes.values():
+            node.nmt.state = "OPERATIONAL"
+        time.sleep(0.5)
+        nodes[3].nmt.stop_heartbeat()  # the fault: node 3 falls silent
+        time.sleep(0.6)
+        nodes[2].nmt.stop_heartbeat()  # node 2 reboots without a reset command
+        nodes[2].nmt.state = "INITIALISING"
+        nodes[2].nmt.state = "PRE-OPERATIONAL"
+        nodes[2].nmt.start_heartbeat(100)
+        time.sleep(0.4)
+    finally:
+        notifier.stop()
+        monitor.stop()  # before the heartbeats stop: that is no fault of the network
+        for node in nodes.values():
+            node.nmt.stop_heartbeat()
+        master.disconnect()
+        slaves.disconnect()
+        bus.shutdown()
+    live = monitor.live_findings()
+    assert {(lf.rule, lf.node) for lf in live} == {("H001", 3), ("B002", 2)}, live
+    assert all(lf.confirmed == "confirmed" for lf in live), live
+    offline = check_input(str(record), 0, PROFILE, RULES)
+    assert [(f.rule, f.node, f.time) for f in monitor.findings()] == [
+        (f.rule, f.node, f.time) for f in offline.findings]
+    assert monitor.findings(severity="error", rule="H001")[0].node == 3
+    # latency: wall time of the report minus the expiry (virtual-bus timestamps are wall time)
+    (at, h001), = [(t, lf) for t, lf in reported if lf.rule == "H001"]
+    latency = at - h001.time
+    assert 0 <= latency < 0.1, latency
+    tl = monitor.timeline()
+    assert [iv.state for iv in tl[(channel, 3)]][-1] == "OFFLINE"
+
+
+def test_monitor_thread_safe_reads_while_feeding(tmp_path: Path) -> None:
+    """findings(), timeline() and report() while the Notifier's thread feeds: no error,
+    and what is read is a consistent check of a prefix of the traffic."""
+    channel = f"ts-{id(tmp_path)}"
+    tx = can.Bus(interface="virtual", channel=channel)
+    rx = can.Bus(interface="virtual", channel=channel)
+    monitor = nmtcheck.Monitor(channel="vcan0")
+    notifier = can.Notifier(rx, [monitor])
+    stop = threading.Event()
+
+    def send() -> None:  # a 2 ms heartbeat: the check runs beside it
+        tx.send(can.Message(arbitration_id=0x706, data=[0], is_extended_id=False))
+        while not stop.is_set():
+            tx.send(can.Message(arbitration_id=0x706, data=[5], is_extended_id=False))
+            time.sleep(0.002)
+
+    t = threading.Thread(target=send)
+    t.start()
+    try:
+        counts = []
+        for _ in range(10):
+            res = monitor.result()
+            counts.append(res.stats.frames if res else 0)
+            assert "node 6" in monitor.report("text") or res is None
+            assert all(f.node == 6 for f in monitor.findings())  # H001/H002 from jitter
+            time.sleep(0.02)
+    finally:
+        stop.set()
+        t.join()
+        notifier.stop()
+        monitor.stop()
+        tx.shutdown()
+        rx.shutdown()
+    assert counts == sorted(counts) and counts[-1] > 20
+    final = monitor.result()
+    assert final is not None and final.stats.skipped == 0 and final.stats.frames > counts[-1]
+
+
+def test_lely_recording_replayed_at_real_timing(tmp_path: Path) -> None:
+    """samples/lely/unplugged_heartbeat.log from 4.5 s to 7.05 s, sent on a virtual bus at
+    its real timing: node 3's heartbeat timeout (1.5 x 100 ms without the network file) and
+    its missing boot-up after the master's reset are reported live, confirmed by the
+    offline check of the recording, H001 within 100 ms of its expiry.
+
+    (With the network file the master's own 300 ms timeout and its reset of node 3 fall
+    on the same 0.1 ms: re-timed by the replay, the reset may come first, and then
+    neither the live nor the offline check has an H001. Both agree either way.)"""
+    frames = frames_of(SAMPLES / "lely" / "unplugged_heartbeat.log")
+    t0 = frames[0].ts
+    window = [f for f in frames if 4.5 <= f.ts - t0 <= 7.05]
+    channel = f"lely-{id(tmp_path)}"
+    tx = can.Bus(interface="virtual", channel=channel)
+    rx = can.Bus(interface="virtual", channel=channel)
+    reported: list[tuple[float, LiveFinding]] = []
+    monitor = nmtcheck.Monitor(on_finding=lambda lf: reported.append((time.time(), lf)))
+    notifier = can.Notifier(rx, [monitor])
+    try:
+        began = time.perf_counter()
+        for f in window:
+            delay = (f.ts - window[0].ts) - (time.perf_counter() - began)
+            if delay > 0:
+                time.sleep(delay)
+            tx.send(can.Message(arbitration_id=f.can_id, data=f.data, is_remote_frame=f.rtr,
+                                dlc=f.dlc, is_extended_id=False))
+        time.sleep(0.02)
+    finally:
+        notifier.stop()
+        monitor.stop()
+        tx.shutdown()
+        rx.shutdown()
+    live = [(lf.rule, lf.node, lf.confirmed) for lf in monitor.live_findings()]
+    # notifier.stop() takes up to 0.5 s: heartbeats stopped meanwhile are timeouts after
+    # the last recorded frame, stated as such (no offline check can see them)
+    assert [x for x in live if x[2] != "clock-only"] == [
+        ("H001", 3, "confirmed"), ("B001", 3, "confirmed")], live
+    res = monitor.result()
+    assert res is not None
+    start = res.stats.start or 0.0
+    h001 = next(f for f in res.findings if f.rule == "H001")
+    # the original has it at 5.05 s: 0.55 s into the window
+    assert abs((h001.time - start) - (5.051 - (window[0].ts - t0))) < 0.03
+    at, lf = next((t, lf) for t, lf in reported if lf.rule == "H001")
+    assert 0 <= at - lf.time < 0.1, at - lf.time
