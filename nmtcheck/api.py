@@ -22,7 +22,6 @@ FINDING_COLUMNS = ["input", "path", "rule", "name", "severity", "channel", "node
 TIMELINE_COLUMNS = ["input", "path", "channel", "node", "state", "start", "end", "source"]
 NODE_COLUMNS = ["input", "path", "channel", "node", "first_seen", "last_seen", "final_state",
                 "bootups", "error_control", "heartbeat_period_ms"]
-SEVERITY_ORDER = ["error", "warning", "info"]
 
 
 @dataclass
@@ -38,9 +37,9 @@ class Report:
 
     def failed(self, fail_on: str = "error") -> bool:
         """What `nmtcheck check --fail-on` would decide: a finding at or above `fail_on`."""
-        if fail_on == "never":
-            return False
-        return any(self.summary[s] for s in SEVERITY_ORDER[: SEVERITY_ORDER.index(fail_on) + 1])
+        from nmtcheck.checks.base import fails
+
+        return fails(self.summary, fail_on)
 
     def to_json(self) -> dict[str, Any]:
         """The JSON report (SPEC §7) as a dict."""
@@ -128,7 +127,11 @@ def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | 
     ds = Dataset(str(url), storage_options)
     if not ds.fs.exists(ds.path(MARKER)):
         raise UsageError(f"{url}: not an nmtcheck results dataset (no {MARKER})")
-    tables = {t: ds.read(t).to_pandas() for t in TABLES}
+    import pyarrow as pa
+
+    # integer columns with missing values (a finding's node) stay integers: pandas' Int64
+    ints = {pa.int64(): pd.Int64Dtype()}.get
+    tables = {t: ds.read(t).to_pandas(types_mapper=ints) for t in TABLES}
     for df in tables.values():
         if "date" in df.columns:
             df["date"] = df["date"].astype(str)

@@ -11,6 +11,7 @@ import csv
 import glob
 import io
 import json
+import logging
 import os
 import signal
 import sys
@@ -24,6 +25,7 @@ import click
 
 from nmtcheck import __version__
 from nmtcheck.checks import BY_CODE, RULES
+from nmtcheck.checks.base import fails
 from nmtcheck.config import Config, discover
 from nmtcheck.engine import (
     MAX_FINDINGS_PER_RULE,
@@ -49,7 +51,6 @@ from nmtcheck.reporters import (
 from nmtcheck.reporters.common import spreadsheet_safe
 
 EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
-SEVERITY_ORDER = ["error", "warning", "info"]
 
 
 def _split(values: tuple[str, ...]) -> list[str]:
@@ -218,11 +219,8 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
             done = f" (written: {', '.join(written)})" if written else " (none written)"
             raise UsageError(f"--output {path}: cannot write: {exc.strerror}{done}") from None
         written.append(path)
-    for chunk in stdout_render(results, options):
-        click.echo(chunk, nl=False)
-    counts = summary(results)
-    if fail_on != "never" and any(
-            counts[s] for s in SEVERITY_ORDER[: SEVERITY_ORDER.index(fail_on) + 1]):
+    write_stdout(stdout_render(results, options))
+    if fails(summary(results), fail_on):
         sys.exit(EXIT_FINDINGS)
 
 
@@ -240,7 +238,7 @@ def timeline(log: str, input_format: str | None, rules_profile: str | None,
                                     discover(config_file, isolated))
     res = check_input(log, 0, profile, [], network, input_format, strict, channel,
                       {"topics": list(topics)} if topics else {})
-    click.echo(render_timeline(res, fmt), nl=False)
+    write_stdout([render_timeline(res, fmt)])
 
 
 def expand_logs(logs: tuple[str, ...]) -> tuple[str, ...]:
@@ -304,6 +302,20 @@ def write_atomically(path: Path, text: str | Iterable[str]) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def write_stdout(chunks: Iterable[str]) -> None:
+    """The report on standard output; a full disk or a closed device is an ordinary write
+    error (one line, exit 2), not an internal one."""
+    try:
+        for chunk in chunks:
+            click.echo(chunk, nl=False)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        with contextlib.suppress(OSError):  # nothing more reaches it, not even at exit
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise UsageError(f"cannot write to standard output: {exc.strerror}") from None
 
 
 def _umask() -> int:
@@ -390,6 +402,8 @@ cli.add_command(live_monitor)  # nmtcheck monitor (nmtcheck/live/command.py)
 def main() -> None:
     """Entry point: one-line errors with exit code 2, never a traceback."""
     debug = "--debug" in sys.argv[1:]
+    if not debug:  # third-party logging (asammdf, canopen, can) never reaches stderr: every
+        logging.getLogger().addHandler(logging.NullHandler())  # error is nmtcheck's one line
     for name in ("SIGTERM", "SIGHUP", "SIGINT"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), _raise_terminated)

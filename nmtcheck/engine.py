@@ -18,18 +18,12 @@ from nmtcheck.checks.base import SEVERITIES, Problem, Problems, Rule
 from nmtcheck.decode import decode
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.frames import FrameBatch
+from nmtcheck.model import InputModel, Master, NodeModel, TimelineParams
 from nmtcheck.network import Network
+from nmtcheck.nmt import STATE_INDEX, UNKNOWN
 from nmtcheck.profiles import Profile, RuleSettings
 from nmtcheck.readers import InputStats, open_input
-from nmtcheck.timeline import (
-    STATE_INDEX,
-    UNKNOWN,
-    InputModel,
-    Master,
-    NodeModel,
-    TimelineParams,
-    build,
-)
+from nmtcheck.timeline import build
 
 
 @dataclass
@@ -111,7 +105,8 @@ def select_rules(profile: Profile, select: list[str], ignore: list[str]) -> list
 
 
 def timeline_params(profile: Profile) -> TimelineParams:
-    """The timeline uses three rules' parameters: the timeouts define OFFLINE (SPEC §2)."""
+    """The timeline uses some rules' parameters: the timeouts define OFFLINE, a command's
+    obey time which reports are stale, a master's start-up and a node's boot-ups (SPEC §2)."""
     return TimelineParams(
         timeout_factor=profile["H001"].params["timeout_factor"],
         early_factor=profile["H002"].params["early_factor"],
@@ -120,6 +115,7 @@ def timeline_params(profile: Profile) -> TimelineParams:
         master_window_s=profile.timeline["master_window_ms"] / 1000.0,
         reset_window_s=profile["B002"].params["reset_window_ms"] / 1000.0,
         bootup_timeout_s=profile["B001"].params["bootup_timeout_ms"] / 1000.0,
+        repeat_window_ms=profile["B003"].params["repeat_window_ms"],
     )
 
 
@@ -158,7 +154,6 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         configs = network.configs() if network else {}
         model = build(decoded, stats.channels, start, end, timeline_params(profile), configs,
                       known_masters(network, stats.channels))
-        model.params = {code: s.params for code, s in profile.items()}
         model.stats = stats
         model.expected = network.expected() if network else []
         if channel is not None:

@@ -19,8 +19,8 @@ from typing import Any
 
 from nmtcheck.devicefile import DeviceValues, load_device_file
 from nmtcheck.errors import UsageError
+from nmtcheck.model import NodeConfig
 from nmtcheck.profiles import tomllib
-from nmtcheck.timeline import NodeConfig
 
 _KEYS = {"heartbeat_ms": float, "consumer_timeout_ms": float, "guard_time_ms": float,
          "life_time_factor": int, "channel": str, "dcf": str, "eds": str}

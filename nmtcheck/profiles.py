@@ -37,6 +37,13 @@ class Profile(dict[str, RuleSettings]):
         self.timeline: dict[str, float] = dict(TIMELINE_PARAMS)
 
 
+def registry_profile() -> Profile:
+    """Every rule at the severity and parameters it declares: the base of every profile
+    (rules/default.toml changes nothing of it; other profiles change what they need)."""
+    return Profile({r.code: RuleSettings(True, r.severity, {p.name: p.default for p in r.params})
+                    for r in BY_CODE.values()})
+
+
 def builtin_dir() -> Path:
     """Where the shipped profiles are: package data when installed, `rules/` in a checkout."""
     here = Path(__file__).resolve().parent
@@ -98,7 +105,7 @@ def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> P
         if key not in ("extends", "rules", "timeline"):
             raise UsageError(f"{path}: unknown key {key!r} "
                              f"(expected 'extends', [timeline] and [rules.CODE])")
-    profile = Profile()
+    profile = registry_profile()
     # A profile without `extends` extends `default`, so a user file holds only its changes.
     base = data.get("extends", None if path.resolve() == _default_path() else DEFAULT_PROFILE)
     if base is not None:
@@ -106,8 +113,6 @@ def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> P
             raise UsageError(f"{path}: extends: expected a profile name or path")
         profile = load_profile(base, (*_seen, path.resolve()))
     apply_tables(profile, str(path), data.get("rules", {}), data.get("timeline", {}))
-    if not _seen:
-        complete(profile, str(path))
     return profile
 
 
@@ -117,7 +122,6 @@ def derived_profile(where: str, base: str, base_dir: Path, rules: Any,
     `[rules.CODE]` and `[timeline]` tables held elsewhere (a configuration file, `where`)."""
     profile = load_profile(base, (base_dir / "<configuration>",))
     apply_tables(profile, where, rules, {} if timeline is None else timeline)
-    complete(profile, where)
     return profile
 
 
@@ -154,13 +158,3 @@ def apply_tables(profile: Profile, where: str, rules: Any, timeline: Any) -> Non
             else:
                 known = ", ".join(["enabled", "severity", *params]) or "none"
                 raise UsageError(f"{where_key}: unknown parameter (known: {known})")
-
-
-def complete(profile: Profile, where: str) -> None:
-    """Every rule has settings and every parameter a value (from `default`)."""
-    for rule in BY_CODE.values():
-        settings = profile.setdefault(rule.code, RuleSettings(severity=rule.severity))
-        missing = [p.name for p in rule.params if p.name not in settings.params]
-        if missing:
-            raise UsageError(f"{where}: [rules.{rule.code}] no value for {', '.join(missing)} "
-                             f"(extend 'default')")

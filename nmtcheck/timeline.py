@@ -12,563 +12,44 @@ The sparse events (NMT commands, EMCY, configuration SDOs) are Python objects.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field, replace
-from typing import Any
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nmtcheck import emcy, sdo
+from nmtcheck import emcy
 from nmtcheck.decode import Decoded
-
-UNKNOWN = "UNKNOWN"
-INITIALISING = "INITIALISING"
-PRE_OPERATIONAL = "PRE-OPERATIONAL"
-OPERATIONAL = "OPERATIONAL"
-STOPPED = "STOPPED"
-OFFLINE = "OFFLINE"
-STATES = (UNKNOWN, INITIALISING, PRE_OPERATIONAL, OPERATIONAL, STOPPED, OFFLINE)
-STATE_INDEX = {s: i for i, s in enumerate(STATES)}
-
-STATE_OF_CODE = {0x00: PRE_OPERATIONAL, 0x04: STOPPED, 0x05: OPERATIONAL, 0x7F: PRE_OPERATIONAL}
-CODE_NAMES = {0x00: "boot-up", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
-
-CS_START, CS_STOP, CS_PREOP, CS_RESET_NODE, CS_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
-COMMAND_STATE = {CS_START: OPERATIONAL, CS_STOP: STOPPED, CS_PREOP: PRE_OPERATIONAL,
-                 CS_RESET_NODE: INITIALISING, CS_RESET_COMM: INITIALISING}
-COMMAND_NAMES = {CS_START: "start", CS_STOP: "stop", CS_PREOP: "enter pre-operational",
-                 CS_RESET_NODE: "reset node", CS_RESET_COMM: "reset communication"}
-RESETS = (CS_RESET_NODE, CS_RESET_COMM)
-EPS = 1e-7  # timestamps are microseconds at best: ignore float noise in comparisons
-
-
-def any_between(sorted_values: list[Any], lo: Any, hi: Any) -> bool:
-    """Whether a sorted list holds a value v with lo < v < hi.
-
-    Bisection, because rules ask this per heartbeat pair against every reset/command.
-    """
-    k = bisect.bisect_right(sorted_values, lo)
-    return k < len(sorted_values) and sorted_values[k] < hi
-
-
-def state_name(code: int) -> str:
-    return CODE_NAMES.get(code, f"{code:02X}h")
-
-
-@dataclass(frozen=True)
-class NmtFrame:
-    """A frame on CAN-ID 000h, valid or not."""
-
-    ts: float
-    idx: int
-    line: int
-    rtr: bool
-    dlc: int
-    cs: int
-    target: int
-    problem: str | None  # why it is malformed (C002), None if valid
-
-
-@dataclass(frozen=True)
-class Command:
-    """A valid NMT command as it applies to one node."""
-
-    ts: float
-    idx: int
-    line: int
-    cs: int
-    broadcast: bool
-
-    @property
-    def is_reset(self) -> bool:
-        return self.cs in RESETS
-
-    @property
-    def name(self) -> str:
-        return COMMAND_NAMES[self.cs] + (" (broadcast)" if self.broadcast else "")
-
-
-
-_KNOWN_CS = np.zeros(256, bool)
-_KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
-_RESET_CS = np.zeros(256, bool)
-_RESET_CS[list(RESETS)] = True
-
-
-class NmtTable:
-    """A channel's frames on CAN-ID 000h as columns, valid or not (a hostile log may
-    hold millions of them): a `NmtFrame` is made only for what a rule reports."""
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
-                 dlc: np.ndarray, cs: np.ndarray, target: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.rtr = np.asarray(rtr, bool)
-        self.dlc = np.asarray(dlc, np.int16)
-        self.cs = np.asarray(cs, np.uint8)
-        self.target = np.asarray(target, np.uint8)
-        self.valid = ~self.rtr & (self.dlc == 2) & _KNOWN_CS[self.cs] & (self.target <= 127)
-
-    @classmethod
-    def empty(cls) -> NmtTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __getitem__(self, pos: int) -> NmtFrame:
-        rtr, dlc, cs, target = (bool(self.rtr[pos]), int(self.dlc[pos]), int(self.cs[pos]),
-                                int(self.target[pos]))
-        return NmtFrame(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]), rtr, dlc,
-                        cs, target, _nmt_problem(rtr, dlc, cs, target))
-
-    def __iter__(self) -> Iterator[NmtFrame]:
-        return (self[i] for i in range(len(self)))
-
-
-class CommandTable:
-    """The valid NMT commands that apply to one node, as columns: a log of nothing but
-    NMT commands gives every node one per frame."""
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, cs: np.ndarray,
-                 broadcast: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.cs = np.asarray(cs, np.uint8)
-        self.broadcast = np.asarray(broadcast, bool)
-        self.is_reset = _RESET_CS[self.cs]
-
-    @classmethod
-    def empty(cls) -> CommandTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z)
-
-    @classmethod
-    def of(cls, nmt: NmtTable, pos: np.ndarray) -> CommandTable:
-        return cls(nmt.ts[pos], nmt.idx[pos], nmt.line[pos], nmt.cs[pos], nmt.target[pos] == 0)
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __getitem__(self, pos: int) -> Command:
-        return Command(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
-                       int(self.cs[pos]), bool(self.broadcast[pos]))
-
-    def __iter__(self) -> Iterator[Command]:
-        return (self[i] for i in range(len(self)))
-
-    def name(self, pos: int) -> str:
-        return COMMAND_NAMES[int(self.cs[pos])] + (" (broadcast)" if self.broadcast[pos] else "")
-
-    @property
-    def reset_idx(self) -> np.ndarray:
-        """File positions of the reset commands (sorted: commands are in file order)."""
-        return self.idx[self.is_reset]
-
-    @property
-    def reset_ts(self) -> np.ndarray:
-        return self.ts[self.is_reset]
-
-
-REQUEST, BOOTUP, HEARTBEAT, GUARD, MALFORMED = range(5)
-EC_KIND_NAMES = ("request", "bootup", "heartbeat", "guard", "malformed")  # by EcTable.kind
-
-
-@dataclass(frozen=True)
-class EcFrame:
-    """One frame on 700h+N, materialised from the node's columns for a finding or a test."""
-
-    pos: int  # position in the node's EcTable
-    ts: float
-    idx: int
-    line: int
-    rtr: bool
-    dlc: int
-    value: int  # data byte 0
-    kind: str  # request | bootup | heartbeat | guard | malformed
-
-    @property
-    def code(self) -> int:
-        return self.value & 0x7F
-
-    @property
-    def toggle(self) -> int:
-        return self.value >> 7
-
-    @property
-    def reports_state(self) -> bool:
-        return self.kind in ("bootup", "heartbeat", "guard")
-
-
-class EcTable:
-    """A node's frames on 700h+N as columns, in file order.
-
-    Heartbeats are the one dense NMT stream (a frame per node per period), so
-    they stay numpy columns; rules compute on them vectorised and materialise an
-    `EcFrame` only for what they report.
-    """
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
-                 dlc: np.ndarray, value: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.rtr = np.asarray(rtr, bool)
-        self.dlc = np.asarray(dlc, np.int16)
-        self.value = np.asarray(value, np.uint8)
-        self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
-        # a report of the pre-command state just after a command (SPEC §2 stale reports)
-        self.stale = np.zeros(len(self.ts), bool)
-
-    @classmethod
-    def empty(cls) -> EcTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __getitem__(self, pos: int) -> EcFrame:
-        return EcFrame(int(pos), float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
-                       bool(self.rtr[pos]), int(self.dlc[pos]), int(self.value[pos]),
-                       EC_KIND_NAMES[self.kind[pos]])
-
-    def __iter__(self) -> Iterator[EcFrame]:
-        return (self[i] for i in range(len(self)))
-
-    def frames(self, positions: Iterable[int]) -> list[EcFrame]:
-        return [self[int(p)] for p in positions]
-
-    def where(self, *kinds: int) -> np.ndarray:
-        """Positions of the frames of these kinds."""
-        return np.flatnonzero(np.isin(self.kind, kinds))
-
-    def count(self, kind: int) -> int:
-        return int(np.count_nonzero(self.kind == kind))
-
-    @property
-    def code(self) -> np.ndarray:
-        return self.value & 0x7F
-
-    def after(self, idx: int) -> int:
-        """Position of the first frame later in the file than frame index `idx`."""
-        return int(np.searchsorted(self.idx, idx, side="right"))
-
-
-def between(sorted_marks: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Per pair, whether a mark m with lo < m < hi exists (vectorised any_between)."""
-    if not len(sorted_marks):
-        return np.zeros(len(lo), bool)
-    return (np.searchsorted(sorted_marks, lo, side="right")
-            < np.searchsorted(sorted_marks, hi, side="left"))
-
-
-@dataclass
-class Timeout:
-    """A heartbeat (H001) or guarding (G002) timeout: the node is OFFLINE from `moment`."""
-
-    rule: str
-    moment: float
-    after_ts: float  # the frame the wait started from
-    after_idx: int
-    limit_s: float
-    gap_s: float | None  # length of the gap if it closed, else None (trace ended it)
-    requests: int = 1  # G002: unanswered requests in the run
-    ended_by: float | None = None  # ts of the node's next frame (end of OFFLINE)
-
-
-@dataclass
-class ConfigWrite:
-    """A confirmed SDO expedited download to a configuration object of `node`."""
-
-    ts: float  # the server's confirmation (60h)
-    idx: int
-    line: int
-    node: int  # the SDO server whose object was written
-    index: int
-    sub: int
-    value: int
-    until: float = float("inf")  # the node's next boot-up or reset: power-on values again
-    request_ts: float = float("nan")  # the client's request: the server may act on it at once
-    request_idx: int = -1
-
-
-@dataclass
-class NodeEvent:
-    """Something a node said that is not a finding: EMCY, SDO abort, configuration write."""
-
-    ts: float
-    idx: int
-    line: int
-    kind: str  # emcy | sdo-abort | sdo-write | sdo-segmented
-    text: str
-    code: int | None = None
-
-
-@dataclass
-class Interval:
-    start: float
-    end: float
-    state: str
-    source: str
-
-
-SOURCES = ("start", "command", "timeout", "bootup", "heartbeat", "guarding")
-SOURCE_INDEX = {s: i for i, s in enumerate(SOURCES)}
-
-
-class IntervalTable:
-    """A node's state intervals as columns (state and source as indices into `STATES`
-    and `SOURCES`): a node that changes state on every heartbeat has millions of them.
-    An `Interval` is made only when one is looked at."""
-
-    def __init__(self, start: np.ndarray, end: np.ndarray, state: np.ndarray,
-                 source: np.ndarray) -> None:
-        self.start = np.asarray(start, np.float64)
-        self.end = np.asarray(end, np.float64)
-        self.state = np.asarray(state, np.int8)
-        self.source = np.asarray(source, np.int8)
-
-    @classmethod
-    def empty(cls) -> IntervalTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.start)
-
-    def __getitem__(self, pos: int) -> Interval:
-        return Interval(float(self.start[pos]), float(self.end[pos]), STATES[self.state[pos]],
-                        SOURCES[self.source[pos]])
-
-    def __iter__(self) -> Iterator[Interval]:
-        for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
-                                self.source.tolist(), strict=True):
-            yield Interval(a, b, STATES[st], SOURCES[so])
-
-
-@dataclass
-class NodeConfig:
-    """What is known of a node's configuration (network file for now)."""
-
-    heartbeat_ms: float | None = None
-    consumer_timeout_ms: float | None = None
-    consumer_node: int | None = None  # whose 1016h entry set consumer_timeout_ms, if known
-    guard_time_ms: float | None = None
-    life_time_factor: int | None = None
-    tpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # PDO 1..4 -> COB-ID
-    rpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # None: not valid
-    expected: bool = False
-
-
-@dataclass
-class NodeModel:
-    """Everything known about one node on one channel."""
-
-    chan: int
-    channel: str
-    node: int
-    config: NodeConfig
-    ec: EcTable = field(default_factory=EcTable.empty)
-    commands: CommandTable = field(default_factory=CommandTable.empty)
-    first_show_idx: int | None = None
-    first_show_ts: float | None = None
-    first_tx: tuple[int, float, int] | None = None  # idx, ts, kind of N's first frame
-    last_seen: float | None = None
-    period_s: float | None = None
-    period_source: str = "none"  # configured | measured | none
-    median_s: float | None = None  # the median heartbeat interval, whatever is configured
-    timeouts: list[Timeout] = field(default_factory=list)
-    intervals: IntervalTable = field(default_factory=IntervalTable.empty)
-    writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
-    consumer_writes: list[ConfigWrite] = field(default_factory=list)  # 1016h entries naming N
-    events: list[NodeEvent] = field(default_factory=list)
-
-    def config_at(self, ts: float) -> NodeConfig:
-        """The configuration in force at `ts`: files, then SDO writes confirmed before it."""
-        active = [w for w in self.writes if w.ts <= ts < w.until]
-        consumers = [w for w in self.consumer_writes if w.ts <= ts < w.until]
-        if not active and not consumers:
-            return self.config
-        cfg = replace(self.config, tpdo_cob_ids=dict(self.config.tpdo_cob_ids),
-                      rpdo_cob_ids=dict(self.config.rpdo_cob_ids))
-        for w in active:
-            if w.index == 0x1017:
-                cfg.heartbeat_ms = float(w.value)  # 0 written by SDO: heartbeat disabled
-            elif w.index == 0x100C:
-                cfg.guard_time_ms = float(w.value) or None
-            elif w.index == 0x100D:
-                cfg.life_time_factor = w.value or None
-            elif 0x1800 <= w.index <= 0x1803 or 0x1400 <= w.index <= 0x1403:
-                table = cfg.tpdo_cob_ids if w.index >= 0x1800 else cfg.rpdo_cob_ids
-                table[(w.index & 0x3) + 1] = None if w.value & 0x80000000 else w.value & 0x7FF
-        for w in consumers:
-            time_ms = float(w.value & 0xFFFF)
-            if time_ms and (cfg.consumer_timeout_ms is None or time_ms < cfg.consumer_timeout_ms):
-                cfg.consumer_timeout_ms, cfg.consumer_node = time_ms, w.node
-        return cfg
-
-    @property
-    def key(self) -> int:
-        return self.chan * 128 + self.node
-
-    def config_series(self, times: np.ndarray, get: Callable[[NodeConfig], float | None]
-                      ) -> np.ndarray:
-        """`get(config_at(t))` for many times at once (NaN where None).
-
-        The configuration only changes where a write is confirmed or stops holding, so
-        it is evaluated once per stretch between those moments.
-        """
-        writes = self.writes + self.consumer_writes
-        bps = np.asarray(sorted({w.ts for w in writes}
-                                | {w.until for w in writes if w.until != float("inf")}))
-        values = [get(self.config_at(at)) for at in [-np.inf, *bps.tolist()]]
-        table = np.asarray([np.nan if v is None else v for v in values], np.float64)
-        return table[np.searchsorted(bps, times, side="right")]
-
-    def heartbeat_pairs(self) -> tuple[np.ndarray, np.ndarray]:
-        """Consecutive heartbeats with no boot-up or reset command of the node between them,
-        as two arrays of positions in `ec`: the intervals the period is measured from
-        (SPEC §2), H003 compares and the report summarises."""
-        cached = self.__dict__.get("_pairs")
-        if cached is not None and cached[0] is self.ec.kind:
-            return cached[1]
-        kind = self.ec.kind
-        pos = np.flatnonzero((kind == HEARTBEAT) | (kind == BOOTUP))
-        a, b = pos[:-1], pos[1:]
-        ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
-        ok &= ~between(self.commands.reset_idx, self.ec.idx[a], self.ec.idx[b])
-        pairs = (a[ok], b[ok])
-        self.__dict__["_pairs"] = (kind, pairs)
-        return pairs
-
-    def heartbeat_intervals(self) -> np.ndarray:
-        a, b = self.heartbeat_pairs()
-        return self.ec.ts[b] - self.ec.ts[a]
-
-    @property
-    def heartbeats(self) -> list[EcFrame]:
-        return self.ec.frames(self.ec.where(HEARTBEAT))
-
-    @property
-    def bootups(self) -> list[EcFrame]:
-        return self.ec.frames(self.ec.where(BOOTUP))
-
-    @property
-    def bootup_count(self) -> int:
-        return self.ec.count(BOOTUP)
-
-    @property
-    def is_producer(self) -> bool:
-        if self.config.heartbeat_ms is not None and self.config.heartbeat_ms > 0:
-            return True
-        if any(w.index == 0x1017 and w.value for w in self.writes):
-            return True
-        return self.ec.count(HEARTBEAT) >= 2
-
-    def hb_timeout_s(self, timeout_factor: float, at: float | None = None) -> float | None:
-        """The heartbeat timeout in force at `at`: consumer time, else factor x period.
-
-        None when there is none, or when 1017h was set to 0 by SDO (heartbeat disabled).
-        """
-        return self.hb_timeout(self.config if at is None else self.config_at(at),
-                               timeout_factor)
-
-    def hb_timeout(self, cfg: NodeConfig, timeout_factor: float) -> float | None:
-        """The heartbeat timeout under configuration `cfg`."""
-        if cfg.heartbeat_ms == 0.0:
-            return None
-        if cfg.consumer_timeout_ms:
-            return cfg.consumer_timeout_ms / 1000.0
-        period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
-        return timeout_factor * period if period else None
-
-    def periods_at(self, times: np.ndarray) -> np.ndarray:
-        """N's heartbeat period in force at each time (SPEC §2): the producer time (1017h)
-        in force if non-zero, else the whole-trace median (NaN if neither is known)."""
-        series = self.config_series(np.asarray(times, np.float64),
-                                    lambda cfg: cfg.heartbeat_ms)
-        fallback = self.median_s if self.median_s and self.median_s > 0 else np.nan
-        return np.where(series > 0, series / 1000.0, fallback)
-
-    def interval_starts(self) -> np.ndarray:
-        return self.intervals.start
-
-    def state_at(self, ts: float) -> str:
-        """State after the evidence of a frame at `ts` (intervals starting at ts included)."""
-        return STATES[self.intervals.state[self.interval_index(ts)]]
-
-    def interval_index(self, ts: float) -> int:
-        return max(int(np.searchsorted(self.interval_starts(), ts, side="right")) - 1, 0)
-
-    def interval_indices(self, ts: np.ndarray) -> np.ndarray:
-        """`interval_index` for many times at once."""
-        return np.maximum(np.searchsorted(self.interval_starts(), ts, side="right") - 1, 0)
-
-    @property
-    def error_control(self) -> str:
-        hb = bool(self.ec.count(HEARTBEAT))
-        guard = bool(self.ec.count(GUARD))
-        return {(True, True): "both", (True, False): "heartbeat", (False, True): "guarding"}.get(
-            (hb, guard), "none")
-
-
-@dataclass
-class TimelineParams:
-    timeout_factor: float = 1.5
-    early_factor: float = 0.5
-    response_timeout_s: float = 1.0
-    obey_s: float = 0.1  # S004: reports within this after a command may be stale
-    master_window_s: float = 1.0  # [timeline] master_window_ms: boot-up -> broadcast
-    reset_window_s: float = 10.0  # B002: a reset this recent explains a boot-up
-    bootup_timeout_s: float = 5.0  # B001: a reset node boots within this
-
-
-@dataclass(frozen=True)
-class Master:
-    """A channel's NMT master and how it is known (SPEC §2)."""
-
-    node: int
-    source: str  # network | device-file | inferred
-    detail: str = ""
-
-
-@dataclass
-class ChannelModel:
-    chan: int
-    name: str
-    nmt: NmtTable
-    nodes: dict[int, NodeModel]
-    master: Master | None = None
-    master_note: str = ""  # why no master is known, or how it was chosen
-
-
-@dataclass
-class InputModel:
-    """The decoded input with its per-node models."""
-
-    decoded: Decoded
-    start: float
-    end: float
-    channels: list[ChannelModel]
-    params: dict[str, dict[str, Any]] = field(default_factory=dict)  # every rule's parameters
-    expected: list[tuple[int, str | None]] = field(default_factory=list)  # network file nodes
-    stats: Any = None  # the reader's InputStats (the I-rules judge the input itself)
-
-
-def _nmt_problem(rtr: bool, dlc: int, cs: int, target: int) -> str | None:
-    if rtr:
-        return "remote frame on CAN-ID 000h (NMT commands are data frames)"
-    if dlc != 2:
-        return f"DLC {dlc} (an NMT command has DLC 2)"
-    if cs not in COMMAND_STATE:
-        return f"unknown command specifier {cs:02X}h"
-    if target > 127:
-        return f"node-ID {target} above 127"
-    return None
+from nmtcheck.model import (
+    ChannelModel,
+    CommandTable,
+    EcTable,
+    InputModel,
+    IntervalTable,
+    Master,
+    NmtTable,
+    NodeConfig,
+    NodeEvent,
+    NodeModel,
+    TimelineParams,
+    Timeout,
+)
+from nmtcheck.nmt import (
+    BOOTUP,
+    COMMAND_NAMES,
+    COMMAND_STATE,
+    EPS,
+    GUARD,
+    HEARTBEAT,
+    MALFORMED,
+    OFFLINE,
+    PRE_OPERATIONAL,
+    REQUEST,
+    RESETS,
+    SOURCE_INDEX,
+    STATE_INDEX,
+    STATE_OF_CODE,
+    UNKNOWN,
+)
+from nmtcheck.sdo_config import pair_sdo_writes, write_validity
 
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
@@ -579,73 +60,91 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     `masters`: the NMT master of a channel (by name) known from the network or device
     files; on other channels it is inferred from the start-up pattern (SPEC §2).
     """
-    ev = decoded.events
-    models: list[ChannelModel] = []
-    timeouts_to_end: list[tuple[NodeModel, Timeout]] = []
-    for chan, name in enumerate(channels):
-        rows = ev[ev["chan"] == chan]
-        nodes: dict[int, NodeModel] = {}
-
-        def node_model(n: int, name: str = name, chan: int = chan,
-                       nodes: dict[int, NodeModel] = nodes) -> NodeModel:
-            m = nodes.get(n)
-            if m is None:
-                cfg = configs.get((name, n)) or configs.get((None, n)) or NodeConfig()
-                m = nodes[n] = NodeModel(chan, name, n, cfg)
-            return m
-
-        # Nodes that transmitted anything (TPDO, SDO, EMCY, error control) exist from their
-        # first frame.
-        for key, first in decoded.first_tx.items():
-            if key // 128 == chan and 1 <= key % 128 <= 127:
-                m = node_model(key % 128)
-                m.first_tx = first
-                m.first_show_idx, m.first_show_ts = first[0], first[1]
-                m.last_seen = decoded.last_tx.get(key)
-        ec_tables = _ec_tables(decoded, chan)
-        for n, table in ec_tables.items():
-            if not table.rtr.all():  # a node exists once it sends; requests alone do not
-                node_model(n)
-        is_nmt = rows["can_id"] == 0
-        nmt = _nmt_table(rows[is_nmt])
-        _first_shown_by_commands(nmt, node_model)
-        sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
-        for r in rows[~is_nmt].tolist():
-            ts, idx, line, _chan, can_id, rtr, dlc, data = r
-            data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
-            if 0x081 <= can_id <= 0x0FF:
-                code, text = emcy.describe(data, dlc)
-                node_model(can_id - 0x080).events.append(
-                    NodeEvent(ts, idx, line, "emcy", text, code))
-            elif 0x581 <= can_id <= 0x67F:
-                sdo_rows.append((ts, idx, line, can_id, dlc, data))
-        _sdo_config(sdo_rows, nodes, node_model)
-        for n, table in ec_tables.items():
-            if n in nodes:  # requests to a node nothing else shows are not kept
-                nodes[n].ec = table
-        master, master_note = _channel_master(name, nmt, ec_tables, params, masters or {},
-                                              start)
-        _apply_commands(nmt, nodes, master)
-        for m in nodes.values():
-            _classify(m, params, with_period=False)  # boot-ups bound the SDO-written values
-        _write_validity(nodes)
-        for m in nodes.values():
-            _find_period(m)
-            _classify(m, params, with_period=True)
-            _find_period(m)
-        for m in nodes.values():
-            _heartbeat_timeouts(m, params, end)
-            _guard_timeouts(m, params, end)
-            for t in m.timeouts:
-                timeouts_to_end.append((m, t))
-        models.append(ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master,
-                                   master_note))
-
-    _offline_ends(decoded, timeouts_to_end)
+    models = [_channel(decoded, chan, name, start, end, params, configs, masters or {})
+              for chan, name in enumerate(channels)]
+    # OFFLINE lasts until the node's next frame of any kind: one pass for all channels
+    _offline_ends(decoded, [(m, t) for cm in models for m in cm.nodes.values()
+                            for t in m.timeouts])
     for cm in models:
         for m in cm.nodes.values():
             m.intervals = _intervals(m, start, end, params.obey_s)
-    return InputModel(decoded, start, end, models)
+    return InputModel(decoded, start, end, models, params)
+
+
+class _Nodes(dict[int, NodeModel]):
+    """A channel's nodes, each made on first mention with its configuration from files."""
+
+    def __init__(self, chan: int, name: str,
+                 configs: dict[tuple[str | None, int], NodeConfig]) -> None:
+        super().__init__()
+        self.chan, self.name, self.configs = chan, name, configs
+
+    def __call__(self, n: int) -> NodeModel:
+        m = self.get(n)
+        if m is None:
+            cfg = self.configs.get((self.name, n)) or self.configs.get((None, n)) or NodeConfig()
+            m = self[n] = NodeModel(self.chan, self.name, n, cfg)
+        return m
+
+
+def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
+             params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig],
+             masters: dict[str, Master]) -> ChannelModel:
+    """One channel's nodes, commands and master, each node classified and timed (the
+    state intervals come last, once every node's timeouts have their ends)."""
+    ev = decoded.events
+    rows = ev[ev["chan"] == chan]
+    nodes = _Nodes(chan, name, configs)
+    _nodes_that_sent(decoded, chan, nodes)
+    ec_tables = _ec_tables(decoded, chan)
+    for n, table in ec_tables.items():
+        if not table.rtr.all():  # a node exists once it sends; requests alone do not
+            nodes(n)
+    is_nmt = rows["can_id"] == 0
+    nmt = _nmt_table(rows[is_nmt])
+    _first_shown_by_commands(nmt, nodes)
+    _emcy_and_sdo(rows[~is_nmt], nodes)
+    for n, table in ec_tables.items():
+        if n in nodes:  # requests to a node nothing else shows are not kept
+            nodes[n].ec = table
+    master, master_note = _channel_master(name, nmt, ec_tables, params, masters, start)
+    _apply_commands(nmt, nodes, master)
+    for m in nodes.values():
+        _classify(m, params, with_period=False)  # boot-ups bound the SDO-written values
+    write_validity(nodes)
+    for m in nodes.values():
+        _find_period(m)
+        _classify(m, params, with_period=True)
+        _find_period(m)
+    for m in nodes.values():
+        _heartbeat_timeouts(m, params, end)
+        _guard_timeouts(m, params, end)
+    return ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master, master_note)
+
+
+def _nodes_that_sent(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
+    """Nodes that transmitted anything (TPDO, SDO, EMCY, error control) exist from their
+    first frame."""
+    for key, first in decoded.first_tx.items():
+        if key // 128 == chan and 1 <= key % 128 <= 127:
+            m = nodes(key % 128)
+            m.first_tx = first
+            m.first_show_idx, m.first_show_ts = first[0], first[1]
+            m.last_seen = decoded.last_tx.get(key)
+
+
+def _emcy_and_sdo(rows: np.ndarray, nodes: _Nodes) -> None:
+    """EMCY messages become node events; SDO traffic is paired into configuration writes."""
+    sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
+    for r in rows.tolist():
+        ts, idx, line, _chan, can_id, _rtr, dlc, data = r
+        data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
+        if 0x081 <= can_id <= 0x0FF:
+            code, text = emcy.describe(data, dlc)
+            nodes(can_id - 0x080).events.append(NodeEvent(ts, idx, line, "emcy", text, code))
+        elif 0x581 <= can_id <= 0x67F:
+            sdo_rows.append((ts, idx, line, can_id, dlc, data))
+    pair_sdo_writes(sdo_rows, nodes, nodes)
 
 
 def _nmt_table(rows: np.ndarray) -> NmtTable:
@@ -820,62 +319,6 @@ def _ec_tables(decoded: Decoded, chan: int) -> dict[int, EcTable]:
         tables[key - chan * 128] = EcTable(ec["ts"][r], ec["idx"][r], ec["line"][r],
                                            ec["rtr"][r], ec["dlc"][r], ec["value"][r])
     return tables
-
-
-def _sdo_config(rows: list[tuple[float, int, int, int, int, list[int]]],
-                nodes: dict[int, NodeModel], node_model: Any) -> None:
-    """Pair SDO requests with the server's answer: confirmed writes, aborts, segmented ones."""
-    # node -> index, sub, value, ts, idx of the request
-    pending: dict[int, tuple[int, int, int | None, float, int]] = {}
-    for ts, idx, line, can_id, dlc, data in rows:
-        if dlc < 4:
-            continue
-        cmd, index, sub = data[0], data[1] | data[2] << 8, data[3]
-        if can_id >= 0x601:  # request to server N
-            n = can_id - 0x600
-            if cmd & 0xE0 == 0x20 and sdo.is_config_index(index, sub):
-                pending[n] = (index, sub, sdo.expedited_value(data), ts, idx)
-            else:
-                pending.pop(n, None)
-            continue
-        n = can_id - 0x580
-        m = node_model(n)
-        req = pending.get(n)
-        matches = req is not None and req[:2] == (index, sub)
-        if cmd == 0x80:
-            code = int.from_bytes(bytes(data[4:8]), "little")
-            what = f" to {sdo.object_name(index, sub)}" if matches else f" ({index:04X}h sub {sub})"
-            m.events.append(NodeEvent(ts, idx, line, "sdo-abort",
-                                      f"SDO abort{what}: {code:08X}h {sdo.abort_text(code)}",
-                                      code))
-            if matches:
-                pending.pop(n, None)
-        elif cmd == 0x60 and req is not None and matches:
-            pending.pop(n, None)
-            value = req[2]
-            if value is None:
-                m.events.append(NodeEvent(ts, idx, line, "sdo-segmented",
-                                          f"segmented download to {sdo.object_name(index, sub)}"
-                                          f" confirmed; its value is not applied"))
-                continue
-            m.writes.append(ConfigWrite(ts, idx, line, n, index, sub, value,
-                                        request_ts=req[3], request_idx=req[4]))
-            m.events.append(NodeEvent(ts, idx, line, "sdo-write",
-                                      f"{sdo.object_name(index, sub)} = {value} "
-                                      f"({value:X}h) written by SDO"))
-
-
-def _write_validity(nodes: dict[int, NodeModel]) -> None:
-    """A written value holds until the node's next boot-up or reset; 1016h entries also
-    count for the producer they name."""
-    for m in nodes.values():
-        ends = sorted(m.ec.ts[m.ec.kind == BOOTUP].tolist() + m.commands.reset_ts.tolist())
-        for w in m.writes:
-            w.until = next((t for t in ends if t > w.ts), float("inf"))
-            if w.index == 0x1016:
-                producer = nodes.get((w.value >> 16) & 0xFF)
-                if producer is not None and producer is not m:
-                    producer.consumer_writes.append(w)
 
 
 def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> None:
@@ -1112,6 +555,34 @@ _EV_TIMEOUT, _EV_EC, _EV_BACK = 0, 1, 2  # order of steps at one moment; command
 _EV_CMD = 3
 
 
+def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, int]]:
+    """What the interval walk sees, in order: (time, what, reference) for each evidence
+    frame, command, timeout and end of a timeout. At one moment a timeout comes first
+    and its end last; the rest in file order."""
+    ec, cmds = m.ec, m.commands
+    windows = [(t, t + obey_s) for t in cmds.ts.tolist()] + [
+        (t, t) for t in [t.moment for t in m.timeouts]
+        + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
+    pos = _evidence(m, windows)
+    back_of = [i for i, t in enumerate(m.timeouts) if t.ended_by is not None]
+    backs = [m.timeouts[i] for i in back_of]
+    # the steps as columns: time, order at one moment, file position, what, reference
+    ts = np.concatenate([ec.ts[pos], cmds.ts, [t.moment for t in m.timeouts],
+                         [t.ended_by for t in backs]]).astype(np.float64)
+    order = np.concatenate([np.ones(len(pos) + len(cmds), np.int8),
+                            np.zeros(len(m.timeouts), np.int8), np.full(len(backs), 2, np.int8)])
+    idx = np.concatenate([ec.idx[pos], cmds.idx,
+                          np.full(len(m.timeouts) + len(backs), -1, np.int64)])
+    what = np.concatenate([np.full(len(pos), _EV_EC, np.int8),
+                           np.full(len(cmds), _EV_CMD, np.int8),
+                           np.full(len(m.timeouts), _EV_TIMEOUT, np.int8),
+                           np.full(len(backs), _EV_BACK, np.int8)])
+    ref = np.concatenate([pos, np.arange(len(cmds)), np.arange(len(m.timeouts)),
+                          back_of]).astype(np.int64)
+    steps = np.lexsort((idx, order, ts))
+    return zip(ts[steps].tolist(), what[steps].tolist(), ref[steps].tolist(), strict=True)
+
+
 def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> IntervalTable:
     """Walk the node's evidence in order and cut the timeline into state intervals.
 
@@ -1121,24 +592,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     floats, never objects: a node may change state on every heartbeat.
     """
     ec, cmds = m.ec, m.commands
-    windows = [(t, t + obey_s) for t in cmds.ts.tolist()] + [
-        (t, t) for t in [t.moment for t in m.timeouts]
-        + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
-    pos = _evidence(m, windows)
-    backs = [t for t in m.timeouts if t.ended_by is not None]
-    # the steps as columns: time, order at one moment, file position, what, reference
-    ts = np.concatenate([ec.ts[pos], cmds.ts, [t.moment for t in m.timeouts],
-                         [t.ended_by for t in backs]]).astype(np.float64)
-    order = np.concatenate([np.ones(len(pos) + len(cmds), np.int8),
-                            np.zeros(len(m.timeouts), np.int8), np.full(len(backs), 2, np.int8)])
-    idx = np.concatenate([ec.idx[pos], cmds.idx,
-                          np.full(len(m.timeouts) + len(backs), -1, np.int64)])
-    what = np.concatenate([np.full(len(pos), _EV_EC, np.int8), np.full(len(cmds), _EV_CMD, np.int8),
-                           np.full(len(m.timeouts), _EV_TIMEOUT, np.int8),
-                           np.full(len(backs), _EV_BACK, np.int8)])
-    ref = np.concatenate([pos, np.arange(len(cmds)), np.arange(len(m.timeouts)),
-                          [m.timeouts.index(t) for t in backs]]).astype(np.int64)
-    steps = np.lexsort((idx, order, ts))
+    steps = _interval_steps(m, obey_s)
     kind = ec.kind.tolist()
     code_state = _CODE_STATE[ec.value & 0x7F].tolist()
     cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()]
@@ -1169,8 +623,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     last_cmd: tuple[float, int] | None = None  # the latest command: ts, state before it
     pre_offline: int | None = None  # the state N had when it went OFFLINE
     stale = ec.stale
-    for at, w, r in zip(ts[steps].tolist(), what[steps].tolist(), ref[steps].tolist(),
-                        strict=True):
+    for at, w, r in steps:
         cur = states[-1]
         if w == _EV_EC:
             k = kind[r]

@@ -73,7 +73,7 @@ def test_local_run_writes_the_dataset_the_json_report_agrees_with(tmp_path: Path
     report = json.loads(js.stdout)
     want = sorted((Path(report["inputs"][f["input"]]["path"]).stem, f["rule"], f["node"],
                    round(f["time"], 6)) for f in report["findings"])
-    got = sorted((Path(r.url).stem, r.rule, int(r.node) if r.node == r.node else None,
+    got = sorted((Path(r.url).stem, r.rule, None if pd.isna(r.node) else int(r.node),
                   round(r.time, 6)) for r in data.findings.itertuples())
     assert got == want and got
     h001 = data.findings[data.findings["rule"] == "H001"].iloc[0]
@@ -97,6 +97,14 @@ def test_rerun_writes_nothing_and_a_new_log_checks_only_that_log(tmp_path: Path)
     assert again.returncode == first.returncode == 1
     assert "0 checked" in again.stdout and "4 already in the results" in again.stdout
     assert snapshot(tmp_path / "results") == before  # not one file written or replaced
+
+    # the dataset inside the globbed folder is not taken for logs
+    inside = cli("check", "logs/**", "--results", "logs/results", "--isolated", cwd=tmp_path)
+    assert inside.returncode == 1 and "4 logs: 4 checked" in inside.stdout
+    again_inside = cli("check", "logs/**", "--results", "logs/results", "--isolated",
+                       cwd=tmp_path)
+    assert "4 already in the results" in again_inside.stdout
+    shutil.rmtree(tmp_path / "logs" / "results")
 
     extra = tmp_path / "logs" / "DEV9" / "00000009" / "pdo_preop.log"
     extra.parent.mkdir(parents=True)
@@ -133,8 +141,13 @@ def test_faults_are_rows_and_the_run_goes_on(tmp_path: Path) -> None:
     # no dated start: partitioned by the object's modification date
     assert inputs.loc[str(root / "bad" / "garbage.log"), "date"] != "unknown"
 
+    summary = cli("fleet", "summary", "results", cwd=tmp_path)  # a fleet without findings
+    assert summary.returncode == 0, summary.stderr
+    assert "findings: 0 errors" in summary.stdout and "logs not checked" in summary.stdout
+    assert "unsupported  " in summary.stdout
+
     fail = cli("check", "logs/**/*", "--results", "results", "--isolated",
-                    "--on-input-error", "fail", cwd=tmp_path)
+               "--on-input-error", "fail", cwd=tmp_path)
     assert_one_line_error(fail, "logs/bad/")  # the verdict counts the skipped logs too
 
 
@@ -172,6 +185,26 @@ def test_resilient_pool_loses_only_the_crashing_task() -> None:
     assert {k: v for k, v in got.items() if k != "die"} == {k: k.upper() for k in keys
                                                             if k != "die"}
     assert isinstance(got["die"], Crashed) and got["die"].attempts == 2
+
+
+def _cannot_start(*_args: object) -> None:
+    os._exit(3)  # a worker that dies before any task: a broken installation, not a log
+
+
+def test_resilient_pool_gives_up_when_no_worker_can_start(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import multiprocessing
+
+    from nmtcheck.errors import UsageError
+    from nmtcheck.fleet import executors
+
+    monkeypatch.setattr(executors, "_init_worker", _cannot_start)
+    pool = ResilientPool(1, mp_context=multiprocessing.get_context("fork"))
+    pool.submit("a", _exit_on, "a")
+    with pytest.raises(UsageError, match="die before they start a task"):
+        while pool.pending():
+            pool.done()
+    pool.close()
 
 
 def test_parallel_check_survives_a_dead_worker(tmp_path: Path,
@@ -248,6 +281,12 @@ def test_plain_check_imports_no_fleet_dependency(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, text=True,
                          capture_output=True)
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr
+    # a local fleet run needs pyarrow and fsspec, never Dask
+    fleet = code.replace("'-q']", "'-q', '--results', 'res']")
+    out = subprocess.run([sys.executable, "-c", fleet], cwd=tmp_path, text=True,
+                         capture_output=True)
+    assert out.stdout.strip().splitlines()[-1] == "['fsspec', 'pandas', 'pyarrow']", \
+        out.stdout + out.stderr
 
 
 @pytest.mark.parametrize(("args", "needle"), [
@@ -258,6 +297,8 @@ def test_plain_check_imports_no_fleet_dependency(tmp_path: Path) -> None:
     (["--results", "r", "-o", "x.json"], "--output does not go with --results"),
     (["--results", "r", "--path-pattern", "{vin}/{split}.MF4"], "unknown field {vin}"),
     (["--results", "r", "--manifest", "none.txt"], "--manifest none.txt: no such file"),
+    (["--results", "r", "-j", "2", "--executor", "local"], "-j/--jobs does not go with"),
+    (["--results", "r", "--format", "json"], "--format does not go with --results"),
 ])
 def test_fleet_usage_errors(tmp_path: Path, args: list[str], needle: str) -> None:
     shutil.copy(SAMPLES / "healthy.log", tmp_path)
@@ -283,3 +324,27 @@ def test_storage_options_and_path_patterns() -> None:
     assert p.fields("s3://fleet/2026/2F6913DB/00000004/00000001.MF4") == {
         "device": "2F6913DB", "session": "00000004", "split": "00000001"}
     assert p.fields("s3://fleet/notes.txt") == dict.fromkeys(("device", "session", "split"))
+
+
+def test_tasks_in_flight_stay_within_the_window(tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long listing never becomes as many pending tasks: at most 2 per worker slot."""
+    from nmtcheck.engine import select_rules
+    from nmtcheck.fleet import executors, run
+    from nmtcheck.profiles import load_profile
+
+    root = fleet_dir(tmp_path, LOGS * 3)
+    seen: list[int] = []
+
+    class Watched(executors.LocalExecutor):
+        def submit(self, key: object, fn: object, *args: object) -> None:
+            seen.append(self.pending())
+            super().submit(key, fn, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(executors, "make_executor", lambda spec: Watched(1))
+    profile = load_profile("default")
+    codes = [r.code for r in select_rules(profile, [], [])]
+    out = run.run_fleet(run.FleetOptions([str(root / "**" / "*.log")], str(tmp_path / "res"),
+                                         batch_files=1), profile, codes, None)
+    assert out.files == out.status["ok"] == 12
+    assert len(seen) == 12 and max(seen) < 2  # submitted only while fewer than 2 in flight

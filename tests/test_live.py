@@ -8,8 +8,10 @@ session's recording (same rule, channel, node; time within CONFIRM_TOLERANCE_S).
 
 from __future__ import annotations
 
+import json
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -30,7 +32,7 @@ from nmtcheck.readers.candump import _parse_line
 PROFILE = load_profile("default")
 RULES = select_rules(PROFILE, [], [])
 # rules whose every offline finding the tracker must also have seen live, on these samples
-LIVE_RULES = {"H001", "G002", "B001", "B002", "B003", "C001", "C002", "C003"}
+LIVE_RULES = {"H001", "G001", "G002", "B001", "B002", "B003", "C001", "C002", "C003"}
 
 
 def frames_of(path: Path) -> list[LiveFrame]:
@@ -58,8 +60,8 @@ def test_accelerated_replay_equals_offline(path: Path, with_network: bool, tmp_p
     net = load_network(str(path.parent / "network.toml")) if with_network else None
     record = tmp_path / "session.log"
     session = Session(PROFILE, RULES, net, str(record), timer=False)
-    for f in frames_of(path):
-        session.feed(f)
+    for frame in frames_of(path):
+        session.feed(frame)
     outcome = session.close()
     assert outcome.result is not None
     original = check_input(str(path), 0, PROFILE, RULES, net)
@@ -124,10 +126,11 @@ def test_timer_fires_heartbeat_timeout_without_a_next_frame() -> None:
 
 def _local_node(network: canopen.Network, node_id: int) -> canopen.LocalNode:
     od = canopen.ObjectDictionary()
-    od.add_object(canopen.objectdictionary.ODVariable("Producer heartbeat time", 0x1017))
-    od[0x1017].data_type = canopen.objectdictionary.UNSIGNED16
-    od[0x1017].default = 0
-    od[0x1017].access_type = "rw"
+    var = canopen.objectdictionary.ODVariable("Producer heartbeat time", 0x1017)
+    var.data_type = canopen.objectdictionary.UNSIGNED16
+    var.default = 0
+    var.access_type = "rw"
+    od.add_object(var)
     node = canopen.LocalNode(node_id, od)
     network.add_node(node)
     return node
@@ -135,8 +138,9 @@ def _local_node(network: canopen.Network, node_id: int) -> canopen.LocalNode:
 
 def test_monitor_on_canopen_stack(tmp_path: Path) -> None:
     """A python-canopen master and three LocalNodes on a virtual bus; node 3 stops its
-    heartbeat, node 2 reboots on its own. Monitor's live findings are confirmed by
-    `nmtcheck check` of its recording, and H001 is reported within 100 ms of expiry."""
+    heartbeat, node 2 reboots on its own, node 4 answers a reset by heartbeating 00h.
+    Monitor's live findings are confirmed by `nmtcheck check` of its recording, and
+    H001 is reported within 100 ms of expiry."""
     channel = f"live-{id(tmp_path)}"
     master = canopen.Network()
     master.connect(interface="virtual", channel=channel)
@@ -165,7 +169,9 @@ def test_monitor_on_canopen_stack(tmp_path: Path) -> None:
         nodes[2].nmt.state = "INITIALISING"
         nodes[2].nmt.state = "PRE-OPERATIONAL"
         nodes[2].nmt.start_heartbeat(100)
-        time.sleep(0.4)
+        time.sleep(0.3)
+        master.send_message(0x000, bytes([0x81, 4]))  # reset node 4: python-canopen's
+        time.sleep(0.4)  # LocalNode then heartbeats 00h (a boot-up) every period
     finally:
         notifier.stop()
         monitor.stop()  # before the heartbeats stop: that is no fault of the network
@@ -175,7 +181,7 @@ def test_monitor_on_canopen_stack(tmp_path: Path) -> None:
         slaves.disconnect()
         bus.shutdown()
     live = monitor.live_findings()
-    assert {(lf.rule, lf.node) for lf in live} == {("H001", 3), ("B002", 2)}, live
+    assert {(lf.rule, lf.node) for lf in live} == {("H001", 3), ("B002", 2), ("B003", 4)}, live
     assert all(lf.confirmed == "confirmed" for lf in live), live
     offline = check_input(str(record), 0, PROFILE, RULES)
     assert [(f.rule, f.node, f.time) for f in monitor.findings()] == [
@@ -272,3 +278,141 @@ def test_lely_recording_replayed_at_real_timing(tmp_path: Path) -> None:
     assert abs((h001.time - start) - (5.051 - (window[0].ts - t0))) < 0.03
     at, lf = next((t, lf) for t, lf in reported if lf.rule == "H001")
     assert 0 <= at - lf.time < 0.1, at - lf.time
+
+
+def test_late_frame_withdraws_a_clock_timeout() -> None:
+    """The clock fired H001, then a heartbeat stamped before the timeout's moment arrives
+    (it waited in a driver queue longer than the grace): the finding is withdrawn, the
+    node is back, and the offline check agrees there was no timeout."""
+    wall = [100.0]
+    withdrawn: list[LiveFinding] = []
+    s = Session(PROFILE, RULES, None, timer=False, clock=BusClock(lambda: wall[0]),
+                on_withdraw=withdrawn.append)
+    for i in range(5):
+        wall[0] = 100.0 + i * 0.1
+        s.feed(LiveFrame(10.0 + i * 0.1, "can0", 0x705, dlc=1, data=b"\x05"))
+    wall[0] = 100.4 + 0.2
+    s.tick()
+    assert [lf.rule for lf in s.live] == ["H001"] and s.nodes()[0].state == "OFFLINE"
+    s.feed(LiveFrame(10.54, "can0", 0x705, dlc=1, data=b"\x05"))  # stamped before 10.55
+    assert withdrawn == s.live and s.nodes()[0].state == "OPERATIONAL"
+    assert s.nodes()[0].findings == 0
+    outcome = s.close()
+    assert outcome.result is not None and outcome.result.findings == []
+    assert [lf.confirmed for lf in outcome.live] == ["withdrawn"]
+
+
+def test_clock_offset_forgets_an_old_maximum() -> None:
+    """An adapter clock that runs slow against the host: the offset follows it instead of
+    keeping the oldest, largest one (timeouts would fire early)."""
+    wall = [0.0]
+    clock = BusClock(lambda: wall[0])
+    clock.observe(1000.0)
+    for k in range(1, 40):
+        wall[0] = float(k)
+        clock.observe(1000.0 + k - 0.001 * k)  # 1000 ppm slow
+    assert clock.offset is not None and abs(clock.offset - (1000.0 - 0.039)) < 0.012
+
+
+def test_display_plain_lines_and_terminal_table() -> None:
+    """Not a terminal: one line per finding, no escape codes. A terminal: the node table
+    under the lines, redrawn in place."""
+    import io
+
+    from nmtcheck.live.display import Display
+
+    lf = LiveFinding("H001", "heartbeat-timeout", "error", "can0", 5, 12.402,
+                     "no heartbeat from node 5")
+    plain = io.StringIO()
+    d = Display(plain)
+    d.start = 0.0
+    d.refresh([], 13.0)
+    d.finding(lf)
+    assert plain.getvalue() == ("   12.402 s  can0 node 5  H001 heartbeat-timeout  "
+                                "no heartbeat from node 5\n")
+    s = Session(PROFILE, RULES, None, timer=False)
+    s.feed(LiveFrame(12.0, "can0", 0x705, dlc=1, data=b"\x05"))
+    tty = io.StringIO()
+    d = Display(tty, table=True)
+    d.start = 12.0
+    d.refresh(s.nodes(), 12.25)
+    d.finding(lf)
+    d.refresh(s.nodes(), 12.5)
+    s.close()
+    out = tty.getvalue()
+    assert out.count("\x1b[2F\x1b[J") == 2  # the two-line table cleared before each redraw
+    assert out.rstrip().endswith("can0          5  OPERATIONAL            0.500 s  0")
+    assert "no heartbeat from node 5" in out
+
+
+# -- the README's pytest fixture recipe, as written there ----------------------------------
+
+
+@pytest.fixture
+def device() -> Iterator[canopen.LocalNode]:
+    """The device under test: a python-canopen node on the bench's bus."""
+    network = canopen.Network()
+    network.connect(interface="virtual", channel="bench")
+    node = _local_node(network, 7)
+    yield node
+    node.nmt.stop_heartbeat()
+    network.disconnect()
+
+
+@pytest.fixture
+def nmt_monitor(tmp_path: Path) -> Iterator[nmtcheck.Monitor]:
+    """Every test that uses it fails on an error-level NMT finding during the test.
+    Request it after the device fixtures: it then ends before they stop the devices."""
+    bus = can.Bus(interface="virtual", channel="bench")  # the bench's bus, e.g. pcan
+    monitor = nmtcheck.Monitor(record=tmp_path / "nmt.log")
+    notifier = can.Notifier(bus, [monitor])
+    yield monitor
+    monitor.stop()  # first: what the bus does after the test is not the test's
+    notifier.stop()
+    bus.shutdown()
+    assert monitor.errors == []
+    errors = monitor.findings(severity="error")
+    assert errors == [], monitor.report("concise")
+
+
+def test_fixture_recipe_healthy_device(device: canopen.LocalNode,
+                                       nmt_monitor: nmtcheck.Monitor) -> None:
+    """A python-canopen device that boots, is started and heartbeats: the fixture finds
+    nothing; the report and the timeline are there for the test to look at."""
+    device.nmt.state = "INITIALISING"
+    device.nmt.state = "PRE-OPERATIONAL"
+    device.nmt.start_heartbeat(50)
+    device.network.nmt.send_command(0x01)
+    device.nmt.state = "OPERATIONAL"
+    time.sleep(0.4)
+    report = json.loads(nmt_monitor.report("json"))
+    assert [n["node"] for n in report["nodes"]] == [7]
+    assert report["findings"] == []
+    assert [iv.state for iv in nmt_monitor.timeline()[("bench", 7)]][-1] == "OPERATIONAL"
+
+
+def test_monitor_keeps_a_bus_error_and_what_came_before(tmp_path: Path) -> None:
+    """The Notifier's bus fails mid-test (shut down under it): the Monitor keeps the error
+    in `errors` (the Notifier raises it to no one, and goes on failing: the first ten are
+    kept, all counted) and everything received before it is still checked."""
+    channel = f"gone-{id(tmp_path)}"
+    tx = can.Bus(interface="virtual", channel=channel)
+    rx = can.Bus(interface="virtual", channel=channel)
+    monitor = nmtcheck.Monitor()
+    notifier = can.Notifier(rx, [monitor], timeout=0.05)
+    try:
+        tx.send(can.Message(arbitration_id=0x703, data=[0], is_extended_id=False))
+        for _ in range(4):
+            tx.send(can.Message(arbitration_id=0x703, data=[5], is_extended_id=False))
+            time.sleep(0.05)
+        time.sleep(0.05)
+        rx.shutdown()  # the adapter goes away
+        time.sleep(0.2)
+    finally:
+        notifier.stop()
+        monitor.stop()
+        tx.shutdown()
+    assert monitor.errors[0] == "CanOperationError: Cannot operate on a closed bus"
+    assert len(monitor.errors) <= 10 and monitor.error_count >= len(monitor.errors)
+    res = monitor.result()
+    assert res is not None and res.stats.frames == 5

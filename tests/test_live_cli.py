@@ -77,7 +77,7 @@ def test_follow_pipe_live_then_the_full_check(tmp_path: Path) -> None:
     sent: list[bytes] = [b"(%.6f) can0 705#00\n" % time.time()]
     assert proc.stdin is not None
     proc.stdin.write(sent[0])
-    last = _feed_heartbeats(proc, sent, 0.6)
+    last = _feed_heartbeats(proc, sent, 1.5)  # long enough for the process to start
     time.sleep(0.4)  # node 5 silent: 1.5 x 50 ms expires 75 ms after `last`
     live = [(w, t) for w, t in err.lines if "H001" in t]
     assert len(live) == 1, err.text()
@@ -217,13 +217,18 @@ def test_monitor_bus_error_mid_session(tmp_path: Path, monkeypatch: pytest.Monke
     t = threading.Thread(target=drive)
     t.start()
     monkeypatch.setattr(sys, "argv", ["nmtcheck", "monitor", "-i", "virtual", "-c", channel,
-                                      "--duration", "20", "-o", str(report)])
+                                      "--duration", "20", "-o", str(report),
+                                      "--format", "json"])
     with pytest.raises(SystemExit) as exit_info:
         cli.main()
     t.join()
     tx.shutdown()
     assert exit_info.value.code == 2
-    err = capsys.readouterr().err
+    captured = capsys.readouterr()
+    err = captured.err
+    # next to a machine format the live lines go to stderr: stdout stays JSON
+    assert json.loads(captured.out)["findings"][0]["rule"] == "H001"
+    assert f"{channel} node 3  H001 heartbeat-timeout" in err
     assert err.splitlines()[-1] == (f"nmtcheck: {channel}: bus error: Cannot operate on a "
                                     f"closed bus")
     assert "session ended: bus error; 8 frames" in err
@@ -241,3 +246,82 @@ def test_monitor_driver_missing(interface: str, tmp_path: Path) -> None:
     assert len(lines) == 1 and lines[0].startswith(
         f"nmtcheck: --interface {interface} --channel PCAN_USBBUS1: "), lines
     assert not (tmp_path / "r.json").exists() and out == b""
+
+
+def test_monitor_two_channels_duration(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Two channels (each its own CANopen network), --duration ends the session; node 5
+    falls silent on one channel only; the recording holds both and `check` of it gives
+    the report's findings."""
+    from nmtcheck import cli
+
+    a, b = f"a-{id(tmp_path)}", f"b-{id(tmp_path)}"
+    txa, txb = can.Bus(interface="virtual", channel=a), can.Bus(interface="virtual", channel=b)
+    stop = threading.Event()
+
+    def drive() -> None:
+        time.sleep(0.3)  # the monitor opens its buses
+        for bus in (txa, txb):
+            bus.send(can.Message(arbitration_id=0x705, data=[0], is_extended_id=False))
+        k = 0
+        while not stop.is_set():
+            txa.send(can.Message(arbitration_id=0x705, data=[5], is_extended_id=False))
+            if k < 5:
+                txb.send(can.Message(arbitration_id=0x705, data=[5], is_extended_id=False))
+            k += 1
+            time.sleep(0.05)
+
+    record, report = tmp_path / "s.log", tmp_path / "s.json"
+    t = threading.Thread(target=drive)
+    t.start()
+    monkeypatch.setattr(sys, "argv", [
+        "nmtcheck", "monitor", "-i", "virtual", "-c", a, "-c", b, "--duration", "1.2",
+        "--record", str(record), "-o", str(report), "--select", "H,B"])
+    try:
+        with pytest.raises(SystemExit) as exit_info:
+            cli.main()
+    finally:
+        stop.set()
+        t.join()
+        txa.shutdown()
+        txb.shutdown()
+    assert exit_info.value.code == 1
+    captured = capsys.readouterr()
+    assert f"{b} node 5  H001 heartbeat-timeout" in captured.out
+    assert "session ended: duration;" in captured.err
+    data = json.loads(report.read_text())
+    assert [(f["rule"], f["channel"], f["node"]) for f in data["findings"]] == [
+        ("H001", b, 5)]
+    offline = check_input(str(record), 0, PROFILE, select_rules(PROFILE, ["H", "B"], []))
+    assert sorted(offline.stats.channels) == sorted([a, b])
+    assert [(f.rule, f.channel, round(f.time, 6)) for f in offline.findings] == [
+        (f["rule"], f["channel"], f["time"]) for f in data["findings"]]
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    ([], "no --interface given, and no python-can configuration names one "
+         "(~/.canrc, can.ini or $CAN_INTERFACE)"),
+    (["-i", "virtual", "--bus-option", "foo"],
+     "--bus-option foo: expected KEY=VALUE, e.g. --bus-option receive_own_messages=true"),
+    (["-i", "virtual", "-o", "/nonexistent-dir/r.json"],
+     "--output /nonexistent-dir/r.json: the directory does not exist"),
+    (["-i", "virtual", "--record", "/nonexistent-dir/s.log"],
+     "--record /nonexistent-dir/s.log: the directory does not exist"),
+    (["-i", "virtual", "-c", "quiet", "--duration", "0.3"],
+     "no frame received on quiet (duration)"),
+])
+def test_monitor_usage_errors(args: list[str], message: str, tmp_path: Path,
+                              monkeypatch: pytest.MonkeyPatch,
+                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Bad options fail before the session; a session that hears nothing is exit 2 too
+    (as `check` of an empty log): one line, never a traceback."""
+    from nmtcheck import cli
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("CAN_INTERFACE", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.canrc
+    monkeypatch.setattr(sys, "argv", ["nmtcheck", "monitor", "--isolated", *args])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main()
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1] == f"nmtcheck: {message}"

@@ -19,7 +19,8 @@ from conftest import REPO
 from nmtcheck.checks import RULES
 from nmtcheck.engine import check_input
 from nmtcheck.profiles import load_profile
-from nmtcheck.reporters import html, json as json_report, streamer
+from nmtcheck.reporters import html, streamer
+from nmtcheck.reporters import json as json_report
 
 CODES = ("05", "7F", "04")  # OPERATIONAL, PRE-OPERATIONAL, STOPPED: every heartbeat changes
 

@@ -15,10 +15,30 @@ def test_readme_rule_table_is_generated() -> None:
         "regenerate with: nmtcheck rules --format markdown")
 
 
-def test_default_profile_covers_every_rule_and_parameter() -> None:
+def test_the_default_profile_is_what_the_rules_declare() -> None:
+    """Severities and parameter defaults live in the rule declarations only."""
     from nmtcheck.checks import RULES
 
     profile = load_profile("default")
+    assert set(profile) == {r.code for r in RULES}
     for r in RULES:
+        assert profile[r.code].enabled
         assert profile[r.code].severity == r.severity
-        assert set(profile[r.code].params) == {p.name for p in r.params}
+        assert profile[r.code].params == {p.name: p.default for p in r.params}
+
+
+def test_every_rule_is_documented_as_the_catalogue_shows_it() -> None:
+    """As ruff does through its metadata: every rule says what it checks, why it matters
+    and gives an example, and every parameter has a meaning and a default of its type."""
+    from nmtcheck.checks import RULES
+    from nmtcheck.checks.base import SEVERITIES
+
+    for r in RULES:
+        assert r.severity in SEVERITIES, r.code
+        assert r.summary and not r.summary.startswith("**"), r.code
+        for section in ("**What it checks.**", "**Why it matters.**", "**Example.**"):
+            assert section in r.doc, (r.code, section)
+        for p in r.params:
+            assert p.doc.strip(), (r.code, p.name)
+            assert isinstance(p.default, p.type) and not isinstance(p.default, bool), (
+                r.code, p.name)

@@ -25,10 +25,10 @@ import pytest
 from conftest import REPO, SAMPLES
 
 from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.nmt import UNKNOWN
 from nmtcheck.profiles import load_profile
 from nmtcheck.reporters import html as html_reporter
 from nmtcheck.reporters.common import group_findings
-from nmtcheck.timeline import UNKNOWN
 
 SAMPLE_NAMES = ["healthy", "heartbeat_loss", "pdo_preop", "guard_toggle", "ignored_command",
                 "reset_no_bootup"]

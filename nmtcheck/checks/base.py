@@ -14,18 +14,33 @@ from typing import Any
 
 import numpy as np
 
-from nmtcheck.timeline import InputModel
+from nmtcheck.model import InputModel
 
-SEVERITIES = ("error", "warning", "info")
+SEVERITIES = ("error", "warning", "info")  # the one order: most severe first
+
+
+def is_failing_severity(severity: str, threshold: str) -> bool:
+    """True when a finding of `severity` makes the run fail under `--fail-on threshold`."""
+    if threshold == "never":
+        return False
+    return SEVERITIES.index(severity) <= SEVERITIES.index(threshold)
+
+
+def fails(counts: dict[str, int], threshold: str) -> bool:
+    """The verdict of the exit code: a finding at or above `--fail-on` (counts by severity,
+    those left out under `--max-findings` included)."""
+    return any(counts.get(s) for s in SEVERITIES if is_failing_severity(s, threshold))
 
 
 @dataclass(frozen=True)
 class Param:
-    """A rule parameter: its TOML name, Python type and meaning."""
+    """A rule parameter: its TOML name, Python type, meaning and default (the one place
+    defaults live: `rules/default.toml` changes none of them)."""
 
     name: str
     type: type
     doc: str
+    default: Any
 
 
 @dataclass
@@ -76,6 +91,9 @@ class Rule:
     params: tuple[Param, ...]
     check: Check
     exempt_from_unknown: bool = False
+    # whose findings: "node" (a node's), "network" (the channel's: node null),
+    # "network+node" (either), "input" (the input itself: no channel, no node)
+    scope: str = "node"
 
     @property
     def doc(self) -> str:
@@ -86,12 +104,16 @@ class Rule:
         return self.doc.splitlines()[0] if self.doc else ""
 
 
+SCOPES = ("node", "network", "network+node", "input")
+
+
 def rule(code: str, name: str, severity: str, *params: Param,
-         exempt_from_unknown: bool = False) -> Callable[[Check], Rule]:
+         exempt_from_unknown: bool = False, scope: str = "node") -> Callable[[Check], Rule]:
     """Declare a rule; the decorated function's docstring is its documentation."""
+    assert severity in SEVERITIES and scope in SCOPES, (code, severity, scope)
 
     def wrap(check: Check) -> Rule:
-        return Rule(code, name, severity, params, check, exempt_from_unknown)
+        return Rule(code, name, severity, params, check, exempt_from_unknown, scope)
 
     return wrap
 

@@ -10,16 +10,8 @@ import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, rule
 from nmtcheck.decode import KIND_EC, KIND_NAMES
-from nmtcheck.timeline import (
-    EPS,
-    GUARD,
-    HEARTBEAT,
-    MALFORMED,
-    EcFrame,
-    InputModel,
-    NodeModel,
-    any_between,
-)
+from nmtcheck.model import EcFrame, InputModel, NodeModel
+from nmtcheck.nmt import EPS, GUARD, HEARTBEAT, MALFORMED, any_between
 
 
 def _auto_window_s(m: NodeModel, value_ms: float) -> float:
@@ -30,10 +22,11 @@ def _auto_window_s(m: NodeModel, value_ms: float) -> float:
 
 
 @rule("B001", "missing-bootup", "error",
-      Param("bootup_timeout_ms", float, "how long a reset node may take to send its boot-up"),
+      Param("bootup_timeout_ms", float, "how long a reset node may take to send its boot-up",
+            5000.0),
       Param("late_start_ms", float,
             "first heartbeat later than this after the trace start without a boot-up "
-            "(0 = 3 x the node's heartbeat period, at least 1000 ms)"),
+            "(0 = 3 x the node's heartbeat period, at least 1000 ms)", 0.0),
       exempt_from_unknown=True)
 def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A node did not announce its (re)start with a boot-up message.
@@ -132,7 +125,7 @@ def _repeats(m: NodeModel, window: float) -> list[list[EcFrame]]:
 @rule("B003", "bootup-repeated", "error",
       Param("repeat_window_ms", float,
             "a second 00h within this window is a repeat "
-            "(0 = 3 x the node's heartbeat period, at least 1000 ms)"))
+            "(0 = 3 x the node's heartbeat period, at least 1000 ms)", 0.0))
 def bootup_repeated(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A node keeps sending state 00h instead of announcing its boot-up once.
 
@@ -158,7 +151,7 @@ def bootup_repeated(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
 
 @rule("B002", "unexpected-bootup", "warning",
-      Param("reset_window_ms", float, "how long a reset command explains a later boot-up"))
+      Param("reset_window_ms", float, "how long a reset command explains a later boot-up", 10000.0))
 def unexpected_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A node rebooted on its own: a boot-up no reset command explains.
 
@@ -174,7 +167,7 @@ def unexpected_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     **Example.** `703#05` every 100 ms, then `703#00` with no `000#8103` before it.
     """
     window = p["reset_window_ms"] / 1000.0
-    repeat_ms = model.params.get("B003", {}).get("repeat_window_ms", 0.0)
+    repeat_ms = model.timeline.repeat_window_ms  # B003's: its repeats are left to it
     for cm in model.channels:
         for m in cm.nodes.values():
             repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms))

@@ -8,24 +8,15 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts, runs
-from nmtcheck.timeline import (
-    BOOTUP,
-    GUARD,
-    HEARTBEAT,
-    MALFORMED,
-    STATE_OF_CODE,
-    ChannelModel,
-    EcFrame,
-    EcTable,
-    InputModel,
-    NmtFrame,
-)
+from nmtcheck.model import ChannelModel, EcFrame, EcTable, InputModel, NmtFrame
+from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE
 
 
 @rule("C001", "restricted-can-id", "error",
       Param("allow", list, "reserved CAN-IDs that legitimate CiA profiles use (LSS, flying "
-                           "master, global fail-safe command)"),
-      exempt_from_unknown=True)
+                           "master, global fail-safe command)",
+            [0x7E4, 0x7E5, 0x071, 0x072, 0x073, 0x074, 0x075, 0x076, 0x001]),
+      exempt_from_unknown=True, scope="network")
 def restricted_can_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """An 11-bit frame uses a CAN-ID that CiA 301 reserves.
 
@@ -50,7 +41,7 @@ def restricted_can_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
                       use.first_idx, use.first_line)
 
 
-@rule("C002", "malformed-nmt-command", "error")
+@rule("C002", "malformed-nmt-command", "error", scope="network+node")
 def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A frame on CAN-ID 000h is not a valid NMT module-control command.
 

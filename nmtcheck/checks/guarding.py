@@ -8,16 +8,8 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts
-from nmtcheck.timeline import (
-    BOOTUP,
-    EPS,
-    GUARD,
-    HEARTBEAT,
-    REQUEST,
-    InputModel,
-    NodeConfig,
-    between,
-)
+from nmtcheck.model import InputModel, NodeConfig
+from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST, between
 
 
 @rule("G001", "guard-toggle", "error")
@@ -77,7 +69,8 @@ def guard_toggle(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
 
 @rule("G002", "guard-no-response", "error",
-      Param("response_timeout_ms", float, "how long a guarding request may wait for its answer"))
+      Param("response_timeout_ms", float, "how long a guarding request may wait for its answer",
+            1000.0))
 def guard_no_response(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A node-guarding request went unanswered.
 

@@ -8,12 +8,13 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts
-from nmtcheck.timeline import BOOTUP, EPS, HEARTBEAT, InputModel, between, state_name
+from nmtcheck.model import InputModel
+from nmtcheck.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
 
 
 @rule("H001", "heartbeat-timeout", "error",
       Param("timeout_factor", float,
-            "timeout = factor x producer period when no consumer time is configured"))
+            "timeout = factor x producer period when no consumer time is configured", 1.5))
 def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A heartbeat producer fell silent for longer than its consumers wait.
 
@@ -58,7 +59,7 @@ def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
 
 
 @rule("H002", "heartbeat-too-early", "warning",
-      Param("early_factor", float, "heartbeats closer than factor x period are too early"))
+      Param("early_factor", float, "heartbeats closer than factor x period are too early", 0.5))
 def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """Two heartbeats of a node come much closer together than its period.
 
@@ -110,7 +111,7 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
 
 
 @rule("H003", "heartbeat-period-mismatch", "warning",
-      Param("tolerance", float, "allowed relative difference of the median interval"))
+      Param("tolerance", float, "allowed relative difference of the median interval", 0.1))
 def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A node's heartbeat period differs from its configured producer time.
 

@@ -15,8 +15,8 @@ import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, rule
 from nmtcheck.decode import frame_time_lines
+from nmtcheck.model import InputModel
 from nmtcheck.readers import TEXT_FORMATS
-from nmtcheck.timeline import InputModel
 
 LINES_SHOWN = 5
 
@@ -67,7 +67,7 @@ def _plural(n: int, word: str) -> str:
     return f"{n} {word}" + ("" if n == 1 else "s")
 
 
-@rule("I001", "nothing-to-check", "error", exempt_from_unknown=True)
+@rule("I001", "nothing-to-check", "error", exempt_from_unknown=True, scope="input")
 def nothing_to_check(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """The input holds no 11-bit CAN frame: nothing was checked.
 
@@ -105,7 +105,7 @@ def nothing_to_check(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                   f"{stats.format} input ({', '.join(parts)}){hint}", idx, line)
 
 
-@rule("I002", "truncated-input", "warning", exempt_from_unknown=True)
+@rule("I002", "truncated-input", "warning", exempt_from_unknown=True, scope="input")
 def truncated_input(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """The input ends early: inside a record, a compressed stream or a container.
 
@@ -131,8 +131,8 @@ def truncated_input(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
 
 @rule("I003", "skipped-records", "warning",
-      Param("max_skipped", int, "how many unparseable records are tolerated"),
-      exempt_from_unknown=True)
+      Param("max_skipped", int, "how many unparseable records are tolerated", 0),
+      exempt_from_unknown=True, scope="input")
 def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """Records of the input could not be parsed.
 
@@ -167,7 +167,7 @@ def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                   f"{stats.format}{where}", idx, line)
 
 
-@rule("I004", "frames-lost", "warning", exempt_from_unknown=True)
+@rule("I004", "frames-lost", "warning", exempt_from_unknown=True, scope="input")
 def frames_lost(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """The logger reported frames it dropped.
 
@@ -192,7 +192,7 @@ def frames_lost(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                   "first frame); timing findings may be the logger's", idx, line)
 
 
-@rule("I005", "timestamps-backwards", "warning", exempt_from_unknown=True)
+@rule("I005", "timestamps-backwards", "warning", exempt_from_unknown=True, scope="input")
 def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """Timestamps go backwards between consecutive records.
 

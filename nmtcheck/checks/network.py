@@ -8,16 +8,8 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Problem, rule
-from nmtcheck.timeline import (
-    BOOTUP,
-    EPS,
-    HEARTBEAT,
-    EcFrame,
-    InputModel,
-    NodeModel,
-    between,
-    state_name,
-)
+from nmtcheck.model import EcFrame, InputModel, NodeModel
+from nmtcheck.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
 
 
 @rule("N001", "missing-node", "error", exempt_from_unknown=True)

@@ -23,7 +23,8 @@ from nmtcheck.decode import (
     node_frame_lines,
 )
 from nmtcheck.frames import RPDO_BASES, TPDO_BASES
-from nmtcheck.timeline import (
+from nmtcheck.model import InputModel, NodeModel
+from nmtcheck.nmt import (
     BOOTUP,
     COMMAND_STATE,
     EPS,
@@ -36,8 +37,6 @@ from nmtcheck.timeline import (
     STATE_OF_CODE,
     STATES,
     STOPPED,
-    InputModel,
-    NodeModel,
     between,
     state_name,
 )
@@ -223,7 +222,7 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
 
 
 @rule("S001", "pdo-while-not-operational", "error",
-      Param("grace_ms", float, "PDOs this soon after leaving OPERATIONAL are still in flight"))
+      Param("grace_ms", float, "PDOs this soon after leaving OPERATIONAL are still in flight", 5.0))
 def pdo_while_not_operational(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A node transmitted a PDO while not OPERATIONAL.
 
@@ -268,7 +267,7 @@ def _pdo_problems(model: InputModel, kinds: tuple[int, ...], grace_s: float,
 
 
 @rule("S003", "comm-while-stopped", "error",
-      Param("grace_ms", float, "frames this soon after entering STOPPED are still in flight"))
+      Param("grace_ms", float, "frames this soon after entering STOPPED are still in flight", 5.0))
 def comm_while_stopped(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A STOPPED node answered an SDO or sent an EMCY.
 
@@ -289,7 +288,8 @@ def comm_while_stopped(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
 
 
 @rule("S004", "command-not-obeyed", "error",
-      Param("obey_ms", float, "time a node has to carry out a command before its reports count"))
+      Param("obey_ms", float, "time a node has to carry out a command before its reports count",
+            100.0))
 def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """A node kept reporting another state after an NMT command.
 

@@ -16,7 +16,6 @@ from nmtcheck.errors import UsageError
 
 FLEET_OPTION_NAMES = ("results", "executor", "manifest", "storage_options", "path_pattern",
                       "force", "on_input_error")
-SEVERITY_ORDER = ["error", "warning", "info"]
 
 
 def fleet_options(f: Callable[..., Any]) -> Callable[..., Any]:
@@ -67,7 +66,13 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
     from nmtcheck.fleet.run import FleetOptions, run_fleet
     from nmtcheck.fleet.storage import parse_storage_options
 
-    fmt_given = click.get_current_context().params.get("fmt")
+    ctx = click.get_current_context()
+    fmt_given = ctx.params.get("fmt")
+    executor = options.get("executor")
+    if ctx.get_parameter_source("jobs") == click.core.ParameterSource.COMMANDLINE:
+        if executor:
+            raise UsageError("-j/--jobs does not go with --executor (use --executor local:N)")
+        executor = f"local:{ctx.params['jobs']}" if ctx.params.get("jobs") else "local"
     conflicting = [name for name, given in (("--output", outputs), ("--format", fmt_given),
                                             ("--statistics", statistics)) if given]
     if conflicting:
@@ -80,7 +85,7 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
         raise UsageError("-: standard input cannot be part of a fleet run")
     opts = FleetOptions(
         sources=list(logs), results=options["results"], manifest=options.get("manifest"),
-        executor=options.get("executor") or "local",
+        executor=executor or "local",
         storage_options=parse_storage_options(options.get("storage_options") or ()),
         path_pattern=options.get("path_pattern"), force=bool(options.get("force")),
         progress=sys.stderr.isatty() and not quiet)
@@ -94,7 +99,10 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
         out = run_fleet(opts, profile, [r.code for r in rules], network, input_format,
                         strict, channel, reader_options, max_findings)
     for w in caught:
-        if issubclass(w.category, UserWarning) and "nmtcheck" in str(w.filename):
+        # nmtcheck's own, and Dask's client/scheduler/worker version check ("Mismatched
+        # versions found"); Dask's other chatter (a dashboard port in use) is left out
+        if issubclass(w.category, UserWarning) and (
+                "nmtcheck" in str(w.filename) or "ismatched versions" in str(w.message)):
             click.echo(f"nmtcheck: warning: {w.message}", err=True)
     click.echo(render_outcome(out, opts.results, quiet))
     failed = [(u, e) for u, e in out.errors]
@@ -106,10 +114,9 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
         click.echo(f"nmtcheck: {err if err.startswith(url) else f'{url}: {err}'}{more}",
                    err=True)
         return 2
-    if fail_on != "never" and any(
-            out.severity[s] for s in SEVERITY_ORDER[: SEVERITY_ORDER.index(fail_on) + 1]):
-        return 1
-    return 0
+    from nmtcheck.checks.base import fails
+
+    return 1 if fails(out.severity, fail_on) else 0
 
 
 def render_outcome(out: Any, results: str, quiet: bool) -> str:
@@ -121,8 +128,11 @@ def render_outcome(out: Any, results: str, quiet: bool) -> str:
     if not quiet:
         for url, err in out.errors:
             lines.append(f"  {err if err.startswith(url) else f'{url}: {err}'}")
-        lines.append(f"results: {results} (run {out.run_id}, {out.executor}, "
-                     f"{out.seconds:.1f} s)")
+        if out.checked:
+            lines.append(f"results: {results} (run {out.run_id}, {out.executor}, "
+                         f"{out.seconds:.1f} s)")
+        else:
+            lines.append(f"results: {results} (nothing new to check: no run recorded)")
     sev = out.severity
     lines.append(f"fleet: {sev['error']} errors, {sev['warning']} warnings, {sev['info']} info")
     return "\n".join(lines)

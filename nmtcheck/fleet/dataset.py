@@ -14,6 +14,7 @@ nmtcheck's version and the profile): writing them again replaces them, never dup
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -118,7 +119,19 @@ class Dataset:
 
     def ensure(self) -> None:
         """Create the dataset (its marker file) or check that it is one of a version this
-        nmtcheck writes."""
+        nmtcheck writes; a location that cannot be written is a usage error, before any
+        log is checked."""
+        from nmtcheck.errors import UsageError
+
+        try:
+            self._ensure()
+        except UsageError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - fsspec backends raise many kinds
+            reason = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+            raise UsageError(f"--results {self.url}: cannot write there: {reason}") from None
+
+    def _ensure(self) -> None:
         from nmtcheck.errors import UsageError
 
         marker = self.path(MARKER)
@@ -195,28 +208,36 @@ class Dataset:
                              partitioning=part, partition_base_dir=self.path(table))
         return dataset.to_table(columns=cols)
 
-    def done(self) -> dict[str, dict[str, Any]]:
-        """What the dataset already holds, for the skip list: (url, fingerprint, version,
-        profile) -> that input's status and severity counts (latest check)."""
+    def done(self, version: str, digest: str) -> dict[bytes, tuple[str, int, int, int]]:
+        """The skip list: the logs this nmtcheck version with this profile has already
+        checked, as done_key(url, fingerprint) -> (status, errors, warnings, infos) of the
+        latest check. 16-byte keys and only the matching rows: a million logs take tens of
+        MB on the client, not the inputs table."""
+        import pyarrow.compute as pc
+
         t = self.read("inputs", ["url", "fingerprint", "nmtcheck_version", "profile_digest",
                                  "status", "checked_at", *SEVERITY_COLUMNS])
-        out: dict[str, dict[str, Any]] = {}
+        out: dict[bytes, tuple[str, int, int, int]] = {}
         if t.num_rows == 0:
             return out
-        for r in t.sort_by("checked_at").to_pylist():
-            key = done_key(r["url"], r["fingerprint"], r["nmtcheck_version"], r["profile_digest"])
-            out[key] = r
+        t = t.filter(pc.and_(pc.equal(t["nmtcheck_version"], version),
+                             pc.equal(t["profile_digest"], digest))).sort_by("checked_at")
+        cols = [t[c].to_pylist() for c in ("url", "fingerprint", "status", *SEVERITY_COLUMNS)]
+        for url, fp, status, e, w, i in zip(*cols, strict=True):
+            out[done_key(url, fp)] = (status, e or 0, w or 0, i or 0)
         return out
 
 
-def done_key(url: str, fingerprint: str, version: str, digest: str) -> str:
-    return "\x1f".join((url, fingerprint, version, digest))
+def done_key(url: str, fingerprint: str) -> bytes:
+    return hashlib.blake2b(f"{url}\x1f{fingerprint}".encode(), digest_size=16).digest()
 
 
 def latest(tables: dict[str, Any]) -> dict[str, Any]:
     """The newest check of each URL (pandas frames): older checks of a log that changed, or
     of an older nmtcheck or profile, and rows of a batch superseded by a --force re-run with
     other batches, are left out."""
+    import numpy as np
+
     inputs = tables["inputs"]
     if len(inputs) == 0:
         return tables
@@ -228,5 +249,5 @@ def latest(tables: dict[str, Any]) -> dict[str, Any]:
     for name in ("findings", "node_stats"):
         df = tables[name]
         mask = [(a, b) in keep for a, b in zip(df["input_id"], df["batch_id"], strict=True)]
-        out[name] = df[mask].reset_index(drop=True)
+        out[name] = df.loc[np.asarray(mask, dtype=bool)].reset_index(drop=True)  # [] keeps rows
     return out

@@ -78,6 +78,7 @@ class ResilientPool:
         self._tasks: dict[Future[Any], tuple[Hashable, Callable[..., Any], tuple[Any, ...]]] = {}
         self._failures: dict[Hashable, int] = {}
         self._ready: list[tuple[Hashable, Any]] = []
+        self._dead_starts = 0
 
     def _ensure(self) -> ProcessPoolExecutor:
         if self._pool is None:
@@ -132,11 +133,10 @@ class ResilientPool:
         return keys
 
     def _recover(self) -> None:
+        wait(list(self._tasks))  # a broken pool fails all its futures: let it finish doing so
         started = self._started_keys()
         lost = []
         for f, (key, fn, args) in list(self._tasks.items()):
-            if not f.done():
-                continue
             exc = f.exception()
             del self._tasks[f]
             if exc is None:
@@ -145,9 +145,17 @@ class ResilientPool:
                 lost.append((key, fn, args))
             else:
                 self._ready.append((key, exc))
-        # The tasks that were running when the pool broke; if the pool could not say (it
-        # broke before a worker wrote), every lost task is a suspect.
-        suspects = {k for k, _fn, _a in lost if k in started} or {k for k, _fn, _a in lost}
+        # The tasks that were running when the pool broke. None: the workers died before
+        # starting any task (they cannot start: an import error, a broken environment);
+        # the pool is restarted a few times and then the error is the run's, not a log's.
+        suspects = {k for k, _fn, _a in lost if k in started}
+        if lost and not suspects:
+            self._dead_starts += 1
+            if self._dead_starts > self.allowed_failures:
+                raise UsageError("the worker processes die before they start a task (run "
+                                 "with -j 1 or --executor local:1 to see why)")
+        else:
+            self._dead_starts = 0
         self._restart()
         for key, fn, args in lost:
             if key in suspects:
@@ -179,8 +187,12 @@ class LocalExecutor:
     def __init__(self, workers: int | None = None) -> None:
         self.slots = workers or os.cpu_count() or 1
         self.name = f"local:{self.slots}"
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["nmtcheck.fleet.tasks", "nmtcheck.engine"])
+        ctx: Any
+        if "forkserver" in multiprocessing.get_all_start_methods():
+            ctx = multiprocessing.get_context("forkserver")
+            ctx.set_forkserver_preload(["nmtcheck.fleet.tasks", "nmtcheck.engine"])
+        else:  # Windows
+            ctx = multiprocessing.get_context("spawn")
         self._pool = ResilientPool(self.slots, mp_context=ctx)
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
@@ -207,8 +219,8 @@ class LocalExecutor:
 # worker thread every 10 ms.
 DASK_CONFIG: dict[str, Any] = {
     "distributed.worker.profile.enabled": False,
-    "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1,
-                                            "OPENBLAS_NUM_THREADS": 1},
+    # None unsets a variable of Dask's defaults (dask.config.set merges dictionaries)
+    "distributed.nanny.pre-spawn-environ": {"MALLOC_TRIM_THRESHOLD_": None},
     "distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
 }
 
@@ -253,7 +265,7 @@ class DaskExecutor:
             with dask.config.set(DASK_CONFIG):
                 self._cluster = distributed.LocalCluster(
                     n_workers=n, threads_per_worker=1, processes=True,
-                    dashboard_address=None, silence_logs=40)
+                    dashboard_address=":0", silence_logs=40)
                 self.client = distributed.Client(self._cluster)
             self.name = f"dask-local:{n}"
         else:
@@ -263,8 +275,12 @@ class DaskExecutor:
                 raise UsageError(f"--executor dask://{address.removeprefix('tcp://')}: cannot "
                                  f"connect to the scheduler: {exc}") from None
             self.name = f"dask://{address.removeprefix('tcp://')}"
-        self._check_workers(remote=address is not None)
-        self._tries = 1 + int(self.client.run_on_scheduler(_allowed_failures))
+        try:
+            self._check_workers(remote=address is not None)
+            self._tries = 1 + int(self.client.run_on_scheduler(_allowed_failures))
+        except BaseException:
+            self.close()
+            raise
         self.slots = max(1, sum(self.client.nthreads().values()))
         self._ac = distributed.as_completed()
         self._futures: dict[Any, Hashable] = {}

@@ -144,7 +144,14 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     from nmtcheck import __version__
     from nmtcheck.fleet.dataset import Dataset, done_key
     from nmtcheck.fleet.executors import Crashed, Executor, make_executor
-    from nmtcheck.fleet.storage import PathPattern, absolute, complete, expand
+    from nmtcheck.fleet.storage import (
+        PathPattern,
+        absolute,
+        check_exists,
+        complete,
+        expand,
+        filesystem,
+    )
     from nmtcheck.fleet.tasks import BatchCounts, TaskConfig, check_batch, crashed_batch
 
     started = time.time()
@@ -152,10 +159,14 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     reader_options = reader_options or {}
     digest = profile_digest(profile, rule_codes, network, input_format, strict, channel,
                             reader_options, max_findings)
+    for src in opts.sources:  # a missing filesystem package is exit 2 before any work
+        filesystem(src, opts.storage_options)
+    if opts.manifest is not None:  # every file an option names is checked before any work
+        check_exists(opts.manifest, opts.storage_options, "--manifest")
     opts.results = absolute(opts.results)  # the workers' working directory is another
     ds = Dataset(opts.results, opts.storage_options)
     ds.ensure()
-    done = {} if opts.force else ds.done()
+    done = {} if opts.force else ds.done(__version__, digest)
     run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(started)) + "-" + uuid.uuid4().hex[:8]
     cfg = TaskConfig(opts.results, opts.storage_options, profile, rule_codes, network,
                      input_format, strict, channel, reader_options, max_findings,
@@ -166,19 +177,21 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
 
     def todo() -> Iterator[FileInfo]:
         """The logs to check, counting the skipped ones (their verdicts still count)."""
-        for chunk in _chunks(listing, 256):
+        inside = opts.results.rstrip("/") + "/"  # `data/**` with --results data/results
+        for chunk in _chunks((fi for fi in listing if not fi.url.startswith(inside)), 256):
             for fi in complete(chunk, opts.storage_options):
                 out.files += 1
-                prev = done.get(done_key(fi.url, fi.fingerprint, __version__, digest))
+                prev = done.get(done_key(fi.url, fi.fingerprint))
                 if prev is None:
                     yield fi
                     continue
+                status, *by_severity = prev
                 out.skipped += 1
-                for sev in out.severity:
-                    out.severity[sev] += prev[f"n_{sev}"] or 0
-                if prev["status"] in ("input_error", "crashed") and len(out.errors) < 5:
-                    out.errors.append((fi.url, f"{prev['status']} (in an earlier run)"))
-                out.skipped_status[prev["status"]] = out.skipped_status.get(prev["status"], 0) + 1
+                for sev, n in zip(out.severity, by_severity, strict=True):
+                    out.severity[sev] += n
+                if status in ("input_error", "crashed") and len(out.errors) < 5:
+                    out.errors.append((fi.url, f"{status} (in an earlier run)"))
+                out.skipped_status[status] = out.skipped_status.get(status, 0) + 1
         progress.total(out.files - out.skipped)
 
     # Started at the first batch: a re-run with nothing new starts no worker at all.

@@ -149,7 +149,10 @@ def expand(sources: list[str], manifest: str | None,
     for src in sources:
         fs, path = filesystem(src, storage_options)
         if _has_magic(path):
-            found = fs.glob(path, detail=True)
+            try:
+                found = fs.glob(path, detail=True)
+            except Exception as exc:  # noqa: BLE001 - s3fs/botocore raise many kinds
+                raise UsageError(f"{src}: cannot list: {_reason(exc)}") from None
             names = sorted(p for p, e in found.items() if e.get("type") != "directory")
             if not names:
                 raise UsageError(f"{src}: no log file matches this pattern")
@@ -160,13 +163,27 @@ def expand(sources: list[str], manifest: str | None,
             entry = fs.info(path)
         except FileNotFoundError:
             raise UsageError(f"{src}: no such file") from None
-        except OSError as exc:
-            raise UsageError(f"{src}: cannot list: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - s3fs/botocore raise many kinds
+            raise UsageError(f"{src}: cannot list: {_reason(exc)}") from None
         if entry.get("type") == "directory":
             raise UsageError(f"{src}: is a directory (use a glob such as '{src.rstrip('/')}/**')")
         yield _info(fs, _unstrip(src, fs, path) if is_local(src) else src, entry)
     if manifest is not None:
         yield from _manifest(manifest, storage_options)
+
+
+def _reason(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+
+
+def check_exists(url: str, storage_options: dict[str, Any] | None, option: str) -> None:
+    fs, path = filesystem(url, storage_options)
+    try:
+        found = fs.isfile(path)
+    except Exception as exc:  # noqa: BLE001 - s3fs/botocore raise many kinds
+        raise UsageError(f"{option} {url}: cannot read: {_reason(exc)}") from None
+    if not found:
+        raise UsageError(f"{option} {url}: no such file")
 
 
 def _manifest(manifest: str, storage_options: dict[str, Any] | None) -> Iterator[FileInfo]:

@@ -32,7 +32,6 @@ class FleetSummary:
 def summarise(results: str, storage_options: dict[str, Any] | None = None,
               rules: list[str] | None = None, top: int = 10,
               latest_only: bool = True) -> FleetSummary:
-    import pandas as pd
 
     from nmtcheck.api import read_results
 
@@ -85,12 +84,18 @@ def summarise(results: str, storage_options: dict[str, Any] | None = None,
         "versions": sorted(inputs["nmtcheck_version"].dropna().unique().tolist()),
         "runs": len(res.runs), "latest_only": latest_only,
     }
-    del pd
     return FleetSummary(results, totals, status, dev, nod, day, ver, failed)
 
 
+def _cell(v: Any) -> str:
+    """A value as a table shows it: missing values (None, NaN, pd.NA) empty."""
+    import pandas as pd
+
+    return "" if v is None or bool(pd.isna(v)) else str(v)
+
+
 def _table_text(df: Any, columns: list[str]) -> list[str]:
-    rows = [[str(c) for c in columns]] + [["" if v is None or v != v else str(v)
+    rows = [[str(c) for c in columns]] + [[_cell(v)
                                            for v in r] for r in df[columns].itertuples(False)]
     widths = [max(len(r[i]) for r in rows) for i in range(len(columns))]
     return ["  " + "  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip()
@@ -146,15 +151,13 @@ def render_csv(s: FleetSummary) -> str:
 def _csv_value(v: Any) -> str:
     from nmtcheck.reporters.common import spreadsheet_safe
 
-    if v is None or (isinstance(v, float) and v != v):
-        return ""
-    return spreadsheet_safe(str(v))
+    return spreadsheet_safe(_cell(v))
 
 
 def _table_html(df: Any, columns: list[str]) -> str:
     head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
     body = "".join("<tr>" + "".join(
-        f"<td>{html.escape('' if v is None or v != v else str(v))}</td>" for v in r) + "</tr>"
+        f"<td>{html.escape(_cell(v))}</td>" for v in r) + "</tr>"
         for r in df[columns].itertuples(False))
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 

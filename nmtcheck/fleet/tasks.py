@@ -109,7 +109,7 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
                 row.update(status="input_error", error=f"{fi.url}: {fetch_error}")
             else:
                 _check_one(path, fi, key, cfg, rules, row, rows)
-                if path != fi.url and not (fi.url.startswith("file://")) and path.startswith(tmp):
+                if path.startswith(tmp):
                     os.unlink(path)  # a fetched copy: free the disk as the batch goes on
             row["seconds"] = round(time.monotonic() - started, 6)
             rows["inputs"].append(row)
@@ -219,13 +219,17 @@ def node_rows(res: Any, key: dict[str, Any], date: str,
     import numpy as np
 
     from nmtcheck.fleet.dataset import STATE_COLUMNS
-    from nmtcheck.timeline import HEARTBEAT
+    from nmtcheck.model import STATES
+    from nmtcheck.nmt import HEARTBEAT
 
     out = []
     for m in res.nodes():
+        iv = m.intervals  # columns: a node may have millions of intervals
+        seconds = np.bincount(iv.state, weights=np.maximum(iv.end - iv.start, 0.0),
+                              minlength=len(STATES))
         in_state = dict.fromkeys(STATE_COLUMNS.values(), 0.0)
-        for iv in m.intervals:
-            in_state[STATE_COLUMNS[iv.state]] += max(0.0, iv.end - iv.start)
+        for code, total in enumerate(seconds.tolist()):
+            in_state[STATE_COLUMNS[STATES[code]]] += total
         a, b = m.heartbeat_pairs()
         gaps = m.ec.ts[b] - m.ec.ts[a]
         hb: dict[str, float | None] = dict.fromkeys(

@@ -59,13 +59,17 @@ def open_buses(interface: str | None, channels: list[str], bitrate: int | None, 
     if data_bitrate is not None:
         kwargs["data_bitrate"] = data_bitrate
     opened: list[tuple[str, Any]] = []
-    for channel in channels or [None]:
+    wanted: list[str | None] = list(channels) or [None]
+    for channel in wanted:
         where = f"--interface {interface or '(python-can configuration)'}" + (
             f" --channel {channel}" if channel is not None else "")
         try:
             bus = can.Bus(channel=channel, **kwargs) if channel is not None else can.Bus(**kwargs)
         except can.CanInterfaceNotImplementedError as exc:
             close_buses(opened)
+            if interface is None:
+                raise BusError("no --interface given, and no python-can configuration "
+                               "names one (~/.canrc, can.ini or $CAN_INTERFACE)") from None
             raise BusError(f"{where}: interface not available (driver or python-can "
                            f"backend not installed?): {_one_line(exc)}") from None
         except Exception as exc:  # noqa: BLE001 - every backend raises its own kind

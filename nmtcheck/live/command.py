@@ -8,8 +8,10 @@ recording (0/1 by --fail-on), or 2 after a bus error or when nothing was receive
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -20,9 +22,10 @@ from nmtcheck.errors import NmtcheckError, UsageError
 from nmtcheck.live.display import Display, finding_line
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.reporters import FORMATS, format_for_path, renderer
+from nmtcheck.reporters import FORMATS, auto_format, format_for_path, renderer
 
 REFRESH_S = 0.25  # node table redraws
+HUMAN_FORMATS = ("text", "concise", "markdown")
 
 
 @click.command()
@@ -86,15 +89,21 @@ def monitor(interface: str | None, channels: tuple[str, ...], bitrate: int | Non
     rules = select_rules(profile, selected, ignored)
     stdout_render = renderer(fmt)
     files = [(path, renderer(format_for_path(path))) for path in outputs]
-    for path in [*outputs, *([record] if record else [])]:
+    for option, path in [*(("--output", p) for p in outputs),
+                         *([("--record", record)] if record else [])]:
         if not Path(path).parent.is_dir():  # fail before the session, not after an hour
-            raise UsageError(f"{path}: the directory does not exist")
+            raise UsageError(f"{option} {path}: the directory does not exist")
     options = dict(parse_option(item) for item in bus_options)
     buses = open_buses(interface, list(channels), bitrate, fd, data_bitrate, options)
-    display = Display()
+    # the live lines share stdout with a report meant for people; next to a machine
+    # format (json, csv, sarif, ...) they go to stderr and stdout stays parseable
+    human = fmt in HUMAN_FORMATS or (fmt == "auto" and auto_format() == "text")
+    display = Display(sys.stdout if human else sys.stderr)
     session: Session | None = None
     try:
-        session = Session(profile, rules, network, record, _shown(display, lambda: session))
+        session = Session(profile, rules, network, record, _shown(display, lambda: session),
+                          on_withdraw=display.withdrawn,
+                          name=f"<live: {', '.join(name for name, _b in buses)}>")
         outcome, error, ended = _run(session, buses, display, duration, BusReader)
     finally:
         close_buses(buses)
@@ -152,20 +161,28 @@ def finish(outcome: Outcome, files: list[tuple[str, Any]], stdout_render: Any,
            options: dict[str, object], fail_on: str, ended: str, nothing: str) -> int:
     """Write every report, print the final one and the live summary; the exit code is
     `check`'s on the recording."""
-    from nmtcheck.cli import EXIT_ERROR, EXIT_FINDINGS, EXIT_OK, SEVERITY_ORDER
+    from nmtcheck.checks.base import fails
+    from nmtcheck.cli import EXIT_ERROR, EXIT_FINDINGS, EXIT_OK, write_stdout
 
     if outcome.result is None:
         click.echo(f"nmtcheck: {nothing} ({ended})", err=True)
         return EXIT_ERROR
     results = [outcome.result]
-    write_reports(results, files, options)
-    click.echo(stdout_render(results, options), nl=False)
+    # stdout first: a report that cannot be written must not cost the session's verdict
+    try:
+        write_stdout([as_text(stdout_render(results, options))])
+    except UsageError as exc:  # e.g. a full disk: still write the reports, then exit 2
+        click.echo(live_summary(outcome, ended), err=True)
+        write_reports(results, files, options)
+        raise exc
     click.echo(live_summary(outcome, ended), err=True)
-    counts = summary(results)
-    if fail_on != "never" and any(
-            counts[s] for s in SEVERITY_ORDER[: SEVERITY_ORDER.index(fail_on) + 1]):
-        return EXIT_FINDINGS
-    return EXIT_OK
+    write_reports(results, files, options)
+    return EXIT_FINDINGS if fails(summary(results), fail_on) else EXIT_OK
+
+
+def as_text(rendered: str | Iterable[str]) -> str:
+    """A report as one string (some renderers yield it in pieces)."""
+    return rendered if isinstance(rendered, str) else "".join(rendered)
 
 
 def write_reports(results: list[InputResult], files: list[tuple[str, Any]],
@@ -191,12 +208,16 @@ def live_summary(outcome: Outcome, ended: str) -> str:
     lines = [f"nmtcheck: session ended: {ended}; {res.stats.frames if res else 0} frames; "
              f"{len(outcome.live)} live finding(s): {c['confirmed']} confirmed by the "
              f"offline check of the recording, {c['clock-only']} after its last frame "
-             f"(seen by the clock only), {c['not-confirmed']} not confirmed"]
+             f"(seen by the clock only), {c['not-confirmed']} not confirmed"
+             + (f", {c['withdrawn']} withdrawn" if c["withdrawn"] else "")
+             + (f" ({c['provisional']} of them provisional: a heartbeat period measured "
+                f"so far)" if c["provisional"] else "")]
     if outcome.live_dropped:
         lines.append(f"nmtcheck: {outcome.live_dropped} more live findings were not kept")
     for lf in outcome.live:
         if lf.confirmed != "confirmed":
-            what = ("after the last recorded frame" if lf.confirmed == "clock-only"
-                    else "not confirmed by the offline check")
+            what = {"clock-only": "after the last recorded frame",
+                    "withdrawn": "withdrawn (a frame stamped before it came late)"}.get(
+                lf.confirmed, "not confirmed by the offline check")
             lines.append(f"  {what}: {finding_line(lf, start)}")
     return "\n".join(lines)

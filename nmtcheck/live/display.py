@@ -19,8 +19,9 @@ _UP_CLEAR = "\x1b[{n}F\x1b[J"  # cursor up n lines to column 0, clear to the end
 
 def finding_line(lf: LiveFinding, start: float | None) -> str:
     node = f"node {lf.node}" if lf.node is not None else "-"
-    return (f"{lf.time - (start or lf.time):9.3f} s  {lf.channel} {node}  {lf.rule} {lf.name}"
-            f"  {lf.message}")
+    base = start if start is not None else lf.time
+    return (f"{lf.time - base:9.3f} s  {lf.channel} {node}  {lf.rule} {lf.name}"
+            f"  {lf.message}" + ("" if lf.certain else "  [provisional]"))
 
 
 def node_table(nodes: list[NodeState], now: float | None) -> list[str]:
@@ -49,6 +50,10 @@ class Display:
             self.out.write(finding_line(lf, self.start) + "\n")
             self._draw()
             self.out.flush()
+
+    def withdrawn(self, lf: LiveFinding) -> None:
+        self.note(f"withdrawn: {finding_line(lf, self.start).strip()} (a frame stamped "
+                  f"before that moment arrived late)")
 
     def note(self, text: str) -> None:
         with self.lock:

@@ -9,8 +9,10 @@ check reads with the same format detection as `check -`.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
+from collections.abc import Iterator
 from typing import IO, Any
 
 from nmtcheck.engine import InputResult
@@ -35,8 +37,9 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
     if stream is None:
         if sys.stdin is None:
             raise InputError("<stdin>", "no standard input to read")
-        stream = sys.stdin.buffer
-    source = stream
+        lines = _fd_lines(sys.stdin.fileno())
+    else:
+        lines = iter(stream.readline, b"")
     display = display or Display(sys.stderr)
     session: Session | None = None
 
@@ -45,7 +48,8 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
         display.finding(lf)
 
     session = Session(profile, rules, network, None, shown, input_format=input_format,
-                      channel=channel, strict=strict, max_findings=max_findings)
+                      channel=channel, strict=strict, max_findings=max_findings,
+                      on_withdraw=display.withdrawn, name="<stdin>")
     stats = InputStats("<stdin>")
     live: list[bool | None] = [None if input_format in (None, "candump") else False]
     done = threading.Event()
@@ -54,7 +58,7 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
     def read() -> None:
         """Standard input, line by line as it arrives, into the session."""
         try:
-            for lineno, raw in enumerate(iter(source.readline, b""), 1):
+            for lineno, raw in enumerate(lines, 1):
                 if done.is_set():
                     return
                 if live[0] is None and raw.strip():
@@ -91,9 +95,28 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
         raise InputError("<stdin>", exc.message, exc.line) from None
     if outcome.result is None:
         raise InputError("<stdin>", f"no frame received ({ended})")
-    outcome.result.stats.path = "<stdin>"
     display.note(live_summary(outcome, ended))
     return [outcome.result]
+
+
+def _fd_lines(fd: int) -> Iterator[bytes]:
+    """Lines of a file descriptor as they arrive. os.read, not sys.stdin.buffer: the
+    reading thread may still wait in it when the process exits, and a buffered reader's
+    lock held then is a fatal error at interpreter shutdown."""
+    pending = b""
+    while True:
+        try:
+            chunk = os.read(fd, 65536)
+        except OSError as exc:
+            raise InputError("<stdin>", f"cannot read: {exc.strerror or exc}") from None
+        if not chunk:
+            if pending:
+                yield pending
+            return
+        pending += chunk
+        *complete, pending = pending.split(b"\n")
+        for line in complete:
+            yield line + b"\n"
 
 
 def follow_logs(logs: tuple[str, ...], profile: Profile, rules: list[Any], **options: Any

@@ -10,6 +10,7 @@ them from any offline check). Thread-safe: the Notifier's thread feeds, the test
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -17,16 +18,20 @@ import can
 
 from nmtcheck.checks.base import SEVERITIES
 from nmtcheck.engine import Finding, InputResult, select_rules
+from nmtcheck.live.command import as_text
 from nmtcheck.live.frames import from_message
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding, NodeState
+from nmtcheck.model import Interval
 from nmtcheck.network import Network, load_network
 from nmtcheck.profiles import DEFAULT_PROFILE, Profile, load_profile
 from nmtcheck.reporters import renderer
-from nmtcheck.timeline import Interval
+
+MAX_ERRORS_KEPT = 10
+ERROR_BACKOFF_S = 0.05  # after that many bus errors, each one waits this long
 
 
-class Monitor(can.Listener):  # type: ignore[misc]
+class Monitor(can.Listener):
     """Checks the frames a python-can Notifier hands it, live and (on demand) offline.
 
     network: a network file path or a loaded `Network`; rules: a profile name or path
@@ -49,7 +54,9 @@ class Monitor(can.Listener):  # type: ignore[misc]
         self.channel = channel
         self.session = Session(self.profile, self.rules, self.network,
                                None if record is None else os.fspath(record), on_finding)
+        # live findings the session withdrew are no findings (see live_findings())
         self.errors: list[str] = []
+        self.error_count = 0
         self._outcome: Outcome | None = None
 
     # -- can.Listener ----------------------------------------------------------------------
@@ -58,8 +65,14 @@ class Monitor(can.Listener):  # type: ignore[misc]
         self.session.feed(from_message(msg, self.channel))
 
     def on_error(self, exc: Exception) -> None:
-        """A bus error in the Notifier's thread: kept (see `errors`), never lost."""
-        self.errors.append(f"{type(exc).__name__}: {exc}")
+        """A bus error in the Notifier's thread: kept (`errors`: the first ones,
+        `error_count`: all), never lost. python-can's Notifier goes on reading after a
+        handled error; a bus that is gone fails at once again, so repeats back off."""
+        self.error_count += 1
+        if len(self.errors) < MAX_ERRORS_KEPT:
+            self.errors.append(f"{type(exc).__name__}: {exc}")
+        elif self.error_count > MAX_ERRORS_KEPT:
+            time.sleep(ERROR_BACKOFF_S)
 
     def stop(self) -> None:
         """End the session: the recording is closed and checked once more (idempotent)."""
@@ -120,7 +133,7 @@ class Monitor(can.Listener):  # type: ignore[misc]
             "rules": {r.code: self.profile[r.code].severity for r in self.rules},
             "network_notes": list(self.network.notes) if self.network else [],
             "config": {"file": None, "profile": self.profile_name, "overrides": []}}
-        text = renderer(fmt)([res] if res is not None else [], options)
+        text = as_text(renderer(fmt)([res] if res is not None else [], options))
         if path is not None:
             with open(path, "w", encoding="utf-8") as f:
                 f.write(text)

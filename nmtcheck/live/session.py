@@ -15,6 +15,7 @@ import os
 import tempfile
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import IO, Any
@@ -31,21 +32,33 @@ GRACE_S = 0.015  # a frame may reach us this late: a timeout fires only once it 
 CONFIRM_TOLERANCE_S = 0.1  # live and offline times of one finding differ by at most this
 MAX_LIVE_FINDINGS = 10000  # kept in memory; more are counted (the recording has them all)
 FLUSH_S = 0.5  # the recording reaches the disk at least this often
+CLOCK_WINDOW_S = 10  # the bus clock's offset is learnt from this many recent seconds
 
 
 class BusClock:
     """Bus time now, from the wall clock: the frames' timestamps are the bus's clock
     (kernel time for socketcan, a driver's for others, a log's for a replay), so the
-    offset is learnt from them; the largest `ts - wall` is the frame that waited least."""
+    offset is learnt from them. The largest `ts - wall` is the frame that waited least;
+    it is taken over the last CLOCK_WINDOW_S only, so that an adapter's clock drifting
+    against the host's (tens of ppm: 0.1 s an hour) never makes timeouts fire early."""
 
     def __init__(self, wall: Callable[[], float] = time.time) -> None:
         self.wall = wall
         self.offset: float | None = None
+        self._buckets: deque[tuple[int, float]] = deque()  # (wall second, max offset)
 
     def observe(self, ts: float) -> None:
-        off = ts - self.wall()
-        if self.offset is None or off > self.offset:
-            self.offset = off
+        wall = self.wall()
+        off = ts - wall
+        second = int(wall)
+        if self._buckets and self._buckets[-1][0] == second:
+            if off > self._buckets[-1][1]:
+                self._buckets[-1] = (second, off)
+        else:
+            self._buckets.append((second, off))
+        while self._buckets and self._buckets[0][0] < second - CLOCK_WINDOW_S:
+            self._buckets.popleft()
+        self.offset = max(o for _s, o in self._buckets)
 
     def now(self) -> float | None:
         return None if self.offset is None else self.wall() + self.offset
@@ -62,9 +75,11 @@ class Outcome:
     notes: list[str] = field(default_factory=list)
 
     def counts(self) -> dict[str, int]:
-        out = {"confirmed": 0, "clock-only": 0, "not-confirmed": 0}
+        out = {"confirmed": 0, "clock-only": 0, "not-confirmed": 0, "withdrawn": 0,
+               "provisional": 0}
         for lf in self.live:
             out[lf.confirmed] = out.get(lf.confirmed, 0) + 1
+            out["provisional"] += not lf.certain
         return out
 
 
@@ -76,14 +91,16 @@ class Session:
                  timer: bool = True, input_format: str | None = "candump",
                  channel: str | None = None, strict: bool = False,
                  max_findings: int = MAX_FINDINGS_PER_RULE,
-                 clock: BusClock | None = None) -> None:
+                 clock: BusClock | None = None,
+                 on_withdraw: Callable[[LiveFinding], Any] | None = None,
+                 name: str | None = None) -> None:
         self.profile, self.rules, self.network = profile, rules, network
         self.input_format, self.channel, self.strict = input_format, channel, strict
         self.max_findings = max_findings
         self.on_finding = on_finding
         self.lock = threading.RLock()
         self.clock = clock or BusClock()
-        self.tracker = Tracker(profile, rules, network, self._emit)
+        self.tracker = Tracker(profile, rules, network, self._emit, on_withdraw)
         self.live: list[LiveFinding] = []
         self.live_dropped = 0
         self.frames = 0
@@ -94,6 +111,8 @@ class Session:
             fd, record = tempfile.mkstemp(prefix="nmtcheck-live-", suffix=".log")
             os.close(fd)
         self.path = record
+        # what the reports call the input: the recording kept, else `name`
+        self.name = record if not self.temporary else name or "<live>"
         self._file: IO[bytes] | None = open(record, "wb")  # noqa: SIM115 - closed in close()
         self._last_flush = time.monotonic()
         self._stop = threading.Event()
@@ -160,9 +179,11 @@ class Session:
                 self._file.flush()
             if not self.records:
                 return None
-            return check_input(self.path, 0, self.profile, self.rules, self.network,
-                               self.input_format, self.strict, self.channel,
-                               max_findings=self.max_findings)
+            result = check_input(self.path, 0, self.profile, self.rules, self.network,
+                                 self.input_format, self.strict, self.channel,
+                                 max_findings=self.max_findings)
+            result.stats.path = self.name
+            return result
 
     def close(self) -> Outcome:
         """Stop the timer, close the recording, check it, reconcile; a temporary recording
@@ -172,6 +193,7 @@ class Session:
             self._timer.join()
         with self.lock:
             self.tick()
+            self.tracker.finish()
             try:
                 result = self.check()
             finally:
@@ -187,10 +209,12 @@ class Session:
     def extra_findings(self, result: InputResult | None) -> list[Finding]:
         """Live findings no offline check can see (after the last recorded frame), as
         Findings: a test bench must not lose a timeout because the bus went quiet."""
-        reconcile(self.live, result)
-        return [Finding(0, lf.rule, lf.name, lf.severity, lf.channel, lf.node, lf.time, None,
-                        None, lf.message + " [live: after the last recorded frame]")
-                for lf in self.live if lf.confirmed == "clock-only"]
+        with self.lock:
+            reconcile(self.live, result)
+            return [Finding(0, lf.rule, lf.name, lf.severity, lf.channel, lf.node, lf.time,
+                            None, None, lf.message + " [live: after the last recorded frame"
+                            + ("" if lf.certain else "; provisional") + "]")
+                    for lf in self.live if lf.confirmed == "clock-only"]
 
 
 def reconcile(live: list[LiveFinding], result: InputResult | None) -> None:
@@ -204,8 +228,11 @@ def reconcile(live: list[LiveFinding], result: InputResult | None) -> None:
         by_key.setdefault((f.rule, f.channel, f.node), []).append(f.time)
     for lf in live:
         times = by_key.get((lf.rule, lf.channel, lf.node), [])
-        if any(abs(t - lf.time) <= CONFIRM_TOLERANCE_S for t in times):
+        hi = lf.time + CONFIRM_TOLERANCE_S if lf.until is None else lf.until
+        if any(lf.time - CONFIRM_TOLERANCE_S <= t <= hi for t in times):
             lf.confirmed = "confirmed"
+        elif lf.withdrawn:
+            lf.confirmed = "withdrawn"
         elif end is None or lf.time > end:
             lf.confirmed = "clock-only"
         else:

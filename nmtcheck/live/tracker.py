@@ -3,8 +3,9 @@ findings that are certain the moment they happen (SPEC §2-3, the same parameter
 offline engine).
 
 Live findings: H001 (a heartbeat gap at the moment its timeout expires: `advance(now)`
-is called by the session's timer, not only by the next frame), G002, B002, B003, C001,
-C002, C003, C004. Every other rule needs the whole trace (medians, runs, the future) and
+is called by the session's timer, not only by the next frame), G001, G002, B001, B002,
+B003, C001, C002, C003, C004, S001 (only where the node itself reported its state).
+Every other rule needs the whole trace (medians, runs, the future) and
 comes from the offline check of the recording at the end. State is O(nodes): nothing
 grows with the traffic.
 """
@@ -19,21 +20,23 @@ from typing import Any
 
 from nmtcheck.checks.base import Rule
 from nmtcheck.live.frames import LiveFrame
+from nmtcheck.model import NodeConfig
 from nmtcheck.network import Network
-from nmtcheck.profiles import Profile
-from nmtcheck.timeline import (
+from nmtcheck.nmt import (
     COMMAND_STATE,
     EPS,
-    INITIALISING,
     OFFLINE,
+    OPERATIONAL,
     PRE_OPERATIONAL,
     RESETS,
     STATE_OF_CODE,
+    STOPPED,
     UNKNOWN,
-    NodeConfig,
     state_name,
 )
+from nmtcheck.profiles import Profile
 
+SCAN_S = 0.001  # bus time between two looks at every node's deadlines while frames come
 RECENT_INTERVALS = 32  # the period of a node with no configured producer time: their median
 _RESERVED = ((0x001, 0x07F), (0x101, 0x180), (0x6E0, 0x6FF), (0x780, 0x7FF))
 
@@ -49,7 +52,12 @@ class LiveFinding:
     node: int | None
     time: float  # the trace's time base, as Finding.time
     message: str
-    confirmed: str = ""  # set by the session's reconciliation: confirmed | clock-only | not-confirmed
+    confirmed: str = ""  # set at the end: confirmed | clock-only | not-confirmed | withdrawn
+    withdrawn: bool = False  # a frame stamped before the timeout's moment came in late
+    # False: it rests on something only the whole trace settles (a heartbeat period
+    # measured so far, a frame's class that depends on it): provisional
+    certain: bool = True
+    until: float | None = None  # the offline finding may come this late (B001's timeout)
 
 
 @dataclass
@@ -61,6 +69,7 @@ class NodeState:
     config: NodeConfig
     state: str = UNKNOWN
     saved: str | None = None  # the state to return to after OFFLINE
+    pre_offline: str | None = None  # the state N had when it last went OFFLINE
     seen: bool = False  # N transmitted something (B002's "any frame earlier")
     last_frame: float | None = None
     last_heartbeat: float | None = None  # any 700h+N report, for the node table
@@ -71,6 +80,7 @@ class NodeState:
     gap_start: float | None = None
     gap_limit: float | None = None
     gap_fired: bool = False
+    gap_finding: LiveFinding | None = None  # the H001 of the current gap, if it fired
     written_hb_ms: float | None = None  # 1017h confirmed by SDO (0: heartbeat disabled)
     consumer_ms: dict[int, float] = field(default_factory=dict)  # consumer -> its 1016h entry
     sdo_request: tuple[int, int, int | None, float] | None = None  # index, sub, value, ts
@@ -83,7 +93,24 @@ class NodeState:
     reset_since_boot: bool = False
     unanswered_resets: deque[float] = field(default_factory=lambda: deque(maxlen=64))
     last_ec_bad: dict[str, bool] = field(default_factory=dict)
-    awaiting_boot: tuple[float, str, str] | None = None  # reset ts, its name, state before it
+    # reset ts, its name, whether it surely applies to N (a broadcast does not apply to
+    # the channel's master, which the offline check may infer)
+    awaiting_boot: tuple[float, str, bool] | None = None
+    last_cmd: tuple[float, str] | None = None  # the latest command: ts, the state before it
+    observed_at: float | None = None  # the state was reported (not commanded) at this time
+    left_operational: float | None = None
+    s001_reported: bool = False  # in this state interval (one finding per run)
+    custom_pdo: bool = False  # TPDO COB-IDs configured or written: S001 is left offline
+    s001_pending: tuple[float, int] | None = None  # ts, COB-ID: decided once time moves on
+    toggle_expected: int | None = None
+    g001_run: bool = False
+    class_last_hb: float | None = None  # the last heartbeat since the boot-up (SPEC §2)
+    class_early: float | None = None  # early_factor x the period in force at it
+    class_early_sure: bool = True  # that period was configured, not measured
+    gap_certain: bool = True  # the gap's timeout is configured (not a measured period)
+    config_doubt: bool = False  # a broadcast reset N may have sent itself cleared its values
+    ambiguous: bool = False  # a 700h frame's class (heartbeat or guarding) depended on
+    # a measured period: guarding findings of this node are provisional
     findings: int = 0
 
     def period(self) -> float | None:
@@ -97,6 +124,12 @@ class NodeState:
         if self.written_hb_ms == 0:
             return False
         return bool(self.config.heartbeat_ms) or bool(self.written_hb_ms) or self.heartbeats >= 2
+
+    def timeout_configured(self) -> bool:
+        """Whether the H001 timeout rests on configured times, not a measured period."""
+        return not self.config_doubt and bool(
+            self.config.consumer_timeout_ms or any(self.consumer_ms.values())
+            or self.written_hb_ms or self.config.heartbeat_ms)
 
     def timeout(self, factor: float) -> float | None:
         """SPEC H001: the smallest non-zero consumer time, else factor x the period."""
@@ -115,7 +148,9 @@ class Tracker:
     """Feeds frames in order; `advance(now)` fires the timeouts that expired by `now`."""
 
     def __init__(self, profile: Profile, rules: list[Rule], network: Network | None,
-                 emit: Callable[[LiveFinding], object]) -> None:
+                 emit: Callable[[LiveFinding], object],
+                 withdraw: Callable[[LiveFinding], object] | None = None) -> None:
+        self.withdraw = withdraw
         self.active = {r.code: r for r in rules}
         self.severity = {r.code: profile[r.code].severity for r in rules}
         p: dict[str, dict[str, Any]] = {code: s.params for code, s in profile.items()}
@@ -127,6 +162,7 @@ class Tracker:
         self.allow = {int(x) for x in p["C001"]["allow"]}
         self.bootup_timeout_s = float(p["B001"]["bootup_timeout_ms"]) / 1000.0
         self.obey_s = float(p["S004"]["obey_ms"]) / 1000.0
+        self.grace_s = float(p["S001"]["grace_ms"]) / 1000.0
         self.master_window_s = float(profile.timeline["master_window_ms"]) / 1000.0
         # per channel: nodes that started like an NMT master (boot-up, then at once a
         # broadcast): a broadcast reset does not apply to its sender (SPEC §2)
@@ -141,6 +177,7 @@ class Tracker:
         self.emit = emit
         self.start: float | None = None
         self.now = float("-inf")
+        self._scanned = float("-inf")  # the last `now` every node was looked at
 
     # -- helpers ---------------------------------------------------------------------------
 
@@ -159,27 +196,46 @@ class Tracker:
         return self.masters[channel]
 
     def _find(self, code: str, channel: str, node: NodeState | None, ts: float,
-              message: str, unknown_ok: bool = False) -> None:
+              message: str, unknown_ok: bool = False, certain: bool = True,
+              until: float | None = None) -> LiveFinding | None:
         if code not in self.active:
-            return
+            return None
         if node is not None and not unknown_ok and node.state == UNKNOWN:
-            return  # SPEC §3: never for a node whose state is UNKNOWN
+            return None  # SPEC §3: never for a node whose state is UNKNOWN
         if node is not None:
             node.findings += 1
-        self.emit(LiveFinding(code, self.active[code].name, self.severity[code], channel,
-                              node.node if node else None, ts, message))
+        lf = LiveFinding(code, self.active[code].name, self.severity[code], channel,
+                         node.node if node else None, ts, message, certain=certain,
+                         until=until)
+        self.emit(lf)
+        return lf
 
     def _go_offline(self, st: NodeState) -> None:
         if st.state not in (UNKNOWN, OFFLINE):
-            st.saved = st.state
+            st.saved = st.pre_offline = st.state
             st.state = OFFLINE
+            st.s001_reported = False
 
     def _back(self, st: NodeState) -> None:
         if st.state == OFFLINE:
             st.state = st.saved or UNKNOWN
             st.saved = None
+            st.s001_reported = False
 
-    def _set(self, st: NodeState, state: str) -> None:
+    def _set(self, st: NodeState, state: str, ts: float, observed: bool) -> None:
+        """A new state, commanded or reported (`observed`: S001 trusts only those)."""
+        if state != st.state:
+            if st.state == OPERATIONAL:
+                st.left_operational = ts
+            st.s001_reported = False
+            st.observed_at = ts if observed else None
+        elif not observed:
+            st.observed_at = None  # a command: the offline timeline may apply it or not
+        elif st.observed_at is None:
+            st.observed_at = ts  # a commanded state, now confirmed by the node
+        if (st.s001_pending is not None and state != st.state
+                and ts <= st.s001_pending[0] + EPS):
+            st.s001_pending = None  # the state at the PDO's time is not what it saw
         st.state = state
         st.saved = None
 
@@ -188,18 +244,30 @@ class Tracker:
     def advance(self, now: float) -> None:
         """Fire every heartbeat or guarding timeout that has expired by `now` (bus time)."""
         self.now = max(self.now, now)
+        self._scanned = now
         for st in self.nodes.values():
-            self._expire_gap(st, now)
-            if (st.request is not None and not st.request_closed
-                    and now > st.request + self.response_s + EPS):
-                self._close_request(st, st.request + self.response_s)
-            if st.awaiting_boot is not None and now > (
-                    st.awaiting_boot[0] + self.bootup_timeout_s + EPS):
-                reset_ts, name, _before = st.awaiting_boot
-                st.awaiting_boot = None
-                self._find("B001", st.channel, st, reset_ts + self.bootup_timeout_s,
-                           f"no boot-up from node {st.node} within "
-                           f"{self.bootup_timeout_s:.3f} s after {name}", unknown_ok=True)
+            self._expire(st, now)
+
+    def _expire(self, st: NodeState, now: float) -> None:
+        """One node's deadlines that have passed by `now`."""
+        pending = st.s001_pending
+        if pending is not None and now > pending[0] + EPS:
+            st.s001_pending = None
+            self._s001(st, pending)
+        self._expire_gap(st, now)
+        if (st.request is not None and not st.request_closed
+                and now > st.request + self.response_s + EPS):
+            self._close_request(st, st.request + self.response_s)
+        if st.awaiting_boot is not None and now > (
+                st.awaiting_boot[0] + self.bootup_timeout_s + EPS):
+            reset_ts, name, sure = st.awaiting_boot
+            st.awaiting_boot = None
+            # a sign of life later (before a boot-up) is where the offline check
+            # reports the same missing boot-up: any later B001 of N confirms this one
+            self._find("B001", st.channel, st, reset_ts + self.bootup_timeout_s,
+                       f"no boot-up from node {st.node} within "
+                       f"{self.bootup_timeout_s:.3f} s after {name}", unknown_ok=True,
+                       certain=sure, until=float("inf"))
 
     def _expire_gap(self, st: NodeState, now: float) -> None:
         if (st.gap_start is None or st.gap_fired or st.gap_limit is None
@@ -217,20 +285,33 @@ class Tracker:
             whose = f"consumer time {limit:.3f} s" + (f" of node {node}" if node else "")
         else:
             whose = f"timeout {limit:.3f} s"
-        self._find("H001", st.channel, st, moment,
-                   f"no heartbeat from node {st.node} for {limit:.3f} s since "
-                   f"{st.gap_start - (self.start or 0.0):.3f} s ({whose})")
+        st.gap_finding = self._find(
+            "H001", st.channel, st, moment,
+            f"no heartbeat from node {st.node} for {limit:.3f} s since "
+            f"{st.gap_start - (self.start or 0.0):.3f} s ({whose}"
+            + ("" if st.gap_certain else ", period measured so far") + ")",
+            certain=st.gap_certain and not st.ambiguous)
         self._go_offline(st)
 
     def _end_gap(self, st: NodeState, ts: float) -> None:
         """A heartbeat, boot-up, reset or 1017h = 0 at `ts`: a timeout that expired before
-        it still counts (SPEC H001)."""
+        it still counts (SPEC H001). One the clock fired although this frame is stamped
+        before its moment (the frame reached us late) is withdrawn."""
+        lf = st.gap_finding
+        if (lf is not None and st.gap_fired and ts <= lf.time + EPS and not lf.withdrawn):
+            lf.withdrawn = True
+            st.findings -= 1
+            if self.withdraw is not None:
+                self.withdraw(lf)
+            self._back(st)
         self._expire_gap(st, ts)
         st.gap_start = st.gap_limit = None
         st.gap_fired = False
+        st.gap_finding = None
 
     def _open_gap(self, st: NodeState, ts: float) -> None:
         st.gap_start, st.gap_limit, st.gap_fired = ts, st.timeout(self.timeout_factor), False
+        st.gap_certain = st.timeout_configured()
 
     def _close_request(self, st: NodeState, moment: float) -> None:
         st.request_closed = True
@@ -238,7 +319,7 @@ class Tracker:
             st.guard_run = True
             self._find("G002", st.channel, st, moment,
                        f"no node-guarding response from node {st.node} within "
-                       f"{self.response_s:.3f} s")
+                       f"{self.response_s:.3f} s", certain=not st.ambiguous)
             self._go_offline(st)
 
     # -- frames ----------------------------------------------------------------------------
@@ -246,10 +327,19 @@ class Tracker:
     def feed(self, f: LiveFrame) -> None:
         if self.start is None:
             self.start = f.ts
-        self.advance(f.ts)
+        cid = f.can_id
+        # every node's deadlines at most once per SCAN_S of bus time (the moments are
+        # computed, not the time of looking); the frame's own node and NMT commands,
+        # which act on the deadlines, at once
+        if cid == 0 or f.ts >= self._scanned + SCAN_S:
+            self.advance(f.ts)
+        else:
+            self.now = max(self.now, f.ts)
+            own = self.nodes.get((f.channel, cid & 0x7F)) if cid & 0x7F else None
+            if own is not None:
+                self._expire(own, f.ts)
         if f.ext or f.err:
             return
-        cid = f.can_id
         if cid not in self.allow and any(lo <= cid <= hi for lo, hi in _RESERVED):
             key = (f.channel, cid)
             if key not in self.c001_seen and len(self.c001_seen) < 4096:
@@ -272,21 +362,28 @@ class Tracker:
         elif 0x581 <= cid <= 0x5FF:
             self._sign_of_life(self.node(f.channel, n), f.ts, what="SDO response")
         elif cid in (0x180 + n, 0x280 + n, 0x380 + n, 0x480 + n):
-            self._sign_of_life(self.node(f.channel, n), f.ts, what="TPDO")
+            st = self.node(f.channel, n)
+            self._sign_of_life(st, f.ts, what="TPDO")
+            self._tpdo(st, f)
 
     def _sign_of_life(self, st: NodeState, ts: float, reported: str | None = None,
                       what: str = "frame") -> None:
         """Any frame N sends; after a reset before its boot-up it is B001 (a), unless it is
         a state report queued before the reset (SPEC §2 stale reports)."""
         if st.awaiting_boot is not None and what != "boot-up":
-            reset_ts, name, before = st.awaiting_boot
-            stale = reported is not None and ts - reset_ts <= self.obey_s + EPS and (
-                reported == before)
+            reset_ts, name, sure = st.awaiting_boot
+            cmd = st.last_cmd  # the latest command to N, the reset or a newer one
+            in_window = (reported is not None and cmd is not None
+                         and ts - cmd[0] <= self.obey_s + EPS)
+            stale = in_window and cmd is not None and reported == cmd[1]
             if not stale:
                 st.awaiting_boot = None
+                # within the stale window the verdict hangs on the state before the
+                # command, which a timeout from a measured period (OFFLINE or not) changes
                 self._find("B001", st.channel, st, ts,
                            f"{what} from node {st.node} {ts - reset_ts:.3f} s after {name} "
-                           f"without a boot-up", unknown_ok=True)
+                           f"without a boot-up", unknown_ok=True,
+                           certain=sure and (not in_window or st.timeout_configured()))
         st.seen = True
         st.last_frame = ts
         self._back(st)
@@ -328,18 +425,26 @@ class Tracker:
                 if target or (master is None and st.node not in like) or master is not None:
                     name = ("reset node" if cs == 0x81 else "reset communication") + (
                         "" if target else " (broadcast)")
-                    before = st.saved if st.state == OFFLINE and st.saved else st.state
-                    st.awaiting_boot = (f.ts, name, before)
+                    st.awaiting_boot = (f.ts, name, bool(target) or master is not None)
                 self._end_gap(st, f.ts)
                 st.reset_since_boot = True
                 st.unanswered_resets.append(f.ts)
-                st.prev_hb = None
-                st.request = None
+                st.prev_hb = None  # no heartbeat interval across a reset
+                self._power_on_values(st)
+                if not target and master is None and st.node in like:
+                    # the master does not obey its own broadcast: offline may not apply it
+                    st.config_doubt = True
             new = COMMAND_STATE[cs]
+            # what a stale report would still say: the state N had when it went OFFLINE
+            st.last_cmd = (f.ts, st.pre_offline if st.state == OFFLINE and st.pre_offline
+                           else st.state)
             if st.state == OFFLINE:
                 st.saved = new
+                st.observed_at = None
             else:
-                self._set(st, new)
+                self._set(st, new, f.ts, observed=False)
+            if cs in RESETS:
+                st.toggle_expected = 0  # CiA 301: reset communication resets the toggle
 
     def _error_control(self, f: LiveFrame, st: NodeState) -> None:
         if f.rtr:
@@ -366,18 +471,21 @@ class Tracker:
         guard = False
         if st.request is not None and f.ts - st.request <= self.response_s + EPS:
             if st.hb_since_boot >= 2:
-                period = st.period()
                 guard = bool(value & 0x80) or (
-                    period is not None and st.prev_hb is not None
-                    and f.ts - st.prev_hb < self.early_factor * period - EPS)
+                    st.class_early is not None and st.class_last_hb is not None
+                    and f.ts - st.class_last_hb < st.class_early)
+                if not (value & 0x80) and not st.class_early_sure:
+                    st.ambiguous = True  # the class hangs on the whole trace's median
             else:
                 guard = True
         if guard:
             st.request = None
             st.guard_run = False
+            self._toggle(st, f.ts, value)
         else:
             if value & 0x80:
-                self._ec_bad(st, "C003", f.ts, f"heartbeat {value:02X}h has bit 7 (reserved) set")
+                self._ec_bad(st, "C003", f.ts, f"heartbeat {value:02X}h has bit 7 (reserved) set",
+                             certain=not st.ambiguous)
             else:
                 st.last_ec_bad["C003"] = False
             self._heartbeat(st, f.ts)
@@ -386,15 +494,60 @@ class Tracker:
                          f"{state_name(code)}")
         else:
             st.last_ec_bad["C004"] = False
-            self._set(st, STATE_OF_CODE[code])
+            reported = STATE_OF_CODE[code]
+            cmd = st.last_cmd
+            stale = (cmd is not None and f.ts - cmd[0] <= self.obey_s + EPS
+                     and reported == cmd[1])  # queued before the command (SPEC §2)
+            if not stale:
+                self._set(st, reported, f.ts, observed=True)
 
-    def _ec_bad(self, st: NodeState, code: str, ts: float, message: str) -> None:
+    def _toggle(self, st: NodeState, ts: float, value: int) -> None:
+        """G001: guarding responses alternate bit 7, starting with 0 after a boot-up or a
+        reset; one finding per run of offending responses."""
+        toggle = value >> 7
+        expected = st.toggle_expected
+        if expected is not None and toggle != expected:
+            if not st.g001_run:
+                why = ("first response after boot-up/reset has toggle 1"
+                       if expected == 0 and toggle else
+                       f"toggle bit {toggle} repeats the previous response's")
+                self._find("G001", st.channel, st, ts,
+                           f"guarding response {value:02X}h from node {st.node}: {why}",
+                           certain=not st.ambiguous)
+            st.g001_run = True
+        else:
+            st.g001_run = False
+        st.toggle_expected = 1 - toggle
+
+    def _tpdo(self, st: NodeState, f: LiveFrame) -> None:
+        """S001, when it is certain: the node itself reported PRE-OPERATIONAL or STOPPED
+        (no command since, which the offline timeline might apply otherwise), left
+        OPERATIONAL more than `grace_ms` ago, and uses the default TPDO COB-IDs."""
+        if (st.custom_pdo or st.config.tpdo_cob_ids or st.s001_reported
+                or st.state not in (PRE_OPERATIONAL, STOPPED) or st.observed_at is None):
+            return
+        if st.left_operational is not None and (
+                f.ts - st.left_operational <= self.grace_s + EPS):
+            return
+        # the offline timeline takes every frame of the same timestamp as evidence for
+        # that moment: decided once a later moment comes (the next frame, or the clock)
+        if st.s001_pending is None:
+            st.s001_pending = (f.ts, f.can_id)
+
+    def _ec_bad(self, st: NodeState, code: str, ts: float, message: str,
+                certain: bool = True) -> None:
         """One finding per run of offending frames (SPEC §3)."""
         if not st.last_ec_bad.get(code):
-            self._find(code, st.channel, st, ts, message, unknown_ok=True)
+            self._find(code, st.channel, st, ts, message, unknown_ok=True, certain=certain)
         st.last_ec_bad[code] = True
 
     def _heartbeat(self, st: NodeState, ts: float) -> None:
+        st.class_last_hb = ts
+        hb = st.written_hb_ms if st.written_hb_ms is not None else st.config.heartbeat_ms
+        period = hb / 1000.0 if hb else (
+            statistics.median(st.intervals) if st.intervals else None)
+        st.class_early = self.early_factor * period - EPS if period else None
+        st.class_early_sure = bool(hb)
         self._end_gap(st, ts)
         if st.prev_hb is not None:
             st.intervals.append(ts - st.prev_hb)
@@ -412,13 +565,21 @@ class Tracker:
                 ts - st.request > self.response_s + EPS):
             self._close_request(st, st.request + self.response_s)
         st.request, st.guard_run = None, False
-        self._set(st, INITIALISING)
-        self._set(st, PRE_OPERATIONAL)
-        period = st.period()
+        # through INITIALISING in no time: as on the offline timeline, a boot-up while
+        # PRE-OPERATIONAL starts no new interval
+        self._set(st, PRE_OPERATIONAL, ts, observed=True)
+        st.last_cmd = None  # nothing after a boot-up was queued before a command
+        st.toggle_expected, st.g001_run = 0, False
+        # B003's window: 3 x the configured period, else x the whole trace's median
+        # (the recent one here: then a verdict on a gap over 1 s is provisional)
+        configured = st.config.heartbeat_ms
+        period = configured / 1000.0 if configured else (
+            statistics.median(st.intervals) if st.intervals else None)
         window = (self.repeat_ms / 1000.0 if self.repeat_ms
                   else max(3 * period if period else 0.0, 1.0))
-        repeat = (st.last_boot is not None and ts - st.last_boot <= window + EPS
-                  and not st.reset_since_boot)
+        since = ts - st.last_boot if st.last_boot is not None else None
+        sure = bool(self.repeat_ms or configured) or (since is not None and since <= 1.0)
+        repeat = (since is not None and since <= window + EPS and not st.reset_since_boot)
         while st.unanswered_resets and ts - st.unanswered_resets[0] > self.reset_window_s + EPS:
             st.unanswered_resets.popleft()
         if st.unanswered_resets:
@@ -427,20 +588,27 @@ class Tracker:
             if not st.last_boot_repeat:
                 self._find("B003", st.channel, st, ts,
                            f"node {st.node} sent boot-up (00h) again within {window:.3f} s "
-                           f"without a reset command")
+                           f"without a reset command", certain=sure)
         elif was_seen:
             self._find("B002", st.channel, st, ts,
                        f"node {st.node} sent a boot-up with no reset command before it "
-                       f"(spontaneous reboot?)")
+                       f"(spontaneous reboot?)", certain=sure or since is None)
         st.last_boot_repeat = repeat
         st.last_boot = ts
         st.boots += 1
         st.reset_since_boot = False
         st.hb_since_boot = 0
         st.prev_hb = None
-        st.written_hb_ms = None  # power-on values again (SPEC §6)
-        st.consumer_ms.clear()
-        for other in self.nodes.values():  # N's own 1016h entries no longer hold
+        st.class_last_hb = st.class_early = None
+        st.class_early_sure = True
+        self._power_on_values(st)
+        st.config_doubt = False
+
+    def _power_on_values(self, st: NodeState) -> None:
+        """N's boot-up or a reset command to it: what SDO wrote to N's objects no longer
+        holds (SPEC §6), its 1017h nor its 1016h entries for other producers."""
+        st.written_hb_ms = None
+        for other in self.nodes.values():
             if other.channel == st.channel:
                 other.consumer_ms.pop(st.node, None)
 
@@ -450,6 +618,8 @@ class Tracker:
             return
         cmd, index, sub = f.data[0], f.data[1] | f.data[2] << 8, f.data[3]
         if f.can_id >= 0x601:
+            if 0x1800 <= index <= 0x1803:
+                st.custom_pdo = True  # a TPDO COB-ID written: leave S001 to the offline check
             if cmd & 0xE0 == 0x20 and index in (0x1016, 0x1017):
                 value = None
                 if cmd & 0x02 and len(f.data) >= 8:
@@ -481,6 +651,23 @@ class Tracker:
             producer = (value >> 16) & 0xFF
             if producer and producer != st.node:
                 self.node(st.channel, producer).consumer_ms[st.node] = float(value & 0xFFFF)
+
+    def finish(self) -> None:
+        """The end of the input: every frame of the last moment is in, so the PDOs waiting
+        for it are decided."""
+        for st in self.nodes.values():
+            pending = st.s001_pending
+            if pending is not None:
+                st.s001_pending = None
+                self._s001(st, pending)
+
+    def _s001(self, st: NodeState, pending: tuple[float, int]) -> None:
+        """One finding per run of offending PDOs in one state interval: the intervals
+        OFFLINE cuts are certain only where the timeouts are (configured times)."""
+        st.s001_reported = True
+        self._find("S001", st.channel, st, pending[0],
+                   f"TPDO {pending[1]:03X}h from node {st.node} while {st.state}",
+                   certain=(st.timeout_configured() or not st.producer()) and not st.ambiguous)
 
     # -- what the node table shows ---------------------------------------------------------
 

@@ -23,7 +23,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Row, Source, account, batches_of, is_text
+from nmtcheck.readers import (
+    MAX_SKIPPED_LINES_KEPT,
+    InputStats,
+    Row,
+    Source,
+    account,
+    batches_of,
+    is_text,
+)
 from nmtcheck.readers.blocks import (
     MAX_EXACT,
     POW10,
@@ -395,7 +403,7 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         # The other lines, in file order (they count skips and may name channels too).
         slow_rows: list[int] = []
         slow_vals: list[_Row] = []
-        for row in p.slow.tolist():
+        for row in _lines_to_parse(block, p.slow, stats).tolist():
             parsed = _parse_line(block.line(row), block.first_line + row, stats)
             if parsed is not None:
                 slow_rows.append(row)
@@ -417,6 +425,32 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
             yield batch
     if (last := account(stats, builder.take())) is not None:
         yield last
+
+
+_WHITESPACE_BYTE = np.zeros(256, bool)  # what bytes.split() splits on
+_WHITESPACE_BYTE[list(b" \t\n\r\x0b\x0c")] = True
+MANY_SLOW_LINES = 64  # below this, the slow path is cheaper than the vectorised filter
+
+
+def _lines_to_parse(block: Block, rows: np.ndarray, stats: InputStats) -> np.ndarray:
+    """The slow rows that need `_parse_line`: blank lines are nothing (dropped here), and
+    lines that begin with `#` are unparseable records (counted here, in bulk, once the
+    first line numbers are kept). A file of blank or comment lines then costs what
+    counting its lines costs, not a Python call per line. Under --strict a comment line
+    goes to `_parse_line` (the first skip is fatal, with its reason)."""
+    if rows.size < MANY_SLOW_LINES:
+        return rows
+    nonblank = np.cumsum(~_WHITESPACE_BYTE[block.buf], dtype=np.int64)
+    starts, ends = block.starts[rows], block.ends[rows]
+    blank = nonblank[ends - 1] - nonblank[starts - 1] == 0
+    comment = ~blank & (block.buf[starts] == ord("#"))
+    if stats.strict or not comment.any():
+        return rows[~blank]
+    if len(stats.skipped_lines) < MAX_SKIPPED_LINES_KEPT:
+        # the first few skipped line numbers are kept in file order: parse them all
+        return rows[~blank]
+    stats.skipped += int(comment.sum())  # only the count is left to keep
+    return rows[~blank & ~comment]
 
 
 def _demote(p: _Parsed, bad: np.ndarray) -> _Parsed:

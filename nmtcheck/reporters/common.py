@@ -9,21 +9,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nmtcheck.checks import RULES
-from nmtcheck.checks.base import Rule
+from nmtcheck.checks import BY_CODE, RULES
+from nmtcheck.checks.base import SEVERITIES, Rule, fails
 from nmtcheck.engine import Finding, InputResult, summary
-from nmtcheck.timeline import ChannelModel, NodeModel
+from nmtcheck.model import ChannelModel, NodeModel
 
-SEVERITY_ORDER = ("error", "warning", "info")
+SEVERITY_ORDER = SEVERITIES  # most severe first (one order, in checks.base)
 # Rules whose findings may name no node (a CAN-ID or a frame on 000h belongs to the network):
 # their per-channel "network" test cases exist even when nothing fired. C001 never names one.
-NETWORK_RULES = ("C001", "C002")
-NETWORK_ONLY_RULES = ("C001",)
 
 
 def is_input_rule(code: str) -> bool:
     """I-rules judge the input itself: their findings name no channel and no node."""
-    return code.startswith("I")
+    return BY_CODE[code].scope == "input"
 
 
 def where_label(channel: str | None, node: int | None) -> str:
@@ -100,17 +98,9 @@ def fail_on(options: dict[str, object]) -> str:
     return str(options.get("fail_on", "error"))
 
 
-def is_failing_severity(severity: str, threshold: str) -> bool:
-    """True when a finding of `severity` makes the run fail under `--fail-on threshold`."""
-    if threshold == "never":
-        return False
-    return SEVERITY_ORDER.index(severity) <= SEVERITY_ORDER.index(threshold)
-
-
 def is_failing(results: list[InputResult], threshold: str) -> bool:
     """The verdict the exit code gives: any finding at or above `--fail-on`."""
-    counts = summary(results)
-    return any(counts[s] for s in SEVERITY_ORDER if is_failing_severity(s, threshold))
+    return fails(summary(results), threshold)
 
 
 def checked_rules(options: dict[str, object]) -> list[tuple[Rule, str]]:

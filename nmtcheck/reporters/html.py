@@ -24,6 +24,9 @@ from markupsafe import Markup
 
 from nmtcheck import __version__
 from nmtcheck.engine import InputResult
+from nmtcheck.model import NodeModel
+from nmtcheck.nmt import HEARTBEAT, STATES
+from nmtcheck.nmt import SOURCES as TIMELINE_SOURCES
 from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
@@ -44,8 +47,6 @@ from nmtcheck.reporters.common import (
     where_label,
 )
 from nmtcheck.reporters.json import report_sections
-from nmtcheck.timeline import HEARTBEAT, STATES, NodeModel
-from nmtcheck.timeline import SOURCES as TIMELINE_SOURCES
 
 # Colours of the NMT states on the timeline and in the legend (colour-blind safe-ish:
 # the fault states are the dark/saturated ones, and wide intervals carry their name).

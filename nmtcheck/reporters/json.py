@@ -8,8 +8,9 @@ from typing import Any
 
 from nmtcheck import __version__
 from nmtcheck.engine import InputResult, summary
+from nmtcheck.model import NodeModel
+from nmtcheck.nmt import SOURCES, STATES
 from nmtcheck.reporters.common import configured_vs_measured, network_notes
-from nmtcheck.timeline import SOURCES, STATES, NodeModel
 
 REPORT_VERSION = 1
 

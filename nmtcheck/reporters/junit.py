@@ -12,16 +12,12 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 
 from nmtcheck import __version__
-from nmtcheck.checks.base import Rule
+from nmtcheck.checks.base import Rule, is_failing_severity
 from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
-    NETWORK_ONLY_RULES,
-    NETWORK_RULES,
     checked_rules,
     duration,
     fail_on,
-    is_failing_severity,
-    is_input_rule,
     node_label,
     nodes_by_channel,
     offset,
@@ -60,13 +56,13 @@ def _suite(res: InputResult, options: dict[str, object]) -> ET.Element:
     for o in res.omitted:  # findings past --max-findings: counted, stated
         ET.SubElement(props, "property", name=f"omitted.{o.rule}", value=str(o.count))
     cases: list[tuple[str | None, int | None, Rule]] = [
-        (None, None, rule) for rule, _severity in rules if is_input_rule(rule.code)]
+        (None, None, rule) for rule, _severity in rules if rule.scope == "input"]
     for name, nodes in nodes_by_channel(res, always_network=True).items():
         for node in nodes:
             for rule, _severity in rules:
-                if is_input_rule(rule.code) or not by_case.get((name, node, rule.code)) and (
-                        rule.code in NETWORK_ONLY_RULES if node is not None
-                        else rule.code not in NETWORK_RULES):
+                if rule.scope == "input" or not by_case.get((name, node, rule.code)) and (
+                        rule.scope == "network" if node is not None
+                        else rule.scope == "node"):
                     continue  # a rule is checked for the network, or per node, or both
                 cases.append((name, node, rule))
     tests = failures = 0

@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""Live checking: H001 latency on python-can's virtual bus, feed throughput, memory.
+
+    python bench/live.py [--trials 20]
+
+Latency: a node heartbeats every 100 ms on a virtual bus, then stops; the time from the
+timeout's expiry (last heartbeat + 1.5 x 100 ms, in the bus's time = wall time on a
+virtual bus) to the Monitor's on_finding call. Throughput: frames per second through
+`Session.feed` (tracker + recording). Memory: what the session holds after 10 and 60
+simulated minutes (tracemalloc).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import threading
+import time
+import tracemalloc
+from pathlib import Path
+
+import can
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+import nmtcheck  # noqa: E402
+from nmtcheck.engine import select_rules  # noqa: E402
+from nmtcheck.live.session import Session  # noqa: E402
+from nmtcheck.profiles import load_profile  # noqa: E402
+
+
+def latency_trial(k: int) -> float:
+    channel = f"bench-{k}"
+    tx = can.Bus(interface="virtual", channel=channel)
+    rx = can.Bus(interface="virtual", channel=channel)
+    got: list[tuple[float, float]] = []
+    done = threading.Event()
+
+    def on_finding(lf: object) -> None:
+        got.append((time.time(), lf.time))  # type: ignore[attr-defined]
+        done.set()
+
+    monitor = nmtcheck.Monitor(on_finding=on_finding)
+    notifier = can.Notifier(rx, [monitor], timeout=0.05)
+    try:
+        tx.send(can.Message(arbitration_id=0x705, data=[0], is_extended_id=False))
+        for _ in range(10):
+            tx.send(can.Message(arbitration_id=0x705, data=[5], is_extended_id=False))
+            time.sleep(0.1)
+        done.wait(2.0)
+    finally:
+        notifier.stop()
+        monitor.stop()
+        tx.shutdown()
+        rx.shutdown()
+    return got[0][0] - got[0][1]
+
+
+def throughput(frames: int = 200_000) -> float:
+    from test_live_memory import hour_of_traffic
+
+    profile = load_profile("default")
+    with tempfile.TemporaryDirectory() as tmp:
+        s = Session(profile, select_rules(profile, [], []), None, f"{tmp}/t.log", timer=True)
+        began = time.perf_counter()
+        n = 0
+        for f in hour_of_traffic(1_700_000_000.0):
+            s.feed(f)
+            n += 1
+            if n >= frames:
+                break
+        rate = n / (time.perf_counter() - began)
+        s.close()
+    return rate
+
+
+def memory() -> tuple[int, int, int]:
+    from test_live_memory import hour_of_traffic
+
+    profile = load_profile("default")
+    with tempfile.TemporaryDirectory() as tmp:
+        s = Session(profile, select_rules(profile, [], []), None, f"{tmp}/m.log", timer=False)
+        tracemalloc.start()
+        at10 = 0
+        n = 0
+        for f in hour_of_traffic(1_700_000_000.0):
+            s.feed(f)
+            n += 1
+            if not at10 and f.ts - 1_700_000_000.0 > 600:
+                at10 = tracemalloc.get_traced_memory()[0]
+        at60 = tracemalloc.get_traced_memory()[0]
+        tracemalloc.stop()
+        s.close()
+    return n, at10, at60
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--trials", type=int, default=20)
+    args = ap.parse_args()
+    lat = sorted(latency_trial(k) * 1000 for k in range(args.trials))
+    print(f"H001 latency after expiry, {len(lat)} trials: median {statistics.median(lat):.1f} ms,"
+          f" max {lat[-1]:.1f} ms, min {lat[0]:.1f} ms")
+    print(f"Session.feed throughput: {throughput():,.0f} frames/s")
+    n, at10, at60 = memory()
+    print(f"memory held by the session over one simulated hour ({n:,} frames): "
+          f"{at10 / 1024:.1f} KiB at 10 min, {at60 / 1024:.1f} KiB at 60 min")
+
+
+if __name__ == "__main__":
+    main()

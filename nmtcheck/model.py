@@ -1,0 +1,521 @@
+"""What the timeline knows of an input: per channel its NMT frames and master, per node
+its error-control frames, commands, configuration, timeouts and state intervals.
+
+The dense streams (heartbeats, NMT frames, commands, intervals) are numpy columns;
+an object (`EcFrame`, `NmtFrame`, `Command`, `Interval`) is made only for what a rule
+reports or a test looks at.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from nmtcheck.decode import Decoded
+from nmtcheck.nmt import (
+    BOOTUP,
+    COMMAND_NAMES,
+    COMMAND_STATE,
+    EC_KIND_NAMES,
+    GUARD,
+    HEARTBEAT,
+    MALFORMED,
+    REQUEST,
+    RESETS,
+    SOURCES,
+    STATES,
+    between,
+    nmt_problem,
+)
+
+
+@dataclass(frozen=True)
+class NmtFrame:
+    """A frame on CAN-ID 000h, valid or not."""
+
+    ts: float
+    idx: int
+    line: int
+    rtr: bool
+    dlc: int
+    cs: int
+    target: int
+    problem: str | None  # why it is malformed (C002), None if valid
+
+
+@dataclass(frozen=True)
+class Command:
+    """A valid NMT command as it applies to one node."""
+
+    ts: float
+    idx: int
+    line: int
+    cs: int
+    broadcast: bool
+
+    @property
+    def is_reset(self) -> bool:
+        return self.cs in RESETS
+
+    @property
+    def name(self) -> str:
+        return COMMAND_NAMES[self.cs] + (" (broadcast)" if self.broadcast else "")
+
+
+
+_KNOWN_CS = np.zeros(256, bool)
+_KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
+_RESET_CS = np.zeros(256, bool)
+_RESET_CS[list(RESETS)] = True
+
+
+class NmtTable:
+    """A channel's frames on CAN-ID 000h as columns, valid or not (a hostile log may
+    hold millions of them): a `NmtFrame` is made only for what a rule reports."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
+                 dlc: np.ndarray, cs: np.ndarray, target: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.rtr = np.asarray(rtr, bool)
+        self.dlc = np.asarray(dlc, np.int16)
+        self.cs = np.asarray(cs, np.uint8)
+        self.target = np.asarray(target, np.uint8)
+        self.valid = ~self.rtr & (self.dlc == 2) & _KNOWN_CS[self.cs] & (self.target <= 127)
+
+    @classmethod
+    def empty(cls) -> NmtTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> NmtFrame:
+        rtr, dlc, cs, target = (bool(self.rtr[pos]), int(self.dlc[pos]), int(self.cs[pos]),
+                                int(self.target[pos]))
+        return NmtFrame(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]), rtr, dlc,
+                        cs, target, nmt_problem(rtr, dlc, cs, target))
+
+    def __iter__(self) -> Iterator[NmtFrame]:
+        return (self[i] for i in range(len(self)))
+
+
+class CommandTable:
+    """The valid NMT commands that apply to one node, as columns: a log of nothing but
+    NMT commands gives every node one per frame."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, cs: np.ndarray,
+                 broadcast: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.cs = np.asarray(cs, np.uint8)
+        self.broadcast = np.asarray(broadcast, bool)
+        self.is_reset = _RESET_CS[self.cs]
+
+    @classmethod
+    def empty(cls) -> CommandTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z)
+
+    @classmethod
+    def of(cls, nmt: NmtTable, pos: np.ndarray) -> CommandTable:
+        return cls(nmt.ts[pos], nmt.idx[pos], nmt.line[pos], nmt.cs[pos], nmt.target[pos] == 0)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> Command:
+        return Command(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
+                       int(self.cs[pos]), bool(self.broadcast[pos]))
+
+    def __iter__(self) -> Iterator[Command]:
+        return (self[i] for i in range(len(self)))
+
+    def name(self, pos: int) -> str:
+        return COMMAND_NAMES[int(self.cs[pos])] + (" (broadcast)" if self.broadcast[pos] else "")
+
+    @property
+    def reset_idx(self) -> np.ndarray:
+        """File positions of the reset commands (sorted: commands are in file order)."""
+        return self.idx[self.is_reset]
+
+    @property
+    def reset_ts(self) -> np.ndarray:
+        return self.ts[self.is_reset]
+
+
+@dataclass(frozen=True)
+class EcFrame:
+    """One frame on 700h+N, materialised from the node's columns for a finding or a test."""
+
+    pos: int  # position in the node's EcTable
+    ts: float
+    idx: int
+    line: int
+    rtr: bool
+    dlc: int
+    value: int  # data byte 0
+    kind: str  # request | bootup | heartbeat | guard | malformed
+
+    @property
+    def code(self) -> int:
+        return self.value & 0x7F
+
+    @property
+    def toggle(self) -> int:
+        return self.value >> 7
+
+    @property
+    def reports_state(self) -> bool:
+        return self.kind in ("bootup", "heartbeat", "guard")
+
+
+class EcTable:
+    """A node's frames on 700h+N as columns, in file order.
+
+    Heartbeats are the one dense NMT stream (a frame per node per period), so
+    they stay numpy columns; rules compute on them vectorised and materialise an
+    `EcFrame` only for what they report.
+    """
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
+                 dlc: np.ndarray, value: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.rtr = np.asarray(rtr, bool)
+        self.dlc = np.asarray(dlc, np.int16)
+        self.value = np.asarray(value, np.uint8)
+        self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
+        # a report of the pre-command state just after a command (SPEC §2 stale reports)
+        self.stale = np.zeros(len(self.ts), bool)
+
+    @classmethod
+    def empty(cls) -> EcTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> EcFrame:
+        return EcFrame(int(pos), float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
+                       bool(self.rtr[pos]), int(self.dlc[pos]), int(self.value[pos]),
+                       EC_KIND_NAMES[self.kind[pos]])
+
+    def __iter__(self) -> Iterator[EcFrame]:
+        return (self[i] for i in range(len(self)))
+
+    def frames(self, positions: Iterable[int]) -> list[EcFrame]:
+        return [self[int(p)] for p in positions]
+
+    def where(self, *kinds: int) -> np.ndarray:
+        """Positions of the frames of these kinds."""
+        return np.flatnonzero(np.isin(self.kind, kinds))
+
+    def count(self, kind: int) -> int:
+        return int(np.count_nonzero(self.kind == kind))
+
+    @property
+    def code(self) -> np.ndarray:
+        return self.value & 0x7F
+
+    def after(self, idx: int) -> int:
+        """Position of the first frame later in the file than frame index `idx`."""
+        return int(np.searchsorted(self.idx, idx, side="right"))
+
+
+@dataclass
+class Timeout:
+    """A heartbeat (H001) or guarding (G002) timeout: the node is OFFLINE from `moment`."""
+
+    rule: str
+    moment: float
+    after_ts: float  # the frame the wait started from
+    after_idx: int
+    limit_s: float
+    gap_s: float | None  # length of the gap if it closed, else None (trace ended it)
+    requests: int = 1  # G002: unanswered requests in the run
+    ended_by: float | None = None  # ts of the node's next frame (end of OFFLINE)
+
+
+@dataclass
+class ConfigWrite:
+    """A confirmed SDO expedited download to a configuration object of `node`."""
+
+    ts: float  # the server's confirmation (60h)
+    idx: int
+    line: int
+    node: int  # the SDO server whose object was written
+    index: int
+    sub: int
+    value: int
+    until: float = float("inf")  # the node's next boot-up or reset: power-on values again
+    request_ts: float = float("nan")  # the client's request: the server may act on it at once
+    request_idx: int = -1
+
+
+@dataclass
+class NodeEvent:
+    """Something a node said that is not a finding: EMCY, SDO abort, configuration write."""
+
+    ts: float
+    idx: int
+    line: int
+    kind: str  # emcy | sdo-abort | sdo-write | sdo-segmented
+    text: str
+    code: int | None = None
+
+
+@dataclass
+class Interval:
+    start: float
+    end: float
+    state: str
+    source: str
+
+
+class IntervalTable:
+    """A node's state intervals as columns (state and source as indices into `STATES`
+    and `SOURCES`): a node that changes state on every heartbeat has millions of them.
+    An `Interval` is made only when one is looked at."""
+
+    def __init__(self, start: np.ndarray, end: np.ndarray, state: np.ndarray,
+                 source: np.ndarray) -> None:
+        self.start = np.asarray(start, np.float64)
+        self.end = np.asarray(end, np.float64)
+        self.state = np.asarray(state, np.int8)
+        self.source = np.asarray(source, np.int8)
+
+    @classmethod
+    def empty(cls) -> IntervalTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.start)
+
+    def __getitem__(self, pos: int) -> Interval:
+        return Interval(float(self.start[pos]), float(self.end[pos]), STATES[self.state[pos]],
+                        SOURCES[self.source[pos]])
+
+    def __iter__(self) -> Iterator[Interval]:
+        for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
+                                self.source.tolist(), strict=True):
+            yield Interval(a, b, STATES[st], SOURCES[so])
+
+
+@dataclass
+class NodeConfig:
+    """What is known of a node's configuration (network file for now)."""
+
+    heartbeat_ms: float | None = None
+    consumer_timeout_ms: float | None = None
+    consumer_node: int | None = None  # whose 1016h entry set consumer_timeout_ms, if known
+    guard_time_ms: float | None = None
+    life_time_factor: int | None = None
+    tpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # PDO 1..4 -> COB-ID
+    rpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # None: not valid
+    expected: bool = False
+
+
+@dataclass
+class NodeModel:
+    """Everything known about one node on one channel."""
+
+    chan: int
+    channel: str
+    node: int
+    config: NodeConfig
+    ec: EcTable = field(default_factory=EcTable.empty)
+    commands: CommandTable = field(default_factory=CommandTable.empty)
+    first_show_idx: int | None = None
+    first_show_ts: float | None = None
+    first_tx: tuple[int, float, int] | None = None  # idx, ts, kind of N's first frame
+    last_seen: float | None = None
+    period_s: float | None = None
+    period_source: str = "none"  # configured | measured | none
+    median_s: float | None = None  # the median heartbeat interval, whatever is configured
+    timeouts: list[Timeout] = field(default_factory=list)
+    intervals: IntervalTable = field(default_factory=IntervalTable.empty)
+    writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
+    consumer_writes: list[ConfigWrite] = field(default_factory=list)  # 1016h entries naming N
+    events: list[NodeEvent] = field(default_factory=list)
+
+    def config_at(self, ts: float) -> NodeConfig:
+        """The configuration in force at `ts`: files, then SDO writes confirmed before it."""
+        active = [w for w in self.writes if w.ts <= ts < w.until]
+        consumers = [w for w in self.consumer_writes if w.ts <= ts < w.until]
+        if not active and not consumers:
+            return self.config
+        cfg = replace(self.config, tpdo_cob_ids=dict(self.config.tpdo_cob_ids),
+                      rpdo_cob_ids=dict(self.config.rpdo_cob_ids))
+        for w in active:
+            if w.index == 0x1017:
+                cfg.heartbeat_ms = float(w.value)  # 0 written by SDO: heartbeat disabled
+            elif w.index == 0x100C:
+                cfg.guard_time_ms = float(w.value) or None
+            elif w.index == 0x100D:
+                cfg.life_time_factor = w.value or None
+            elif 0x1800 <= w.index <= 0x1803 or 0x1400 <= w.index <= 0x1403:
+                table = cfg.tpdo_cob_ids if w.index >= 0x1800 else cfg.rpdo_cob_ids
+                table[(w.index & 0x3) + 1] = None if w.value & 0x80000000 else w.value & 0x7FF
+        for w in consumers:
+            time_ms = float(w.value & 0xFFFF)
+            if time_ms and (cfg.consumer_timeout_ms is None or time_ms < cfg.consumer_timeout_ms):
+                cfg.consumer_timeout_ms, cfg.consumer_node = time_ms, w.node
+        return cfg
+
+    @property
+    def key(self) -> int:
+        return self.chan * 128 + self.node
+
+    def config_series(self, times: np.ndarray, get: Callable[[NodeConfig], float | None]
+                      ) -> np.ndarray:
+        """`get(config_at(t))` for many times at once (NaN where None).
+
+        The configuration only changes where a write is confirmed or stops holding, so
+        it is evaluated once per stretch between those moments.
+        """
+        writes = self.writes + self.consumer_writes
+        bps = np.asarray(sorted({w.ts for w in writes}
+                                | {w.until for w in writes if w.until != float("inf")}))
+        values = [get(self.config_at(at)) for at in [-np.inf, *bps.tolist()]]
+        table = np.asarray([np.nan if v is None else v for v in values], np.float64)
+        return table[np.searchsorted(bps, times, side="right")]
+
+    def heartbeat_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Consecutive heartbeats with no boot-up or reset command of the node between them,
+        as two arrays of positions in `ec`: the intervals the period is measured from
+        (SPEC §2), H003 compares and the report summarises."""
+        cached = self.__dict__.get("_pairs")
+        if cached is not None and cached[0] is self.ec.kind:
+            return cached[1]
+        kind = self.ec.kind
+        pos = np.flatnonzero((kind == HEARTBEAT) | (kind == BOOTUP))
+        a, b = pos[:-1], pos[1:]
+        ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
+        ok &= ~between(self.commands.reset_idx, self.ec.idx[a], self.ec.idx[b])
+        pairs = (a[ok], b[ok])
+        self.__dict__["_pairs"] = (kind, pairs)
+        return pairs
+
+    def heartbeat_intervals(self) -> np.ndarray:
+        a, b = self.heartbeat_pairs()
+        return self.ec.ts[b] - self.ec.ts[a]
+
+    @property
+    def heartbeats(self) -> list[EcFrame]:
+        return self.ec.frames(self.ec.where(HEARTBEAT))
+
+    @property
+    def bootups(self) -> list[EcFrame]:
+        return self.ec.frames(self.ec.where(BOOTUP))
+
+    @property
+    def bootup_count(self) -> int:
+        return self.ec.count(BOOTUP)
+
+    @property
+    def is_producer(self) -> bool:
+        if self.config.heartbeat_ms is not None and self.config.heartbeat_ms > 0:
+            return True
+        if any(w.index == 0x1017 and w.value for w in self.writes):
+            return True
+        return self.ec.count(HEARTBEAT) >= 2
+
+    def hb_timeout_s(self, timeout_factor: float, at: float | None = None) -> float | None:
+        """The heartbeat timeout in force at `at`: consumer time, else factor x period.
+
+        None when there is none, or when 1017h was set to 0 by SDO (heartbeat disabled).
+        """
+        return self.hb_timeout(self.config if at is None else self.config_at(at),
+                               timeout_factor)
+
+    def hb_timeout(self, cfg: NodeConfig, timeout_factor: float) -> float | None:
+        """The heartbeat timeout under configuration `cfg`."""
+        if cfg.heartbeat_ms == 0.0:
+            return None
+        if cfg.consumer_timeout_ms:
+            return cfg.consumer_timeout_ms / 1000.0
+        period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
+        return timeout_factor * period if period else None
+
+    def periods_at(self, times: np.ndarray) -> np.ndarray:
+        """N's heartbeat period in force at each time (SPEC §2): the producer time (1017h)
+        in force if non-zero, else the whole-trace median (NaN if neither is known)."""
+        series = self.config_series(np.asarray(times, np.float64),
+                                    lambda cfg: cfg.heartbeat_ms)
+        fallback = self.median_s if self.median_s and self.median_s > 0 else np.nan
+        return np.where(series > 0, series / 1000.0, fallback)
+
+    def interval_starts(self) -> np.ndarray:
+        return self.intervals.start
+
+    def state_at(self, ts: float) -> str:
+        """State after the evidence of a frame at `ts` (intervals starting at ts included)."""
+        return STATES[self.intervals.state[self.interval_index(ts)]]
+
+    def interval_index(self, ts: float) -> int:
+        return max(int(np.searchsorted(self.interval_starts(), ts, side="right")) - 1, 0)
+
+    def interval_indices(self, ts: np.ndarray) -> np.ndarray:
+        """`interval_index` for many times at once."""
+        return np.maximum(np.searchsorted(self.interval_starts(), ts, side="right") - 1, 0)
+
+    @property
+    def error_control(self) -> str:
+        hb = bool(self.ec.count(HEARTBEAT))
+        guard = bool(self.ec.count(GUARD))
+        return {(True, True): "both", (True, False): "heartbeat", (False, True): "guarding"}.get(
+            (hb, guard), "none")
+
+
+@dataclass
+class TimelineParams:
+    timeout_factor: float = 1.5
+    early_factor: float = 0.5
+    response_timeout_s: float = 1.0
+    obey_s: float = 0.1  # S004: reports within this after a command may be stale
+    master_window_s: float = 1.0  # [timeline] master_window_ms: boot-up -> broadcast
+    reset_window_s: float = 10.0  # B002: a reset this recent explains a boot-up
+    bootup_timeout_s: float = 5.0  # B001: a reset node boots within this
+    repeat_window_ms: float = 0.0  # B003: boot-ups this close repeat (0: auto); B002 skips them
+
+
+@dataclass(frozen=True)
+class Master:
+    """A channel's NMT master and how it is known (SPEC §2)."""
+
+    node: int
+    source: str  # network | device-file | inferred
+    detail: str = ""
+
+
+@dataclass
+class ChannelModel:
+    chan: int
+    name: str
+    nmt: NmtTable
+    nodes: dict[int, NodeModel]
+    master: Master | None = None
+    master_note: str = ""  # why no master is known, or how it was chosen
+
+
+@dataclass
+class InputModel:
+    """The decoded input with its per-node models."""
+
+    decoded: Decoded
+    start: float
+    end: float
+    channels: list[ChannelModel]
+    timeline: TimelineParams = field(default_factory=TimelineParams)  # what it was built with
+    expected: list[tuple[int, str | None]] = field(default_factory=list)  # network file nodes
+    stats: Any = None  # the reader's InputStats (the I-rules judge the input itself)
