@@ -19,6 +19,10 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from nmtcheck.fleet.storage import FileInfo
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -69,7 +73,7 @@ def run(executor: str, logs: Path, results: Path, dask_defaults: bool = False) -
         executors.DASK_CONFIG.update(saved)
 
 
-def timed_batch(files: list, cfg: object) -> tuple[float, float]:
+def timed_batch(files: list[FileInfo], cfg: object) -> tuple[float, float]:
     """Run in a worker: one task's wall and CPU seconds."""
     from nmtcheck.fleet.tasks import check_batch
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from traffic import T0_US, Frames, traffic  # noqa: E402
+from traffic import T0_US, Frames, traffic
 
 HEX = np.frombuffer(b"0123456789ABCDEF", np.uint8)
 FORMATS = ("candump", "asc", "blf", "mcap")
@@ -40,7 +40,8 @@ def _join(cols: list[tuple[np.ndarray, np.ndarray | None]]) -> bytes:
     """Concatenate per-row fields; each field is (uint8 [n, w], keep mask [n, w] or None)."""
     mat = np.concatenate([c for c, _ in cols], axis=1)
     keep = np.concatenate([np.ones(c.shape, bool) if k is None else k for c, k in cols], axis=1)
-    return mat[keep].tobytes()
+    out: bytes = mat[keep].tobytes()
+    return out
 
 
 def _const(n: int, text: bytes) -> tuple[np.ndarray, None]:

@@ -25,10 +25,10 @@ import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-import nmtcheck  # noqa: E402
-from nmtcheck.engine import select_rules  # noqa: E402
-from nmtcheck.live.session import Session  # noqa: E402
-from nmtcheck.profiles import load_profile  # noqa: E402
+import nmtcheck
+from nmtcheck.engine import select_rules
+from nmtcheck.live.session import Session
+from nmtcheck.profiles import load_profile
 
 
 def latency_trial(k: int) -> float:

@@ -298,6 +298,7 @@ def render(rows: list[Row]) -> str:
         c = clean.get((r.n, r.output))
         ratio_t = ratio_m = ""
         if c is not None and r.kind != "clean" and r.status == "ok":
+            assert r.seconds is not None and c.seconds is not None  # both ran: "ok"
             ratio_t = f"{r.seconds / c.seconds:.1f}×"
             ratio_m = f"{(r.tree_mb or 0) / (c.tree_mb or 1):.1f}×"
         time_s = fmt(r.seconds) if r.status == "ok" else f"≥ {r.seconds:.0f}"

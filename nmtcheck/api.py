@@ -51,9 +51,11 @@ class Report:
 def _frame(rows: list[dict[str, Any]], columns: list[str]) -> pd.DataFrame:
     df = pd.DataFrame(rows)
     if df.empty:
-        return pd.DataFrame({c: pd.Series(dtype="object") for c in columns})
+        empty: pd.DataFrame = pd.DataFrame({c: pd.Series(dtype="object") for c in columns})
+        return empty
     first = [c for c in columns if c in df.columns]
-    return df[first + [c for c in df.columns if c not in first]]
+    ordered: pd.DataFrame = df[first + [c for c in df.columns if c not in first]]
+    return ordered
 
 
 def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -44,6 +44,7 @@ from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_pr
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
 from nmtcheck.reporters import (
     FORMATS,
+    Streamer,
     format_for_path,
     statistics_renderer,
     streamer,
@@ -211,14 +212,7 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
                                   "network_notes": list(network.notes) if network else [],
                                   "max_findings": max_findings,
                                   "config": config_info}
-    written: list[str] = []
-    for path, render in files:
-        try:
-            write_atomically(Path(path), render(results, options))
-        except OSError as exc:
-            done = f" (written: {', '.join(written)})" if written else " (none written)"
-            raise UsageError(f"--output {path}: cannot write: {exc.strerror}{done}") from None
-        written.append(path)
+    write_reports(results, files, options)
     write_stdout(stdout_render(results, options))
     if fails(summary(results), fail_on):
         sys.exit(EXIT_FINDINGS)
@@ -304,6 +298,20 @@ def write_atomically(path: Path, text: str | Iterable[str]) -> None:
         raise
 
 
+def write_reports(results: list[InputResult], files: list[tuple[str, Streamer]],
+                  options: dict[str, object]) -> None:
+    """Every `-o` report, each atomically; when one fails, the error says which were
+    written before it."""
+    written: list[str] = []
+    for path, render in files:
+        try:
+            write_atomically(Path(path), render(results, options))
+        except OSError as exc:
+            done = f" (written: {', '.join(written)})" if written else " (none written)"
+            raise UsageError(f"--output {path}: cannot write: {exc.strerror}{done}") from None
+        written.append(path)
+
+
 def write_stdout(chunks: Iterable[str]) -> None:
     """The report on standard output; a full disk or a closed device is an ordinary write
     error (one line, exit 2), not an internal one."""
@@ -355,11 +363,10 @@ def render_timeline(res: InputResult, fmt: str) -> str:
     lines = [f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
     for m in res.nodes():
         lines.append(f"{m.channel} node {m.node}:")
-        for iv in m.intervals:
-            lines.append(f"  {iv.start - start:12.6f} .. {iv.end - start:12.6f}  {iv.state:<16} "
-                         f"({iv.source})")
-        for e in m.events:  # EMCY, SDO aborts, configuration written: next to the states
-            lines.append(f"  {e.ts - start:12.6f}     event: {e.text}")
+        lines.extend(f"  {iv.start - start:12.6f} .. {iv.end - start:12.6f}  {iv.state:<16} "
+                     f"({iv.source})" for iv in m.intervals)
+        # EMCY, SDO aborts, configuration written: next to the states
+        lines.extend(f"  {e.ts - start:12.6f}     event: {e.text}" for e in m.events)
     return "\n".join(lines) + "\n"
 
 

@@ -101,56 +101,70 @@ def _string(where: str, key: str, value: Any) -> str:
 def load_config(path: Path) -> Config:
     """Read one configuration file (`nmtcheck.toml`, or `pyproject.toml`'s
     `[tool.nmtcheck]`); errors name the file and key (exit 2)."""
+    label, data = _read_table(path)
+    where = f"{label}:"
+    cfg = Config(path=path.resolve(), label=label)
+    for key, value in data.items():
+        if key not in KEYS:
+            raise UsageError(f"{where} {key}: unknown key (known: {', '.join(KEYS)})")
+        _set(cfg, where, key, value)
+    return cfg
+
+
+def _read_table(path: Path) -> tuple[str, dict[str, Any]]:
+    """The name to give the configuration in messages, and its table."""
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data: dict[str, Any] = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise UsageError(f"{path}: invalid TOML: {exc}") from None
     except UnicodeDecodeError:
         raise UsageError(f"{path}: cannot read: not UTF-8 text") from None
     except OSError as exc:
         raise UsageError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    if path.name == PYPROJECT:
-        tool = data.get("tool", {})
-        table = tool.get("nmtcheck", {}) if isinstance(tool, dict) else {}
-        label = f"{path} [tool.nmtcheck]"
-        if not isinstance(table, dict):
-            raise UsageError(f"{label}: expected a table")
-        data = table
+    if path.name != PYPROJECT:
+        return str(path), data
+    tool = data.get("tool", {})
+    table = tool.get("nmtcheck", {}) if isinstance(tool, dict) else {}
+    label = f"{path} [tool.nmtcheck]"
+    if not isinstance(table, dict):
+        raise UsageError(f"{label}: expected a table")
+    return label, table
+
+
+def _set(cfg: Config, where: str, key: str, value: Any) -> None:
+    """One known key of the configuration, checked."""
+    if key == "rules":
+        _set_rules(cfg, where, value)
+    elif key == "timeline":
+        if not isinstance(value, dict):
+            raise UsageError(f"{where} timeline: expected a table [timeline]")
+        cfg.timeline = value
+    elif key == "network":
+        cfg.network = str(cfg.directory / _string(where, key, value))
+    elif key in ("select", "ignore"):
+        setattr(cfg, key, _patterns(where, key, value))
+    elif key == "fail-on":
+        if value not in FAIL_ON:
+            raise UsageError(f"{where} fail-on: expected one of {', '.join(FAIL_ON)}, "
+                             f"got {value!r}")
+        cfg.fail_on = value
+    elif key == "format":
+        cfg.format = _string(where, key, value)
+
+
+def _set_rules(cfg: Config, where: str, value: Any) -> None:
+    """`rules = "PROFILE"`, or [rules] (`extends = "PROFILE"`) with [rules.CODE] tables."""
+    if isinstance(value, str):
+        cfg.profile = _string(where, "rules", value)
+    elif isinstance(value, dict):
+        tables = dict(value)
+        base = tables.pop("extends", None)
+        if base is not None:
+            cfg.profile = _string(where, "[rules] extends", base)
+        cfg.rule_tables = tables
     else:
-        label = str(path)
-    where = f"{label}:"
-    cfg = Config(path=path.resolve(), label=label)
-    for key, value in data.items():
-        if key not in KEYS:
-            raise UsageError(f"{where} {key}: unknown key (known: {', '.join(KEYS)})")
-        if key == "rules":
-            if isinstance(value, str):
-                cfg.profile = _string(where, key, value)
-            elif isinstance(value, dict):
-                tables = dict(value)
-                base = tables.pop("extends", None)
-                if base is not None:
-                    cfg.profile = _string(where, "[rules] extends", base)
-                cfg.rule_tables = tables
-            else:
-                raise UsageError(f"{where} rules: expected a profile name or path, or "
-                                 f"[rules.CODE] tables")
-        elif key == "timeline":
-            if not isinstance(value, dict):
-                raise UsageError(f"{where} timeline: expected a table [timeline]")
-            cfg.timeline = value
-        elif key == "network":
-            cfg.network = str(cfg.directory / _string(where, key, value))
-        elif key in ("select", "ignore"):
-            setattr(cfg, key, _patterns(where, key, value))
-        elif key == "fail-on":
-            if value not in FAIL_ON:
-                raise UsageError(f"{where} fail-on: expected one of {', '.join(FAIL_ON)}, "
-                                 f"got {value!r}")
-            cfg.fail_on = value
-        elif key == "format":
-            cfg.format = _string(where, key, value)
-    return cfg
+        raise UsageError(f"{where} rules: expected a profile name or path, or "
+                         f"[rules.CODE] tables")
 
 
 def discover(explicit: str | None, isolated: bool) -> Config | None:

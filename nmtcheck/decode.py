@@ -21,17 +21,24 @@ import os
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from nmtcheck.frames import (
     EC_BASE,
     EMCY_BASE,
+    MAX_NODE_ID,
+    NMT_ID,
     RPDO_BASES,
+    SDO_RX_BASE,
     SDO_TX_BASE,
+    STD_ID_MASK,
+    STD_IDS,
     TPDO_BASES,
     FrameBatch,
     is_restricted_id,
+    node_key,
 )
 
 KIND_TPDO = 1
@@ -52,11 +59,6 @@ EC_COLUMNS = {"ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int
               "rtr": np.bool_, "dlc": np.int16, "value": np.uint8}
 
 STORE_BUDGET_BYTES = 8 << 20  # per store; past it chunks go to a temporary directory
-
-
-def node_key(chan: np.ndarray | int, node: np.ndarray | int) -> np.ndarray | int:
-    """One integer per (channel, node-ID): channel * 128 + node."""
-    return chan * 128 + node
 
 
 class ColumnSpool:
@@ -106,6 +108,9 @@ class ColumnSpool:
             self._tmp = None
 
 
+_Spilled = tuple[str, np.dtype, tuple[int, ...]]  # a column on disk: path, dtype, shape
+
+
 class ChunkStore:
     """Append-only columnar chunks, kept in memory up to a budget, then on disk.
 
@@ -116,9 +121,13 @@ class ChunkStore:
     def __init__(self, budget: int = STORE_BUDGET_BYTES) -> None:
         self._budget = budget
         self._in_memory = 0
-        self._chunks: list[dict[str, np.ndarray] | dict[str, tuple[str, np.dtype, tuple]]] = []
+        self._chunks: list[dict[str, np.ndarray] | dict[str, _Spilled]] = []
         self._ts_max: list[float] = []  # per chunk, to skip chunks that end before a moment
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    def __len__(self) -> int:
+        """How many chunks it holds (0: nothing was stored)."""
+        return len(self._chunks)
 
     @property
     def spilled(self) -> int:
@@ -135,7 +144,7 @@ class ChunkStore:
             return
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="nmtcheck-")
-        spilled: dict[str, tuple[str, np.dtype, tuple]] = {}
+        spilled: dict[str, _Spilled] = {}
         for name, col in cols.items():
             path = os.path.join(self._tmp.name, f"chunk{len(self._chunks)}.{name}")
             np.ascontiguousarray(col).tofile(path)
@@ -160,6 +169,30 @@ class ChunkStore:
         self._ts_max.clear()
 
 
+class FirstTx(NamedTuple):
+    """A node's first transmitted frame."""
+
+    idx: int
+    ts: float
+    kind: int  # KIND_*
+
+
+class NodeFrame(NamedTuple):
+    """One frame of the node-frame store (TPDO, RPDO, SDO response, EMCY)."""
+
+    ts: float
+    idx: int
+    line: int
+    kind: int  # KIND_*
+
+
+class FrameAt(NamedTuple):
+    """Where a frame is: its index in the input and its line (record number)."""
+
+    idx: int
+    line: int
+
+
 @dataclass
 class IdUse:
     """First use and count of one CAN-ID on one channel."""
@@ -180,7 +213,7 @@ class Decoded:
     node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, line
     restricted: dict[tuple[int, int], IdUse] = field(default_factory=dict)
     # node key -> (frame index, ts, kind) of the node's first transmitted frame
-    first_tx: dict[int, tuple[int, float, int]] = field(default_factory=dict)
+    first_tx: dict[int, FirstTx] = field(default_factory=dict)
     last_tx: dict[int, float] = field(default_factory=dict)
     standard_frames: int = 0  # 11-bit data and remote frames: what CANopen decoding sees
 
@@ -203,9 +236,9 @@ class Decoded:
         self.frame_times.close()
         self.node_frames.close()
 
-    def first_frame_at_or_after(self, moments: list[float]) -> list[tuple[int, int] | None]:
+    def first_frame_at_or_after(self, moments: list[float]) -> list[FrameAt | None]:
         """(frame index, line) of the first frame whose time is >= each moment."""
-        result: list[tuple[int, int] | None] = [None] * len(moments)
+        result: list[FrameAt | None] = [None] * len(moments)
         if not moments:
             return result
         order = np.argsort(np.asarray(moments, np.float64), kind="stable")
@@ -220,20 +253,47 @@ class Decoded:
             still = []
             for q, p in zip(pending, pos, strict=True):
                 if p < len(ts):
-                    result[q] = (int(chunk["base"][0]) + int(p), _line_at(chunk, int(p)))
+                    result[q] = FrameAt(int(chunk["base"][0]) + int(p), _line_at(chunk, int(p)))
                 else:
                     still.append(q)
             pending = still
         return result
 
+    def last_frame(self, end: float) -> tuple[float, FrameAt] | None:
+        """Time and place of the last frame in the file of the chunks that reach `end` (the
+        input's last time: earlier chunks are not read back); None if there is none."""
+        last: dict[str, np.ndarray] | None = None
+        for chunk in self.frame_times.reaching(end):
+            if len(chunk["ts"]):
+                last = chunk
+        if last is None:
+            return None
+        n = len(last["ts"])
+        return float(last["ts"][-1]), FrameAt(int(last["base"][0]) + n - 1,
+                                               int(frame_time_lines(last)[-1]))
+
+    def first_frame_after_line(self, line: int) -> tuple[float, int] | None:
+        """(time, index) of the first frame after record `line`; the last frame if none
+        follows, None without frames."""
+        prev: tuple[float, int] | None = None
+        for chunk in self.frame_times:
+            ts = chunk["ts"]
+            if not len(ts):
+                continue
+            after = np.flatnonzero(frame_time_lines(chunk) > line)
+            if after.size:
+                k = int(after[0])
+                return float(ts[k]), int(chunk["base"][0]) + k
+            prev = (float(ts[-1]), int(chunk["base"][0]) + len(ts) - 1)
+        return prev
 
     def first_node_frame_after(
         self, queries: list[tuple[int, float, int]]
-    ) -> list[tuple[float, int, int, int] | None]:
-        """For each (node key, moment, frame index): (ts, idx, line, kind) of the node's first
-        transmitted non-event frame (TPDO, SDO response, EMCY) at or after the moment and
-        after that frame in the file."""
-        result: list[tuple[float, int, int, int] | None] = [None] * len(queries)
+    ) -> list[NodeFrame | None]:
+        """For each (node key, moment, frame index): the node's first transmitted non-event
+        frame (TPDO, SDO response, EMCY) at or after the moment and after that frame in the
+        file."""
+        result: list[NodeFrame | None] = [None] * len(queries)
         if not queries:
             return result
         qkeys = np.asarray([q[0] for q in queries], np.int64)
@@ -258,11 +318,11 @@ class Decoded:
                     p += 1
                 if p < b:
                     row = tx[order[p]]
-                    cand = (float(chunk["ts"][row]), int(chunk["idx"][row]),
-                            int(node_frame_lines(chunk, np.asarray([row]))[0]),
-                            int(chunk["kind"][row]))
+                    cand = NodeFrame(float(chunk["ts"][row]), int(chunk["idx"][row]),
+                                     int(node_frame_lines(chunk, np.asarray([row]))[0]),
+                                     int(chunk["kind"][row]))
                     cur = result[q]
-                    if cur is None or cand[0] < cur[0]:
+                    if cur is None or cand.ts < cur.ts:
                         result[q] = cand
         return result
 
@@ -273,32 +333,33 @@ def _node_of(can_id: np.ndarray, bases: Iterable[int]) -> tuple[np.ndarray, np.n
     mask = np.zeros(can_id.shape, bool)
     cid = can_id.astype(np.int64)
     for base in bases:
-        m = (cid > base) & (cid <= base + 127)
+        m = (cid > base) & (cid <= base + MAX_NODE_ID)
         node = np.where(m, cid - base, node)
         mask |= m
     return node, mask
 
 
 def _id_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per 11-bit CAN-ID (index 2048: any other ID): the frame kind (KIND_*, error control
-    included), the node-ID, and whether CiA 301 reserves the ID. One gather per batch
+    """Per 11-bit CAN-ID (index STD_IDS = 2048: any other ID): the frame kind (KIND_*, error
+    control included), the node-ID, and whether CiA 301 reserves the ID. One gather per batch
     replaces a dozen range comparisons per frame."""
-    ids = np.arange(2049, dtype=np.uint32)
-    kind = np.zeros(2049, np.int8)
-    node = np.zeros(2049, np.int16)
+    ids = np.arange(STD_IDS + 1, dtype=np.uint32)
+    kind = np.zeros(STD_IDS + 1, np.int8)
+    node = np.zeros(STD_IDS + 1, np.int16)
     for k, bases in ((KIND_TPDO, TPDO_BASES), (KIND_RPDO, RPDO_BASES),
                      (KIND_SDO_TX, (SDO_TX_BASE,)), (KIND_EMCY, (EMCY_BASE,)),
                      (KIND_EC, (EC_BASE,))):
         n, m = _node_of(ids, bases)
-        m[2048] = False
+        m[STD_IDS] = False
         kind[m] = k
         node[m] = n[m]
     restricted = is_restricted_id(ids)
-    restricted[2048] = False
+    restricted[STD_IDS] = False
     return kind, node, restricted
 
 
 _KIND_OF_ID, _NODE_OF_ID, _RESTRICTED_ID = _id_tables()
+_ID_KEYS = 4096  # above any 11-bit CAN-ID: channel * _ID_KEYS + CAN-ID is one integer
 
 
 _CONFIG_INDICES = np.array([0x1016, 0x1017, 0x100C, 0x100D, 0x1400, 0x1401, 0x1402, 0x1403,
@@ -309,8 +370,10 @@ def node_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
     """EMCYs, SDO downloads to the objects that configure error control and PDOs, their
     confirmations, and every SDO abort: sparse frames the timeline decodes one by one."""
     data_frame = ~b.rtr & (b.dlc >= 4)
-    emcy = ~b.rtr & (cid >= 0x081) & (cid <= 0x0FF)
-    sdo = data_frame & (cid >= 0x581) & (cid <= 0x67F) & (cid != 0x600)
+    emcy = ~b.rtr & (cid >= EMCY_BASE + 1) & (cid <= EMCY_BASE + MAX_NODE_ID)
+    # SDO responses (581h..5FFh) and requests (601h..67Fh); 600h is no node's
+    sdo = (data_frame & (cid >= SDO_TX_BASE + 1) & (cid <= SDO_RX_BASE + MAX_NODE_ID)
+           & (cid != SDO_RX_BASE))
     rows = np.flatnonzero(sdo)
     if not rows.size:
         return emcy
@@ -320,8 +383,8 @@ def node_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
     index = data[:, 1].astype(np.int64) | (data[:, 2].astype(np.int64) << 8)
     config = np.isin(index, _CONFIG_INDICES)
     cmd = data[:, 0]
-    request = (scid >= 0x601) & ((cmd & 0xE0) == 0x20) & config
-    response = (scid <= 0x5FF) & (((cmd == 0x60) & config) | (cmd == 0x80))
+    request = (scid >= SDO_RX_BASE + 1) & ((cmd & 0xE0) == 0x20) & config
+    response = (scid <= SDO_TX_BASE + MAX_NODE_ID) & (((cmd == 0x60) & config) | (cmd == 0x80))
     emcy[rows[request | response]] = True
     return emcy
 
@@ -351,9 +414,9 @@ def _node_lines(line: np.ndarray, idx: np.ndarray) -> dict[str, np.ndarray]:
 
 def node_frame_lines(chunk: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
     """The line numbers of some rows of a node-frame chunk."""
-    if "line" in chunk:
-        return chunk["line"][rows]
-    return chunk["idx"][rows] * chunk["line_step"][0] + chunk["line_off"][0]
+    lines: np.ndarray = (chunk["line"][rows] if "line" in chunk else
+                         chunk["idx"][rows] * chunk["line_step"][0] + chunk["line_off"][0])
+    return lines
 
 
 def frame_time_lines(chunk: dict[str, np.ndarray]) -> np.ndarray:
@@ -371,7 +434,7 @@ def _line_at(chunk: dict[str, np.ndarray], pos: int) -> int:
 
 
 def _first_last(keys: np.ndarray, rows: np.ndarray, kinds: np.ndarray, b: FrameBatch,
-                first_tx: dict[int, tuple[int, float, int]], last_tx: dict[int, float]) -> None:
+                first_tx: dict[int, FirstTx], last_tx: dict[int, float]) -> None:
     """Update each node key's first (index, ts, kind) and last ts from one batch's transmitted
     frames (`rows`, with their `keys`); ufunc.at instead of sorting."""
     size = int(keys.max()) + 1
@@ -385,9 +448,8 @@ def _first_last(keys: np.ndarray, rows: np.ndarray, kinds: np.ndarray, b: FrameB
         np.minimum.at(first, keys, pos)
         for k in new:
             row = rows[first[k]]
-            first_tx[k] = (int(b.index[row]), float(b.ts[row]), int(kinds[row]))
-    for k, p in zip(present.tolist(), b.ts[rows[last[present]]].tolist(), strict=True):
-        last_tx[k] = p
+            first_tx[k] = FirstTx(int(b.index[row]), float(b.ts[row]), int(kinds[row]))
+    last_tx.update(zip(present.tolist(), b.ts[rows[last[present]]].tolist(), strict=True))
 
 
 def _written_pdo_cob_ids(ev: np.ndarray) -> set[int]:
@@ -395,10 +457,11 @@ def _written_pdo_cob_ids(ev: np.ndarray) -> set[int]:
     cid = ev["can_id"].astype(np.int64)
     data = ev["data"]
     index = data[:, 1].astype(np.int64) | (data[:, 2].astype(np.int64) << 8)
-    hit = ((cid >= 0x601) & (cid <= 0x67F) & ((data[:, 0] & 0xE2) == 0x22) & (data[:, 3] == 1)
+    hit = ((cid >= SDO_RX_BASE + 1) & (cid <= SDO_RX_BASE + MAX_NODE_ID)
+           & ((data[:, 0] & 0xE2) == 0x22) & (data[:, 3] == 1)
            & (((index >= 0x1400) & (index <= 0x1403)) | ((index >= 0x1800) & (index <= 0x1803))))
     cob = data[hit, 4].astype(np.int64) | (data[hit, 5].astype(np.int64) << 8)
-    return {int(c) & 0x7FF for c in cob.tolist()}
+    return {int(c) & STD_ID_MASK for c in cob.tolist()}
 
 
 def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> Decoded:
@@ -407,15 +470,15 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     `pdo_cob_ids`: configured PDO COB-IDs outside the pre-defined set (network file,
     EDS/DCF); COB-IDs written by SDO in the trace are added as they are seen.
     """
-    keep = np.zeros(2049, bool)  # 11-bit IDs stored for later attribution
+    keep = np.zeros(STD_IDS + 1, bool)  # 11-bit IDs stored for later attribution
     for c in pdo_cob_ids:
-        keep[c & 0x7FF] = True
+        keep[c & STD_ID_MASK] = True
     event_parts: list[np.ndarray] = []
     ec_spool = ColumnSpool(EC_COLUMNS)
     frame_times = ChunkStore()
     node_frames = ChunkStore()
     restricted: dict[tuple[int, int], IdUse] = {}
-    first_tx: dict[int, tuple[int, float, int]] = {}
+    first_tx: dict[int, FirstTx] = {}
     last_tx: dict[int, float] = {}
     standard = 0
 
@@ -425,15 +488,15 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
         co = ~b.ext & ~b.err
         standard += int(np.count_nonzero(co))
         cid = b.can_id.astype(np.int64)
-        ec = co & (cid >= 0x701) & (cid <= 0x77F)
+        ec = co & (cid >= EC_BASE + 1) & (cid <= EC_BASE + MAX_NODE_ID)
         if ec.any():
             sel = np.flatnonzero(ec)
             rtr, dlc = b.rtr[sel], b.dlc[sel]
             ec_spool.append({
                 "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
-                "key": b.chan[sel].astype(np.int32) * 128 + (cid[sel] - 0x700),
+                "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EC_BASE),
                 "rtr": rtr, "dlc": dlc, "value": np.where((dlc >= 1) & ~rtr, b.data[sel, 0], 0)})
-        ev_mask = co & ((cid == 0) | node_events(cid, b))
+        ev_mask = co & ((cid == NMT_ID) | node_events(cid, b))
         if ev_mask.any():
             sel = np.flatnonzero(ev_mask)
             ev = np.empty(sel.size, EVENT_DTYPE)
@@ -450,12 +513,12 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
                 keep[c] = True
 
         # Kind and node of every 11-bit data frame, by table lookup on the CAN-ID.
-        id11 = np.minimum(b.can_id, 2048)
+        id11 = np.minimum(b.can_id, STD_IDS)
         kinds = _KIND_OF_ID[id11]
         kinds[(kinds == 0) & keep[id11]] = KIND_CONFIGURED
         kinds[~(co & ~b.rtr)] = 0
         nodes = _NODE_OF_ID[id11]
-        keys = (b.chan.astype(np.int32) << 7) | nodes  # node key: channel * 128 + node
+        keys = node_key(b.chan.astype(np.int32), nodes)
         sel = np.flatnonzero((kinds > 0) & (kinds != KIND_EC))
         if sel.size:  # in file order: the rules take the first offending frame of each run
             key = keys[sel]
@@ -473,14 +536,15 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
         res = co & _RESTRICTED_ID[id11]
         if res.any():
             sel = np.flatnonzero(res)
-            keys = b.chan[sel].astype(np.int64) * 4096 + cid[sel]
-            uniq, first_pos, counts = np.unique(keys, return_index=True, return_counts=True)
+            # one integer per (channel, CAN-ID) to count with np.unique
+            chan_ids = b.chan[sel].astype(np.int64) * _ID_KEYS + cid[sel]
+            uniq, first_pos, counts = np.unique(chan_ids, return_index=True, return_counts=True)
             for k, p, c in zip(uniq.tolist(), first_pos.tolist(), counts.tolist(), strict=True):
-                key = (k // 4096, k % 4096)
-                use = restricted.get(key)
+                chan_id = divmod(k, _ID_KEYS)
+                use = restricted.get(chan_id)
                 if use is None:
                     row = sel[p]
-                    restricted[key] = IdUse(int(b.index[row]), float(b.ts[row]),
+                    restricted[chan_id] = IdUse(int(b.index[row]), float(b.ts[row]),
                                             int(b.line[row]), int(c))
                 else:
                     use.count += int(c)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import configparser
 import logging
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -218,6 +219,36 @@ class _CanopenOD:
         return None
 
 
+_Get = Callable[[int, int], int | None]  # the value of an object's sub-index, if any
+
+
+def _read_consumers(get: _Get, out: DeviceValues) -> None:
+    """1016h: the consumer heartbeat time of each producer (the shortest, noted if twice)."""
+    consumer_sub: dict[int, int] = {}
+    for sub in range(1, 128):
+        entry = get(0x1016, sub)
+        if entry is None:
+            continue
+        producer, time_ms = (entry >> 16) & 0xFF, entry & 0xFFFF
+        if time_ms and 1 <= producer <= 127:  # else the entry is unused (CiA 301)
+            prev = out.consumers.get(producer)
+            if prev is not None:
+                out.notes.append(f"1016h sub {sub}: node {producer} is also in sub "
+                                 f"{consumer_sub[producer]}; the shorter time is taken")
+            else:
+                consumer_sub[producer] = sub
+            out.consumers[producer] = min(prev, time_ms) if prev else float(time_ms)
+
+
+def _read_pdo_cob_ids(get: _Get, out: DeviceValues) -> None:
+    """1800h..1803h and 1400h..1403h sub 1: the COB-IDs of TPDO 1..4 and RPDO 1..4."""
+    for n in range(4):
+        for base, table in ((0x1800, out.tpdo_cob_ids), (0x1400, out.rpdo_cob_ids)):
+            cob = get(base + n, 1)
+            if cob is not None:
+                table[n + 1] = None if cob & COB_ID_INVALID else cob & 0x7FF
+
+
 def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
     """Read the NMT-relevant objects of an EDS/DCF; never fails on a messy file."""
     p = Path(path)
@@ -257,29 +288,12 @@ def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
 
     hb = get(0x1017)
     out.heartbeat_ms = float(hb) if hb else None  # 0 in a file: not configured (SPEC §6)
-    consumer_sub: dict[int, int] = {}
-    for sub in range(1, 128):
-        entry = get(0x1016, sub)
-        if entry is None:
-            continue
-        producer, time_ms = (entry >> 16) & 0xFF, entry & 0xFFFF
-        if time_ms and 1 <= producer <= 127:  # else the entry is unused (CiA 301)
-            prev = out.consumers.get(producer)
-            if prev is not None:
-                out.notes.append(f"1016h sub {sub}: node {producer} is also in sub "
-                                 f"{consumer_sub[producer]}; the shorter time is taken")
-            else:
-                consumer_sub[producer] = sub
-            out.consumers[producer] = min(prev, time_ms) if prev else float(time_ms)
+    _read_consumers(get, out)
     gt = get(0x100C)
     out.guard_time_ms = float(gt) if gt else None
     ltf = get(0x100D)
     out.life_time_factor = ltf or None
-    for n in range(4):
-        for base, table in ((0x1800, out.tpdo_cob_ids), (0x1400, out.rpdo_cob_ids)):
-            cob = get(base + n, 1)
-            if cob is not None:
-                table[n + 1] = None if cob & COB_ID_INVALID else cob & 0x7FF
+    _read_pdo_cob_ids(get, out)
     startup = get(0x1F80)
     out.nmt_master = bool(startup is not None and startup & 1)
     slaves = [n for n in range(1, 128) if (get(0x1F81, n) or 0) & 1]

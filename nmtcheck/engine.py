@@ -1,20 +1,30 @@
 """Runs one input through read -> decode -> timeline -> rules and stamps the findings.
 
-Checks yield `Problem`s; here each gets its rule code, name and configured
-severity, moments get the first frame at or after them, and the SPEC's
-UNKNOWN exemption is applied in one place for every rule.
+Per-node checks are called here for each node and what they yield gets its channel
+and node; every problem then gets its rule code, name and configured severity,
+moments get the first frame at or after them, and the SPEC's UNKNOWN exemption and
+the per-rule cap are applied in one place for every rule.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from dataclasses import dataclass, field, replace
+from typing import Any, Protocol, cast
 
 import numpy as np
 
 from nmtcheck.checks import BY_CODE, RULES
-from nmtcheck.checks.base import SEVERITIES, Problem, Problems, Rule
+from nmtcheck.checks.base import (
+    SEVERITIES,
+    Check,
+    Located,
+    NodeCheck,
+    NodeContext,
+    Problem,
+    Problems,
+    Rule,
+)
 from nmtcheck.decode import decode
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.frames import FrameBatch
@@ -62,7 +72,7 @@ class InputResult:
     omitted: list[Omitted] = field(default_factory=list)
 
     def nodes(self) -> list[NodeModel]:
-        return [m for cm in self.model.channels for m in cm.nodes.values()]
+        return list(self.model.nodes())
 
 
 EXACT = 100  # the specificity of a whole code or a rule name
@@ -163,32 +173,10 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             model.channels = [cm for cm in model.channels if cm.name == channel]
         result = InputResult(index, stats, model)
         problems: list[tuple[Rule, Problem]] = []
-        nodes: dict[tuple[str | None, int], NodeModel] = {
-            (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
-        unknown = STATE_INDEX[UNKNOWN]
         for r in rules:
-            kept = left = 0
-            for p in r.check(model, profile[r.code].params):
-                if isinstance(p, Problems):
-                    rows = np.arange(len(p))
-                    if p.node is not None and not r.exempt_from_unknown:
-                        m = nodes.get((p.channel, p.node))
-                        rows = rows[:0] if m is None else rows[
-                            m.intervals.state[m.interval_indices(p.time)] != unknown]
-                    room = len(rows) if not max_findings else max(max_findings - kept, 0)
-                    problems.extend((r, p.problem(i)) for i in rows[:room].tolist())
-                    kept += min(room, len(rows))
-                    left += max(len(rows) - room, 0)
-                    continue
-                if p.node is not None and not r.exempt_from_unknown:
-                    m = nodes.get((p.channel, p.node))
-                    if m is None or m.state_at(p.time) == UNKNOWN:
-                        continue
-                if max_findings and kept >= max_findings:
-                    left += 1
-                    continue
-                kept += 1
-                problems.append((r, p))
+            found = _node_problems(r, model, profile[r.code].params) if r.per_node else (
+                _input_problems(r, model, profile[r.code].params))
+            left = _keep(r, found, problems, max_findings)
             if left:
                 result.omitted.append(Omitted(r.code, r.name, profile[r.code].severity, left))
         _locate(model, problems)
@@ -200,6 +188,90 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         return result
     finally:
         decoded.close()
+
+
+# (the node when known, a problem or a batch): the rule's problems in the order it found them
+_Found = Iterator[tuple["NodeModel | None", "Problem | Problems"]]
+
+
+def _input_problems(r: Rule, model: InputModel, params: dict[str, Any]) -> _Found:
+    """A per-input rule's problems, each with its node's model (None: no such node)."""
+    nodes: dict[tuple[str | None, int], NodeModel] = {
+        (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
+    check = cast(Check, r.check)
+    for p in check(model, params):
+        if isinstance(p, Problems) and p.nodes is not None:  # each row its own node
+            yield None, p if r.exempt_from_unknown else _known(p, nodes)
+            continue
+        yield (nodes.get((p.channel, p.node)) if p.node is not None else None), p
+
+
+def _known(p: Problems, nodes: dict[tuple[str | None, int], NodeModel]) -> Problems:
+    """A batch without the problems of nodes in UNKNOWN (SPEC §3) or not in the model;
+    those of the network (node -1) stay."""
+    assert p.nodes is not None
+    keep = p.nodes < 0
+    unknown = STATE_INDEX[UNKNOWN]
+    for n in np.unique(p.nodes[p.nodes >= 0]).tolist():
+        m = nodes.get((p.channel, n))
+        if m is not None:
+            sel = np.flatnonzero(p.nodes == n)
+            keep[sel] = m.intervals.state[m.interval_indices(p.time[sel])] != unknown
+    return p.subset(np.flatnonzero(keep))
+
+
+def _node_problems(r: Rule, model: InputModel, params: dict[str, Any]) -> _Found:
+    """A per-node rule over every node, channels in model order, nodes in number order;
+    what it yields stamped with channel and node."""
+    check = cast(NodeCheck, r.check)
+    for cm in model.channels:
+        ctx = NodeContext(model, cm)
+        for m in cm.nodes.values():
+            for found in check(m, ctx, params):
+                if isinstance(found, Problems):
+                    yield m, replace(found, channel=cm.name, node=m.node)
+                elif len(found) == 2:
+                    yield m, Problem(cm.name, m.node, found[0], found[1])
+                else:
+                    idx, line = _frame_of(found[2])
+                    yield m, Problem(cm.name, m.node, found[0], found[1], idx, line)
+
+
+def _frame_of(at: Located | tuple[int, int]) -> tuple[int, int]:
+    """(index, line) of what a finding points at: a frame, or an (index, line) pair."""
+    if isinstance(at, tuple) and not hasattr(at, "idx"):  # a NodeFrame is a tuple too
+        return at
+    frame = cast(Located, at)
+    return frame.idx, frame.line
+
+
+def _keep(r: Rule, found: _Found, problems: list[tuple[Rule, Problem]],
+          max_findings: int) -> int:
+    """Add a rule's problems to `problems`, but those of a node in UNKNOWN (unless the rule
+    is exempt, SPEC §3) and those past the first `max_findings`; return how many of the
+    latter were left out."""
+    unknown = STATE_INDEX[UNKNOWN]
+    kept = left = 0
+    for m, p in found:
+        gated = p.node is not None and not r.exempt_from_unknown
+        if isinstance(p, Problems):
+            rows = np.arange(len(p))
+            if gated:
+                rows = rows[:0] if m is None else rows[
+                    m.intervals.state[m.interval_indices(p.time)] != unknown]
+            room = len(rows) if not max_findings else max(max_findings - kept, 0)
+            problems.extend((r, p.problem(i)) for i in rows[:room].tolist())
+            kept += min(room, len(rows))
+            left += max(len(rows) - room, 0)
+            continue
+        if gated and (m is None or m.state_at(p.time) == UNKNOWN):
+            continue
+        if max_findings and kept >= max_findings:
+            left += 1
+            continue
+        kept += 1
+        problems.append((r, p))
+    return left
 
 
 def _counted(batches: Iterator[FrameBatch], progress: Callable[[int], object]

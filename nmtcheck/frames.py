@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
@@ -22,6 +23,40 @@ RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
 SDO_TX_BASE = 0x580  # server -> client (the node's response)
 SDO_RX_BASE = 0x600  # client -> server (request to the node)
 EC_BASE = 0x700  # boot-up, heartbeat, node guarding
+MAX_NODE_ID = 0x7F  # node-IDs 1..127: a function's IDs are its base + 1 .. base + 7Fh
+STD_ID_MASK = 0x7FF  # the 11 bits of a standard CAN-ID
+STD_IDS = 0x800  # how many 11-bit CAN-IDs there are
+
+# A node key: one integer per (channel code, node-ID), channel * NODE_KEYS_PER_CHANNEL +
+# node-ID. Node keys sort by channel, then node; a channel's keys are one range.
+NODE_KEYS_PER_CHANNEL = 128
+
+
+@overload
+def node_key(chan: int, node: int) -> int: ...
+@overload
+def node_key(chan: np.ndarray, node: np.ndarray | int) -> np.ndarray: ...
+@overload
+def node_key(chan: int, node: np.ndarray) -> np.ndarray: ...
+def node_key(chan: np.ndarray | int, node: np.ndarray | int) -> np.ndarray | int:
+    """The node key of (channel code, node-ID): channel * 128 + node."""
+    return chan * NODE_KEYS_PER_CHANNEL + node
+
+
+def key_channel(key: int) -> int:
+    """The channel code of a node key."""
+    return key // NODE_KEYS_PER_CHANNEL
+
+
+def key_node(key: int) -> int:
+    """The node-ID of a node key."""
+    return key % NODE_KEYS_PER_CHANNEL
+
+
+def channel_keys(chan: int) -> tuple[int, int]:
+    """The first and the last node key of a channel (node-IDs 0 and 127)."""
+    first = chan * NODE_KEYS_PER_CHANNEL
+    return first, first + NODE_KEYS_PER_CHANNEL - 1
 
 
 @dataclass
@@ -168,7 +203,8 @@ def _owned(parts: tuple[np.ndarray, ...]) -> np.ndarray:
 
 def canopen_mask(batch: FrameBatch) -> np.ndarray:
     """Frames that take part in CANopen decoding: 11-bit data and remote frames."""
-    return ~batch.ext & ~batch.err
+    mask: np.ndarray = ~batch.ext & ~batch.err
+    return mask
 
 
 def is_restricted_id(can_id: np.ndarray) -> np.ndarray:

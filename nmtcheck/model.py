@@ -10,22 +10,33 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 
-from nmtcheck.decode import Decoded
+from nmtcheck.decode import (
+    KIND_RPDO,
+    KIND_TPDO,
+    Decoded,
+    FirstTx,
+    NodeFrame,
+    node_frame_lines,
+)
+from nmtcheck.frames import RPDO_BASES, TPDO_BASES
 from nmtcheck.nmt import (
     BOOTUP,
     COMMAND_NAMES,
     COMMAND_STATE,
     EC_KIND_NAMES,
+    EPS,
     GUARD,
     HEARTBEAT,
     MALFORMED,
     REQUEST,
     RESETS,
     SOURCES,
+    STATE_INDEX,
     STATES,
     between,
     nmt_problem,
@@ -68,6 +79,12 @@ class Command:
 
 _KNOWN_CS = np.zeros(256, bool)
 _KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
+
+
+def known_cs(cs: np.ndarray) -> np.ndarray:
+    """Whether each byte is a command specifier CiA 301 defines."""
+    known: np.ndarray = _KNOWN_CS[cs]
+    return known
 _RESET_CS = np.zeros(256, bool)
 _RESET_CS[list(RESETS)] = True
 
@@ -337,7 +354,7 @@ class NodeModel:
     commands: CommandTable = field(default_factory=CommandTable.empty)
     first_show_idx: int | None = None
     first_show_ts: float | None = None
-    first_tx: tuple[int, float, int] | None = None  # idx, ts, kind of N's first frame
+    first_tx: FirstTx | None = None  # N's first transmitted frame
     last_seen: float | None = None
     period_s: float | None = None
     period_source: str = "none"  # configured | measured | none
@@ -347,6 +364,9 @@ class NodeModel:
     writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
     consumer_writes: list[ConfigWrite] = field(default_factory=list)  # 1016h entries naming N
     events: list[NodeEvent] = field(default_factory=list)
+    # heartbeat_pairs() and the `ec.kind` it was computed from (classification replaces it)
+    _pairs: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = field(
+        default=None, init=False, repr=False, compare=False)
 
     def config_at(self, ts: float) -> NodeConfig:
         """The configuration in force at `ts`: files, then SDO writes confirmed before it."""
@@ -394,7 +414,7 @@ class NodeModel:
         """Consecutive heartbeats with no boot-up or reset command of the node between them,
         as two arrays of positions in `ec`: the intervals the period is measured from
         (SPEC §2), H003 compares and the report summarises."""
-        cached = self.__dict__.get("_pairs")
+        cached = self._pairs
         if cached is not None and cached[0] is self.ec.kind:
             return cached[1]
         kind = self.ec.kind
@@ -403,12 +423,13 @@ class NodeModel:
         ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
         ok &= ~between(self.commands.reset_idx, self.ec.idx[a], self.ec.idx[b])
         pairs = (a[ok], b[ok])
-        self.__dict__["_pairs"] = (kind, pairs)
+        self._pairs = (kind, pairs)
         return pairs
 
     def heartbeat_intervals(self) -> np.ndarray:
         a, b = self.heartbeat_pairs()
-        return self.ec.ts[b] - self.ec.ts[a]
+        gaps: np.ndarray = self.ec.ts[b] - self.ec.ts[a]
+        return gaps
 
     @property
     def heartbeats(self) -> list[EcFrame]:
@@ -519,3 +540,155 @@ class InputModel:
     timeline: TimelineParams = field(default_factory=TimelineParams)  # what it was built with
     expected: list[tuple[int, str | None]] = field(default_factory=list)  # network file nodes
     stats: Any = None  # the reader's InputStats (the I-rules judge the input itself)
+    # sent_while() by states: one pass over the node-frame store serves S001-S003
+    _sent_while: dict[tuple[str, ...], SentFrames] = field(
+        default_factory=dict, init=False, repr=False, compare=False)
+
+    def nodes(self) -> Iterator[NodeModel]:
+        """Every node, channels in model order, nodes in number order."""
+        for cm in self.channels:
+            yield from cm.nodes.values()
+
+    def first_tx_after_resets(self, m: NodeModel) -> list[NodeFrame | None]:
+        """Per reset command to N (in file order): N's first TPDO, SDO response or EMCY at
+        or after it (None if none)."""
+        return self._first_tx_after_resets[m.key]
+
+    @cached_property
+    def _first_tx_after_resets(self) -> dict[int, list[NodeFrame | None]]:
+        # one pass over the node-frame store answers every node's resets
+        nodes = list(self.nodes())
+        queries = [(m.key, t, i) for m in nodes for t, i in zip(
+            m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist(), strict=True)]
+        answers = iter(self.decoded.first_node_frame_after(queries))
+        return {m.key: [next(answers) for _ in range(len(m.commands.reset_idx))]
+                for m in nodes}
+
+    def sent_while(self, states: tuple[str, ...]) -> SentFrames:
+        """The stored node frames (TPDO, RPDO, SDO response, EMCY) sent while their node
+        was in one of `states`, with the configured PDO COB-IDs applied, in file order.
+
+        Usually a tiny set (a node is OPERATIONAL most of the time), so a rule's exact
+        test, grace periods included, runs on it alone. A frame at a time covered by
+        such a state of any node is kept: a rule tests its own node's state again.
+        """
+        found = self._sent_while.get(states)
+        if found is None:
+            found = self._sent_while[states] = _sent_while(self, states)
+        return found
+
+
+@dataclass(frozen=True)
+class SentFrames:
+    """Node frames as columns (see `InputModel.sent_while`)."""
+
+    key: np.ndarray  # chan * 128 + node, after configured PDO COB-IDs
+    kind: np.ndarray  # KIND_*, likewise
+    can_id: np.ndarray
+    ts: np.ndarray
+    idx: np.ndarray
+    line: np.ndarray
+
+
+@dataclass
+class _PdoOverride:
+    """Frames on `can_id` of channel `chan` within [start, until) belong to `key` as `kind`
+    (kind 0: the default COB-ID of a PDO that was moved or made invalid: nobody's)."""
+
+    chan: int
+    can_id: int
+    key: int
+    kind: int
+    start: float
+    until: float
+
+
+def _pdo_overrides(model: InputModel) -> list[_PdoOverride]:
+    """Where configured PDO COB-IDs (network file, EDS/DCF, SDO writes) differ from the
+    pre-defined connection set."""
+    out: list[_PdoOverride] = []
+    for m in model.nodes():
+        for kind, table, bases, index in (
+                (KIND_TPDO, m.config.tpdo_cob_ids, TPDO_BASES, 0x1800),
+                (KIND_RPDO, m.config.rpdo_cob_ids, RPDO_BASES, 0x1400)):
+            spans: list[tuple[int, int | None, float, float]] = [
+                (n, cob, -np.inf, np.inf) for n, cob in table.items()]
+            for w in m.writes:  # SDO-written COB-IDs hold until the next boot-up/reset
+                if index <= w.index <= index + 3:
+                    cob = None if w.value & 0x80000000 else w.value & 0x7FF
+                    spans.append(((w.index & 3) + 1, cob, w.ts, w.until))
+            for n, cob, start, until in spans:
+                default = bases[n - 1] + m.node
+                if cob != default:
+                    out.append(_PdoOverride(m.chan, default, -1, 0, start, until))
+                    if cob is not None:
+                        out.append(_PdoOverride(m.chan, cob, m.key, kind, start, until))
+    # later (SDO-written) spans are applied after the static ones and win
+    out.sort(key=lambda o: o.start)
+    return out
+
+
+def _attribute(chunk: dict[str, np.ndarray], overrides: list[_PdoOverride]
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Each stored frame's (node key, kind), with the configured PDO COB-IDs applied."""
+    if not overrides:
+        return chunk["key"], chunk["kind"]
+    key = chunk["key"].astype(np.int64).copy()
+    kind = chunk["kind"].copy()
+    chan = key // 128
+    for o in overrides:
+        hit = ((chunk["can_id"] == o.can_id) & (chan == o.chan) & (chunk["ts"] >= o.start)
+               & (chunk["ts"] < o.until))
+        if o.kind == 0:
+            hit &= np.isin(kind, (KIND_TPDO, KIND_RPDO))
+        key[hit] = o.key
+        kind[hit] = o.kind
+    return key, kind
+
+
+def _windows(model: InputModel, states: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The union over all nodes of the times they spent in `states`, as sorted [start, end]
+    windows: a cheap first filter on time."""
+    wanted = [STATE_INDEX[s] for s in states]
+    lo_parts, hi_parts = [], []
+    for m in model.nodes():
+        ivs = m.intervals
+        if not len(ivs):
+            continue
+        lo, hi = ivs.start.copy(), ivs.end.copy()
+        lo[0], hi[-1] = -np.inf, np.inf  # the first/last interval also take stray times
+        keep = np.isin(ivs.state, wanted)
+        lo_parts.append(lo[keep])
+        hi_parts.append(hi[keep])
+    lo_all = np.concatenate(lo_parts) if lo_parts else np.zeros(0)
+    hi_all = np.concatenate(hi_parts) if hi_parts else np.zeros(0)
+    if not lo_all.size:
+        return lo_all.astype(np.float64), hi_all.astype(np.float64)
+    by_start = np.lexsort((hi_all, lo_all))
+    lo_s, hi_s = lo_all[by_start], hi_all[by_start]
+    # vectorised union (a node may have millions of windows): a window opens a new one
+    # where it starts after every earlier window ended; each ends at its group's latest end
+    reach = np.maximum.accumulate(hi_s)
+    opens = np.flatnonzero(np.concatenate([[True], lo_s[1:] > reach[:-1]]))
+    return lo_s[opens].astype(np.float64), np.maximum.reduceat(hi_s, opens).astype(np.float64)
+
+
+def _sent_while(model: InputModel, states: tuple[str, ...]) -> SentFrames:
+    if not len(model.decoded.node_frames):  # no PDO, SDO or EMCY at all: nothing to test
+        return SentFrames(*(np.zeros(0) for _ in range(6)))
+    starts, ends = _windows(model, states)
+    parts: list[dict[str, np.ndarray]] = []
+    overrides = _pdo_overrides(model)
+    for chunk in model.decoded.node_frames if len(starts) else ():
+        ts = chunk["ts"]
+        w = np.searchsorted(starts, ts, side="right") - 1
+        sel = np.flatnonzero((w >= 0) & (ts <= ends[np.maximum(w, 0)] + EPS))
+        if not sel.size:
+            continue
+        key, kind = _attribute(chunk, overrides)
+        parts.append({"key": key[sel].astype(np.int64), "kind": kind[sel],
+                      "can_id": chunk["can_id"][sel], "ts": ts[sel], "idx": chunk["idx"][sel],
+                      "line": node_frame_lines(chunk, sel)})
+    names = ("key", "kind", "can_id", "ts", "idx", "line")
+    return SentFrames(*(np.concatenate([p[n] for p in parts]) if parts else np.zeros(0)
+                        for n in names))

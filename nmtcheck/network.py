@@ -13,6 +13,7 @@ lowest node-ID if several do).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,11 @@ from typing import Any
 from nmtcheck.devicefile import DeviceValues, load_device_file
 from nmtcheck.errors import UsageError
 from nmtcheck.model import NodeConfig
-from nmtcheck.profiles import tomllib
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
 
 _KEYS = {"heartbeat_ms": float, "consumer_timeout_ms": float, "guard_time_ms": float,
          "life_time_factor": int, "channel": str, "dcf": str, "eds": str}
@@ -92,7 +97,8 @@ def _value(where: str, value: Any, want: type) -> Any:
 def _read_toml(path: str) -> dict[str, Any]:
     p = Path(path)
     try:
-        return tomllib.loads(p.read_text(encoding="utf-8"))
+        doc: dict[str, Any] = tomllib.loads(p.read_text(encoding="utf-8"))
+        return doc
     except FileNotFoundError:
         raise UsageError(f"{path}: no such network file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -103,89 +109,113 @@ def _read_toml(path: str) -> dict[str, Any]:
 
 def load_network(path: str | None, dcf_args: dict[int, str] | None = None) -> Network:
     """Read and validate a network file (and --dcf NODE=PATH); errors name the file and key."""
-    tables: dict[int, dict[str, Any]] = {}
-    base = Path(".")
     net = Network(path=path)
-    if path is not None:
-        data = _read_toml(path)
-        base = Path(path).resolve().parent
-        for key in data:
-            if key not in ("nodes", "channels", "master"):
-                raise UsageError(f"{path}: unknown key {key!r} (expected master, "
-                                 f"[nodes.N] and [channels.NAME] tables)")
-        if "master" in data:
-            net.master = _master(f"{path}: master", data["master"])
-        channels = data.get("channels", {})
-        if not isinstance(channels, dict):
-            raise UsageError(f"{path}: channels: expected [channels.NAME] tables")
-        for name, table in channels.items():
-            where = f"{path}: [channels.{name}]"
-            if not isinstance(table, dict):
-                raise UsageError(f"{where}: expected a table")
-            for key, value in table.items():
-                if key != "master":
-                    raise UsageError(f"{where} {key}: unknown key (known: master)")
-                net.channel_masters[name] = _master(f"{where} master", value)
-        nodes = data.get("nodes", {})
-        if not isinstance(nodes, dict):
-            raise UsageError(f"{path}: nodes: expected [nodes.N] tables")
-        for name, table in nodes.items():
-            where = f"{path}: [nodes.{name}]"
-            if not name.isdigit() or not 1 <= int(name) <= 127:
-                raise UsageError(f"{where}: node-ID must be 1..127")
-            if not isinstance(table, dict):
-                raise UsageError(f"{where}: expected a table")
-            values: dict[str, Any] = {}
-            for key, value in table.items():
-                if key not in _KEYS:
-                    raise UsageError(f"{where} {key}: unknown key (known: {', '.join(_KEYS)})")
-                values[key] = _value(f"{where} {key}", value, _KEYS[key])
-            for key in ("dcf", "eds"):
-                if key in values:
-                    values[key] = str(base / values[key])
-            tables[int(name)] = values
+    tables = _read_network_file(path, net) if path is not None else {}
     for node, dcf in (dcf_args or {}).items():
         if not 1 <= node <= 127:
             raise UsageError(f"--dcf {node}={dcf}: node-ID must be 1..127")
         tables.setdefault(node, {})["dcf"] = dcf
-
     for node, values in sorted(tables.items()):
-        dev_path = values.get("dcf") or values.get("eds")
-        dev = load_device_file(dev_path, node) if dev_path else None
-        if dev is not None:
-            net.devices[node] = dev
-            net.notes += [f"node {node} {dev.path}: {note}" for note in dev.notes]
+        net.nodes[node] = (_node_config(net, node, values), values.get("channel"))
+    _consumer_times(net, tables)
+    _expected_slaves(net)
+    return net
 
-        def pick(key: str, from_dev: float | None,
-                 values: dict[str, Any] = values) -> float | None:
-            explicit = values.get(key)
-            if explicit is not None:
-                return explicit or None  # 0 read from a file means "not configured"
-            return from_dev
 
-        cfg = NodeConfig(
-            heartbeat_ms=pick("heartbeat_ms", dev.heartbeat_ms if dev else None),
-            consumer_timeout_ms=pick("consumer_timeout_ms", None),
-            guard_time_ms=pick("guard_time_ms", dev.guard_time_ms if dev else None),
-            expected=True,
-        )
-        ltf = pick("life_time_factor", dev.life_time_factor if dev else None)
-        cfg.life_time_factor = int(ltf) if ltf else None
-        if dev is not None:
-            cfg.tpdo_cob_ids = dict(dev.tpdo_cob_ids)
-            cfg.rpdo_cob_ids = dict(dev.rpdo_cob_ids)
-        net.nodes[node] = (cfg, values.get("channel"))
-    # 1016h entries of every device file set their producers' consumer times.
+def _read_network_file(path: str, net: Network) -> dict[int, dict[str, Any]]:
+    """The masters of the network file (into `net`) and its [nodes.N] tables, validated."""
+    data = _read_toml(path)
+    for key in data:
+        if key not in ("nodes", "channels", "master"):
+            raise UsageError(f"{path}: unknown key {key!r} (expected master, "
+                             f"[nodes.N] and [channels.NAME] tables)")
+    if "master" in data:
+        net.master = _master(f"{path}: master", data["master"])
+    _read_channels(path, data.get("channels", {}), net)
+    return _read_nodes(path, data.get("nodes", {}), Path(path).resolve().parent)
+
+
+def _read_channels(path: str, channels: Any, net: Network) -> None:
+    """[channels.NAME] tables: each channel's `master`."""
+    if not isinstance(channels, dict):
+        raise UsageError(f"{path}: channels: expected [channels.NAME] tables")
+    for name, table in channels.items():
+        where = f"{path}: [channels.{name}]"
+        if not isinstance(table, dict):
+            raise UsageError(f"{where}: expected a table")
+        for key, value in table.items():
+            if key != "master":
+                raise UsageError(f"{where} {key}: unknown key (known: master)")
+            net.channel_masters[name] = _master(f"{where} master", value)
+
+
+def _read_nodes(path: str, nodes: Any, base: Path) -> dict[int, dict[str, Any]]:
+    """[nodes.N] tables, by node-ID: their values checked, device file paths made relative
+    to the network file's folder."""
+    if not isinstance(nodes, dict):
+        raise UsageError(f"{path}: nodes: expected [nodes.N] tables")
+    tables: dict[int, dict[str, Any]] = {}
+    for name, table in nodes.items():
+        where = f"{path}: [nodes.{name}]"
+        if not name.isdigit() or not 1 <= int(name) <= 127:
+            raise UsageError(f"{where}: node-ID must be 1..127")
+        if not isinstance(table, dict):
+            raise UsageError(f"{where}: expected a table")
+        values: dict[str, Any] = {}
+        for key, value in table.items():
+            if key not in _KEYS:
+                raise UsageError(f"{where} {key}: unknown key (known: {', '.join(_KEYS)})")
+            values[key] = _value(f"{where} {key}", value, _KEYS[key])
+        for key in ("dcf", "eds"):
+            if key in values:
+                values[key] = str(base / values[key])
+        tables[int(name)] = values
+    return tables
+
+
+def _node_config(net: Network, node: int, values: dict[str, Any]) -> NodeConfig:
+    """One node's configuration: the network file's values over its device file's (which is
+    loaded into `net`)."""
+    dev_path = values.get("dcf") or values.get("eds")
+    dev = load_device_file(dev_path, node) if dev_path else None
+    if dev is not None:
+        net.devices[node] = dev
+        net.notes += [f"node {node} {dev.path}: {note}" for note in dev.notes]
+
+    def pick(key: str, from_dev: float | None) -> float | None:
+        explicit: float | None = values.get(key)
+        if explicit is not None:
+            return explicit or None  # 0 read from a file means "not configured"
+        return from_dev
+
+    cfg = NodeConfig(
+        heartbeat_ms=pick("heartbeat_ms", dev.heartbeat_ms if dev else None),
+        consumer_timeout_ms=pick("consumer_timeout_ms", None),
+        guard_time_ms=pick("guard_time_ms", dev.guard_time_ms if dev else None),
+        expected=True,
+    )
+    ltf = pick("life_time_factor", dev.life_time_factor if dev else None)
+    cfg.life_time_factor = int(ltf) if ltf else None
+    if dev is not None:
+        cfg.tpdo_cob_ids = dict(dev.tpdo_cob_ids)
+        cfg.rpdo_cob_ids = dict(dev.rpdo_cob_ids)
+    return cfg
+
+
+def _consumer_times(net: Network, tables: dict[int, dict[str, Any]]) -> None:
+    """1016h entries of every device file set their producers' consumer times."""
     for consumer, dev in net.devices.items():
         for producer, time_ms in dev.consumers.items():
-            cfg, channel = net.nodes.setdefault(producer, (NodeConfig(), None))
+            cfg, _channel = net.nodes.setdefault(producer, (NodeConfig(), None))
             if "consumer_timeout_ms" in tables.get(producer, {}):
                 continue  # the explicit key wins
             if cfg.consumer_timeout_ms is None or time_ms < cfg.consumer_timeout_ms:
                 cfg.consumer_timeout_ms, cfg.consumer_node = time_ms, consumer
-    # 1F81h slave assignment: the master's list of expected slaves.
+
+
+def _expected_slaves(net: Network) -> None:
+    """1F81h slave assignment: the master's list of expected slaves."""
     for dev in net.devices.values():
         for slave in dev.slaves or []:
-            cfg, channel = net.nodes.setdefault(slave, (NodeConfig(), None))
+            cfg, _channel = net.nodes.setdefault(slave, (NodeConfig(), None))
             cfg.expected = True
-    return net

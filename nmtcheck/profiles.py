@@ -84,7 +84,7 @@ def _check_value(where: str, value: Any, want: type) -> Any:
         return value
     if want is int and isinstance(value, int) and not isinstance(value, bool) and value < 0:
         raise UsageError(f"{where}: expected a whole number >= 0, got {value!r}")
-    if isinstance(value, want) and not isinstance(value, bool) or (want is bool
+    if (isinstance(value, want) and not isinstance(value, bool)) or (want is bool
                                                                  and isinstance(value, bool)):
         return value
     raise UsageError(f"{where}: expected {want.__name__}, got {type(value).__name__} {value!r}")

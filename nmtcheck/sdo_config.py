@@ -4,18 +4,38 @@ the trace (1017h, 1016h, 100Ch/100Dh, PDO COB-IDs), and how long each write hold
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 from nmtcheck import sdo
 from nmtcheck.model import ConfigWrite, NodeEvent, NodeModel
 from nmtcheck.nmt import BOOTUP
 
 
-def pair_sdo_writes(rows: list[tuple[float, int, int, int, int, list[int]]],
-                    nodes: dict[int, NodeModel], node_model: Callable[[int], NodeModel]
-                    ) -> None:
+class SdoFrame(NamedTuple):
+    """An SDO request (600h+N) or response (580h+N) as the timeline keeps it."""
+
+    ts: float
+    idx: int
+    line: int
+    can_id: int
+    dlc: int
+    data: list[int]  # plain ints: numpy uint8 would overflow on shifts
+
+
+class _Request(NamedTuple):
+    """An expedited download to a configuration object, waiting for its confirmation."""
+
+    obj: int  # object index (a field named `index` would hide tuple.index)
+    sub: int
+    value: int | None  # None: a segmented download (its value is not known)
+    ts: float
+    idx: int
+
+
+def pair_sdo_writes(rows: list[SdoFrame], nodes: dict[int, NodeModel],
+                    node_model: Callable[[int], NodeModel]) -> None:
     """Pair SDO requests with the server's answer: confirmed writes, aborts, segmented ones."""
-    # node -> index, sub, value, ts, idx of the request
-    pending: dict[int, tuple[int, int, int | None, float, int]] = {}
+    pending: dict[int, _Request] = {}  # by node
     for ts, idx, line, can_id, dlc, data in rows:
         if dlc < 4:
             continue
@@ -23,14 +43,14 @@ def pair_sdo_writes(rows: list[tuple[float, int, int, int, int, list[int]]],
         if can_id >= 0x601:  # request to server N
             n = can_id - 0x600
             if cmd & 0xE0 == 0x20 and sdo.is_config_index(index, sub):
-                pending[n] = (index, sub, sdo.expedited_value(data), ts, idx)
+                pending[n] = _Request(index, sub, sdo.expedited_value(data), ts, idx)
             else:
                 pending.pop(n, None)
             continue
         n = can_id - 0x580
         m = node_model(n)
         req = pending.get(n)
-        matches = req is not None and req[:2] == (index, sub)
+        matches = req is not None and (req.obj, req.sub) == (index, sub)
         if cmd == 0x80:
             code = int.from_bytes(bytes(data[4:8]), "little")
             what = f" to {sdo.object_name(index, sub)}" if matches else f" ({index:04X}h sub {sub})"
@@ -41,14 +61,14 @@ def pair_sdo_writes(rows: list[tuple[float, int, int, int, int, list[int]]],
                 pending.pop(n, None)
         elif cmd == 0x60 and req is not None and matches:
             pending.pop(n, None)
-            value = req[2]
+            value = req.value
             if value is None:
                 m.events.append(NodeEvent(ts, idx, line, "sdo-segmented",
                                           f"segmented download to {sdo.object_name(index, sub)}"
                                           f" confirmed; its value is not applied"))
                 continue
             m.writes.append(ConfigWrite(ts, idx, line, n, index, sub, value,
-                                        request_ts=req[3], request_idx=req[4]))
+                                        request_ts=req.ts, request_idx=req.idx))
             m.events.append(NodeEvent(ts, idx, line, "sdo-write",
                                       f"{sdo.object_name(index, sub)} = {value} "
                                       f"({value:X}h) written by SDO"))

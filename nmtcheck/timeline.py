@@ -12,6 +12,7 @@ The sparse events (NMT commands, EMCY, configuration SDOs) are Python objects.
 from __future__ import annotations
 
 import bisect
+from array import array
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -49,7 +50,7 @@ from nmtcheck.nmt import (
     STATE_OF_CODE,
     UNKNOWN,
 )
-from nmtcheck.sdo_config import pair_sdo_writes, write_validity
+from nmtcheck.sdo_config import SdoFrame, pair_sdo_writes, write_validity
 
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
@@ -93,7 +94,8 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
     """One channel's nodes, commands and master, each node classified and timed (the
     state intervals come last, once every node's timeouts have their ends)."""
     ev = decoded.events
-    rows = ev[ev["chan"] == chan]
+    mine = ev["chan"] == chan
+    rows = ev if mine.all() else ev[mine]  # one channel (the usual case): no copy
     nodes = _Nodes(chan, name, configs)
     _nodes_that_sent(decoded, chan, nodes)
     ec_tables = _ec_tables(decoded, chan)
@@ -129,13 +131,13 @@ def _nodes_that_sent(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
         if key // 128 == chan and 1 <= key % 128 <= 127:
             m = nodes(key % 128)
             m.first_tx = first
-            m.first_show_idx, m.first_show_ts = first[0], first[1]
+            m.first_show_idx, m.first_show_ts = first.idx, first.ts
             m.last_seen = decoded.last_tx.get(key)
 
 
 def _emcy_and_sdo(rows: np.ndarray, nodes: _Nodes) -> None:
     """EMCY messages become node events; SDO traffic is paired into configuration writes."""
-    sdo_rows: list[tuple[float, int, int, int, int, list[int]]] = []
+    sdo_rows: list[SdoFrame] = []
     for r in rows.tolist():
         ts, idx, line, _chan, can_id, _rtr, dlc, data = r
         data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
@@ -143,7 +145,7 @@ def _emcy_and_sdo(rows: np.ndarray, nodes: _Nodes) -> None:
             code, text = emcy.describe(data, dlc)
             nodes(can_id - 0x080).events.append(NodeEvent(ts, idx, line, "emcy", text, code))
         elif 0x581 <= can_id <= 0x67F:
-            sdo_rows.append((ts, idx, line, can_id, dlc, data))
+            sdo_rows.append(SdoFrame(ts, idx, line, can_id, dlc, data))
     pair_sdo_writes(sdo_rows, nodes, nodes)
 
 
@@ -300,7 +302,7 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
         return False
     next_cmd = valid.next_to(i, node)
     for q in after:
-        if next_cmd is not None and int(t.idx[q]) > next_cmd or int(t.value[q]) == 0:
+        if (next_cmd is not None and int(t.idx[q]) > next_cmd) or int(t.value[q]) == 0:
             return False
         if float(t.ts[q]) - f_ts <= params.obey_s + EPS:
             continue
@@ -405,13 +407,15 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
         return
     ec = m.ec
     pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
-    extra = [(t, i, _RESET) for t, i in zip(m.commands.reset_ts.tolist(),
-                                            m.commands.reset_idx.tolist(), strict=True)]
-    extra += [(w.ts, w.idx, _ON if w.value else _OFF) for w in m.writes if w.index == 0x1017]
-    ts = np.concatenate([ec.ts[pos], np.asarray([e[0] for e in extra], np.float64)])
-    idx = np.concatenate([ec.idx[pos], np.asarray([e[1] for e in extra], np.int64)])
+    resets = m.commands.reset_idx
+    writes = [w for w in m.writes if w.index == 0x1017]
+    # the events as columns: heartbeats and boot-ups, reset commands, 1017h writes
+    ts = np.concatenate([ec.ts[pos], m.commands.reset_ts,
+                         np.asarray([w.ts for w in writes], np.float64)])
+    idx = np.concatenate([ec.idx[pos], resets, np.asarray([w.idx for w in writes], np.int64)])
     what = np.concatenate([np.where(ec.kind[pos] == HEARTBEAT, _HB, _BOOT).astype(np.int8),
-                           np.asarray([e[2] for e in extra], np.int8)])
+                           np.full(len(resets), _RESET, np.int8),
+                           np.asarray([_ON if w.value else _OFF for w in writes], np.int8)])
     order = np.argsort(idx, kind="stable")
     ts, idx, what = ts[order], idx[order], what[order]
     if not ts.size:
@@ -555,6 +559,9 @@ _EV_TIMEOUT, _EV_EC, _EV_BACK = 0, 1, 2  # order of steps at one moment; command
 _EV_CMD = 3
 
 
+STEP_CHUNK = 1 << 16
+
+
 def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, int]]:
     """What the interval walk sees, in order: (time, what, reference) for each evidence
     frame, command, timeout and end of a timeout. At one moment a timeout comes first
@@ -580,7 +587,9 @@ def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, i
     ref = np.concatenate([pos, np.arange(len(cmds)), np.arange(len(m.timeouts)),
                           back_of]).astype(np.int64)
     steps = np.lexsort((idx, order, ts))
-    return zip(ts[steps].tolist(), what[steps].tolist(), ref[steps].tolist(), strict=True)
+    for lo in range(0, len(steps), STEP_CHUNK):  # a node may have millions of steps: a
+        part = steps[lo:lo + STEP_CHUNK]  # chunk of them at a time as Python numbers
+        yield from zip(ts[part].tolist(), what[part].tolist(), ref[part].tolist(), strict=True)
 
 
 def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> IntervalTable:
@@ -593,17 +602,18 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     """
     ec, cmds = m.ec, m.commands
     steps = _interval_steps(m, obey_s)
-    kind = ec.kind.tolist()
-    code_state = _CODE_STATE[ec.value & 0x7F].tolist()
+    # compact arrays, not lists: one entry per frame, read one at a time
+    kind = array("b", ec.kind.astype(np.int8).tobytes())
+    code_state = array("b", _CODE_STATE[ec.value & 0x7F].tobytes())
     cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()]
     ended_by = [t.ended_by for t in m.timeouts]
 
     unknown, offline, pre_op = STATE_INDEX[UNKNOWN], STATE_INDEX[OFFLINE], STATE_INDEX[
         PRE_OPERATIONAL]
     src_timeout, src_command = SOURCE_INDEX["timeout"], SOURCE_INDEX["command"]
-    starts: list[float] = [start]
-    states: list[int] = [unknown]
-    sources: list[int] = [SOURCE_INDEX["start"]]
+    starts = array("d", [start])  # the intervals so far (8 + 1 + 1 bytes each)
+    states = array("b", [unknown])
+    sources = array("b", [SOURCE_INDEX["start"]])
 
     def go(at: float, state: int, source: int) -> None:
         if states[-1] == state:
@@ -648,17 +658,15 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
                 saved = (cmd_state[r], src_command)
             else:
                 go(at, cmd_state[r], src_command)
-        elif w == _EV_TIMEOUT:
-            if cur in (unknown, offline):
-                continue
+        elif w == _EV_TIMEOUT and cur not in (unknown, offline):
             saved = (cur, sources[-1])
             pre_offline = cur  # what a stale report after a command here would still say
             offline_until = ended_by[r]
             go(at, offline, src_timeout)
-        elif cur == offline and saved is not None and offline_until == at:  # back
+        elif w == _EV_BACK and cur == offline and saved is not None and offline_until == at:
             go(at, *saved)
             saved = None
-    begin = np.asarray(starts, np.float64)
+    begin = np.frombuffer(starts, np.float64).copy()
     finish = np.append(begin[1:], max(end, starts[-1]))
-    return IntervalTable(begin, finish, np.asarray(states, np.int8),
-                         np.asarray(sources, np.int8))
+    return IntervalTable(begin, finish, np.frombuffer(states, np.int8).copy(),
+                         np.frombuffer(sources, np.int8).copy())

@@ -81,7 +81,8 @@ import canopen
 from canopen import objectdictionary as od_mod
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from record_samples import (  # noqa: E402
+from canopen.sdo.base import SdoArray, SdoRecord, SdoVariable
+from record_samples import (
     CS_PREOP,
     CS_RESET_COMM,
     CS_RESET_NODE,
@@ -98,6 +99,25 @@ from record_samples import (  # noqa: E402
 
 MASTER_ID = 1
 SLAVES = (2, 3, 4)
+
+
+def _sdo(node: canopen.LocalNode | canopen.RemoteNode, index: int,
+         subindex: int | None = None) -> SdoVariable:
+    """One variable of a node's object dictionary, through its SDO server or client."""
+    obj = node.sdo[index]
+    if subindex is not None:
+        assert isinstance(obj, (SdoArray, SdoRecord))
+        obj = obj[subindex]
+    assert isinstance(obj, SdoVariable)
+    return obj
+
+
+def _raw(node: canopen.LocalNode | canopen.RemoteNode, index: int,
+         subindex: int | None = None) -> int:
+    """The value of an integer variable (`.raw`)."""
+    value = _sdo(node, index, subindex).raw
+    assert isinstance(value, int)
+    return value
 MASTER_HB_MS = 200  # master's own 1017h
 SLAVE_HB_MS = 100  # 1017h the master writes to each slave
 CONSUMER_MS = 250  # master's 1016h entry per slave (2.5 x 100 ms)
@@ -118,8 +138,8 @@ CS_NAMES = {0x01: "start", 0x02: "stop", 0x80: "pre-op", 0x81: "reset node", 0x8
 class RebootSlave(Slave):
     powered: bool = False
     reset_delay: float = 0.040
-    timers: list = field(default_factory=list)
-    log: list = field(default_factory=list)  # (t, event) for the notes
+    timers: list[threading.Timer] = field(default_factory=list)
+    log: list[tuple[float, str]] = field(default_factory=list)  # (t, event) for the notes
 
 
 class MasterBench(Bench):
@@ -132,13 +152,13 @@ class MasterBench(Bench):
     def rel(self) -> float:
         return time.perf_counter() - self.t0
 
-    def add_slave(self, node_id: int, **_ignored) -> RebootSlave:  # type: ignore[override]
+    def add_slave(self, node_id: int, **_ignored: object) -> RebootSlave:  # type: ignore[override]
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.1
         node = canopen.LocalNode(node_id, build_od(node_id, 0, consumer_entries=1))
         slave = RebootSlave(node_id, node, network, silent=True)
         slave.reset_delay = RESET_DELAY.get(node_id, 0.040)
-        original = node.nmt.on_command
+        original: Callable[[int, bytearray, float], None] = node.nmt.on_command
 
         def on_command(can_id: int, data: bytearray, timestamp: float) -> None:
             addressed = len(data) >= 2 and data[1] in (0, node_id)
@@ -183,18 +203,23 @@ class MasterBench(Bench):
         node.nmt.state = "PRE-OPERATIONAL"  # 1017h = 0: no heartbeat task
         slave.log.append((self.rel(), "boot-up"))
 
-    def power_on(self, node_id: int) -> None:
+    def reboot_slave(self, node_id: int) -> RebootSlave:
         slave = self.slaves[node_id]
+        assert isinstance(slave, RebootSlave)
+        return slave
+
+    def power_on(self, node_id: int) -> None:
+        slave = self.reboot_slave(node_id)
         slave.powered, slave.silent = True, False
         self._boot(slave)
 
     def spontaneous_reboot(self, node_id: int) -> None:
         """Watchdog reset of the slave's application: no NMT command."""
         with self.pdo_lock:
-            self._enter_reset(self.slaves[node_id], "watchdog")
+            self._enter_reset(self.reboot_slave(node_id), "watchdog")
 
     def unplug(self, node_id: int) -> None:
-        slave = self.slaves[node_id]
+        slave = self.reboot_slave(node_id)
         with self.pdo_lock:
             slave.silent = True
             slave.node.nmt.stop_heartbeat()
@@ -203,17 +228,17 @@ class MasterBench(Bench):
     def plug_in(self, node_id: int) -> None:
         """Back on the bus, still in the state it had; its heartbeat task
         restarts with the 1017h it holds (first frame at once)."""
-        slave = self.slaves[node_id]
+        slave = self.reboot_slave(node_id)
         with self.pdo_lock:
             slave.silent = False
-            slave.node.nmt.start_heartbeat(slave.node.sdo[0x1017].raw)
+            slave.node.nmt.start_heartbeat(_raw(slave.node, 0x1017))
         slave.log.append((self.rel(), f"plugged in, state {slave.node.nmt.state}"))
 
     def finish(self) -> list[can.Message]:
         if self.cia302 is not None:
             self.cia302.stop()
         self._stop.set()
-        for s in self.slaves.values():
+        for s in map(self.reboot_slave, self.slaves):
             for timer in s.timers:
                 timer.cancel()
             for t, what in s.log:
@@ -250,18 +275,18 @@ class Monitor:
 
 
 class Cia302Master:
-    def __init__(self, bench: MasterBench, slaves=SLAVES) -> None:
+    def __init__(self, bench: MasterBench, slaves: tuple[int, ...] = SLAVES) -> None:
         self.b = bench
         bench.cia302 = self
         self.net = bench.master
         self.local = canopen.LocalNode(MASTER_ID, build_master_od())
         self.net.add_node(self.local)  # subscribes 000h and 601h: a real node
         for sub, nid in enumerate(slaves, start=1):
-            self.local.sdo[0x1016][sub].raw = (nid << 16) | CONSUMER_MS  # local only
+            _sdo(self.local, 0x1016, sub).raw = (nid << 16) | CONSUMER_MS  # local only
         self.mon = {nid: Monitor(nid) for nid in slaves}
         for nid in slaves:
             self.net.subscribe(0x700 + nid, self._on_error_control)
-        self.events: queue.Queue = queue.Queue()
+        self.events: queue.Queue[tuple[str, int, float]] = queue.Queue()
         self.log: list[tuple[float, str]] = []
         self.lock = threading.RLock()  # one master action at a time
         self.mon_lock = threading.Lock()
@@ -277,15 +302,15 @@ class Cia302Master:
 
     def consumer_s(self, nid: int) -> float:
         for sub in range(1, len(self.mon) + 1):
-            entry = self.local.sdo[0x1016][sub].raw
+            entry = _raw(self.local, 0x1016, sub)
             if entry >> 16 == nid:
                 return (entry & 0xFFFF) / 1000.0
         raise KeyError(nid)
 
     def set_consumer(self, nid: int, ms: int) -> None:
         for sub in range(1, len(self.mon) + 1):
-            if self.local.sdo[0x1016][sub].raw >> 16 == nid:
-                self.local.sdo[0x1016][sub].raw = (nid << 16) | ms
+            if _raw(self.local, 0x1016, sub) >> 16 == nid:
+                _sdo(self.local, 0x1016, sub).raw = (nid << 16) | ms
                 self.note(f"own 1016h:{sub:02X} = node {nid}, {ms} ms")
                 return
         raise KeyError(nid)
@@ -330,15 +355,15 @@ class Cia302Master:
         """CiA 302 'boot slave': identity check, then error control."""
         with self.lock:
             remote = self.net[nid]
-            dev = remote.sdo[0x1000].raw
-            vendor = remote.sdo[0x1018][1].raw
+            dev = _raw(remote, 0x1000)
+            vendor = _raw(remote, 0x1018, 1)
             if dev != DEVICE_TYPE or vendor != VENDOR_ID:
                 self.note(f"node {nid}: identity mismatch {dev:08X} {vendor:08X}")
                 return
-            remote.sdo[0x1016][1].raw = (MASTER_ID << 16) | SLAVE_CONSUMER_MS
+            _sdo(remote, 0x1016, 1).raw = (MASTER_ID << 16) | SLAVE_CONSUMER_MS
             with self.mon_lock:
                 self.mon[nid].enabled = True  # arms at its first heartbeat
-            remote.sdo[0x1017].raw = SLAVE_HB_MS
+            _sdo(remote, 0x1017).raw = SLAVE_HB_MS
             self.mon[nid].booted += 1
             self.note(
                 f"node {nid} configured: 1000h {dev:08X}, 1018h:01 {vendor:08X}, "
@@ -500,7 +525,7 @@ def scenario_broadcast(b: MasterBench) -> None:
     b.at(b.rel() + 0.3)
     with m.lock:
         for nid in SLAVES:  # e.g. check the identity again while pre-operational
-            _ = m.net[nid].sdo[0x1018][2].raw
+            _ = _sdo(m.net[nid], 0x1018, 2).raw
         m.note("SDO upload 1018h:02 of nodes 2, 3, 4 while PRE-OPERATIONAL")
     b.at(b.rel() + 0.7)
     m.wait_phase(2, 0.060)
@@ -515,7 +540,7 @@ def scenario_period_change(b: MasterBench) -> None:
     m.wait_phase(3, 0.060)
     with m.lock:
         m.set_consumer(3, int(PERIOD_CHANGE_MS * 1.5))  # own consumer first
-        m.net[3].sdo[0x1017].raw = PERIOD_CHANGE_MS
+        _sdo(m.net[3], 0x1017).raw = PERIOD_CHANGE_MS
         m.note(f"node 3: 1017h = {PERIOD_CHANGE_MS} ms confirmed")
     b.at(b.rel() + 4.5)
 
@@ -553,7 +578,8 @@ def write_log(frames: list[can.Message], path: Path) -> None:
 # --------------------------------------------------------------------------
 
 
-def _nmt(frames, cs=None, nid=None):
+def _nmt(frames: list[can.Message], cs: int | None = None,
+         nid: int | None = None) -> list[can.Message]:
     return [
         m
         for m in frames
@@ -563,27 +589,27 @@ def _nmt(frames, cs=None, nid=None):
     ]
 
 
-def _ec(frames, nid):
+def _ec(frames: list[can.Message], nid: int) -> list[can.Message]:
     return [m for m in frames if m.arbitration_id == 0x700 + nid and not m.is_remote_frame]
 
 
-def _boot(frames, nid):
+def _boot(frames: list[can.Message], nid: int) -> list[can.Message]:
     return [m for m in _ec(frames, nid) if m.data[0] == 0]
 
 
-def _hb(frames, nid):
+def _hb(frames: list[can.Message], nid: int) -> list[can.Message]:
     return [m for m in _ec(frames, nid) if m.data[0] != 0]
 
 
-def _iv(ms):
+def _iv(ms: list[can.Message]) -> list[float]:
     return [b.timestamp - a.timestamp for a, b in pairwise(ms)]
 
 
-def _sdo_req(frames, nid, request: bytes):
+def _sdo_req(frames: list[can.Message], nid: int, request: bytes) -> list[can.Message]:
     return [m for m in frames if m.arbitration_id == 0x600 + nid and bytes(m.data) == request]
 
 
-def _resp_after(frames, nid, req):
+def _resp_after(frames: list[can.Message], nid: int, req: can.Message) -> can.Message:
     return next(
         m for m in frames if m.arbitration_id == 0x580 + nid and m.timestamp >= req.timestamp
     )
@@ -595,7 +621,7 @@ W1016 = bytes([0x23, 0x16, 0x10, 0x01]) + ((MASTER_ID << 16) | SLAVE_CONSUMER_MS
 )
 
 
-def check_common(frames: list[can.Message], rel) -> list[str]:
+def check_common(frames: list[can.Message], rel: Callable[[can.Message], float]) -> list[str]:
     """What every recording must show: the master's start-up, one boot-slave
     sequence per boot-up, heartbeats only after 1017h, PDO gating, no abort."""
     ev: list[str] = []
@@ -681,7 +707,8 @@ def check_common(frames: list[can.Message], rel) -> list[str]:
     return ev
 
 
-def _slave_hb_line(frames, nid, rel, since=None, until=None) -> str:
+def _slave_hb_line(frames: list[can.Message], nid: int, rel: Callable[[can.Message], float],
+                   since: float | None = None, until: float | None = None) -> str:
     hb = [
         m
         for m in _hb(frames, nid)
@@ -699,8 +726,9 @@ def _slave_hb_line(frames, nid, rel, since=None, until=None) -> str:
 def verify(name: str, frames: list[can.Message]) -> list[str]:
     t0 = frames[0].timestamp
 
-    def rel(m) -> float:
-        return (m.timestamp if hasattr(m, "timestamp") else m) - t0
+    def rel(m: can.Message | float) -> float:
+        out: float = (m.timestamp if hasattr(m, "timestamp") else m) - t0
+        return out
 
     ev = check_common(frames, rel)
     mboot = _boot(frames, MASTER_ID)[0]
@@ -714,7 +742,8 @@ def verify(name: str, frames: list[can.Message]) -> list[str]:
     )
     direct = [m for m in _nmt(frames) if m.data[1] != 0]
 
-    def steady(nid, since, until=None, lo=0.090, hi=0.110):
+    def steady(nid: int, since: float, until: float | None = None, lo: float = 0.090,
+               hi: float = 0.110) -> None:
         hb = [
             m
             for m in _hb(frames, nid)
@@ -770,8 +799,8 @@ def verify(name: str, frames: list[can.Message]) -> list[str]:
                 for m in frames
                 if m.arbitration_id == 0x180 + nid and p.timestamp < m.timestamp < s2.timestamp
             ]
-            after = next(m for m in _hb(frames, nid) if m.timestamp > s2.timestamp)
-            assert after.data[0] == 5
+            next_hb = next(m for m in _hb(frames, nid) if m.timestamp > s2.timestamp)
+            assert next_hb.data[0] == 5
         uploads = [
             m
             for m in frames
@@ -783,13 +812,13 @@ def verify(name: str, frames: list[can.Message]) -> list[str]:
             f"{len(uploads)} SDO uploads (1018h:02) while pre-op; 01 00 @{rel(s2):.3f}"
         )
     if name == "period_change":
-        req = _sdo_req(
+        reqs = _sdo_req(
             frames,
             3,
             bytes([0x2B, 0x17, 0x10, 0x00]) + PERIOD_CHANGE_MS.to_bytes(2, "little") + bytes(2),
         )
-        assert len(req) == 1
-        req = req[0]
+        assert len(reqs) == 1
+        req = reqs[0]
         conf = _resp_after(frames, 3, req)
         assert bytes(conf.data) == bytes.fromhex("6017100000000000")
         hb3 = _hb(frames, 3)
@@ -885,7 +914,8 @@ def verify(name: str, frames: list[can.Message]) -> list[str]:
     return ev
 
 
-def check_file(name: str, outdir: Path, say, recorded: int | None = None) -> int:
+def check_file(name: str, outdir: Path, say: Callable[[str], None],
+               recorded: int | None = None) -> int:
     path = outdir / f"{name}.log"
     frames = read_back(path)
     say(f"   {path.name}: {len(frames)} frames, {path.stat().st_size} bytes")

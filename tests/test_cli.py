@@ -116,7 +116,7 @@ def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
 @pytest.mark.parametrize("make, needle", [
     (lambda p: str(p / "missing.log"), "no such file"),
     (lambda p: str(p), "is a directory"),
-    (lambda p: (p / "empty.log").write_text("") and str(p / "empty.log") or str(p / "empty.log"),
+    (lambda p: ((p / "empty.log").write_text("") and str(p / "empty.log")) or str(p / "empty.log"),
      "empty file"),
     (lambda p: (p / "x.bin").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100)) and str(p / "x.bin"),
      "unknown log format"),

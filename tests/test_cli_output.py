@@ -60,7 +60,9 @@ def test_concise_input_and_network_findings(tmp_path: Path) -> None:
     # a reserved CAN-ID (C001, the network's) and an unparseable line (I003, the input's)
     log.write_text(candump([(0.0, "702#00"), (0.1, "702#05"), (0.2, "123#00")]) + "junk\n")
     lines = run("check", str(log), "--format", "concise", cwd=tmp_path).stdout.splitlines()
-    by_code = {CONCISE.match(x)["code"]: CONCISE.match(x) for x in lines[:-1]}  # type: ignore[index]
+    matches = [CONCISE.match(x) for x in lines[:-1]]
+    assert None not in matches
+    by_code = {m["code"]: m for m in matches if m is not None}
     assert by_code["C001"]["rest"].startswith("network: CAN-ID 123h")
     assert by_code["I003"]["rest"].startswith("1 record could not be parsed")  # no node part
     assert by_code["I003"]["line"] == "4"

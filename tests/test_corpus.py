@@ -235,8 +235,8 @@ def test_gzip_without_inner_suffix_counts_lines(rel: str) -> None:
 
 
 def test_gzip_asc_equals_plain_asc() -> None:
-    a, ca = read(THIRD / "python-can/test_CanMessage.asc")
-    b, cb = read(THIRD / "python-can/test_CanMessage.asc.gz")
+    _a, ca = read(THIRD / "python-can/test_CanMessage.asc")
+    _b, cb = read(THIRD / "python-can/test_CanMessage.asc.gz")
     for name in ca:
         np.testing.assert_array_equal(ca[name], cb[name], err_msg=name)
 
@@ -263,7 +263,7 @@ def test_logfile_asc_known_values() -> None:
 
 
 def test_issue_1299_dlc_13() -> None:
-    stats, c = read(THIRD / "python-can/issue_1299.asc")
+    _stats, c = read(THIRD / "python-can/issue_1299.asc")
     i = int(np.flatnonzero(c["can_id"] == 0x3FF)[0])
     assert int(c["dlc"][i]) == 13
     assert bytes(c["data"][i]) == bytes.fromhex("55AA010203040506")  # 8 bytes on the bus
@@ -282,7 +282,7 @@ def test_issue_1256_without_trigger_block() -> None:
 def test_savvycan_ids_0x708_to_0x754_are_ordinary_frames() -> None:
     # PROVENANCE: 0x708–0x754 frames with DLC 8 are automotive, not heartbeats; the reader
     # only reports them as 11-bit data frames with their 8 bytes
-    stats, c = read(THIRD / "savvycan/candump.log")
+    _stats, c = read(THIRD / "savvycan/candump.log")
     sel = (c["can_id"] >= 0x708) & (c["can_id"] <= 0x754)
     assert sel.any()
     assert (c["dlc"][sel] == 8).all()

@@ -112,7 +112,7 @@ def test_explicit_keys_win_over_the_device_file(tmp_path: Path) -> None:
 def test_missing_device_file_is_a_usage_error(tmp_path: Path) -> None:
     net = tmp_path / "net.toml"
     net.write_text('[nodes.2]\ndcf = "nope.dcf"\n')
-    with pytest.raises(UsageError, match="nope.dcf"):
+    with pytest.raises(UsageError, match=r"nope\.dcf"):
         load_network(str(net))
 
 

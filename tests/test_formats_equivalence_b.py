@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import CORPUS, SAMPLES, needs_corpus
+from hostile_logs import ROS2_FRAME_MSG
 from mcap.writer import Writer as McapWriter
-from test_readers_mcap import ROS2_FRAME_MSG
 from test_readers_pcap import (
     Frame,
     pcap_file,

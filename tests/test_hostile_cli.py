@@ -196,7 +196,7 @@ def test_unreadable_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Non
         return real_open(file, *args, **kw)
 
     monkeypatch.setattr(builtins, "open", deny)
-    with pytest.raises(InputError, match="secret.log: cannot open: Permission denied"):
+    with pytest.raises(InputError, match=r"secret\.log: cannot open: Permission denied"):
         open_input(str(path))
 
 

@@ -32,8 +32,10 @@ RULES = select_rules(PROFILE, [], [])
 def _nmtcheck(*args: str, **kw: object) -> subprocess.Popen[bytes]:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     kw.setdefault("stdin", subprocess.PIPE)
-    return subprocess.Popen([sys.executable, "-m", "nmtcheck", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=env, **kw)  # type: ignore[call-overload]
+    proc: subprocess.Popen[bytes] = subprocess.Popen(  # type: ignore[call-overload]
+        [sys.executable, "-m", "nmtcheck", *args], stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, env=env, **kw)
+    return proc
 
 
 class Lines(threading.Thread):

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from conftest import candump
+from conftest import Checker, candump
 from traces import hb
 
 # A CiA 302 master (node 1) as Lely and python-canopen masters start: its own boot-up,
@@ -35,14 +35,15 @@ def masters(res) -> list[tuple[str, int | None, str | None]]:  # type: ignore[no
 
 # --- the master and its three sources ----------------------------------------------------
 
-def test_master_is_inferred_from_a_real_start_up(checker) -> None:
+def test_master_is_inferred_from_a_real_start_up(checker: Checker) -> None:
     res = checker.run(candump(cia302()))
     assert masters(res) == [("can0", 1, "inferred")]
-    assert "did not obey" in res.model.channels[0].master.detail
+    master = res.model.channels[0].master
+    assert master is not None and "did not obey" in master.detail
     assert [(f.rule, f.node) for f in res.findings] == []  # no B001/S004 for the master
 
 
-def test_without_the_master_its_own_broadcast_would_be_b001(checker) -> None:
+def test_without_the_master_its_own_broadcast_would_be_b001(checker: Checker) -> None:
     """The master ignores its own reset: with inference off (window 0) the SPEC's old
     reading applies the broadcast to node 1 and a healthy start-up fails."""
     fr = cia302()
@@ -53,14 +54,14 @@ def test_without_the_master_its_own_broadcast_would_be_b001(checker) -> None:
     assert checker.findings(candump(fr), select="B,S004") == []
 
 
-def test_master_from_the_network_file_wins(checker) -> None:
+def test_master_from_the_network_file_wins(checker: Checker) -> None:
     res = checker.run(candump(cia302()), network="master = 1\n")
     assert masters(res) == [("can0", 1, "network")]
     res = checker.run(candump(cia302(), "can1"), network="[channels.can1]\nmaster = 1\n")
     assert masters(res) == [("can1", 1, "network")]
 
 
-def test_master_from_a_device_file_with_1f80_bit_0(checker, tmp_path: Path) -> None:
+def test_master_from_a_device_file_with_1f80_bit_0(checker: Checker, tmp_path: Path) -> None:
     dcf = tmp_path / "master.dcf"
     dcf.write_text("[DeviceComissioning]\nNodeID=1\n[1F80]\nParameterName=NMT startup\n"
                    "ObjectType=0x7\nDataType=0x0007\nAccessType=rw\nDefaultValue=0x00000001\n"
@@ -69,7 +70,7 @@ def test_master_from_a_device_file_with_1f80_bit_0(checker, tmp_path: Path) -> N
     assert masters(res) == [("can0", 1, "device-file")]
 
 
-def test_no_master_without_a_broadcast(checker) -> None:
+def test_no_master_without_a_broadcast(checker: Checker) -> None:
     fr = [(t, f.replace("000#8200", "000#8202").replace("000#0100", "000#0102"))
           for t, f in cia302()]
     res = checker.run(candump(fr))
@@ -77,7 +78,7 @@ def test_no_master_without_a_broadcast(checker) -> None:
     assert "no broadcast" in res.model.channels[0].master_note
 
 
-def test_no_master_when_the_candidate_obeyed(checker) -> None:
+def test_no_master_when_the_candidate_obeyed(checker: Checker) -> None:
     """Node 2 boots last before a broadcast reset and obeys it with a boot-up: a slave."""
     fr = ([(0.0, "702#00")] + hb(2, 0.1, 0.5) + [(0.5, "000#8200"), (0.52, "702#00")]
           + hb(2, 0.6, 2.0))
@@ -87,7 +88,7 @@ def test_no_master_when_the_candidate_obeyed(checker) -> None:
     assert masters(res) == [("can0", None, None)]
 
 
-def test_no_master_when_the_candidate_answers_a_reset(checker) -> None:
+def test_no_master_when_the_candidate_answers_a_reset(checker: Checker) -> None:
     """A boot-up that answers a reset (condition 2) is a slave's, even if the node then
     ignores the next broadcast."""
     fr = ([(0.0, "702#00")] + hb(2, 0.1, 0.4) + [(0.4, "000#8102"), (0.45, "702#00")]
@@ -97,7 +98,7 @@ def test_no_master_when_the_candidate_answers_a_reset(checker) -> None:
     assert ("S004", 2, 0.65) in checker.findings(candump(sorted(fr)))
 
 
-def test_no_master_when_two_nodes_qualify(checker) -> None:
+def test_no_master_when_two_nodes_qualify(checker: Checker) -> None:
     fr = cia302(14.0)
     # node 5 boots (no reset for 12 s) and a second reset-all follows at once, which node 5
     # ignores too
@@ -107,12 +108,12 @@ def test_no_master_when_two_nodes_qualify(checker) -> None:
     assert "several" in res.model.channels[0].master_note
 
 
-def test_a_direct_command_still_applies_to_the_master(checker) -> None:
+def test_a_direct_command_still_applies_to_the_master(checker: Checker) -> None:
     fr = cia302() + [(2.0, "000#8101")]  # another device resets node 1
     assert ("B001", 1, 2.101) in checker.findings(candump(sorted(fr)), select="B001")
 
 
-def test_the_report_names_the_master(checker, tmp_path: Path) -> None:
+def test_the_report_names_the_master(checker: Checker, tmp_path: Path) -> None:
     import json
     import subprocess
     import sys
@@ -130,7 +131,7 @@ def test_the_report_names_the_master(checker, tmp_path: Path) -> None:
 
 # --- stale reports -----------------------------------------------------------------------
 
-def test_guarding_response_queued_before_a_start_is_stale(checker) -> None:
+def test_guarding_response_queued_before_a_start_is_stale(checker: Checker) -> None:
     """The queued 7Fh response 1 us after the start is not evidence: no S005, and the
     timeline does not flip back to PRE-OPERATIONAL."""
     fr = [(0.0, "705#00")]
@@ -149,12 +150,12 @@ def test_guarding_response_queued_before_a_start_is_stale(checker) -> None:
     assert states == ["PRE-OPERATIONAL", "OPERATIONAL"]
 
 
-def test_a_report_of_the_old_state_after_obey_ms_is_evidence(checker) -> None:
+def test_a_report_of_the_old_state_after_obey_ms_is_evidence(checker: Checker) -> None:
     fr = [(0.0, "705#00")] + hb(5, 0.1, 2.0) + [(0.55, "000#0105")]
     assert checker.findings(candump(sorted(fr)), select="S004,S005") == [("S004", 5, 0.7)]
 
 
-def test_heartbeat_queued_before_a_reset_is_no_sign_of_life(checker) -> None:
+def test_heartbeat_queued_before_a_reset_is_no_sign_of_life(checker: Checker) -> None:
     fr = ([(0.0, "702#00")] + hb(2, 0.1, 1.0, "05") + [(1.0, "000#8102"), (1.0005, "702#05"),
                                                         (1.02, "702#00")] + hb(2, 1.1, 2.0))
     assert checker.findings(candump(sorted(fr)), select="B") == []
@@ -166,7 +167,7 @@ def test_heartbeat_queued_before_a_reset_is_no_sign_of_life(checker) -> None:
 
 # --- H001: a boot-up starts no gap -------------------------------------------------------
 
-def test_slave_silent_after_boot_up_until_1017h_is_written(checker) -> None:
+def test_slave_silent_after_boot_up_until_1017h_is_written(checker: Checker) -> None:
     """Power-on 1017h = 0: the boot-up is followed by 3 s of silence until the master writes
     1017h; with the network file's consumer time that is no H001."""
     fr = [(0.0, "702#00"), (3.0, "602#2B17100064000000"), (3.002, "582#6017100000000000")]
@@ -176,7 +177,7 @@ def test_slave_silent_after_boot_up_until_1017h_is_written(checker) -> None:
     assert checker.findings(candump(fr)) == []
 
 
-def test_the_1017h_write_starts_the_gap(checker) -> None:
+def test_the_1017h_write_starts_the_gap(checker: Checker) -> None:
     """After the write the node must heartbeat within the timeout: a first heartbeat
     0.5 s after a 100 ms write is an H001 at write + 150 ms."""
     fr = [(0.0, "702#00"), (3.0, "602#2B17100064000000"), (3.002, "582#6017100000000000")]
@@ -184,7 +185,7 @@ def test_the_1017h_write_starts_the_gap(checker) -> None:
     assert checker.findings(candump(fr), select="H001") == [("H001", 2, 3.152)]
 
 
-def test_heartbeat_during_the_1017h_exchange_follows_the_new_period(checker) -> None:
+def test_heartbeat_during_the_1017h_exchange_follows_the_new_period(checker: Checker) -> None:
     """Stacks apply 1017h before they confirm: the heartbeat between request and
     confirmation already runs at 300 ms and its gap is not judged by the old 100 ms."""
     fr = [(0.0, "702#00")] + hb(2, 0.1, 1.0)
@@ -195,7 +196,7 @@ def test_heartbeat_during_the_1017h_exchange_follows_the_new_period(checker) -> 
 
 # --- H002: the period in force ------------------------------------------------------------
 
-def test_h002_uses_the_confirmed_producer_time_not_the_median(checker) -> None:
+def test_h002_uses_the_confirmed_producer_time_not_the_median(checker: Checker) -> None:
     """1017h = 100 ms confirmed, heartbeats every 100 ms; later 400 ms (the node's own
     change). The whole-trace median is 400 ms, yet 100 ms heartbeats are on time."""
     fr = [(0.0, "702#00"), (0.05, "602#2B17100064000000"), (0.052, "582#6017100000000000")]
@@ -205,7 +206,7 @@ def test_h002_uses_the_confirmed_producer_time_not_the_median(checker) -> None:
     assert checker.findings(candump(sorted(early)), select="H002") == [("H002", 2, 0.52)]
 
 
-def test_first_heartbeat_after_a_1017h_write_is_not_early(checker) -> None:
+def test_first_heartbeat_after_a_1017h_write_is_not_early(checker: Checker) -> None:
     fr = [(0.0, "702#00")] + hb(2, 0.1, 1.0)
     fr += [(0.93, "602#2B17100032000000"), (0.931, "702#7F"), (0.932, "582#6017100000000000")]
     fr += hb(2, 0.981, 2.0, period=0.05)
@@ -214,13 +215,13 @@ def test_first_heartbeat_after_a_1017h_write_is_not_early(checker) -> None:
 
 # --- N002: a stalled fixed-rate producer is not two devices ------------------------------
 
-def test_late_heartbeat_and_catch_up_is_not_a_duplicate_node(checker) -> None:
+def test_late_heartbeat_and_catch_up_is_not_a_duplicate_node(checker: Checker) -> None:
     fr = [(0.0, "702#00")] + hb(2, 0.1, 1.0) + [(1.08, "702#7F"), (1.1, "702#7F")]
     fr += hb(2, 1.2, 3.0)
     assert checker.findings(candump(fr), select="N002") == []
 
 
-def test_two_producers_out_of_phase_are_a_duplicate_node(checker) -> None:
+def test_two_producers_out_of_phase_are_a_duplicate_node(checker: Checker) -> None:
     fr = [(0.0, "702#00")] + hb(2, 0.1, 2.0) + hb(2, 0.13, 2.0)
     assert checker.findings(candump(sorted(fr)), select="N002") == [("N002", 2, 0.3)]
 
@@ -249,12 +250,12 @@ def test_unreadable_device_file_values_are_in_every_report(tmp_path: Path) -> No
 
 # --- cases the differential test against the reference model found ----------------------
 
-def test_a_node_whose_only_traffic_is_a_1017h_write(checker) -> None:
+def test_a_node_whose_only_traffic_is_a_1017h_write(checker: Checker) -> None:
     fr = [(0.0, "605#2B17100032000000"), (0.001, "585#6017100000000000")]
     assert checker.findings(candump(fr)) == []
 
 
-def test_heartbeats_while_1017h_is_0_start_no_gap(checker) -> None:
+def test_heartbeats_while_1017h_is_0_start_no_gap(checker: Checker) -> None:
     """Heartbeat disabled by SDO: the heartbeat at 0.7 s opens no gap, so the non-zero
     write at 0.721 s does, and the node answers only 0.28 s later."""
     fr = [(0.0, "702#00"), (0.1, "702#7F"), (0.2, "702#7F"), (0.3, "702#7F"),
@@ -263,7 +264,7 @@ def test_heartbeats_while_1017h_is_0_start_no_gap(checker) -> None:
     assert checker.findings(candump(fr), select="H001") == [("H001", 2, 0.871)]
 
 
-def test_two_commands_while_offline_compare_with_the_state_before_offline(checker) -> None:
+def test_two_commands_while_offline_compare_with_the_state_before_offline(checker: Checker) -> None:
     fr = [(0.0, "702#04"), (0.1, "702#04"), (0.2, "702#04"), (0.5, "000#0102"),
           (0.5, "000#0102"), (0.55, "702#04"), (0.65, "702#05")]
     res = checker.run(candump(fr))
@@ -271,7 +272,7 @@ def test_two_commands_while_offline_compare_with_the_state_before_offline(checke
     assert [iv.state for iv in res.nodes()[0].intervals][-1] == "OPERATIONAL"
 
 
-def test_the_median_is_the_period_where_1017h_is_0(checker) -> None:
+def test_the_median_is_the_period_where_1017h_is_0(checker: Checker) -> None:
     fr = [(0.0, "702#7F"), (0.05, "702#7F"), (0.1, "702#7F"), (0.15, "702#7F"),
           (0.2, "702#7F"), (0.21, "602#2B17100000000000"), (0.211, "582#6017100000000000"),
           (0.25, "702#7F"), (0.28, "702#7F")]

@@ -74,8 +74,9 @@ def test_peak_memory_flat_as_the_log_grows(tmp_path: Path) -> None:
 
 def test_chunk_store_spills_past_its_budget_and_reads_back() -> None:
     store = ChunkStore(budget=2500)  # each chunk is 2000 bytes: only the first stays in memory
-    chunks = [{"ts": np.arange(k, k + 100, dtype=np.float64), "key": np.full(100, k, np.int32),
-               "data": np.full((100, 8), k, np.uint8)} for k in range(5)]
+    chunks: list[dict[str, np.ndarray]] = [
+        {"ts": np.arange(k, k + 100, dtype=np.float64), "key": np.full(100, k, np.int32),
+         "data": np.full((100, 8), k, np.uint8)} for k in range(5)]
     for c in chunks:
         store.append(**c)
     assert store.spilled == 4

@@ -121,3 +121,63 @@ def test_a_signal_ends_the_run_cleanly(tmp_path: Path, sig: signal.Signals, code
     assert proc.returncode == code
     assert err == f"nmtcheck: interrupted ({sig.name})\n"
     assert list(tmp.iterdir()) == []
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+@pytest.mark.parametrize("args", [["check", "--format", "json"], ["check"], ["timeline"]])
+def test_stdout_on_a_full_device_is_one_line_and_exit_2(tmp_path: Path, args: list[str]) -> None:
+    with open("/dev/full", "w") as full:
+        res = subprocess.run([sys.executable, "-m", "nmtcheck", *args,
+                              str(SAMPLES / "heartbeat_loss.log")], cwd=tmp_path, stdout=full,
+                             stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert res.returncode == 2
+    assert res.stderr == "nmtcheck: cannot write to standard output: No space left on device\n"
+
+
+def test_third_party_logging_never_reaches_stderr(tmp_path: Path) -> None:
+    """asammdf logs its own errors (and canopen, python-can theirs): only nmtcheck's one
+    line may reach stderr."""
+    code = ("import logging, sys; from nmtcheck import cli; "
+            "load = cli.load_profile; "
+            "cli.load_profile = lambda *a: (logging.getLogger('asammdf').error('NoneType: None'),"
+            " load(*a))[1]; "
+            "sys.argv = ['nmtcheck', 'check', sys.argv[1], '-q']; cli.main()")
+    res = subprocess.run([sys.executable, "-c", code, str(tmp_path / "missing.log")],
+                         cwd=tmp_path, capture_output=True, text=True,
+                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert res.returncode == 2
+    assert res.stderr.count("\n") == 1 and res.stderr.startswith("nmtcheck: ")
+
+
+def test_blank_and_comment_lines_are_counted_in_bulk(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """A log of blank and comment lines costs what counting lines costs: the per-line
+    parser sees only the first comment lines (their line numbers are kept) and the
+    frames; the counts are what parsing every line gives."""
+    from nmtcheck.readers import candump, open_input
+
+    log = tmp_path / "mostly_blank.log"
+    head = "(1700000000.000000) can0 701#05\n"
+    log.write_text(head + "\n" * 50_000 + "# note\n" * 30_000 + "  \t\n" * 1000
+                   + "(1700000001.000000) can0 701#05\n" + "# note\n" * 5_000)
+    calls = 0
+    parse = candump._parse_line
+
+    def counted(raw: bytes, lineno: int, stats: object) -> object:
+        nonlocal calls
+        calls += 1
+        return parse(raw, lineno, stats)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(candump, "_parse_line", counted)
+    opened = open_input(str(log), "candump")
+    frames = sum(len(b) for b in opened.batches)
+    stats = opened.stats
+    assert frames == 2
+    assert stats.skipped == 35_000
+    assert stats.skipped_lines[:3] == [50_002, 50_003, 50_004]
+    assert calls < 20_000  # not one call per line (86 k lines)
+    monkeypatch.setattr(candump, "_parse_line", parse)
+    strict = run("check", str(log), "--strict", cwd=tmp_path)
+    assert strict.returncode == 2
+    assert strict.stderr.startswith(f"nmtcheck: {log}:50002: cannot parse candump record")

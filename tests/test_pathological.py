@@ -17,7 +17,7 @@ import pytest
 from conftest import REPO
 
 from nmtcheck.checks import RULES
-from nmtcheck.engine import check_input
+from nmtcheck.engine import InputResult, check_input
 from nmtcheck.profiles import load_profile
 from nmtcheck.reporters import html, streamer
 from nmtcheck.reporters import json as json_report
@@ -45,7 +45,7 @@ def write_commands(path: Path, frames: int, nodes: int = 10) -> None:
                 out.write(f"{ts}000#{specifiers[i % 5]}{node:02X}\n")
 
 
-def check(path: Path, max_findings: int = 10000):  # noqa: ANN201 - an InputResult
+def check(path: Path, max_findings: int = 10000) -> InputResult:
     profile = load_profile("default")
     return check_input(str(path), 0, profile, list(RULES), max_findings=max_findings)
 
@@ -112,7 +112,9 @@ def test_the_html_report_draws_a_bounded_number_of_intervals(
     log = tmp_path / "flap.log"
     write_flapping(log, 2000)
     res = check(log)
-    monkeypatch.setattr(html, "MAX_DRAWN_INTERVALS", 50)
+    monkeypatch.setattr(html, "MAX_DRAWN_INTERVALS", 500)
+    monkeypatch.setattr(html, "MIN_DRAWN_PER_NODE", 20)
+    assert html.drawn_per_node(10) == 50 and html.drawn_per_node(100) == 20
     ctx = html.report_context([res], {"fail_on": "error"})
     rows = ctx["timelines"][0]["rows"]
     assert [len(r["iv"]) for r in rows] == [50] * 10

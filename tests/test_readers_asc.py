@@ -427,7 +427,7 @@ def test_classic_dlc_above_8(tmp_path: Path) -> None:
         # a 64-byte frame written as a classic line (single_frame.asc): an FD frame
         " 14.000000 1  123x            Rx   d 40 " + " ".join(f"{i:02X}" for i in range(64)),
     ])
-    stats, cols = read(path)
+    _stats, cols = read(path)
     assert list(cols["dlc"]) == [13, 64]
     assert bytes(cols["data"][0]) == bytes.fromhex("55AA010203040506")
     assert list(cols["fd"]) == [False, True]

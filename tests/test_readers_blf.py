@@ -9,6 +9,7 @@ layouts of Vector's binlog objects.
 
 from __future__ import annotations
 
+import itertools
 import random
 import struct
 import subprocess
@@ -264,7 +265,7 @@ def test_classic_frame_in_fd_object_keeps_its_dlc(tmp_path: Path) -> None:
     stats, cols = read(path)
     assert rows(stats, cols)[0][2:] == (0x3FF, False, False, False, False, 13,
                                         b"\x55\xaa\x01\x02\x03\x04\x05\x06")
-    theirs = list(can.BLFReader(str(path)))[0]
+    theirs = next(iter(can.BLFReader(str(path))))
     assert theirs.dlc == 32  # python-can's misreading
 
 
@@ -282,7 +283,7 @@ def test_data_lost_and_other_objects(tmp_path: Path) -> None:
                obj(126, struct.pack("<LQL", 1, 0, 17)),  # DATA_LOST_END: 17 events lost
                obj(96, bytes(40)),  # GLOBAL_MARKER
                obj(1, can_message(1, 0x701, b"\x05"), ts_ns=10)]
-    stats, cols = read(write(tmp_path, blf(b"".join(objects))), strict=True)
+    stats, _cols = read(write(tmp_path, blf(b"".join(objects))), strict=True)
     assert (stats.frames, stats.ignored, stats.dropped, stats.skipped) == (2, 3, 17, 0)
 
 
@@ -290,7 +291,7 @@ def test_object_outside_any_container(tmp_path: Path) -> None:
     content = (file_header() + container(obj(1, can_message(1, 0x180, b"\x00")))
                + obj(1, can_message(1, 0x181, b"\x01"), ts_ns=500)
                + container(obj(1, can_message(1, 0x182, b"\x02"), ts_ns=1000)))
-    stats, cols = read(write(tmp_path, content), strict=True)
+    _stats, cols = read(write(tmp_path, content), strict=True)
     assert list(cols["can_id"]) == [0x180, 0x181, 0x182]  # in file order
     assert list(cols["index"]) == [0, 1, 2]
 
@@ -299,7 +300,7 @@ def test_signature_inside_frame_data_is_not_an_object(tmp_path: Path) -> None:
     objects = [obj(1, can_message(1, 0x181, b"LOBJLOBJ")),
                obj(1, can_message(1, 0x182, b"xLOBJ"), ts_ns=1),
                obj(1, can_message(1, 0x183, b"\x03"), ts_ns=2)]
-    stats, cols = read(write(tmp_path, blf(b"".join(objects))), strict=True)
+    _stats, cols = read(write(tmp_path, blf(b"".join(objects))), strict=True)
     assert [bytes(d).rstrip(b"\0") for d in cols["data"]] == [b"LOBJLOBJ", b"xLOBJ", b"\x03"]
 
 
@@ -307,8 +308,8 @@ def test_object_straddling_three_containers(tmp_path: Path) -> None:
     payload = b"".join(obj(101, can_fd_message_64(1, 0x100 + i, bytes(64), dlc=15), ts_ns=i)
                        for i in range(3))
     cuts = [0, 50, 70, 200, len(payload)]  # the first object ends in the third container
-    parts = [payload[a:b] for a, b in zip(cuts, cuts[1:], strict=False)]
-    stats, cols = read(write(tmp_path, blf(*parts)), strict=True)
+    parts = [payload[a:b] for a, b in itertools.pairwise(cuts)]
+    _stats, cols = read(write(tmp_path, blf(*parts)), strict=True)
     assert list(cols["can_id"]) == [0x100, 0x101, 0x102]
 
 
@@ -442,7 +443,7 @@ CORPUS_EXPECTED = {
 @needs_corpus
 @pytest.mark.parametrize("name", CORPUS_BLF)
 def test_corpus_pinned_stats(name: str) -> None:
-    stats, cols = read(THIRD / "python-can" / name, strict=True)
+    stats, _cols = read(THIRD / "python-can" / name, strict=True)
     assert (stats.frames, stats.fd_frames, stats.error_frames, stats.channels,
             stats.ignored) == CORPUS_EXPECTED[name]
     assert stats.skipped == 0 and stats.remote_frames == 0

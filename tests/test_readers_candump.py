@@ -159,7 +159,7 @@ def test_python_can_written_random_messages(tmp_path: Path) -> None:
     path = tmp_path / "random.log"
     msgs = _random_messages(600, seed=20240501)
     _write_python_can(path, msgs)
-    stats, ours = _compare_with_python_can(path)
+    stats, _ours = _compare_with_python_can(path)
     assert stats.frames == 600
     assert stats.extended == sum(m.is_extended_id for m in msgs)
     assert stats.remote_frames == sum(m.is_remote_frame for m in msgs)

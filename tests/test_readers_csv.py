@@ -96,7 +96,7 @@ def test_python_can_csv_fd_frames_and_bad_rows(tmp_path: Path) -> None:
         read(path, strict=True)
     assert str(exc.value).startswith(f"{path}:4: ")
     fd_only = write(tmp_path, path.read_text().splitlines()[:2], "fd-only.csv")
-    assert not list(can.CSVReader(str(fd_only)))[0].is_fd  # python-can: 12 bytes, classic
+    assert not next(iter(can.CSVReader(str(fd_only)))).is_fd  # python-can: 12 bytes, classic
 
 
 # --- SavvyCAN / GVRET CSV -----------------------------------------------------------------
@@ -207,7 +207,7 @@ def test_clx000_short_timestamps_take_the_header_date(tmp_path: Path) -> None:
                                         "Timestamp;Type;ID;Data",
                                         "01T120000683;8;7df;02010d5555555555",
                                         "02T000000001;0;7e8;03410d00aaaaaaaa"], "short.txt")
-    stats, cols = read(path, strict=True)
+    _stats, cols = read(path, strict=True)
     assert list(cols["ts"]) == [calendar.timegm((2024, 3, 1, 12, 0, 0, 0, 0, 0)) + 0.683,
                                 calendar.timegm((2024, 3, 2, 0, 0, 0, 0, 0, 0)) + 0.001]
 

@@ -521,7 +521,7 @@ def test_json_topics_without_schema_decided_by_first_message(tmp_path: Path) -> 
     weather: list[dict[str, Any] | str] = [{"temperature": 21.0, "data": [1]}] * 4
     path = tmp_path / "noschema.mcap"
     write_json(path, {"/can": can_msgs, "/weather": weather})
-    stats, cols = read(path)
+    stats, _cols = read(path)
     assert stats.frames == 5
     assert stats.ignored == 4
     assert stats.skipped == 4  # bad hex, not JSON, an 11-bit ID above 7FFh, no ID
@@ -571,7 +571,7 @@ def test_gzip_compressed_mcap_reads_as_a_stream(tmp_path: Path) -> None:
     write_ros2(path, {"/can": frames}, chunk_size=2048)
     packed = tmp_path / "bag.mcap.gz"
     packed.write_bytes(gzip.compress(path.read_bytes()))
-    a, ca = read(path)
+    _a, ca = read(path)
     b, cb = read(packed)
     assert b.format == "mcap" and b.frames == 400
     for name in ca:

@@ -89,7 +89,7 @@ def test_unfinalised_canedge_file() -> None:
     head = path.read_bytes()[:64]
     assert head.startswith(b"UnFinMF ")
     assert detect_format(head) == "mf4"
-    stats, cols = read(path)
+    _stats, cols = read(path)
     assert set(cols["can_id"].tolist()) == {0x7EC, 0x7BB}
 
 
@@ -171,7 +171,7 @@ def test_compressed_mf4_is_spooled(written: Path, tmp_path: Path,
         return fd, name
 
     monkeypatch.setattr(tempfile, "mkstemp", recording_mkstemp)
-    a, ca = read(written)
+    _a, ca = read(written)
     assert made == []  # a plain file on disk is read in place
     b, cb = read(packed)
     assert b.format == "mf4"

@@ -222,7 +222,7 @@ def test_can_xl_flag_on_socketcan_linktype_is_ignored(tmp_path: Path) -> None:
     xl = struct.pack(">IBBHI", 0x123, 0x80, 0, 2, 0) + b"\x01\x02"
     path = tmp_path / "xl.pcap"
     path.write_bytes(pcap_file([(T0_US, xl), (T0_US + 1, socketcan(FRAMES[0]))]))
-    stats, cols = read(path)
+    stats, _cols = read(path)
     assert (stats.frames, stats.ignored) == (1, 1)
 
 
@@ -235,7 +235,7 @@ def test_damaged_records_are_skipped(tmp_path: Path) -> None:
     data = pcap_file(packets)
     path = tmp_path / "bad.pcap"
     path.write_bytes(data + data[24:40])  # and a record cut at the end of the file
-    stats, cols = read(path)
+    stats, _cols = read(path)
     assert stats.frames == 2
     assert stats.skipped == 4 and stats.skipped_lines == [0, 0, 0, 0]
     with pytest.raises(InputError) as exc:
@@ -380,7 +380,7 @@ def test_scapy_captures(rel: str) -> None:
 @needs_corpus
 def test_scapy_canfd_capture_content() -> None:
     """canfd.pcap: SLL, protocol CAN FD, ID 123h with 12 bytes, sent and looped back."""
-    stats, cols = read(THIRD / "scapy/canfd.pcap.gz")
+    _stats, cols = read(THIRD / "scapy/canfd.pcap.gz")
     assert cols["can_id"].tolist() == [0x123] * 4
     assert cols["dlc"].tolist() == [12] * 4 and cols["fd"].all()
     assert bytes(cols["data"][0]) == bytes.fromhex("2233445566778899")  # of 22…99 33 00 00 00

@@ -311,7 +311,7 @@ def test_bad_lines_are_skipped_and_fatal_under_strict(tmp_path: Path) -> None:
                             "     4)      1844.0  Rx         0800  1  05",
                             "     5)      1845.0  Qx         0701  1  05",
                             "     6)      1846.0  Rx         0701  1  05"])
-    stats, cols = read(path)
+    stats, _cols = read(path)
     assert stats.frames == 2 and stats.skipped == 4 and stats.skipped_lines == [4, 5, 6, 7]
     with pytest.raises(InputError) as exc:
         read(path, strict=True)

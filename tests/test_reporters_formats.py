@@ -259,8 +259,10 @@ def test_html_is_self_contained() -> None:
     assert not re.search(r"""\ssrc\s*=|<link[^>]+href=["'](?!data:)|@import|url\((?!#)""", page)
     urls = set(re.findall(r"https?://[^\s\"'<>)]+", page))
     assert urls <= {"http://www.w3.org/2000/svg"}  # the SVG namespace name, never fetched
-    data = json.loads(re.search(r'<script type="application/json" id="report-data">(.*?)'
-                                r"</script>", page, re.S).group(1))
+    script = re.search(r'<script type="application/json" id="report-data">(.*?)</script>',
+                       page, re.S)
+    assert script is not None
+    data = json.loads(script.group(1))
     assert [t["id"] for t in data["timelines"]] == [f"tl-{i}-0" for i in range(len(ALL))]
     hb = data["timelines"][1]["rows"]
     assert [r["node"] for r in hb] == [2, 3]

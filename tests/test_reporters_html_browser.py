@@ -120,11 +120,11 @@ class Browser:
                 return event
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            event = json.loads(self.ws.recv())
-            if "method" in event:
-                self.events.append(event)
-                if event["method"] == method:
-                    return event
+            received: dict[str, Any] = json.loads(self.ws.recv())
+            if "method" in received:
+                self.events.append(received)
+                if received["method"] == method:
+                    return received
         raise DevToolsError(f"no {method} within {timeout} s")
 
     def new_page(self) -> None:
@@ -200,7 +200,8 @@ def browser() -> Iterator[Browser]:
     try:
         import websocket  # noqa: F401
     except ImportError:
-        missing = missing or "the websocket-client package is not installed (pip install '.[test]')"
+        missing = missing or ("the websocket-client package is not installed "
+                              "(pip install --group test)")
     if missing is not None or executable is None:
         if os.environ.get("CI"):
             pytest.fail("CI: chromium and websocket-client are required for the HTML report "

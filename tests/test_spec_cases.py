@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import Checker
 from snapshot_corpus import SPEC_CASES, inputs, master_view, spec_trace, stale_indices, text_of
 
 from nmtcheck.engine import check_input, select_rules
@@ -37,7 +38,7 @@ def test_spec_2026_11_case(name: str, tmp_path: Path) -> None:
         assert want["no_rule"] not in {f.rule for f in res.findings}
 
 
-def test_no_heartbeat_timeout_from_a_period_that_is_not_positive(checker) -> None:
+def test_no_heartbeat_timeout_from_a_period_that_is_not_positive(checker: Checker) -> None:
     """Timestamps that go backwards make the measured period (median interval) negative.
     afef50f took `factor x period` < 0 as a timeout and raised H001 at every gap, and
     H002 for a heartbeat "-0.000 s after the previous one"; a period or timeout that is

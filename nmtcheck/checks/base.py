@@ -1,8 +1,11 @@
 """What a rule is: a code, a name, a default severity, typed parameters and a check.
 
-A check is a generator over one input's model that yields `Problem`s. It never
-knows its own severity or whether it is enabled: the engine stamps code, name,
-severity and location on each problem (as yamllint does).
+Two kinds of check, as yamllint has token and line rules. Most rules judge one node
+(`@rule`): `check(node, ctx, params)` yields `(time, message)` or `(time, message,
+frame)` and the engine stamps channel and node. A few judge the whole input
+(`@input_rule`): `check(model, params)` yields `Problem`s. Either may yield a columnar
+`Problems` batch when it can find a million. A check never knows its own severity or
+whether it is enabled: the engine stamps code, name and severity (as yamllint does).
 """
 
 from __future__ import annotations
@@ -10,11 +13,11 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from nmtcheck.model import InputModel
+from nmtcheck.model import ChannelModel, InputModel, Master, NodeModel, TimelineParams
 
 SEVERITIES = ("error", "warning", "info")  # the one order: most severe first
 
@@ -70,17 +73,79 @@ class Problems:
     message: Callable[[int], str]  # the i-th problem's message
     frame_index: np.ndarray | None = None  # None: moments
     line: np.ndarray | None = None
+    nodes: np.ndarray | None = None  # per problem, for a per-input rule (-1: the network)
 
     def __len__(self) -> int:
         return len(self.time)
 
+    def node_of(self, i: int) -> int | None:
+        if self.nodes is None:
+            return self.node
+        n = int(self.nodes[i])
+        return None if n < 0 else n
+
     def problem(self, i: int) -> Problem:
-        return Problem(self.channel, self.node, float(self.time[i]), self.message(i),
+        return Problem(self.channel, self.node_of(i), float(self.time[i]), self.message(i),
                        None if self.frame_index is None else int(self.frame_index[i]),
                        None if self.line is None else int(self.line[i]))
 
+    def subset(self, rows: np.ndarray) -> Problems:
+        """These rows only, in order (messages still made on demand)."""
 
-Check = Callable[[InputModel, dict[str, Any]], Iterator["Problem | Problems"]]
+        def message(i: int) -> str:
+            return self.message(int(rows[i]))
+
+        return Problems(self.channel, self.node, self.time[rows], message,
+                        None if self.frame_index is None else self.frame_index[rows],
+                        None if self.line is None else self.line[rows],
+                        None if self.nodes is None else self.nodes[rows])
+
+
+def batch(time: np.ndarray, message: Callable[[int], str], frame_index: np.ndarray | None = None,
+          line: np.ndarray | None = None) -> Problems:
+    """A `Problems` batch from a per-node check: the engine fills in channel and node."""
+    return Problems(None, None, time, message, frame_index, line)
+
+
+class Located(Protocol):
+    """A frame a finding points at: an `EcFrame`, `NmtFrame`, ... (anything with these)."""
+
+    @property
+    def idx(self) -> int: ...
+    @property
+    def line(self) -> int: ...
+
+
+Params = dict[str, Any]
+# What a per-node check yields: a moment (the engine finds its frame), a moment at a frame
+# (a `Located` or an (index, line) pair), or a batch.
+Found = tuple[float, str] | tuple[float, str, Located | tuple[int, int]] | Problems
+Check = Callable[[InputModel, Params], Iterator["Problem | Problems"]]
+NodeCheck = Callable[[NodeModel, "NodeContext", Params], Iterator[Found]]
+
+
+@dataclass(frozen=True)
+class NodeContext:
+    """What a per-node check may know beyond its node: the input and the node's channel."""
+
+    model: InputModel
+    channel: ChannelModel
+
+    @property
+    def start(self) -> float:
+        return self.model.start
+
+    @property
+    def end(self) -> float:
+        return self.model.end
+
+    @property
+    def timeline(self) -> TimelineParams:
+        return self.model.timeline
+
+    @property
+    def master(self) -> Master | None:
+        return self.channel.master
 
 
 @dataclass(frozen=True)
@@ -89,11 +154,12 @@ class Rule:
     name: str
     severity: str
     params: tuple[Param, ...]
-    check: Check
+    check: Check | NodeCheck  # per input, or per node if `per_node`
     exempt_from_unknown: bool = False
     # whose findings: "node" (a node's), "network" (the channel's: node null),
     # "network+node" (either), "input" (the input itself: no channel, no node)
     scope: str = "node"
+    per_node: bool = False  # check(node, ctx, params) for each node, else check(model, params)
 
     @property
     def doc(self) -> str:
@@ -108,26 +174,29 @@ SCOPES = ("node", "network", "network+node", "input")
 
 
 def rule(code: str, name: str, severity: str, *params: Param,
-         exempt_from_unknown: bool = False, scope: str = "node") -> Callable[[Check], Rule]:
-    """Declare a rule; the decorated function's docstring is its documentation."""
+         exempt_from_unknown: bool = False) -> Callable[[NodeCheck], Rule]:
+    """Declare a per-node rule: `check(node, ctx, params)`, called for each node of each
+    channel (channels in model order, nodes in number order). Its docstring is its
+    documentation."""
+    assert severity in SEVERITIES, (code, severity)
+
+    def wrap(check: NodeCheck) -> Rule:
+        return Rule(code, name, severity, params, check, exempt_from_unknown, "node", True)
+
+    return wrap
+
+
+def input_rule(code: str, name: str, severity: str, *params: Param,
+               exempt_from_unknown: bool = False, scope: str = "input"
+               ) -> Callable[[Check], Rule]:
+    """Declare a rule over the whole input: `check(model, params)` yields `Problem`s (for
+    findings across nodes or channels, or of the input itself)."""
     assert severity in SEVERITIES and scope in SCOPES, (code, severity, scope)
 
     def wrap(check: Check) -> Rule:
         return Rule(code, name, severity, params, check, exempt_from_unknown, scope)
 
     return wrap
-
-
-def runs(items: list[Any], same_run: Callable[[Any, Any], bool]) -> Iterator[list[Any]]:
-    """Split a sequence into runs of neighbours that `same_run` joins."""
-    run: list[Any] = []
-    for item in items:
-        if run and not same_run(run[-1], item):
-            yield run
-            run = []
-        run.append(item)
-    if run:
-        yield run
 
 
 def run_starts(join: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

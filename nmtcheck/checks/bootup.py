@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import bisect
 from collections.abc import Iterator
-from typing import Any
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Problem, rule
+from nmtcheck.checks.base import Found, NodeContext, Param, Params, rule
 from nmtcheck.decode import KIND_EC, KIND_NAMES
-from nmtcheck.model import EcFrame, InputModel, NodeModel
+from nmtcheck.model import EcFrame, NodeModel
 from nmtcheck.nmt import EPS, GUARD, HEARTBEAT, MALFORMED, any_between
 
 
@@ -28,7 +27,7 @@ def _auto_window_s(m: NodeModel, value_ms: float) -> float:
             "first heartbeat later than this after the trace start without a boot-up "
             "(0 = 3 x the node's heartbeat period, at least 1000 ms)", 0.0),
       exempt_from_unknown=True)
-def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def missing_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node did not announce its (re)start with a boot-up message.
 
     **What it checks.** (a) After a reset-node or reset-communication command to
@@ -46,64 +45,64 @@ def missing_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     **Example.** `000#8103` (reset node 3) followed by `703#05` with no `703#00`
     in between.
     """
-    timeout = p["bootup_timeout_ms"] / 1000.0
-    nodes = [m for cm in model.channels for m in cm.nodes.values()]
-    # One pass over the node-frame store answers every reset's "first frame after it".
-    queries = [(m.key, t, i) for m in nodes for t, i in zip(
-        m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist(), strict=True)]
-    answers = iter(model.decoded.first_node_frame_after(queries))
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            cmds, ec = m.commands, m.ec
-            rpos = np.flatnonzero(cmds.is_reset)  # plain lists: a log may reset a million times
-            r_ts, r_idx = cmds.ts[rpos].tolist(), cmds.idx[rpos].tolist()
-            bootups = m.bootups if len(rpos) else []
-            boot_idx = [b.idx for b in bootups]
-            life = ec.where(HEARTBEAT, GUARD, MALFORMED)  # signs of life but the boot-up
-            life = life[~ec.stale[life]]  # a report queued before the reset is none
-            life_idx = ec.idx[life]
-            sign_at = np.searchsorted(life_idx, cmds.idx[rpos], side="right").tolist()
-            for i, (c_ts, c_idx) in enumerate(zip(r_ts, r_idx, strict=True)):
-                next_reset = r_idx[i + 1] if i + 1 < len(r_idx) else None
-                k = bisect.bisect_right(boot_idx, c_idx)
-                boot = bootups[k] if k < len(bootups) else None
-                limit_idx = min(x for x in (boot.idx if boot else None, next_reset, 1 << 62)
-                                if x is not None)
-                k = sign_at[i]
-                sign = life[k] if k < len(life) and life_idx[k] < limit_idx else None
-                other = next(answers)
-                if other is not None and other[1] < limit_idx and (
-                        sign is None or other[1] < ec.idx[sign]):
-                    yield Problem(cm.name, m.node, other[0],
-                                  f"{KIND_NAMES[other[3]]} from node {m.node} "
-                                  f"{other[0] - c_ts:.3f} s after {cmds.name(rpos[i])} "
-                                  f"without a boot-up", other[1], other[2])
-                    continue
-                if sign is not None:
-                    f = ec[sign]
-                    yield Problem(cm.name, m.node, f.ts,
-                                  f"{f.kind} from node {m.node} {f.ts - c_ts:.3f} s after "
-                                  f"{cmds.name(rpos[i])} without a boot-up", f.idx, f.line)
-                    continue
-                if next_reset is not None and (boot is None or next_reset < boot.idx) and (
-                        r_ts[i + 1] - c_ts <= timeout + EPS):
-                    continue  # a newer reset restarts the wait
-                if (boot is None or boot.ts - c_ts > timeout + EPS) and (
-                        model.end > c_ts + timeout + EPS):
-                    yield Problem(cm.name, m.node, c_ts + timeout,
-                                  f"no boot-up from node {m.node} within {timeout:.3f} s "
-                                  f"after {cmds.name(rpos[i])}")
-            # (b) the node was already running when it first appeared, without a boot-up
-            if m.first_tx is not None and m.first_tx[2] == KIND_EC:
-                k = int(np.searchsorted(ec.idx, m.first_tx[0]))
-                first = ec[k] if k < len(ec) and ec.idx[k] == m.first_tx[0] else None
-                late = _auto_window_s(m, p["late_start_ms"])
-                if first is not None and first.kind == "heartbeat" and (
-                        first.ts - model.start > late + EPS):
-                    yield Problem(cm.name, m.node, first.ts,
-                                  f"node {m.node} first appears {first.ts - model.start:.3f} s "
-                                  f"into the trace with a heartbeat and no boot-up "
-                                  f"(limit {late:.3f} s)", first.idx, first.line)
+    yield from _no_bootup_after_reset(m, ctx, p["bootup_timeout_ms"] / 1000.0)
+    yield from _late_start(m, ctx, p["late_start_ms"])
+
+
+def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float) -> Iterator[Found]:
+    """B001 (a): per reset command, a sign of life before the boot-up or no boot-up."""
+    cmds, ec = m.commands, m.ec
+    rpos = np.flatnonzero(cmds.is_reset)  # plain lists: a log may reset a million times
+    if not len(rpos):
+        return
+    r_ts, r_idx = cmds.ts[rpos].tolist(), cmds.idx[rpos].tolist()
+    bootups = m.bootups
+    boot_idx = [b.idx for b in bootups]
+    life = ec.where(HEARTBEAT, GUARD, MALFORMED)  # signs of life but the boot-up
+    life = life[~ec.stale[life]]  # a report queued before the reset is none
+    life_idx = ec.idx[life]
+    sign_at = np.searchsorted(life_idx, cmds.idx[rpos], side="right").tolist()
+    others = ctx.model.first_tx_after_resets(m)  # TPDO, SDO response, EMCY
+    for i, (c_ts, c_idx) in enumerate(zip(r_ts, r_idx, strict=True)):
+        next_reset = r_idx[i + 1] if i + 1 < len(r_idx) else None
+        k = bisect.bisect_right(boot_idx, c_idx)
+        boot = bootups[k] if k < len(bootups) else None
+        limit_idx = min(x for x in (boot.idx if boot else None, next_reset, 1 << 62)
+                        if x is not None)
+        k = sign_at[i]
+        sign = life[k] if k < len(life) and life_idx[k] < limit_idx else None
+        other = others[i]
+        if other is not None and other.idx < limit_idx and (
+                sign is None or other.idx < ec.idx[sign]):
+            yield (other.ts, f"{KIND_NAMES[other.kind]} from node {m.node} "
+                   f"{other.ts - c_ts:.3f} s after {cmds.name(rpos[i])} without a boot-up", other)
+            continue
+        if sign is not None:
+            f = ec[sign]
+            yield (f.ts, f"{f.kind} from node {m.node} {f.ts - c_ts:.3f} s after "
+                   f"{cmds.name(rpos[i])} without a boot-up", f)
+            continue
+        if next_reset is not None and (boot is None or next_reset < boot.idx) and (
+                r_ts[i + 1] - c_ts <= timeout + EPS):
+            continue  # a newer reset restarts the wait
+        if (boot is None or boot.ts - c_ts > timeout + EPS) and (
+                ctx.end > c_ts + timeout + EPS):
+            yield (c_ts + timeout, f"no boot-up from node {m.node} within {timeout:.3f} s "
+                   f"after {cmds.name(rpos[i])}")
+
+
+def _late_start(m: NodeModel, ctx: NodeContext, late_start_ms: float) -> Iterator[Found]:
+    """B001 (b): the node was already running when it first appeared, without a boot-up."""
+    if m.first_tx is None or m.first_tx.kind != KIND_EC:
+        return
+    ec = m.ec
+    k = int(np.searchsorted(ec.idx, m.first_tx.idx))
+    first = ec[k] if k < len(ec) and ec.idx[k] == m.first_tx.idx else None
+    late = _auto_window_s(m, late_start_ms)
+    if first is not None and first.kind == "heartbeat" and (
+            first.ts - ctx.start > late + EPS):
+        yield (first.ts, f"node {m.node} first appears {first.ts - ctx.start:.3f} s into the "
+               f"trace with a heartbeat and no boot-up (limit {late:.3f} s)", first)
 
 
 def _repeats(m: NodeModel, window: float) -> list[list[EcFrame]]:
@@ -126,7 +125,7 @@ def _repeats(m: NodeModel, window: float) -> list[list[EcFrame]]:
       Param("repeat_window_ms", float,
             "a second 00h within this window is a repeat "
             "(0 = 3 x the node's heartbeat period, at least 1000 ms)", 0.0))
-def bootup_repeated(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def bootup_repeated(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node keeps sending state 00h instead of announcing its boot-up once.
 
     **What it checks.** A second 00h frame from N follows the previous one within
@@ -140,19 +139,14 @@ def bootup_repeated(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
     **Example.** `000#8102`, then `702#00` every 100 ms for the rest of the trace.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            for run in _repeats(m, _auto_window_s(m, p["repeat_window_ms"])):
-                first = run[1]
-                yield Problem(cm.name, m.node, first.ts,
-                              f"node {m.node} sent boot-up (00h) {len(run)} times in a row "
-                              f"over {run[-1].ts - run[0].ts:.3f} s without a reset command",
-                              first.idx, first.line)
+    for run in _repeats(m, _auto_window_s(m, p["repeat_window_ms"])):
+        yield (run[1].ts, f"node {m.node} sent boot-up (00h) {len(run)} times in a row over "
+               f"{run[-1].ts - run[0].ts:.3f} s without a reset command", run[1])
 
 
 @rule("B002", "unexpected-bootup", "warning",
       Param("reset_window_ms", float, "how long a reset command explains a later boot-up", 10000.0))
-def unexpected_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def unexpected_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node rebooted on its own: a boot-up no reset command explains.
 
     **What it checks.** N sends a boot-up after having sent other frames earlier in
@@ -167,26 +161,21 @@ def unexpected_bootup(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     **Example.** `703#05` every 100 ms, then `703#00` with no `000#8103` before it.
     """
     window = p["reset_window_ms"] / 1000.0
-    repeat_ms = model.timeline.repeat_window_ms  # B003's: its repeats are left to it
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms))
-                        for b in run[1:]}
-            r_ts, r_idx = m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist()
-            unanswered: list[float] = []
-            ri = 0
-            for b in m.bootups:
-                while ri < len(r_idx) and r_idx[ri] < b.idx:
-                    unanswered.append(r_ts[ri])
-                    ri += 1
-                unanswered = [t for t in unanswered if b.ts - t <= window + EPS]
-                if unanswered:
-                    unanswered.pop(0)
-                    continue
-                if b.pos in repeated:
-                    continue
-                if m.first_tx is not None and m.first_tx[0] < b.idx:
-                    yield Problem(cm.name, m.node, b.ts,
-                                  f"node {m.node} sent a boot-up with no reset command before it "
-                                  f"(spontaneous reboot?)", b.idx, b.line)
-
+    repeat_ms = ctx.timeline.repeat_window_ms  # B003's: its repeats are left to it
+    repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms)) for b in run[1:]}
+    r_ts, r_idx = m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist()
+    unanswered: list[float] = []
+    ri = 0
+    for b in m.bootups:
+        while ri < len(r_idx) and r_idx[ri] < b.idx:
+            unanswered.append(r_ts[ri])
+            ri += 1
+        unanswered = [t for t in unanswered if b.ts - t <= window + EPS]
+        if unanswered:
+            unanswered.pop(0)
+            continue
+        if b.pos in repeated:
+            continue
+        if m.first_tx is not None and m.first_tx.idx < b.idx:
+            yield (b.ts, f"node {m.node} sent a boot-up with no reset command before it "
+                   f"(spontaneous reboot?)", b)

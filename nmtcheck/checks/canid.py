@@ -3,21 +3,31 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from typing import Any
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts, runs
-from nmtcheck.model import ChannelModel, EcFrame, EcTable, InputModel, NmtFrame
+from nmtcheck.checks.base import (
+    Found,
+    NodeContext,
+    Param,
+    Params,
+    Problem,
+    Problems,
+    count_note,
+    input_rule,
+    rule,
+    run_starts,
+)
+from nmtcheck.model import EcFrame, EcTable, InputModel, NmtTable, NodeModel, known_cs
 from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE
 
 
-@rule("C001", "restricted-can-id", "error",
-      Param("allow", list, "reserved CAN-IDs that legitimate CiA profiles use (LSS, flying "
-                           "master, global fail-safe command)",
-            [0x7E4, 0x7E5, 0x071, 0x072, 0x073, 0x074, 0x075, 0x076, 0x001]),
-      exempt_from_unknown=True, scope="network")
-def restricted_can_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+@input_rule("C001", "restricted-can-id", "error",
+            Param("allow", list, "reserved CAN-IDs that legitimate CiA profiles use (LSS, "
+                  "flying master, global fail-safe command)",
+                  [0x7E4, 0x7E5, 0x071, 0x072, 0x073, 0x074, 0x075, 0x076, 0x001]),
+            exempt_from_unknown=True, scope="network")
+def restricted_can_id(model: InputModel, p: Params) -> Iterator[Problem]:
     """An 11-bit frame uses a CAN-ID that CiA 301 reserves.
 
     **What it checks.** Any 11-bit frame on 001h-07Fh, 101h-180h, 6E0h-6FFh or
@@ -41,8 +51,8 @@ def restricted_can_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
                       use.first_idx, use.first_line)
 
 
-@rule("C002", "malformed-nmt-command", "error", scope="network+node")
-def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+@input_rule("C002", "malformed-nmt-command", "error", scope="network+node")
+def malformed_nmt_command(model: InputModel, p: Params) -> Iterator[Problems]:
     """A frame on CAN-ID 000h is not a valid NMT module-control command.
 
     **What it checks.** A frame on CAN-ID 0 is a remote frame, has DLC other than 2,
@@ -59,49 +69,57 @@ def malformed_nmt_command(model: InputModel, p: dict[str, Any]) -> Iterator[Prob
 
     **Example.** `000#0105000000000000` (DLC 8).
     """
-    def node_of(f: NmtFrame) -> int | None:
+    for cm in model.channels:
+        nmt = cm.nmt
+        bad = np.flatnonzero(~nmt.valid)  # columns: a log may hold millions of them
+        if not bad.size:
+            continue
+        rtr, dlc, cs, target = nmt.rtr[bad], nmt.dlc[bad], nmt.cs[bad], nmt.target[bad]
+        # the defect, as nmt_problem names it: (what, value); its text differs iff these do
+        what = np.where(rtr, 0, np.where(dlc != 2, 1, np.where(~known_cs(cs), 2, 3)))
+        value = np.select([what == 0, what == 1, what == 2], [0, dlc, cs], target)
         # Only a 2-byte data frame has a node-ID byte; in a frame of the wrong length the
-        # second byte addresses nobody, so the finding belongs to the network (node null).
-        return f.target if 1 <= f.target <= 127 and not f.rtr and f.dlc == 2 else None
+        # second byte addresses nobody, so the finding belongs to the network (node -1).
+        node = np.where((target >= 1) & (target <= 127) & ~rtr & (dlc == 2),
+                        target.astype(np.int64), -1)
+        interval = np.full(len(bad), -1, np.int64)  # a run stays within one interval
+        for n in np.unique(node[node >= 0]).tolist():
+            m = cm.nodes.get(n)
+            if m is not None:
+                sel = node == n
+                interval[sel] = m.interval_indices(nmt.ts[bad[sel]])
+        join = np.ones(len(bad), bool)
+        join[1:] = ((what[1:] == what[:-1]) & (value[1:] == value[:-1])
+                    & (node[1:] == node[:-1]) & (interval[1:] == interval[:-1]))
+        first, length = run_starts(join)
+        at = bad[first]
 
-    for cm in model.channels:
-        bad = [cm.nmt[i] for i in np.flatnonzero(~cm.nmt.valid).tolist()]
+        def message(i: int, at: np.ndarray = at, length: np.ndarray = length,
+                    nmt: NmtTable = nmt) -> str:
+            return f"malformed NMT frame: {nmt[int(at[i])].problem}{count_note(int(length[i]))}"
 
-        def same_run(a: NmtFrame, b: NmtFrame, cm: ChannelModel = cm) -> bool:
-            n = node_of(a)
-            if a.problem != b.problem or n != node_of(b):
-                return False
-            m = cm.nodes.get(n) if n is not None else None
-            return m is None or m.interval_index(a.ts) == m.interval_index(b.ts)
-
-        for run in runs(bad, same_run):
-            f = run[0]
-            node = node_of(f)
-            yield Problem(cm.name, node, f.ts,
-                          f"malformed NMT frame: {f.problem}{count_note(len(run))}",
-                          f.idx, f.line)
+        yield Problems(cm.name, None, nmt.ts[at], message, nmt.idx[at], nmt.line[at],
+                       nodes=node[first])
 
 
-def _ec_runs(model: InputModel, bad: Callable[[EcTable, np.ndarray], np.ndarray]
-             ) -> Iterator[tuple[str, int, EcFrame, int]]:
-    """Runs of consecutive error-control frames of one node for which `bad` holds,
-    each within one timeline interval: (channel, node, first frame, length)."""
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            ec = m.ec
-            frames = ec.where(BOOTUP, HEARTBEAT, GUARD, MALFORMED)  # all but requests
-            hit = np.flatnonzero(bad(ec, frames))
-            if not hit.size:
-                continue
-            iv = m.interval_indices(ec.ts[frames[hit]])
-            join = np.ones(len(hit), bool)
-            join[1:] = (hit[1:] == hit[:-1] + 1) & (iv[1:] == iv[:-1])
-            for s, n in zip(*run_starts(join), strict=True):
-                yield cm.name, m.node, ec[frames[hit[s]]], int(n)
+def _ec_runs(m: NodeModel, bad: Callable[[EcTable, np.ndarray], np.ndarray]
+             ) -> Iterator[tuple[EcFrame, int]]:
+    """Runs of consecutive error-control frames of the node for which `bad` holds,
+    each within one timeline interval: (first frame, length)."""
+    ec = m.ec
+    frames = ec.where(BOOTUP, HEARTBEAT, GUARD, MALFORMED)  # all but requests
+    hit = np.flatnonzero(bad(ec, frames))
+    if not hit.size:
+        return
+    iv = m.interval_indices(ec.ts[frames[hit]])
+    join = np.ones(len(hit), bool)
+    join[1:] = (hit[1:] == hit[:-1] + 1) & (iv[1:] == iv[:-1])
+    for s, n in zip(*run_starts(join), strict=True):
+        yield ec[frames[hit[s]]], int(n)
 
 
 @rule("C003", "malformed-error-control", "error", exempt_from_unknown=True)
-def malformed_error_control(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def malformed_error_control(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A frame on 701h-77Fh is not a valid boot-up, heartbeat or guarding response.
 
     **What it checks.** A data frame on 701h-77Fh has DLC other than 1, or is a
@@ -114,19 +132,20 @@ def malformed_error_control(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
 
     **Example.** `703#0500` (DLC 2).
     """
-    def bad(ec: EcTable, pos: np.ndarray) -> np.ndarray:
-        kind = ec.kind[pos]
-        return (kind == MALFORMED) | ((kind == HEARTBEAT) & (ec.value[pos] & 0x80 != 0))
-
-    for channel, node, f, n in _ec_runs(model, bad):
+    for f, n in _ec_runs(m, _malformed):
         why = (f"DLC {f.dlc} (must be 1)" if f.kind == "malformed"
                else f"heartbeat {f.value:02X}h has the reserved bit 7 set")
-        yield Problem(channel, node, f.ts, f"malformed error-control frame from node {node}: "
-                      f"{why}{count_note(n)}", f.idx, f.line)
+        yield f.ts, f"malformed error-control frame from node {m.node}: {why}{count_note(n)}", f
+
+
+def _malformed(ec: EcTable, pos: np.ndarray) -> np.ndarray:
+    kind = ec.kind[pos]
+    bad: np.ndarray = (kind == MALFORMED) | ((kind == HEARTBEAT) & (ec.value[pos] & 0x80 != 0))
+    return bad
 
 
 @rule("C004", "unknown-nmt-state", "warning", exempt_from_unknown=True)
-def unknown_nmt_state(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def unknown_nmt_state(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A heartbeat or guarding response reports a state CiA 301 does not define.
 
     **What it checks.** The state (bits 0..6) of a heartbeat or guarding response is
@@ -138,11 +157,12 @@ def unknown_nmt_state(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
 
     **Example.** `703#02` (legacy "pre-operational" of DS301 v3).
     """
-    def bad(ec: EcTable, pos: np.ndarray) -> np.ndarray:
-        kind = ec.kind[pos]
-        return (((kind == HEARTBEAT) | (kind == GUARD))
-                & ~np.isin(ec.code[pos], list(STATE_OF_CODE)))
+    for f, n in _ec_runs(m, _unknown_state):
+        yield f.ts, f"node {m.node} reports unknown NMT state {f.code:02X}h{count_note(n)}", f
 
-    for channel, node, f, n in _ec_runs(model, bad):
-        yield Problem(channel, node, f.ts, f"node {node} reports unknown NMT state "
-                      f"{f.code:02X}h{count_note(n)}", f.idx, f.line)
+
+def _unknown_state(ec: EcTable, pos: np.ndarray) -> np.ndarray:
+    kind = ec.kind[pos]
+    bad: np.ndarray = (((kind == HEARTBEAT) | (kind == GUARD))
+                       & ~np.isin(ec.code[pos], list(STATE_OF_CODE)))
+    return bad

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
+from typing import NamedTuple
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts
-from nmtcheck.model import InputModel, NodeConfig
+from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
+from nmtcheck.model import EcTable, NodeConfig, NodeModel
 from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST, between
 
 
 @rule("G001", "guard-toggle", "error")
-def guard_toggle(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def guard_toggle(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node-guarding response did not alternate its toggle bit.
 
     **What it checks.** A guarding response of N has the same toggle bit (bit 7) as
@@ -26,52 +26,60 @@ def guard_toggle(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
     **Example.** Responses `705#85`, `705#05`, `705#05`: the third repeats toggle 0.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            ec = m.ec
-            pos = ec.where(GUARD, BOOTUP)  # heartbeats and requests play no part
-            if not (ec.kind[pos] == GUARD).any():
-                continue
-            expected: int | None = None
-            resets = m.commands.reset_idx.tolist()
-            ri = 0
-            bad: list[tuple[int, int, str]] = []  # (response number, position, why)
-            prev_boot = True  # the previous guard/boot-up frame is a boot-up (or none)
-            # n numbers responses and boot-ups alike: a boot-up separates runs
-            for n, (p_, k, idx, value) in enumerate(zip(
-                    pos.tolist(), ec.kind[pos].tolist(), ec.idx[pos].tolist(),
-                    ec.value[pos].tolist(), strict=True)):
-                while ri < len(resets) and resets[ri] < idx:
-                    expected = 0
-                    ri += 1
-                if k == BOOTUP:
-                    expected = 0
-                else:
-                    toggle = value >> 7
-                    if expected is not None and toggle != expected:
-                        why = ("first response after boot-up/reset has toggle 1"
-                               if expected == 0 and value & 0x80 and prev_boot
-                               else f"toggle bit {toggle} repeats the previous response's")
-                        bad.append((n, p_, why))
-                    expected = 1 - toggle
-                prev_boot = k == BOOTUP
-            # consecutive offending responses within one timeline interval: one finding
-            iv = m.interval_indices(ec.ts[[b[1] for b in bad]])
-            number = np.asarray([b[0] for b in bad])
-            join = np.ones(len(bad), bool)
-            join[1:] = (number[1:] == number[:-1] + 1) & (iv[1:] == iv[:-1])
-            for s, count in zip(*run_starts(join), strict=True):
-                _n, p_, why = bad[s]
-                f = ec[p_]
-                yield Problem(cm.name, m.node, f.ts,
-                              f"guarding response {f.value:02X}h from node {m.node}: {why}"
-                              f"{count_note(int(count), 'responses')}", f.idx, f.line)
+    ec = m.ec
+    pos = ec.where(GUARD, BOOTUP)  # heartbeats and requests play no part
+    if not (ec.kind[pos] == GUARD).any():
+        return
+    bad = _toggle_errors(ec, pos, m.commands.reset_idx.tolist())
+    # consecutive offending responses within one timeline interval: one finding
+    iv = m.interval_indices(ec.ts[[b.pos for b in bad]])
+    number = np.asarray([b.number for b in bad])
+    join = np.ones(len(bad), bool)
+    join[1:] = (number[1:] == number[:-1] + 1) & (iv[1:] == iv[:-1])
+    for s, count in zip(*run_starts(join), strict=True):
+        f = ec[bad[s].pos]
+        yield (f.ts, f"guarding response {f.value:02X}h from node {m.node}: {bad[s].why}"
+               f"{count_note(int(count), 'responses')}", f)
+
+
+class _BadToggle(NamedTuple):
+    number: int  # counts responses and boot-ups alike: a boot-up separates runs
+    pos: int  # in the node's EcTable
+    why: str
+
+
+def _toggle_errors(ec: EcTable, pos: np.ndarray, resets: list[int]) -> list[_BadToggle]:
+    """The guarding responses among `pos` (responses and boot-ups) whose toggle bit is
+    wrong."""
+    expected: int | None = None
+    ri = 0
+    bad: list[_BadToggle] = []
+    prev_boot = True  # the previous guard/boot-up frame is a boot-up (or none)
+    # n numbers responses and boot-ups alike: a boot-up separates runs
+    for n, (p_, k, idx, value) in enumerate(zip(
+            pos.tolist(), ec.kind[pos].tolist(), ec.idx[pos].tolist(),
+            ec.value[pos].tolist(), strict=True)):
+        while ri < len(resets) and resets[ri] < idx:
+            expected = 0
+            ri += 1
+        if k == BOOTUP:
+            expected = 0
+        else:
+            toggle = value >> 7
+            if expected is not None and toggle != expected:
+                why = ("first response after boot-up/reset has toggle 1"
+                       if expected == 0 and value & 0x80 and prev_boot
+                       else f"toggle bit {toggle} repeats the previous response's")
+                bad.append(_BadToggle(n, p_, why))
+            expected = 1 - toggle
+        prev_boot = k == BOOTUP
+    return bad
 
 
 @rule("G002", "guard-no-response", "error",
       Param("response_timeout_ms", float, "how long a guarding request may wait for its answer",
             1000.0))
-def guard_no_response(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def guard_no_response(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node-guarding request went unanswered.
 
     **What it checks.** A remote request on 700h+N gets no response from N before the
@@ -84,18 +92,15 @@ def guard_no_response(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
 
     **Example.** `705#R` every 100 ms with no `705#..` data frame in between.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            for t in m.timeouts:
-                if t.rule == "G002":
-                    n = f" ({t.requests} requests in a row)" if t.requests > 1 else ""
-                    yield Problem(cm.name, m.node, t.moment,
-                                  f"no guarding response from node {m.node} to the remote "
-                                  f"request at {t.after_ts:.6f}{n}")
+    for t in m.timeouts:
+        if t.rule == "G002":
+            n = f" ({t.requests} requests in a row)" if t.requests > 1 else ""
+            yield (t.moment, f"no guarding response from node {m.node} to the remote request "
+                   f"at {t.after_ts:.6f}{n}")
 
 
 @rule("G003", "guard-interval-exceeded", "warning")
-def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def guard_interval_exceeded(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """The master guarded a node less often than the node's life time allows.
 
     **What it checks.** Guard time (100Ch) and life time factor (100Dh) of N are
@@ -108,32 +113,27 @@ def guard_interval_exceeded(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
 
     **Example.** 100Ch = 100 ms, 100Dh = 3: requests 0.5 s apart exceed 0.3 s.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            ec = m.ec
-            resets = np.sort(np.concatenate([
-                m.commands.reset_idx,
-                ec.idx[ec.kind == BOOTUP]]))
-            reqs = ec.where(REQUEST)
-            if len(reqs) < 2:
-                continue
-            a, b = reqs[:-1], reqs[1:]
-            # node life time in force at each request (files, or 100Ch/100Dh written by SDO)
-            life = m.config_series(ec.ts[a], _life_s)
-            late = np.flatnonzero((ec.ts[b] - ec.ts[a] > life + EPS)
-                                  & ~between(resets, ec.idx[a], ec.idx[b]))
-            # consecutive late requests within one timeline interval: one finding
-            iv = m.interval_indices(ec.ts[b[late]])
-            join = np.ones(len(late), bool)
-            join[1:] = (late[1:] == late[:-1] + 1) & (iv[1:] == iv[:-1])
-            for s, count in zip(*run_starts(join), strict=True):
-                fa, fb = ec[a[late[s]]], ec[b[late[s]]]
-                cfg = m.config_at(fa.ts)
-                gt, ltf = cfg.guard_time_ms or 0.0, cfg.life_time_factor or 0
-                yield Problem(cm.name, m.node, fb.ts,
-                              f"guarding requests to node {m.node} {fb.ts - fa.ts:.3f} s apart "
-                              f"(node life time {gt * ltf / 1000.0:.3f} s = {gt:g} ms x {ltf})"
-                              f"{count_note(int(count), 'requests')}", fb.idx, fb.line)
+    ec = m.ec
+    resets = np.sort(np.concatenate([m.commands.reset_idx, ec.idx[ec.kind == BOOTUP]]))
+    reqs = ec.where(REQUEST)
+    if len(reqs) < 2:
+        return
+    a, b = reqs[:-1], reqs[1:]
+    # node life time in force at each request (files, or 100Ch/100Dh written by SDO)
+    life = m.config_series(ec.ts[a], _life_s)
+    late = np.flatnonzero((ec.ts[b] - ec.ts[a] > life + EPS)
+                          & ~between(resets, ec.idx[a], ec.idx[b]))
+    # consecutive late requests within one timeline interval: one finding
+    iv = m.interval_indices(ec.ts[b[late]])
+    join = np.ones(len(late), bool)
+    join[1:] = (late[1:] == late[:-1] + 1) & (iv[1:] == iv[:-1])
+    for s, count in zip(*run_starts(join), strict=True):
+        fa, fb = ec[a[late[s]]], ec[b[late[s]]]
+        cfg = m.config_at(fa.ts)
+        gt, ltf = cfg.guard_time_ms or 0.0, cfg.life_time_factor or 0
+        yield (fb.ts, f"guarding requests to node {m.node} {fb.ts - fa.ts:.3f} s apart (node "
+               f"life time {gt * ltf / 1000.0:.3f} s = {gt:g} ms x {ltf})"
+               f"{count_note(int(count), 'requests')}", fb)
 
 
 def _life_s(cfg: NodeConfig) -> float | None:
@@ -144,7 +144,7 @@ def _life_s(cfg: NodeConfig) -> float | None:
 
 
 @rule("G004", "guarding-with-heartbeat", "warning")
-def guarding_with_heartbeat(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def guarding_with_heartbeat(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node uses node guarding and heartbeat at the same time.
 
     **What it checks.** Since its last boot-up, N both answers node-guarding
@@ -156,19 +156,15 @@ def guarding_with_heartbeat(model: InputModel, p: dict[str, Any]) -> Iterator[Pr
 
     **Example.** `705#05` every 100 ms and `705#R` answered by `705#85`.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            ec = m.ec
-            hb, guard = ec.where(HEARTBEAT), ec.where(GUARD)
-            if not hb.size or not guard.size:
-                continue
-            # per stretch between boot-ups: the first frame by which N did both
-            boots = ec.where(BOOTUP)
-            seg_hb, first_hb = np.unique(np.searchsorted(boots, hb), return_index=True)
-            seg_guard, first_guard = np.unique(np.searchsorted(boots, guard), return_index=True)
-            _both, i_hb, i_guard = np.intersect1d(seg_hb, seg_guard, return_indices=True)
-            for p_ in np.maximum(hb[first_hb[i_hb]], guard[first_guard[i_guard]]).tolist():
-                f = ec[p_]
-                yield Problem(cm.name, m.node, f.ts,
-                              f"node {m.node} answers node guarding and produces "
-                              f"heartbeats", f.idx, f.line)
+    ec = m.ec
+    hb, guard = ec.where(HEARTBEAT), ec.where(GUARD)
+    if not hb.size or not guard.size:
+        return
+    # per stretch between boot-ups: the first frame by which N did both
+    boots = ec.where(BOOTUP)
+    seg_hb, first_hb = np.unique(np.searchsorted(boots, hb), return_index=True)
+    seg_guard, first_guard = np.unique(np.searchsorted(boots, guard), return_index=True)
+    _both, i_hb, i_guard = np.intersect1d(seg_hb, seg_guard, return_indices=True)
+    for p_ in np.maximum(hb[first_hb[i_hb]], guard[first_guard[i_guard]]).tolist():
+        f = ec[p_]
+        yield f.ts, f"node {m.node} answers node guarding and produces heartbeats", f

@@ -3,19 +3,18 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Problem, count_note, rule, run_starts
-from nmtcheck.model import InputModel
+from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
+from nmtcheck.model import NodeModel
 from nmtcheck.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
 
 
 @rule("H001", "heartbeat-timeout", "error",
       Param("timeout_factor", float,
             "timeout = factor x producer period when no consumer time is configured", 1.5))
-def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def heartbeat_timeout(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A heartbeat producer fell silent for longer than its consumers wait.
 
     **What it checks.** N produces heartbeats (two or more seen, or a producer time
@@ -39,28 +38,25 @@ def heartbeat_timeout(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
     **Example.** `703#05` every 100 ms, then nothing for 0.4 s: with the median
     period 0.1 s and factor 1.5 the timeout expires 0.15 s after the last one.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            for t in m.timeouts:
-                if t.rule != "H001":
-                    continue
-                if t.gap_s is None:
-                    what = f"no heartbeat from node {m.node} for the rest of the trace"
-                else:
-                    what = f"no heartbeat from node {m.node} for {t.gap_s:.3f} s"
-                cfg = m.config_at(t.after_ts)
-                if cfg.consumer_timeout_ms:
-                    whose = (f" of node {cfg.consumer_node}" if cfg.consumer_node is not None
-                             else "")
-                    limit = f"consumer time {t.limit_s:.3f} s{whose}"
-                else:
-                    limit = f"timeout {t.limit_s:.3f} s"
-                yield Problem(cm.name, m.node, t.moment, f"{what} ({limit})")
+    for t in m.timeouts:
+        if t.rule != "H001":
+            continue
+        if t.gap_s is None:
+            what = f"no heartbeat from node {m.node} for the rest of the trace"
+        else:
+            what = f"no heartbeat from node {m.node} for {t.gap_s:.3f} s"
+        cfg = m.config_at(t.after_ts)
+        if cfg.consumer_timeout_ms:
+            whose = f" of node {cfg.consumer_node}" if cfg.consumer_node is not None else ""
+            limit = f"consumer time {t.limit_s:.3f} s{whose}"
+        else:
+            limit = f"timeout {t.limit_s:.3f} s"
+        yield t.moment, f"{what} ({limit})"
 
 
 @rule("H002", "heartbeat-too-early", "warning",
       Param("early_factor", float, "heartbeats closer than factor x period are too early", 0.5))
-def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """Two heartbeats of a node come much closer together than its period.
 
     **What it checks.** Two consecutive heartbeats of N are closer than
@@ -77,42 +73,36 @@ def heartbeat_too_early(model: InputModel, p: dict[str, Any]) -> Iterator[Proble
     **Example.** Period 100 ms, heartbeats at 0.000, 0.020, 0.100 s.
     """
     factor = p["early_factor"]
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            ec = m.ec
-            pos = ec.where(HEARTBEAT, BOOTUP)
-            a, b = pos[:-1], pos[1:]
-            # the period in force at the first heartbeat: a confirmed 1017h beats the median
-            period = m.periods_at(ec.ts[a])
-            limit = factor * period
-            cmd_idx = m.commands.idx
-            with np.errstate(invalid="ignore"):
-                early = ((ec.kind[a] == HEARTBEAT) & (ec.kind[b] == HEARTBEAT)
-                         & (ec.code[a] == ec.code[b]) & (period > 0)
-                         & (ec.ts[b] - ec.ts[a] < limit - EPS))
-            early &= ~between(cmd_idx, ec.idx[a], ec.idx[b])
-            # a new producer time starts a new phase: the first heartbeat after a 1017h
-            # write is not early either
-            writes = np.asarray(sorted(w.request_idx for w in m.writes if w.index == 0x1017),
-                                np.int64)
-            early &= ~between(writes, ec.idx[a], ec.idx[b])
-            ea, eb, el, ep = a[early], b[early], limit[early], period[early]
-            # a run: each early pair starts where the previous one ended, in one interval
-            iv = m.interval_indices(ec.ts[eb])
-            join = np.ones(len(ea), bool)
-            join[1:] = (ea[1:] == eb[:-1]) & (iv[1:] == iv[:-1])
-            for s, n in zip(*run_starts(join), strict=True):
-                prev_f, f = ec[ea[s]], ec[eb[s]]
-                yield Problem(cm.name, m.node, f.ts,
-                              f"heartbeat ({state_name(f.code)}) {f.ts - prev_f.ts:.3f} s after "
-                              f"the previous one (period {ep[s]:.3f} s, limit "
-                              f"{el[s]:.3f} s){count_note(int(n), 'heartbeats')}",
-                              f.idx, f.line)
+    ec = m.ec
+    pos = ec.where(HEARTBEAT, BOOTUP)
+    a, b = pos[:-1], pos[1:]
+    # the period in force at the first heartbeat: a confirmed 1017h beats the median
+    period = m.periods_at(ec.ts[a])
+    limit = factor * period
+    with np.errstate(invalid="ignore"):
+        early = ((ec.kind[a] == HEARTBEAT) & (ec.kind[b] == HEARTBEAT)
+                 & (ec.code[a] == ec.code[b]) & (period > 0)
+                 & (ec.ts[b] - ec.ts[a] < limit - EPS))
+    early &= ~between(m.commands.idx, ec.idx[a], ec.idx[b])
+    # a new producer time starts a new phase: the first heartbeat after a 1017h write is
+    # not early either
+    writes = np.asarray(sorted(w.request_idx for w in m.writes if w.index == 0x1017), np.int64)
+    early &= ~between(writes, ec.idx[a], ec.idx[b])
+    ea, eb, el, ep = a[early], b[early], limit[early], period[early]
+    # a run: each early pair starts where the previous one ended, in one interval
+    iv = m.interval_indices(ec.ts[eb])
+    join = np.ones(len(ea), bool)
+    join[1:] = (ea[1:] == eb[:-1]) & (iv[1:] == iv[:-1])
+    for s, n in zip(*run_starts(join), strict=True):
+        prev_f, f = ec[ea[s]], ec[eb[s]]
+        yield (f.ts, f"heartbeat ({state_name(f.code)}) {f.ts - prev_f.ts:.3f} s after the "
+               f"previous one (period {ep[s]:.3f} s, limit {el[s]:.3f} s)"
+               f"{count_note(int(n), 'heartbeats')}", f)
 
 
 @rule("H003", "heartbeat-period-mismatch", "warning",
       Param("tolerance", float, "allowed relative difference of the median interval", 0.1))
-def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def heartbeat_period_mismatch(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node's heartbeat period differs from its configured producer time.
 
     **What it checks.** N's producer time (1017h) is known (network file, EDS/DCF,
@@ -132,39 +122,35 @@ def heartbeat_period_mismatch(model: InputModel, p: dict[str, Any]) -> Iterator[
     500 ms afterwards.
     """
     tolerance = p["tolerance"]
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            a, b = m.heartbeat_pairs()
-            if not a.size:
+    a, b = m.heartbeat_pairs()
+    if not a.size:
+        return
+    ts = m.ec.ts
+    value = m.config_series(ts[a], lambda cfg: cfg.heartbeat_ms)
+    for v in dict.fromkeys(value[(value > 0)].tolist()):  # in order of appearance
+        sel = np.flatnonzero(value == v)
+        if len(sel) < 5:
+            continue
+        configured = v / 1000.0
+        gaps = ts[b[sel]] - ts[a[sel]]
+        median = float(np.median(gaps))
+        what = f"median of {len(sel)} intervals"
+        last = sel[-1]
+        if abs(median - configured) <= tolerance * configured + EPS:
+            # the producer may change its own period later (an application writing its
+            # 1017h locally): a run of >= 5 consecutive intervals all off the same way
+            # counts too
+            run = _longest_off_run(gaps, configured, tolerance)
+            if run is None:
                 continue
-            ts = m.ec.ts
-            value = m.config_series(ts[a], lambda cfg: cfg.heartbeat_ms)
-            for v in dict.fromkeys(value[(value > 0)].tolist()):  # in order of appearance
-                sel = np.flatnonzero(value == v)
-                if len(sel) < 5:
-                    continue
-                configured = v / 1000.0
-                gaps = ts[b[sel]] - ts[a[sel]]
-                median = float(np.median(gaps))
-                what = f"median of {len(sel)} intervals"
-                last = sel[-1]
-                if abs(median - configured) <= tolerance * configured + EPS:
-                    # the producer may change its own period later (an application writing
-                    # its 1017h locally): a run of >= 5 consecutive intervals all off the
-                    # same way counts too
-                    run = _longest_off_run(gaps, configured, tolerance)
-                    if run is None:
-                        continue
-                    lo, hi = run
-                    median = float(np.median(gaps[lo:hi]))
-                    what = (f"median of {hi - lo} consecutive intervals from "
-                            f"{ts[a[sel[lo]]] - model.start:.3f} s")
-                    last = sel[hi - 1]
-                f = m.ec[b[last]]
-                yield Problem(cm.name, m.node, f.ts,
-                              f"node {m.node} heartbeats every {median:.3f} s ({what}) but its "
-                              f"producer time is {configured:.3f} s (tolerance {tolerance:.0%})",
-                              f.idx, f.line)
+            lo, hi = run
+            median = float(np.median(gaps[lo:hi]))
+            what = (f"median of {hi - lo} consecutive intervals from "
+                    f"{ts[a[sel[lo]]] - ctx.start:.3f} s")
+            last = sel[hi - 1]
+        f = m.ec[b[last]]
+        yield (f.ts, f"node {m.node} heartbeats every {median:.3f} s ({what}) but its producer "
+               f"time is {configured:.3f} s (tolerance {tolerance:.0%})", f)
 
 
 def _longest_off_run(gaps: np.ndarray, configured: float, tolerance: float

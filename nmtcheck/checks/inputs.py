@@ -11,10 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
-import numpy as np
-
-from nmtcheck.checks.base import Param, Problem, rule
-from nmtcheck.decode import frame_time_lines
+from nmtcheck.checks.base import Param, Problem, input_rule
 from nmtcheck.model import InputModel
 from nmtcheck.readers import TEXT_FORMATS
 
@@ -36,38 +33,25 @@ def _last_frame(model: InputModel) -> tuple[float, int | None, int | None]:
     stats = model.stats
     if not stats.frames:
         return 0.0, None, None
-    last: dict[str, np.ndarray] | None = None
-    for chunk in model.decoded.frame_times.reaching(float(stats.end or 0.0)):
-        if len(chunk["ts"]):
-            last = chunk
+    end = float(stats.end or 0.0)
+    last = model.decoded.last_frame(end)
     if last is None:
-        return float(stats.end or 0.0), stats.frames - 1, None
-    n = len(last["ts"])
-    return float(last["ts"][-1]), int(last["base"][0]) + n - 1, int(frame_time_lines(last)[-1])
+        return end, stats.frames - 1, None
+    ts, at = last
+    return ts, at.idx, at.line
 
 
 def _frame_after_line(model: InputModel, line: int) -> tuple[float, int | None]:
     """(time, index) of the first frame after record `line`: where a skipped record sits in
     time; the last frame if none follows, (0.0, None) without frames."""
-    prev: tuple[float, int | None] = (0.0, None)
-    for chunk in model.decoded.frame_times:
-        ts = chunk["ts"]
-        if not len(ts):
-            continue
-        lines = frame_time_lines(chunk)
-        after = np.flatnonzero(lines > line)
-        if after.size:
-            k = int(after[0])
-            return float(ts[k]), int(chunk["base"][0]) + k
-        prev = (float(ts[-1]), int(chunk["base"][0]) + len(ts) - 1)
-    return prev
+    return model.decoded.first_frame_after_line(line) or (0.0, None)
 
 
 def _plural(n: int, word: str) -> str:
     return f"{n} {word}" + ("" if n == 1 else "s")
 
 
-@rule("I001", "nothing-to-check", "error", exempt_from_unknown=True, scope="input")
+@input_rule("I001", "nothing-to-check", "error", exempt_from_unknown=True, scope="input")
 def nothing_to_check(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """The input holds no 11-bit CAN frame: nothing was checked.
 
@@ -105,7 +89,7 @@ def nothing_to_check(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                   f"{stats.format} input ({', '.join(parts)}){hint}", idx, line)
 
 
-@rule("I002", "truncated-input", "warning", exempt_from_unknown=True, scope="input")
+@input_rule("I002", "truncated-input", "warning", exempt_from_unknown=True, scope="input")
 def truncated_input(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """The input ends early: inside a record, a compressed stream or a container.
 
@@ -130,7 +114,7 @@ def truncated_input(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                   "it was read up to there, verdicts near the end may be missing", idx, line)
 
 
-@rule("I003", "skipped-records", "warning",
+@input_rule("I003", "skipped-records", "warning",
       Param("max_skipped", int, "how many unparseable records are tolerated", 0),
       exempt_from_unknown=True, scope="input")
 def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
@@ -167,7 +151,7 @@ def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                   f"{stats.format}{where}", idx, line)
 
 
-@rule("I004", "frames-lost", "warning", exempt_from_unknown=True, scope="input")
+@input_rule("I004", "frames-lost", "warning", exempt_from_unknown=True, scope="input")
 def frames_lost(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """The logger reported frames it dropped.
 
@@ -192,7 +176,7 @@ def frames_lost(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
                   "first frame); timing findings may be the logger's", idx, line)
 
 
-@rule("I005", "timestamps-backwards", "warning", exempt_from_unknown=True, scope="input")
+@input_rule("I005", "timestamps-backwards", "warning", exempt_from_unknown=True, scope="input")
 def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """Timestamps go backwards between consecutive records.
 

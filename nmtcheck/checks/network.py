@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
 
 import numpy as np
 
-from nmtcheck.checks.base import Problem, rule
+from nmtcheck.checks.base import Found, NodeContext, Params, Problem, input_rule, rule
 from nmtcheck.model import EcFrame, InputModel, NodeModel
 from nmtcheck.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
 
 
-@rule("N001", "missing-node", "error", exempt_from_unknown=True)
-def missing_node(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+@input_rule("N001", "missing-node", "error", exempt_from_unknown=True, scope="node")
+def missing_node(model: InputModel, p: Params) -> Iterator[Problem]:
     """A node of the network description never transmitted.
 
     **What it checks.** A node listed in the network file (`--network`) never
@@ -28,7 +27,7 @@ def missing_node(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """
     names = [cm.name for cm in model.channels]
     first = model.decoded.first_frame_at_or_after([model.start])[0] if model.expected else None
-    line = first[1] if first is not None and first[0] == 0 else None  # frame 0's line
+    line = first.line if first is not None and first.idx == 0 else None  # frame 0's line
     for node, channel in model.expected:
         for name in [channel] if channel is not None else names:
             cm = next((c for c in model.channels if c.name == name), None)
@@ -40,7 +39,7 @@ def missing_node(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
 
 @rule("N002", "duplicate-node-id", "warning")
-def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def duplicate_node_id(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """Two devices seem to share one node-ID.
 
     **What it checks.** Within N's heartbeats the reported state goes A, B, A, B with
@@ -57,14 +56,10 @@ def duplicate_node_id(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]
 
     **Example.** `705#05`, `705#7F`, `705#05`, `705#7F` at 50 ms spacing.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            hit = _duplicate_evidence(m)
-            if hit is not None:
-                f, why = hit
-                yield Problem(cm.name, m.node, f.ts,
-                              f"node-ID {m.node} may be used by two devices: {why}",
-                              f.idx, f.line)
+    hit = _duplicate_evidence(m)
+    if hit is not None:
+        f, why = hit
+        yield f.ts, f"node-ID {m.node} may be used by two devices: {why}", f
 
 
 def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:

@@ -1,28 +1,30 @@
 """State and communication rules (S): what a node may send in which NMT state (Table 37).
 
-S001-S003 run vectorised: the node frames kept by the decoder (TPDO, RPDO, SDO
-response, EMCY) are matched chunk by chunk against each node's finished
-timeline with `searchsorted`; only offending runs become Python objects.
+S001-S003 run vectorised over the whole input: the node frames sent while some node
+was PRE-OPERATIONAL or STOPPED (`InputModel.sent_while`) are matched against each
+node's finished timeline with `searchsorted`; only offending runs become Python
+objects, and they are reported in file order across nodes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Problem, Problems, count_note, rule
-from nmtcheck.decode import (
-    KIND_EMCY,
-    KIND_NAMES,
-    KIND_RPDO,
-    KIND_SDO_TX,
-    KIND_TPDO,
-    node_frame_lines,
+from nmtcheck.checks.base import (
+    Found,
+    NodeContext,
+    Param,
+    Params,
+    Problem,
+    batch,
+    count_note,
+    input_rule,
+    rule,
 )
-from nmtcheck.frames import RPDO_BASES, TPDO_BASES
+from nmtcheck.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
 from nmtcheck.model import InputModel, NodeModel
 from nmtcheck.nmt import (
     BOOTUP,
@@ -58,116 +60,7 @@ class _Run:
     count: int
 
 
-@dataclass
-class _PdoOverride:
-    """Frames on `can_id` of channel `chan` within [start, until) belong to `key` as `kind`
-    (kind 0: the default COB-ID of a PDO that was moved or made invalid: nobody's)."""
-
-    chan: int
-    can_id: int
-    key: int
-    kind: int
-    start: float
-    until: float
-
-
-def _pdo_overrides(model: InputModel) -> list[_PdoOverride]:
-    """Where configured PDO COB-IDs (network file, EDS/DCF, SDO writes) differ from the
-    pre-defined connection set."""
-    out: list[_PdoOverride] = []
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            for kind, table, bases, index in (
-                    (KIND_TPDO, m.config.tpdo_cob_ids, TPDO_BASES, 0x1800),
-                    (KIND_RPDO, m.config.rpdo_cob_ids, RPDO_BASES, 0x1400)):
-                spans: list[tuple[int, int | None, float, float]] = [
-                    (n, cob, -np.inf, np.inf) for n, cob in table.items()]
-                for w in m.writes:  # SDO-written COB-IDs hold until the next boot-up/reset
-                    if index <= w.index <= index + 3:
-                        cob = None if w.value & 0x80000000 else w.value & 0x7FF
-                        spans.append(((w.index & 3) + 1, cob, w.ts, w.until))
-                for n, cob, start, until in spans:
-                    default = bases[n - 1] + m.node
-                    if cob != default:
-                        out.append(_PdoOverride(m.chan, default, -1, 0, start, until))
-                        if cob is not None:
-                            out.append(_PdoOverride(m.chan, cob, m.key, kind, start, until))
-    # later (SDO-written) spans are applied after the static ones and win
-    out.sort(key=lambda o: o.start)
-    return out
-
-
-def _attribute(chunk: dict[str, np.ndarray], overrides: list[_PdoOverride]
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Each stored frame's (node key, kind), with the configured PDO COB-IDs applied."""
-    if not overrides:
-        return chunk["key"], chunk["kind"]
-    key = chunk["key"].astype(np.int64).copy()
-    kind = chunk["kind"].copy()
-    chan = key // 128
-    for o in overrides:
-        hit = ((chunk["can_id"] == o.can_id) & (chan == o.chan) & (chunk["ts"] >= o.start)
-               & (chunk["ts"] < o.until))
-        if o.kind == 0:
-            hit &= np.isin(kind, (KIND_TPDO, KIND_RPDO))
-        key[hit] = o.key
-        kind[hit] = o.kind
-    return key, kind
-
-
 _CHECKED_STATES = (PRE_OPERATIONAL, STOPPED)  # the states S001-S003 look into
-
-
-def _candidates(model: InputModel) -> dict[str, np.ndarray]:
-    """The stored node frames sent while their node was PRE-OPERATIONAL or STOPPED,
-    with their attributed key and kind: one pass over the store for S001-S003 together.
-
-    Usually a tiny set (a node is OPERATIONAL most of the time), so each rule's exact
-    test, grace periods included, runs on it alone. Cached on the model.
-    """
-    cached = model.__dict__.get("_state_candidates")
-    if cached is not None:
-        return cached
-    checked = [STATE_INDEX[s] for s in _CHECKED_STATES]
-    lo_parts, hi_parts = [], []
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            ivs = m.intervals
-            if not len(ivs):
-                continue
-            lo, hi = ivs.start.copy(), ivs.end.copy()
-            lo[0], hi[-1] = -np.inf, np.inf  # the first/last interval also take stray times
-            keep = np.isin(ivs.state, checked)
-            lo_parts.append(lo[keep])
-            hi_parts.append(hi[keep])
-    lo_all = np.concatenate(lo_parts) if lo_parts else np.zeros(0)
-    hi_all = np.concatenate(hi_parts) if hi_parts else np.zeros(0)
-    by_start = np.lexsort((hi_all, lo_all))
-    windows = zip(lo_all[by_start].tolist(), hi_all[by_start].tolist(), strict=True)
-    merged: list[list[float]] = []  # union over all nodes: a cheap first filter on time
-    for a, b in windows:
-        if merged and a <= merged[-1][1]:
-            merged[-1][1] = max(merged[-1][1], b)
-        else:
-            merged.append([a, b])
-    starts = np.asarray([w[0] for w in merged], np.float64)
-    ends = np.asarray([w[1] for w in merged], np.float64)
-    parts: list[dict[str, np.ndarray]] = []
-    overrides = _pdo_overrides(model)
-    for chunk in model.decoded.node_frames if merged else ():
-        ts = chunk["ts"]
-        w = np.searchsorted(starts, ts, side="right") - 1
-        sel = np.flatnonzero((w >= 0) & (ts <= ends[np.maximum(w, 0)] + EPS))
-        if not sel.size:
-            continue
-        key, kind = _attribute(chunk, overrides)
-        parts.append({"key": key[sel].astype(np.int64), "kind": kind[sel],
-                      "can_id": chunk["can_id"][sel], "ts": ts[sel], "idx": chunk["idx"][sel],
-                      "line": node_frame_lines(chunk, sel)})
-    names = ("key", "kind", "can_id", "ts", "idx", "line")
-    result = {n: np.concatenate([p[n] for p in parts]) if parts else np.zeros(0) for n in names}
-    model.__dict__["_state_candidates"] = result
-    return result
 
 
 def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
@@ -184,9 +77,9 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
     grace_code = STATE_INDEX[grace_from] if grace_from else -2
     wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
     found: dict[tuple[int, int], _Run] = {}
-    cand = _candidates(model)
-    sel = np.flatnonzero(np.isin(cand["kind"], kinds))
-    keys = cand["key"][sel]
+    cand = model.sent_while(_CHECKED_STATES)
+    sel = np.flatnonzero(np.isin(cand.kind, kinds))
+    keys = cand.key[sel]
     for key in np.unique(keys).tolist():
         m = by_key.get(key)
         if m is None:
@@ -203,7 +96,7 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
             elif i >= 1 and codes[i - 1] != offline:
                 since[i] = since[i - 1]  # e.g. OPERATIONAL -> STOPPED -> PRE-OPERATIONAL
         rows = sel[keys == key]  # in file order
-        ts = cand["ts"][rows]
+        ts = cand.ts[rows]
         iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
         bad = np.isin(codes[iv], wanted)
         bad &= ~((ts - since[iv]) <= grace_s + EPS)
@@ -212,18 +105,18 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
             k = (key, int(iv[j]))
             run = found.get(k)
             if run is None:
-                found[k] = _Run(float(cand["ts"][row]), int(cand["idx"][row]),
-                                int(cand["line"][row]), int(cand["can_id"][row]),
-                                int(cand["kind"][row]), 1)
+                found[k] = _Run(float(cand.ts[row]), int(cand.idx[row]), int(cand.line[row]),
+                                int(cand.can_id[row]), int(cand.kind[row]), 1)
             else:
                 run.count += 1
     return [(by_key[key], iv, run) for (key, iv), run in sorted(
         found.items(), key=lambda kv: kv[1].idx)]
 
 
-@rule("S001", "pdo-while-not-operational", "error",
-      Param("grace_ms", float, "PDOs this soon after leaving OPERATIONAL are still in flight", 5.0))
-def pdo_while_not_operational(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+@input_rule("S001", "pdo-while-not-operational", "error",
+            Param("grace_ms", float, "PDOs this soon after leaving OPERATIONAL are still in "
+                  "flight", 5.0), scope="node")
+def pdo_while_not_operational(model: InputModel, p: Params) -> Iterator[Problem]:
     """A node transmitted a PDO while not OPERATIONAL.
 
     **What it checks.** N transmits a TPDO (default COB-IDs 180h/280h/380h/480h + N)
@@ -241,8 +134,8 @@ def pdo_while_not_operational(model: InputModel, p: dict[str, Any]) -> Iterator[
     yield from _pdo_problems(model, (KIND_TPDO,), p["grace_ms"] / 1000.0, OPERATIONAL, "sent")
 
 
-@rule("S002", "pdo-to-not-operational", "info")
-def pdo_to_not_operational(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+@input_rule("S002", "pdo-to-not-operational", "info", scope="node")
+def pdo_to_not_operational(model: InputModel, p: Params) -> Iterator[Problem]:
     """An RPDO was sent to a node that is not OPERATIONAL and will ignore it.
 
     **What it checks.** An RPDO of N (default 200h/300h/400h/500h + N) is on the bus
@@ -266,9 +159,10 @@ def _pdo_problems(model: InputModel, kinds: tuple[int, ...], grace_s: float,
                       f"{state}{count_note(run.count)}", run.idx, run.line)
 
 
-@rule("S003", "comm-while-stopped", "error",
-      Param("grace_ms", float, "frames this soon after entering STOPPED are still in flight", 5.0))
-def comm_while_stopped(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+@input_rule("S003", "comm-while-stopped", "error",
+            Param("grace_ms", float, "frames this soon after entering STOPPED are still in "
+                  "flight", 5.0), scope="node")
+def comm_while_stopped(model: InputModel, p: Params) -> Iterator[Problem]:
     """A STOPPED node answered an SDO or sent an EMCY.
 
     **What it checks.** N transmits an SDO response (580h+N) or an EMCY (80h+N) while
@@ -290,7 +184,7 @@ def comm_while_stopped(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
 @rule("S004", "command-not-obeyed", "error",
       Param("obey_ms", float, "time a node has to carry out a command before its reports count",
             100.0))
-def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+def command_not_obeyed(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node kept reporting another state after an NMT command.
 
     **What it checks.** After an NMT start, stop or enter-pre-operational command to
@@ -307,44 +201,39 @@ def command_not_obeyed(model: InputModel, p: dict[str, Any]) -> Iterator[Problem
     **Example.** `000#0104` (start node 4), then `704#7F` 0.5 s later.
     """
     obey = p["obey_ms"] / 1000.0
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            cmds = m.commands
-            todo = np.flatnonzero(~cmds.is_reset)  # positions, not objects: there may be
-            if not todo.size:  # a million commands
+    cmds = m.commands
+    todo = np.flatnonzero(~cmds.is_reset)  # positions, not objects: there may be
+    if not todo.size:  # a million commands
+        return
+    ec = m.ec
+    reports = ec.where(BOOTUP, HEARTBEAT, GUARD)  # frames that report a state
+    reports = reports[~ec.stale[reports]]  # queued before a command: no evidence
+    rep_idx = ec.idx[reports]
+    rep_ts = ec.ts[reports]
+    rep_boot = ec.kind[reports] == BOOTUP
+    rep_state = _STATE_OF_CODE[ec.code[reports]]
+    first = np.searchsorted(rep_idx, cmds.idx[todo], side="right").tolist()
+    for j, k in zip(todo.tolist(), first, strict=True):
+        c_ts = float(cmds.ts[j])
+        target = STATE_INDEX[COMMAND_STATE[int(cmds.cs[j])]]
+        newer = int(cmds.idx[j + 1]) if j + 1 < len(cmds) else None
+        for q in range(k, len(reports)):
+            if (newer is not None and rep_idx[q] > newer) or rep_boot[q]:
+                break
+            state = int(rep_state[q])
+            if state < 0:
                 continue
-            ec = m.ec
-            reports = ec.where(BOOTUP, HEARTBEAT, GUARD)  # frames that report a state
-            reports = reports[~ec.stale[reports]]  # queued before a command: no evidence
-            rep_idx = ec.idx[reports]
-            rep_ts = ec.ts[reports]
-            rep_boot = ec.kind[reports] == BOOTUP
-            rep_state = _STATE_OF_CODE[ec.code[reports]]
-            first = np.searchsorted(rep_idx, cmds.idx[todo], side="right").tolist()
-            for j, k in zip(todo.tolist(), first, strict=True):
-                c_ts = float(cmds.ts[j])
-                target = STATE_INDEX[COMMAND_STATE[int(cmds.cs[j])]]
-                newer = int(cmds.idx[j + 1]) if j + 1 < len(cmds) else None
-                for q in range(k, len(reports)):
-                    if (newer is not None and rep_idx[q] > newer) or rep_boot[q]:
-                        break
-                    state = int(rep_state[q])
-                    if state < 0:
-                        continue
-                    if state == target:
-                        break
-                    if rep_ts[q] - c_ts > obey + EPS:
-                        f = ec[reports[q]]
-                        yield Problem(cm.name, m.node, f.ts,
-                                      f"node {m.node} reports {STATES[state]} "
-                                      f"{f.ts - c_ts:.3f} s after NMT {cmds.name(j)} "
-                                      f"(expected {STATES[target]})", f.idx, f.line)
-                        break
+            if state == target:
+                break
+            if rep_ts[q] - c_ts > obey + EPS:
+                f = ec[reports[q]]
+                yield (f.ts, f"node {m.node} reports {STATES[state]} {f.ts - c_ts:.3f} s "
+                       f"after NMT {cmds.name(j)} (expected {STATES[target]})", f)
+                break
 
 
 @rule("S005", "unexplained-state-change", "info")
-def unexplained_state_change(model: InputModel, p: dict[str, Any]
-                             ) -> Iterator[Problem | Problems]:
+def unexplained_state_change(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node changed its NMT state on its own.
 
     **What it checks.** N's reported state changes between two of its error-control
@@ -357,30 +246,26 @@ def unexplained_state_change(model: InputModel, p: dict[str, Any]
 
     **Example.** `703#05`, `703#05`, `703#7F` with no NMT command to node 3.
     """
-    for cm in model.channels:
-        for m in cm.nodes.values():
-            if cm.master is not None and m.node == cm.master.node:
-                continue  # a master starts and stops itself (CiA 302): that is its job
-            ec = m.ec
-            # heartbeats and guarding responses with a CiA 301 state; a boot-up starts anew
-            pos = ec.where(BOOTUP, HEARTBEAT, GUARD)
-            pos = pos[~ec.stale[pos]]  # queued before a command: no evidence
-            kind = ec.kind[pos]
-            state = _STATE_OF_CODE[ec.code[pos]]
-            pos, kind, state = (x[(kind == BOOTUP) | (state >= 0)] for x in (pos, kind, state))
-            a, b = pos[:-1], pos[1:]
-            cmd_idx = m.commands.idx
-            change = np.flatnonzero((kind[:-1] != BOOTUP) & (kind[1:] != BOOTUP)
-                                    & (state[:-1] != state[1:])
-                                    & ~between(cmd_idx, ec.idx[a], ec.idx[b]))
-            if not change.size:
-                continue
-            prev_code, code = ec.code[a[change]], ec.code[b[change]]
+    if ctx.master is not None and m.node == ctx.master.node:
+        return  # a master starts and stops itself (CiA 302): that is its job
+    ec = m.ec
+    # heartbeats and guarding responses with a CiA 301 state; a boot-up starts anew
+    pos = ec.where(BOOTUP, HEARTBEAT, GUARD)
+    pos = pos[~ec.stale[pos]]  # queued before a command: no evidence
+    kind = ec.kind[pos]
+    state = _STATE_OF_CODE[ec.code[pos]]
+    pos, kind, state = (x[(kind == BOOTUP) | (state >= 0)] for x in (pos, kind, state))
+    a, b = pos[:-1], pos[1:]
+    change = np.flatnonzero((kind[:-1] != BOOTUP) & (kind[1:] != BOOTUP)
+                            & (state[:-1] != state[1:])
+                            & ~between(m.commands.idx, ec.idx[a], ec.idx[b]))
+    if not change.size:
+        return
+    prev_code, code = ec.code[a[change]], ec.code[b[change]]
 
-            def message(i: int, node: int = m.node, prev_code: np.ndarray = prev_code,
-                        code: np.ndarray = code) -> str:
-                return (f"node {node} changed from {state_name(int(prev_code[i]))} to "
-                        f"{state_name(int(code[i]))} without an NMT command")
+    def message(i: int) -> str:
+        return (f"node {m.node} changed from {state_name(int(prev_code[i]))} to "
+                f"{state_name(int(code[i]))} without an NMT command")
 
-            at = b[change]
-            yield Problems(cm.name, m.node, ec.ts[at], message, ec.idx[at], ec.line[at])
+    at = b[change]
+    yield batch(ec.ts[at], message, ec.idx[at], ec.line[at])

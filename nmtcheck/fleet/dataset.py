@@ -91,7 +91,9 @@ def to_table(table: str, rows: list[dict[str, Any]]) -> Any:
     for name, kind in COLUMNS[table]:
         values = [r.get(name) for r in rows]
         if kind == "timestamp":
-            values = [None if v is None else int(round(v * 1e6)) for v in values]
+            # int(): round() of a numpy float is a numpy float with numpy < 2
+            values = [None if v is None else int(round(v * 1e6))  # noqa: RUF046
+                      for v in values]
             cols[name] = pa.array(values, pa.int64()).cast(sch.field(name).type)
         else:
             cols[name] = pa.array(values, sch.field(name).type)

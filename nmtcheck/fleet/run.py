@@ -16,9 +16,12 @@ import time
 import uuid
 from collections.abc import Hashable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from nmtcheck.fleet.storage import FileInfo
+
+if TYPE_CHECKING:
+    from nmtcheck.fleet.executors import Executor
 
 BATCH_FILES = 32  # small logs: enough per task that a task is not all latency
 BATCH_BYTES = 64 << 20  # a batch is fetched to the worker's disk at once
@@ -142,17 +145,9 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
               max_findings: int = 10000) -> FleetOutcome:
     """Check every log `opts` names into the results dataset; the counts over the fleet."""
     from nmtcheck import __version__
-    from nmtcheck.fleet.dataset import Dataset, done_key
-    from nmtcheck.fleet.executors import Crashed, Executor, make_executor
-    from nmtcheck.fleet.storage import (
-        PathPattern,
-        absolute,
-        check_exists,
-        complete,
-        expand,
-        filesystem,
-    )
-    from nmtcheck.fleet.tasks import BatchCounts, TaskConfig, check_batch, crashed_batch
+    from nmtcheck.fleet.dataset import Dataset
+    from nmtcheck.fleet.storage import PathPattern, absolute, check_exists, expand, filesystem
+    from nmtcheck.fleet.tasks import TaskConfig
 
     started = time.time()
     PathPattern(opts.path_pattern)  # a bad pattern is a usage error before any work
@@ -174,87 +169,15 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     out = FleetOutcome(run_id=run_id)
     progress = _Progress(opts.progress)
     listing = expand(opts.sources, opts.manifest, opts.storage_options)
-
-    def todo() -> Iterator[FileInfo]:
-        """The logs to check, counting the skipped ones (their verdicts still count)."""
-        inside = opts.results.rstrip("/") + "/"  # `data/**` with --results data/results
-        for chunk in _chunks((fi for fi in listing if not fi.url.startswith(inside)), 256):
-            for fi in complete(chunk, opts.storage_options):
-                out.files += 1
-                prev = done.get(done_key(fi.url, fi.fingerprint))
-                if prev is None:
-                    yield fi
-                    continue
-                status, *by_severity = prev
-                out.skipped += 1
-                for sev, n in zip(out.severity, by_severity, strict=True):
-                    out.severity[sev] += n
-                if status in ("input_error", "crashed") and len(out.errors) < 5:
-                    out.errors.append((fi.url, f"{status} (in an earlier run)"))
-                out.skipped_status[status] = out.skipped_status.get(status, 0) + 1
-        progress.total(out.files - out.skipped)
-
-    # Started at the first batch: a re-run with nothing new starts no worker at all.
-    executor: Executor | None = None
-    shared_cfg: Any = None
-    totals = BatchCounts()
-    batches: dict[Hashable, list[FileInfo]] = {}
-    n = 0
-    # Logs whose task died: tried again at the end, one at a time with nothing beside them,
-    # so that a log that kills its worker cannot take innocent logs down with it (the
-    # stdlib pool loses every running task when one worker dies; Dask counts every task on
-    # a dead worker as suspect).
-    quarantine: list[FileInfo] = []
-    alone = False
-
-    def start() -> Executor:
-        nonlocal executor, shared_cfg
-        if executor is None:
-            executor = make_executor(opts.executor)
-            out.executor = executor.name
-            shared_cfg = executor.shared(cfg)
-        return executor
-
-    def collect() -> None:
-        assert executor is not None
-        for key, result in executor.done():
-            files = batches.pop(key)
-            if isinstance(result, Crashed) and not alone:
-                quarantine.extend(files)
-                continue
-            if isinstance(result, Crashed):
-                result = crashed_batch(files[0], cfg, result.attempts, result.reason)
-            elif isinstance(result, BaseException):
-                from nmtcheck.errors import UsageError
-
-                raise UsageError(f"--results {opts.results}: a task failed: "
-                                 f"{type(result).__name__}: {result}")
-            totals.add(result)
-            progress.update(result.files, result.bytes)
-
-    def submit(files: list[FileInfo]) -> None:
-        nonlocal n
-        n += 1
-        batches[n] = files
-        start().submit(n, check_batch, files, shared_cfg)
-
+    todo = _todo(listing, opts, done, out, progress)
+    dispatch = _Dispatch(opts, cfg, out, progress)
     try:
-        for batch in _batches(todo(), opts.batch_files, opts.batch_bytes, _slots(opts.executor)):
-            ex = start()
-            while ex.pending() >= max(2, WINDOW_PER_SLOT * ex.slots):
-                collect()
-            submit(batch)
-        while executor is not None and executor.pending():
-            collect()
-        alone = True
-        for fi in quarantine:
-            submit([fi])
-            while start().pending():
-                collect()
+        dispatch.run(todo)
     finally:
         progress.close()
-        if executor is not None:
-            executor.close()
+        if dispatch.executor is not None:
+            dispatch.executor.close()
+    totals = dispatch.totals
     for k, v in totals.status.items():
         out.status[k] = out.status.get(k, 0) + v
     for k, v in totals.severity.items():
@@ -265,6 +188,113 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     if out.checked:
         _write_run(ds, out, opts, digest, __version__, totals)
     return out
+
+
+def _todo(listing: Iterator[FileInfo], opts: FleetOptions, done: dict[Any, Any],
+          out: FleetOutcome, progress: _Progress) -> Iterator[FileInfo]:
+    """The logs to check, counting the skipped ones (their verdicts still count)."""
+    from nmtcheck.fleet.dataset import done_key
+    from nmtcheck.fleet.storage import complete
+
+    inside = opts.results.rstrip("/") + "/"  # `data/**` with --results data/results
+    for chunk in _chunks((fi for fi in listing if not fi.url.startswith(inside)), 256):
+        for fi in complete(chunk, opts.storage_options):
+            out.files += 1
+            prev = done.get(done_key(fi.url, fi.fingerprint))
+            if prev is None:
+                yield fi
+            else:
+                _count_skipped(out, fi.url, prev)
+    progress.total(out.files - out.skipped)
+
+
+def _count_skipped(out: FleetOutcome, url: str, prev: Any) -> None:
+    """A log an earlier run checked: its verdict, from the results dataset."""
+    status, *by_severity = prev
+    out.skipped += 1
+    for sev, n in zip(out.severity, by_severity, strict=True):
+        out.severity[sev] += n
+    if status in ("input_error", "crashed") and len(out.errors) < 5:
+        out.errors.append((url, f"{status} (in an earlier run)"))
+    out.skipped_status[status] = out.skipped_status.get(status, 0) + 1
+
+
+class _Dispatch:
+    """Batches of logs to the executor (started at the first batch: a re-run with nothing
+    new starts no worker at all), a bounded window of them in flight; their counts added.
+
+    Logs whose task died are tried again at the end, one at a time with nothing beside
+    them, so that a log that kills its worker cannot take innocent logs down with it (the
+    stdlib pool loses every running task when one worker dies; Dask counts every task on
+    a dead worker as suspect).
+    """
+
+    def __init__(self, opts: FleetOptions, cfg: Any, out: FleetOutcome,
+                 progress: _Progress) -> None:
+        from nmtcheck.fleet.tasks import BatchCounts
+
+        self.opts = opts
+        self.cfg = cfg
+        self.out = out
+        self.progress = progress
+        self.executor: Executor | None = None
+        self.shared_cfg: Any = None
+        self.totals = BatchCounts()
+        self.batches: dict[Hashable, list[FileInfo]] = {}
+        self.n = 0
+        self.quarantine: list[FileInfo] = []
+        self.alone = False
+
+    def run(self, todo: Iterator[FileInfo]) -> None:
+        opts = self.opts
+        for batch in _batches(todo, opts.batch_files, opts.batch_bytes, _slots(opts.executor)):
+            ex = self.start()
+            while ex.pending() >= max(2, WINDOW_PER_SLOT * ex.slots):
+                self.collect()
+            self.submit(batch)
+        while self.executor is not None and self.executor.pending():
+            self.collect()
+        self.alone = True
+        for fi in self.quarantine:
+            self.submit([fi])
+            while self.start().pending():
+                self.collect()
+
+    def start(self) -> Executor:
+        from nmtcheck.fleet.executors import make_executor
+
+        if self.executor is None:
+            self.executor = make_executor(self.opts.executor)
+            self.out.executor = self.executor.name
+            self.shared_cfg = self.executor.shared(self.cfg)
+        return self.executor
+
+    def collect(self) -> None:
+        from nmtcheck.fleet.executors import Crashed
+        from nmtcheck.fleet.tasks import crashed_batch
+
+        assert self.executor is not None
+        for key, result in self.executor.done():
+            files = self.batches.pop(key)
+            if isinstance(result, Crashed) and not self.alone:
+                self.quarantine.extend(files)
+                continue
+            if isinstance(result, Crashed):
+                result = crashed_batch(files[0], self.cfg, result.attempts, result.reason)
+            elif isinstance(result, BaseException):
+                from nmtcheck.errors import UsageError
+
+                raise UsageError(f"--results {self.opts.results}: a task failed: "
+                                 f"{type(result).__name__}: {result}")
+            self.totals.add(result)
+            self.progress.update(result.files, result.bytes)
+
+    def submit(self, files: list[FileInfo]) -> None:
+        from nmtcheck.fleet.tasks import check_batch
+
+        self.n += 1
+        self.batches[self.n] = files
+        self.start().submit(self.n, check_batch, files, self.shared_cfg)
 
 
 def _chunks(it: Iterator[FileInfo], n: int) -> Iterator[list[FileInfo]]:

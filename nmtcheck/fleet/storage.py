@@ -138,7 +138,8 @@ def _unstrip(url: str, fs: Any, path: str) -> str:
     log under the same name)."""
     if is_local(url):
         return ("file://" if url.startswith("file://") else "") + os.path.abspath(path)
-    return fs.unstrip_protocol(path)
+    out: str = fs.unstrip_protocol(path)
+    return out
 
 
 def expand(sources: list[str], manifest: str | None,

@@ -219,8 +219,7 @@ def node_rows(res: Any, key: dict[str, Any], date: str,
     import numpy as np
 
     from nmtcheck.fleet.dataset import STATE_COLUMNS
-    from nmtcheck.model import STATES
-    from nmtcheck.nmt import HEARTBEAT
+    from nmtcheck.nmt import HEARTBEAT, STATES
 
     out = []
     for m in res.nodes():

@@ -187,16 +187,9 @@ def as_text(rendered: str | Iterable[str]) -> str:
 
 def write_reports(results: list[InputResult], files: list[tuple[str, Any]],
                   options: dict[str, object]) -> None:
-    from nmtcheck.cli import write_atomically
+    from nmtcheck.cli import write_reports as write
 
-    written: list[str] = []
-    for path, render in files:
-        try:
-            write_atomically(Path(path), render(results, options))
-        except OSError as exc:
-            done = f" (written: {', '.join(written)})" if written else " (none written)"
-            raise UsageError(f"--output {path}: cannot write: {exc.strerror}{done}") from None
-        written.append(path)
+    write(results, files, options)
 
 
 def live_summary(outcome: Outcome, ended: str) -> str:

@@ -34,12 +34,7 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
     from nmtcheck.live.command import live_summary
     from nmtcheck.live.signals import ended_by, ending_on_signals
 
-    if stream is None:
-        if sys.stdin is None:
-            raise InputError("<stdin>", "no standard input to read")
-        lines = _fd_lines(sys.stdin.fileno())
-    else:
-        lines = iter(stream.readline, b"")
+    lines = _input_lines(stream)
     display = display or Display(sys.stderr)
     session: Session | None = None
 
@@ -61,18 +56,7 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
             for lineno, raw in enumerate(lines, 1):
                 if done.is_set():
                     return
-                if live[0] is None and raw.strip():
-                    live[0] = sniff(raw)
-                    if not live[0]:
-                        display.note("nmtcheck: live findings need candump -L lines; the "
-                                     "whole check runs at the end of the stream")
-                row = _parse_line(raw, lineno, stats) if live[0] else None
-                frame = None
-                if row is not None:
-                    ts, iface, cid, ext, rtr, err, fd, dlc, data = row
-                    frame = LiveFrame(ts, iface.decode("utf-8", "replace"), cid, ext, rtr,
-                                      err, fd, dlc, data)
-                session.feed(frame, raw)
+                session.feed(_live_frame(raw, lineno, stats, live, display), raw)
         except Exception as exc:  # noqa: BLE001 - reported by the main thread
             failure.append(exc)
         finally:
@@ -97,6 +81,31 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
         raise InputError("<stdin>", f"no frame received ({ended})")
     display.note(live_summary(outcome, ended))
     return [outcome.result]
+
+
+def _input_lines(stream: IO[bytes] | None) -> Iterator[bytes]:
+    """The stream's lines (standard input's when None) as they arrive."""
+    if stream is None:
+        if sys.stdin is None:
+            raise InputError("<stdin>", "no standard input to read")
+        return _fd_lines(sys.stdin.fileno())
+    return iter(stream.readline, b"")
+
+
+def _live_frame(raw: bytes, lineno: int, stats: InputStats, live: list[bool | None],
+                display: Display) -> LiveFrame | None:
+    """The frame of one line, if it is a candump -L frame; `live[0]`: whether the lines are
+    candump -L lines (None until the first line that is not blank tells)."""
+    if live[0] is None and raw.strip():
+        live[0] = sniff(raw)
+        if not live[0]:
+            display.note("nmtcheck: live findings need candump -L lines; the "
+                         "whole check runs at the end of the stream")
+    row = _parse_line(raw, lineno, stats) if live[0] else None
+    if row is None:
+        return None
+    ts, iface, cid, ext, rtr, err, fd, dlc, data = row
+    return LiveFrame(ts, iface.decode("utf-8", "replace"), cid, ext, rtr, err, fd, dlc, data)
 
 
 def _fd_lines(fd: int) -> Iterator[bytes]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import statistics
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +39,19 @@ from nmtcheck.profiles import Profile
 SCAN_S = 0.001  # bus time between two looks at every node's deadlines while frames come
 RECENT_INTERVALS = 32  # the period of a node with no configured producer time: their median
 _RESERVED = ((0x001, 0x07F), (0x101, 0x180), (0x6E0, 0x6FF), (0x780, 0x7FF))
+
+
+def _nmt_problem(f: LiveFrame, cs: int, target: int) -> str | None:
+    """What makes an NMT command frame malformed, if anything."""
+    if f.rtr:
+        return "remote frame on CAN-ID 000h (NMT commands are data frames)"
+    if f.dlc != 2:
+        return f"DLC {f.dlc} (an NMT command has DLC 2)"
+    if cs not in COMMAND_STATE:
+        return f"unknown command specifier {cs:02X}h"
+    if target > 127:
+        return f"node-ID {target} above 127"
+    return None
 
 
 @dataclass
@@ -390,15 +403,7 @@ class Tracker:
 
     def _nmt(self, f: LiveFrame) -> None:
         cs, target = (f.data[0], f.data[1]) if len(f.data) >= 2 else (-1, -1)
-        problem = None
-        if f.rtr:
-            problem = "remote frame on CAN-ID 000h (NMT commands are data frames)"
-        elif f.dlc != 2:
-            problem = f"DLC {f.dlc} (an NMT command has DLC 2)"
-        elif cs not in COMMAND_STATE:
-            problem = f"unknown command specifier {cs:02X}h"
-        elif target > 127:
-            problem = f"node-ID {target} above 127"
+        problem = _nmt_problem(f, cs, target)
         if problem is not None:
             st = self.nodes.get((f.channel, target)) if f.dlc == 2 and cs not in COMMAND_STATE \
                 else None
@@ -408,12 +413,7 @@ class Tracker:
         master = self.master(f.channel)
         like = self.master_like.setdefault(f.channel, set())
         if not target:
-            # every boot-up since the previous command and within the window: at a common
-            # power-on the slaves boot microseconds after the master (as timeline.infer_master)
-            prev_cmd = self.last_command_on.get(f.channel, float("-inf"))
-            for b_ts, b_node in self.boots_on.get(f.channel, ()):
-                if b_ts > prev_cmd and f.ts - b_ts <= self.master_window_s + EPS:
-                    like.add(b_node)
+            like.update(self._booted_before(f))
         self.last_command_on[f.channel] = f.ts
         if target:
             targets = [self.node(f.channel, target)]
@@ -422,18 +422,7 @@ class Tracker:
                        if ch == f.channel and n != master and (st.seen or st.state != UNKNOWN)]
         for st in targets:
             if cs in RESETS:
-                if target or (master is None and st.node not in like) or master is not None:
-                    name = ("reset node" if cs == 0x81 else "reset communication") + (
-                        "" if target else " (broadcast)")
-                    st.awaiting_boot = (f.ts, name, bool(target) or master is not None)
-                self._end_gap(st, f.ts)
-                st.reset_since_boot = True
-                st.unanswered_resets.append(f.ts)
-                st.prev_hb = None  # no heartbeat interval across a reset
-                self._power_on_values(st)
-                if not target and master is None and st.node in like:
-                    # the master does not obey its own broadcast: offline may not apply it
-                    st.config_doubt = True
+                self._reset(st, f.ts, cs, target, master, like)
             new = COMMAND_STATE[cs]
             # what a stale report would still say: the state N had when it went OFFLINE
             st.last_cmd = (f.ts, st.pre_offline if st.state == OFFLINE and st.pre_offline
@@ -445,6 +434,31 @@ class Tracker:
                 self._set(st, new, f.ts, observed=False)
             if cs in RESETS:
                 st.toggle_expected = 0  # CiA 301: reset communication resets the toggle
+
+    def _booted_before(self, f: LiveFrame) -> Iterator[int]:
+        """The nodes that booted since the previous command on the channel and within the
+        window before this broadcast: at a common power-on the slaves boot microseconds
+        after the master (as timeline.infer_master)."""
+        prev_cmd = self.last_command_on.get(f.channel, float("-inf"))
+        for b_ts, b_node in self.boots_on.get(f.channel, ()):
+            if b_ts > prev_cmd and f.ts - b_ts <= self.master_window_s + EPS:
+                yield b_node
+
+    def _reset(self, st: NodeState, ts: float, cs: int, target: int, master: int | None,
+               like: set[int]) -> None:
+        """A reset command for one node (`target` 0: a broadcast)."""
+        if target or (master is None and st.node not in like) or master is not None:
+            name = ("reset node" if cs == 0x81 else "reset communication") + (
+                "" if target else " (broadcast)")
+            st.awaiting_boot = (ts, name, bool(target) or master is not None)
+        self._end_gap(st, ts)
+        st.reset_since_boot = True
+        st.unanswered_resets.append(ts)
+        st.prev_hb = None  # no heartbeat interval across a reset
+        self._power_on_values(st)
+        if not target and master is None and st.node in like:
+            # the master does not obey its own broadcast: offline may not apply it
+            st.config_doubt = True
 
     def _error_control(self, f: LiveFrame, st: NodeState) -> None:
         if f.rtr:

@@ -15,10 +15,10 @@ import lzma
 import os
 import sys
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import IO, Any, cast
+from typing import IO, Any, NamedTuple, cast
 
 import numpy as np
 
@@ -115,8 +115,18 @@ def account(stats: InputStats, batch: FrameBatch | None) -> FrameBatch | None:
     return batch
 
 
-Row = tuple[float, str, int, bool, bool, bool, bool, int, bytes]
-"""One frame parsed by a line reader: ts, channel name, CAN-ID, ext, rtr, err, fd, dlc, data."""
+class Row(NamedTuple):
+    """One frame parsed by a line reader's per-line parser (the slow path: one per line)."""
+
+    ts: float
+    channel: str  # the channel's name as the log writes it
+    can_id: int
+    ext: bool
+    rtr: bool
+    err: bool
+    fd: bool
+    dlc: int
+    data: bytes
 
 
 def batches_of(stats: InputStats, rows: Iterable[tuple[int, Row]]) -> Iterator[FrameBatch]:
@@ -399,42 +409,15 @@ def printable_path(path: str) -> str:
 @dataclass
 class OpenedInput:
     stats: InputStats
-    batches: Iterator[FrameBatch]
+    batches: Generator[FrameBatch, None, None]  # close() it to close the file early
 
 
 def open_input(path: str, input_format: str | None = None, strict: bool = False,
                options: dict[str, Any] | None = None) -> OpenedInput:
     """Open, decompress and sniff one log; exit-2 errors name the file."""
-    if path == "-":
-        if sys.stdin is None:  # started without a standard input (fd 0 closed)
-            raise InputError("<stdin>", "no standard input to read")
-        raw: IO[bytes] = sys.stdin.buffer
-        display = "<stdin>"
-    else:
-        display = printable_path(path)
-        if os.path.isdir(path):
-            raise InputError(display, "is a directory, not a log file")
-        try:
-            raw = open(path, "rb")  # noqa: SIM115 - closed when the batches are exhausted
-        except FileNotFoundError:
-            raise InputError(display, "no such file" if not os.path.islink(path)
-                             else "a symbolic link to a file that does not exist") from None
-        except OSError as exc:
-            raise InputError(display, f"cannot open: {exc.strerror or exc}") from None
+    raw, display = _open_raw(path)
     try:
-        magic = raw.read(6)
-        try:
-            stream, compression = _decompressed(_Prefixed(magic, raw), magic)  # type: ignore[arg-type]
-        except ImportError:
-            raise InputError(
-                display, "zstd-compressed, but the 'zstandard' module is not installed"
-            ) from None
-        errors = _stream_errors(compression)
-        damage: _UpToDamage | None = None
-        if compression:
-            damage = _UpToDamage(stream, errors, display, strict)
-            stream = io.BufferedReader(damage)
-        head = _read_up_to(stream, HEAD_BYTES)
+        head, stream, compression, damage = _decompressed_head(raw, display, strict)
     except OSError as exc:  # reading a path that opened: an I/O error of the device
         raw.close()
         raise InputError(display, f"cannot read: {exc.strerror or exc}") from None
@@ -443,8 +426,60 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
         raise
     if head.startswith(codecs.BOM_UTF8):  # a text file saved by a Windows editor
         head = head[len(codecs.BOM_UTF8) :]
-    if not head:
+    try:
+        fmt, start = _format_of(head, input_format, display, compression, damage)
+    except InputError:
         raw.close()
+        raise
+    reader = format_module(fmt).read
+    stats = InputStats(path=display, format=fmt, strict=strict)
+    buffered = io.BufferedReader(_Prefixed(head, stream), buffer_size=1 << 20)
+    source = Source(display, buffered, _stream_errors(compression), compression,
+                    None if compression or path == "-" else path, options or {})
+    return OpenedInput(stats, _batches(reader, raw, source, stats, start, damage))
+
+
+def _open_raw(path: str) -> tuple[IO[bytes], str]:
+    """The file (or standard input, `-`) as raw bytes, and its name for messages."""
+    if path == "-":
+        if sys.stdin is None:  # started without a standard input (fd 0 closed)
+            raise InputError("<stdin>", "no standard input to read")
+        return sys.stdin.buffer, "<stdin>"
+    display = printable_path(path)
+    if os.path.isdir(path):
+        raise InputError(display, "is a directory, not a log file")
+    try:
+        return open(path, "rb"), display  # closed when the batches are exhausted
+    except FileNotFoundError:
+        raise InputError(display, "no such file" if not os.path.islink(path)
+                         else "a symbolic link to a file that does not exist") from None
+    except OSError as exc:
+        raise InputError(display, f"cannot open: {exc.strerror or exc}") from None
+
+
+def _decompressed_head(raw: IO[bytes], display: str, strict: bool
+                       ) -> tuple[bytes, IO[bytes], str, _UpToDamage | None]:
+    """The first HEAD_BYTES of the content, the decompressed stream they were read from, the
+    compression's name ("" if none), and what remembers damage of a compressed stream."""
+    magic = raw.read(6)
+    try:
+        stream, compression = _decompressed(_Prefixed(magic, raw), magic)  # type: ignore[arg-type]
+    except ImportError:
+        raise InputError(
+            display, "zstd-compressed, but the 'zstandard' module is not installed"
+        ) from None
+    damage: _UpToDamage | None = None
+    if compression:
+        damage = _UpToDamage(stream, _stream_errors(compression), display, strict)
+        stream = io.BufferedReader(damage)
+    return _read_up_to(stream, HEAD_BYTES), stream, compression, damage
+
+
+def _format_of(head: bytes, input_format: str | None, display: str, compression: str,
+               damage: _UpToDamage | None) -> tuple[str, int]:
+    """The input's format (given, or detected from `head`) and where in `head` the lines it
+    reads start (past leading lines that are no record)."""
+    if not head:
         if damage is not None and damage.damage is not None:
             raise InputError(display, f"cannot decompress ({compression}): {damage.damage}")
         raise InputError(display, "empty file: no records to check")
@@ -453,10 +488,8 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
     if fmt is None and (found := detect(head)) is not None:
         fmt, start = found
     if fmt is not None and fmt not in FORMAT_MODULES:
-        raw.close()
         raise InputError(display, f"unknown input format {fmt!r} (supported: {', '.join(FORMATS)})")
     if fmt is None:
-        raw.close()
         if damage is not None and damage.damage is not None:
             raise InputError(display, f"cannot decompress ({compression}) beyond its first "
                              f"{len(head)} bytes, too few to tell the format: {damage.damage}")
@@ -464,30 +497,26 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
             display,
             "unknown log format (supported: " + ", ".join(FORMATS) + "; use --input-format NAME)",
         )
-    reader = format_module(fmt).read
-    stats = InputStats(path=display, format=fmt, strict=strict)
-    buffered = io.BufferedReader(_Prefixed(head, stream), buffer_size=1 << 20)
+    return fmt, start
 
-    def batches() -> Iterator[FrameBatch]:
-        try:
-            first_line = 1
-            if start:  # leading lines that are no record: skipped records, in order
-                leading = _read_up_to(buffered, start).split(b"\n")[:-1]
-                for lineno, line in enumerate(leading, 1):
-                    if line.strip():
-                        stats.skip(lineno, "a line before the first record "
-                                           "(a note or a banner?)")
-                first_line = len(leading) + 1
-            source = Source(display, buffered, errors, compression,
-                            None if compression or path == "-" else path, options or {},
-                            first_line)
-            yield from reader(source, stats)
-            if damage is not None and damage.damage is not None:
-                stats.truncated = True  # read up to the damage of the compressed stream
-            if stats.truncated and strict:
-                raise InputError(display, "the input ends early (cut off or damaged); "
-                                 "without --strict it is read up to there")
-        finally:
-            raw.close()
 
-    return OpenedInput(stats, batches())
+def _batches(reader: Callable[[Source, InputStats], Iterator[FrameBatch]], raw: IO[bytes],
+             source: Source, stats: InputStats, start: int,
+             damage: _UpToDamage | None) -> Generator[FrameBatch, None, None]:
+    """The reader's batches; `raw` is closed when they end (or the generator is closed)."""
+    try:
+        if start:  # leading lines that are no record: skipped records, in order
+            leading = _read_up_to(source.stream, start).split(b"\n")[:-1]
+            for lineno, line in enumerate(leading, 1):
+                if line.strip():
+                    stats.skip(lineno, "a line before the first record "
+                                       "(a note or a banner?)")
+            source.first_line = len(leading) + 1
+        yield from reader(source, stats)
+        if damage is not None and damage.damage is not None:
+            stats.truncated = True  # read up to the damage of the compressed stream
+        if stats.truncated and stats.strict:
+            raise InputError(source.path, "the input ends early (cut off or damaged); "
+                             "without --strict it is read up to there")
+    finally:
+        raw.close()

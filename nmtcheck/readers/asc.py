@@ -34,6 +34,7 @@ from nmtcheck.readers.blocks import (
     POW10,
     Block,
     LineWords,
+    SlowRow,
     all_digits,
     byte_flags,
     byte_mask,
@@ -169,7 +170,7 @@ def _parse_line(raw: bytes, lineno: int, stats: InputStats, state: _State) -> Ro
         stats.ignored += 1
         return None
     chan_name, can_id, ext, rtr, err, fd, dlc, data = frame
-    return ts, chan_name, can_id, ext, rtr, err, fd, dlc, data
+    return Row(ts, chan_name, can_id, ext, rtr, err, fd, dlc, data)
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
@@ -434,8 +435,8 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
     first_of = _first_rows(chan, fast_rows)
     firsts = {str(v): row for v, row in first_of.items()}
     for row, vals in zip(slow_rows, slow_vals, strict=True):
-        if row < firsts.get(vals[1], row + 1):
-            firsts[vals[1]] = row
+        if row < firsts.get(vals.channel, row + 1):
+            firsts[vals.channel] = row
     for name, _row in sorted(firsts.items(), key=lambda kv: kv[1]):
         stats.channel_code(name)
     codes = {v: stats.channel_code(str(v)) for v in first_of}
@@ -446,7 +447,8 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
         code_of[list(codes)] = list(codes.values())
         chan_code = code_of[chan]
     fast_cols = (parsed.ts[:k], chan_code, parsed.can_id[:k], parsed.dlc[:k], parsed.data[:k])
-    slow = [(v[0], stats.channel_code(v[1]), *v[2:]) for v in slow_vals]
+    slow = [SlowRow(v.ts, stats.channel_code(v.channel), v.can_id, v.ext, v.rtr, v.err, v.fd,
+                    v.dlc, v.data) for v in slow_vals]
     for batch in merged_batches(builder, block, fast_rows, fast_cols, slow_rows, slow):
         account(stats, batch)
         yield batch

@@ -124,7 +124,8 @@ def strided_rows(arr: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
             base = arr[int(starts[0]) :]
             return np.lib.stride_tricks.as_strided(base, shape=(n, width), strides=(step, 1),
                                                    writeable=False)
-    return arr[np.asarray(starts, np.int64)[:, None] + np.arange(width)]
+    out: np.ndarray = arr[np.asarray(starts, np.int64)[:, None] + np.arange(width)]
+    return out
 
 
 def split_seconds(value: np.ndarray, per_second: int) -> np.ndarray:
@@ -132,7 +133,8 @@ def split_seconds(value: np.ndarray, per_second: int) -> np.ndarray:
     value = value.astype(np.uint64)
     whole = (value // np.uint64(per_second)).astype(np.float64)
     frac = (value % np.uint64(per_second)).astype(np.float64) / per_second
-    return whole + frac
+    out: np.ndarray = whole + frac
+    return out
 
 
 _KEEP_BYTES = np.where(np.arange(8)[None, :] < np.arange(65)[:, None], 0xFF, 0).astype(np.uint8)

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
@@ -182,12 +182,15 @@ class _Parsed:
 
 
 def _u16(a: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    return a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
+    out: np.ndarray = a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
+    return out
 
 
 def _u32(a: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    return (a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
-            | (a[pos + 2].astype(np.uint32) << 16) | (a[pos + 3].astype(np.uint32) << 24))
+    out: np.ndarray = (a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
+                       | (a[pos + 2].astype(np.uint32) << 16)
+                       | (a[pos + 3].astype(np.uint32) << 24))
+    return out
 
 
 class _ObjectParser:
@@ -301,10 +304,7 @@ class _ObjectParser:
         is_frame = np.isin(otype, FRAME_TYPES)
         others = np.flatnonzero(~is_frame)
         stats.ignored += len(others)
-        for i in others[otype[others] == DATA_LOST_END]:
-            body = int(starts[i] + hsize[i])
-            if hsize[i] >= BASE_HEADER.size and body + 16 <= starts[i] + size[i]:
-                stats.dropped += int(_u32(a, np.array([body + 12]))[0])
+        _count_lost(a, starts, hsize, size, others[otype[others] == DATA_LOST_END], stats)
         frames = np.flatnonzero(is_frame)
         if len(frames) == 0:
             return None
@@ -316,14 +316,8 @@ class _ObjectParser:
         good = (hs == expected_hs) & (sz >= hs + min_body)
         for i in np.flatnonzero(~good):
             where = first_object + int(frames[i])
-            if expected_hs[i] < 0:
-                why = (f"object type {int(ty[i])} with header version {int(hv[i])} "
-                       "(only versions 1 and 2 are known)")
-            elif hs[i] != expected_hs[i]:
-                why = f"object header size {int(hs[i])} does not match header version {int(hv[i])}"
-            else:
-                why = f"object type {int(ty[i])} of {int(sz[i])} bytes is too short"
-            stats.skip(where + 1, why)
+            stats.skip(where + 1, _why_bad(int(ty[i]), int(hv[i]), int(hs[i]),
+                                           int(expected_hs[i]), int(sz[i])))
         if not good.all():
             s, hs, sz, ty = s[good], hs[good], sz[good], ty[good]
         n = len(s)
@@ -409,6 +403,25 @@ class _ObjectParser:
                        err=err, fd=fd, dlc=dlc, data=data)
 
 
+def _count_lost(a: np.ndarray, starts: np.ndarray, hsize: np.ndarray, size: np.ndarray,
+                lost: np.ndarray, stats: InputStats) -> None:
+    """Frames the logger says it lost: the counts of DATA_LOST_END objects (`lost`)."""
+    for i in lost:
+        body = int(starts[i] + hsize[i])
+        if hsize[i] >= BASE_HEADER.size and body + 16 <= starts[i] + size[i]:
+            stats.dropped += int(_u32(a, np.array([body + 12]))[0])
+
+
+def _why_bad(otype: int, hver: int, hsize: int, expected_hsize: int, size: int) -> str:
+    """Why a frame object's header does not fit its version and type."""
+    if expected_hsize < 0:
+        return (f"object type {otype} with header version {hver} "
+                "(only versions 1 and 2 are known)")
+    if hsize != expected_hsize:
+        return f"object header size {hsize} does not match header version {hver}"
+    return f"object type {otype} of {size} bytes is too short"
+
+
 class _BatchMaker:
     """Turns parsed columns into FrameBatches with input-wide frame indices and channel codes."""
 
@@ -438,12 +451,18 @@ class _BatchMaker:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
+    header_size, start = _file_header(source)
+    yield from _Reader(source, stats, header_size, start).batches()
+
+
+def _file_header(source: Source) -> tuple[int, float]:
+    """Read past the file header: its size, and the start time it gives."""
     head = source.stream.read(FILE_HEADER_MIN)
     if not head.startswith(FILE_SIGNATURE):
         raise InputError(source.path, "not a BLF file (no LOGG signature)")
     if len(head) < FILE_HEADER_MIN:
         raise InputError(source.path, "BLF file header is truncated")
-    header_size = struct.unpack_from("<L", head, 4)[0]
+    header_size: int = struct.unpack_from("<L", head, 4)[0]
     start = systemtime_to_epoch(struct.unpack_from("<8H", head, 40))
     to_skip = header_size - FILE_HEADER_MIN
     while to_skip > 0:  # in pieces: a damaged header size must not allocate gigabytes
@@ -451,98 +470,131 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         if not piece:
             raise InputError(source.path, "BLF file header is truncated")
         to_skip -= len(piece)
-    raw = _RawObjects(source, max(header_size, FILE_HEADER_MIN))
-    parser = _ObjectParser(stats, start)
-    maker = _BatchMaker(stats)
-    pending: list[bytes] = []
-    pending_size = 0
-    resync = False
-    cut_container = False
+    return header_size, start
 
-    def flush() -> Iterator[FrameBatch]:
-        nonlocal pending, pending_size
-        parsed = parser.parse(pending)
-        pending, pending_size = [], 0
-        if parsed is not None and (batch := maker.batch(parsed)) is not None:
+
+class _Reader:
+    """The log objects after the file header: containers are collected and parsed in chunks
+    of PARSE_CHUNK bytes, objects outside a container one by one; damage is skipped over."""
+
+    def __init__(self, source: Source, stats: InputStats, header_size: int,
+                 start: float) -> None:
+        self.stats = stats
+        self.start = start
+        self.raw = _RawObjects(source, max(header_size, FILE_HEADER_MIN))
+        self.parser = _ObjectParser(stats, start)
+        self.maker = _BatchMaker(stats)
+        self.pending: list[bytes] = []
+        self.pending_size = 0
+        self.resync = False  # searching for the next object after damage
+        self.cut_container = False
+
+    def batches(self) -> Iterator[FrameBatch]:
+        raw = self.raw
+        while True:
+            header = raw.next_header(self.resync)
+            if not header:
+                if self._at_end():
+                    break
+                continue
+            self.resync = False
+            if len(header) < BASE_HEADER.size:
+                self.cut("the file ends inside an object header")
+                break
+            _sig, _hsize, _hver, size, otype = BASE_HEADER.unpack(header)
+            if size < BASE_HEADER.size or size > MAX_OBJECT_SIZE:
+                self.damaged(f"log object at byte {raw.offset - BASE_HEADER.size} has an "
+                             f"impossible size ({size})")
+                self.resync = True
+                continue
+            body = raw.read(size - BASE_HEADER.size)
+            truncated = len(body) < size - BASE_HEADER.size
+            if otype != LOG_CONTAINER:
+                if truncated:
+                    self.cut("the file ends inside an object")
+                    break
+                yield from self._single(header + body)
+                continue
+            if len(body) < CONTAINER_HEADER.size:
+                self.cut("the file ends inside a log container header")
+                break
+            data = yield from self._container_data(body)
+            if data is None:
+                continue
+            self.pending.append(data)
+            self.pending_size += len(data)
+            if truncated:
+                self.cut_container = True
+                break
+            if self.pending_size >= PARSE_CHUNK:
+                yield from self.flush()
+        yield from self._finish()
+
+    def _at_end(self) -> bool:
+        """No object header where one should be: True at the end of the file (or of the
+        search for the next object after damage), else the damage is skipped over."""
+        if self.resync:
+            return True  # searched to the end of the file; the damage is already reported
+        raw = self.raw
+        rest = raw.read(RAW_READ)
+        if not rest.strip(b"\0"):
+            return True  # the end of the file (zero padding after the last object)
+        if len(rest) < BASE_HEADER.size:  # a few bytes at the end: a header cut short
+            self.cut("the file ends inside an object header")
+            return True
+        self.damaged(f"bytes at {raw.offset - len(rest)} are not a log object")
+        raw.unread(rest)
+        self.resync = True
+        return False
+
+    def _single(self, obj: bytes) -> Iterator[FrameBatch]:
+        """An object outside any container: parsed on its own, after what came before it."""
+        yield from self.flush()
+        single = _ObjectParser(self.stats, self.start)
+        single.objects_seen = self.parser.objects_seen
+        parsed = single.parse([obj])
+        self.parser.objects_seen = single.objects_seen
+        if parsed is not None and (batch := self.maker.batch(parsed)) is not None:
             yield batch
 
-    def damaged(why: str) -> None:
-        stats.skip(parser.objects_seen + 1, why)
-
-    def cut(why: str) -> None:
-        """The file ends inside an object: read up to there, report the input truncated."""
-        stats.truncated = True
-        damaged(why)
-
-    while True:
-        header = raw.next_header(resync)
-        if not header:
-            if resync:
-                break  # searched to the end of the file; the damage is already reported
-            rest = raw.read(RAW_READ)
-            if not rest.strip(b"\0"):
-                break  # the end of the file (zero padding after the last object)
-            if len(rest) < BASE_HEADER.size:  # a few bytes at the end: a header cut short
-                cut("the file ends inside an object header")
-                break
-            damaged(f"bytes at {raw.offset - len(rest)} are not a log object")
-            raw.unread(rest)
-            resync = True
-            continue
-        resync = False
-        if len(header) < BASE_HEADER.size:
-            cut("the file ends inside an object header")
-            break
-        _sig, _hsize, _hver, size, otype = BASE_HEADER.unpack(header)
-        if size < BASE_HEADER.size or size > MAX_OBJECT_SIZE:
-            damaged(f"log object at byte {raw.offset - BASE_HEADER.size} has an impossible "
-                    f"size ({size})")
-            resync = True
-            continue
-        body = raw.read(size - BASE_HEADER.size)
-        truncated = len(body) < size - BASE_HEADER.size
-        if otype != LOG_CONTAINER:
-            if truncated:
-                cut("the file ends inside an object")
-                break
-            # an object outside any container: parsed on its own, after what came before it
-            yield from flush()
-            single = _ObjectParser(stats, start)
-            single.objects_seen = parser.objects_seen
-            parsed = single.parse([header + body])
-            parser.objects_seen = single.objects_seen
-            if parsed is not None and (batch := maker.batch(parsed)) is not None:
-                yield batch
-            continue
-        if len(body) < CONTAINER_HEADER.size:
-            cut("the file ends inside a log container header")
-            break
+    def _container_data(self, body: bytes) -> Generator[FrameBatch, None, bytes | None]:
+        """The objects' bytes a log container holds; None (after what came before it) if
+        they cannot be read."""
         method, _usize = CONTAINER_HEADER.unpack_from(body)
         payload = body[CONTAINER_HEADER.size:]
         if method == NO_COMPRESSION:
-            data = payload
-        elif method == ZLIB_DEFLATE:
+            return payload
+        if method == ZLIB_DEFLATE:
             try:
-                data = zlib.decompressobj().decompress(payload)
+                data: bytes = zlib.decompressobj().decompress(payload)
+                return data
             except zlib.error as exc:
-                yield from flush()
-                parser.drop_tail("an object cut short by a damaged log container")
-                damaged(f"log container data is corrupt ({exc})")
-                continue
-        else:
-            yield from flush()
-            parser.drop_tail("an object cut short by an unreadable log container")
-            damaged(f"log container with unknown compression method {method}")
-            continue
-        pending.append(data)
-        pending_size += len(data)
-        if truncated:
-            cut_container = True
-            break
-        if pending_size >= PARSE_CHUNK:
-            yield from flush()
-    yield from flush()
-    if parser.finish():
-        stats.truncated = True
-    elif cut_container:
-        cut("the file ends inside a log container")
+                yield from self.flush()
+                self.parser.drop_tail("an object cut short by a damaged log container")
+                self.damaged(f"log container data is corrupt ({exc})")
+                return None
+        yield from self.flush()
+        self.parser.drop_tail("an object cut short by an unreadable log container")
+        self.damaged(f"log container with unknown compression method {method}")
+        return None
+
+    def _finish(self) -> Iterator[FrameBatch]:
+        yield from self.flush()
+        if self.parser.finish():
+            self.stats.truncated = True
+        elif self.cut_container:
+            self.cut("the file ends inside a log container")
+
+    def flush(self) -> Iterator[FrameBatch]:
+        parsed = self.parser.parse(self.pending)
+        self.pending, self.pending_size = [], 0
+        if parsed is not None and (batch := self.maker.batch(parsed)) is not None:
+            yield batch
+
+    def damaged(self, why: str) -> None:
+        self.stats.skip(self.parser.objects_seen + 1, why)
+
+    def cut(self, why: str) -> None:
+        """The file ends inside an object: read up to there, report the input truncated."""
+        self.stats.truncated = True
+        self.damaged(why)

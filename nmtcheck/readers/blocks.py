@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from functools import partial
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -145,7 +145,8 @@ def _last_newline(data: np.ndarray) -> int:
         lo = max(hi - step, 0)
         hits = np.flatnonzero(data[lo:hi] == 10)
         if hits.size:
-            return lo + int(hits[-1])
+            out: int = lo + int(hits[-1])
+            return out
         hi, step = lo, step * 4
     return -1
 
@@ -266,8 +267,19 @@ def _rebuilt(chunk: Chunk, arrays: list[np.ndarray], kind: type) -> tuple[Block,
     return _lines(buf, starts, ends, bool(unterminated[0])), kind(*cols) if cols else None
 
 
-SlowRow = tuple[float, int, int, bool, bool, bool, bool, int, bytes]  # ts, channel code, id,
-# ext, rtr, err, fd, dlc, data: a frame from a reader's per-line parser
+class SlowRow(NamedTuple):
+    """A frame from a reader's per-line parser (a line the vectorised parse leaves), its
+    channel already coded."""
+
+    ts: float
+    chan: int  # code into InputStats.channels
+    can_id: int
+    ext: bool
+    rtr: bool
+    err: bool
+    fd: bool
+    dlc: int
+    data: bytes
 
 
 def merged_batches(builder: BatchBuilder, block: Block, fast_rows: np.ndarray,
@@ -284,15 +296,15 @@ def merged_batches(builder: BatchBuilder, block: Block, fast_rows: np.ndarray,
         return
     rows = np.concatenate([fast_rows, np.asarray(slow_rows, np.int64)])
     order = np.argsort(rows, kind="stable")
-    flags[fast_rows.shape[0]:] = [v[3] | v[4] << 1 | v[5] << 2 | v[6] << 3 for v in slow]
-    slow_data = np.frombuffer(b"".join(v[8][:8].ljust(8, b"\0") for v in slow),
+    flags[fast_rows.shape[0]:] = [v.ext | v.rtr << 1 | v.err << 2 | v.fd << 3 for v in slow]
+    slow_data = np.frombuffer(b"".join(v.data[:8].ljust(8, b"\0") for v in slow),
                               np.uint8).reshape(len(slow), 8)
     yield from builder.add_columns(
-        np.concatenate([ts, np.asarray([v[0] for v in slow], np.float64)])[order],
-        np.concatenate([chan, np.asarray([v[1] for v in slow], np.int32)])[order],
-        np.concatenate([can_id, np.asarray([v[2] for v in slow], np.uint32)])[order],
+        np.concatenate([ts, np.asarray([v.ts for v in slow], np.float64)])[order],
+        np.concatenate([chan, np.asarray([v.chan for v in slow], np.int32)])[order],
+        np.concatenate([can_id, np.asarray([v.can_id for v in slow], np.uint32)])[order],
         flags[order],
-        np.concatenate([dlc, np.asarray([v[7] for v in slow], np.int16)])[order],
+        np.concatenate([dlc, np.asarray([v.dlc for v in slow], np.int16)])[order],
         np.concatenate([data, slow_data])[order],
         rows[order] + block.first_line)
 
@@ -356,12 +368,14 @@ class LineWords:
         q, r = divmod(off, 8)
         if not r:
             return self._word(q)
-        return (self._word(q) >> _U64(8 * r)) | (self._word(q + 1) << _U64(64 - 8 * r))
+        out: np.ndarray = (self._word(q) >> _U64(8 * r)) | (self._word(q + 1) << _U64(64 - 8 * r))
+        return out
 
     def byte(self, off: int) -> np.ndarray:
         """The byte at base + off (as uint64)."""
         q, r = divmod(off, 8)
-        return (self._word(q) >> _U64(8 * r)) & _U64(0xFF)
+        out: np.ndarray = (self._word(q) >> _U64(8 * r)) & _U64(0xFF)
+        return out
 
 
 _KEEP_LOW = np.asarray([(1 << (8 * w)) - 1 for w in range(9)], np.uint64)
@@ -383,9 +397,11 @@ def fill_low(word: np.ndarray, width: np.ndarray | int,
     w = _uniform(width)
     if w is not None:
         keep = _KEEP_LOW[min(max(w, 0), 8)]
-        return (word & keep) | (pad & ~keep)
+        out: np.ndarray = (word & keep) | (pad & ~keep)
+        return out
     keep_arr = _KEEP_LOW[np.clip(width, 0, 8)]
-    return (word & keep_arr) | (pad & ~keep_arr)
+    out = (word & keep_arr) | (pad & ~keep_arr)
+    return out
 
 
 def fill_high(word: np.ndarray, width: np.ndarray | int,
@@ -394,15 +410,19 @@ def fill_high(word: np.ndarray, width: np.ndarray | int,
     w = _uniform(width)
     if w is not None:
         drop = _KEEP_LOW[8 - min(max(w, 0), 8)]
-        return (word & ~drop) | (pad & drop)
+        out: np.ndarray = (word & ~drop) | (pad & drop)
+        return out
     drop_arr = _KEEP_LOW[8 - np.clip(width, 0, 8)]
-    return (word & ~drop_arr) | (pad & drop_arr)
+    out = (word & ~drop_arr) | (pad & drop_arr)
+    return out
 
 
 def all_digits(word: np.ndarray) -> np.ndarray:
     """True where all 8 bytes are ASCII decimal digits."""
     nib = np.uint64(0xF0F0F0F0F0F0F0F0)
-    return ((word & nib) == ASCII_ZEROS) & (((word + ONES * _U64(6)) & nib) == ASCII_ZEROS)
+    out: np.ndarray = (((word & nib) == ASCII_ZEROS)
+                       & (((word + ONES * _U64(6)) & nib) == ASCII_ZEROS))
+    return out
 
 
 def parse_digits(word: np.ndarray) -> np.ndarray:
@@ -411,12 +431,14 @@ def parse_digits(word: np.ndarray) -> np.ndarray:
     x = (x * _U64(10) + (x >> _U64(8))) & _U64(0x00FF00FF00FF00FF)
     x = (x * _U64(100) + (x >> _U64(16))) & _U64(0x0000FFFF0000FFFF)
     x = (x * _U64(10000) + (x >> _U64(32))) & _U64(0xFFFFFFFF)
-    return x
+    out: np.ndarray = x
+    return out
 
 
 def _at_least(low7: np.ndarray, limit: int) -> np.ndarray:
     """80h in each byte of `low7` (bytes below 80h: no carries) whose value is >= limit."""
-    return (low7 + ONES * _U64(0x80 - limit)) & HIGH
+    out: np.ndarray = (low7 + ONES * _U64(0x80 - limit)) & HIGH
+    return out
 
 
 _LOW7 = ONES * _U64(0x7F)
@@ -425,13 +447,15 @@ _LOW7 = ONES * _U64(0x7F)
 def byte_flags(word: np.ndarray, byte: int) -> np.ndarray:
     """80h in each byte equal to `byte`, 00h elsewhere."""
     t = word ^ (ONES * _U64(byte))
-    return ~(((t & _LOW7) + _LOW7) | t | _LOW7)
+    out: np.ndarray = ~(((t & _LOW7) + _LOW7) | t | _LOW7)
+    return out
 
 
 def digit_flags(word: np.ndarray) -> np.ndarray:
     """80h in each byte that is an ASCII decimal digit."""
     low7 = word & _LOW7
-    return _at_least(low7, 0x30) & ~_at_least(low7, 0x3A) & ~word & HIGH
+    out: np.ndarray = _at_least(low7, 0x30) & ~_at_least(low7, 0x3A) & ~word & HIGH
+    return out
 
 
 _ABOVE = {limit: ONES * _U64(0x80 - limit) for limit in (0x30, 0x3A, 0x61, 0x67)}
@@ -451,28 +475,35 @@ def hex_flags(word: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def count_flags(flags: np.ndarray) -> np.ndarray:
     """How many bytes carry the 80h flag."""
-    return (((flags >> _U64(7)) * ONES) >> _U64(56)).astype(np.int64)
+    out: np.ndarray = (((flags >> _U64(7)) * ONES) >> _U64(56)).astype(np.int64)
+    return out
 
 
 def low_flags(width: np.ndarray | int) -> np.ndarray | np.uint64:
     """80h in the low `width` bytes (0..8): the flag pattern of a left-aligned field."""
     if isinstance(width, int):
-        return _KEEP_LOW[min(max(width, 0), 8)] & HIGH
-    return _KEEP_LOW[np.clip(width, 0, 8)] & HIGH
+        out: np.ndarray | np.uint64 = _KEEP_LOW[min(max(width, 0), 8)] & HIGH
+        return out
+    out = _KEEP_LOW[np.clip(width, 0, 8)] & HIGH
+    return out
 
 
 def high_flags(width: np.ndarray | int) -> np.ndarray | np.uint64:
     """80h in the high `width` bytes (0..8): the flag pattern of a right-aligned field."""
     if isinstance(width, int):
-        return ~_KEEP_LOW[8 - min(max(width, 0), 8)] & HIGH
-    return ~_KEEP_LOW[8 - np.clip(width, 0, 8)] & HIGH
+        out: np.ndarray | np.uint64 = ~_KEEP_LOW[8 - min(max(width, 0), 8)] & HIGH
+        return out
+    out = ~_KEEP_LOW[8 - np.clip(width, 0, 8)] & HIGH
+    return out
 
 
 def byte_mask(width: np.ndarray | int) -> np.ndarray | np.uint64:
     """FFh in the low `width` bytes (0..8)."""
     if isinstance(width, int):
-        return _KEEP_LOW[min(max(width, 0), 8)]
-    return _KEEP_LOW[np.clip(width, 0, 8)]
+        out: np.ndarray | np.uint64 = _KEEP_LOW[min(max(width, 0), 8)]
+        return out
+    out = _KEEP_LOW[np.clip(width, 0, 8)]
+    return out
 
 
 def hex_nibbles(word: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -485,7 +516,8 @@ def pack_nibbles(nib: np.ndarray) -> np.ndarray:
     """8 nibbles (one per byte, first = high nibble of byte 0) -> 4 bytes in the low 32 bits."""
     y = ((nib << _U64(4)) | (nib >> _U64(8))) & _U64(0x00FF00FF00FF00FF)
     y = (y | (y >> _U64(8))) & _U64(0x0000FFFF0000FFFF)
-    return (y | (y >> _U64(16))) & _U64(0xFFFFFFFF)
+    out: np.ndarray = (y | (y >> _U64(16))) & _U64(0xFFFFFFFF)
+    return out
 
 
 POW10 = 10.0 ** np.arange(20)

@@ -37,6 +37,7 @@ from nmtcheck.readers.blocks import (
     POW10,
     Block,
     LineWords,
+    SlowRow,
     all_digits,
     fill_high,
     fill_low,
@@ -82,7 +83,14 @@ def sniff(head: bytes) -> bool:
     return False
 
 
+# One frame parsed by `_parse_line`: ts, interface name (the line's bytes), CAN-ID, ext, rtr,
+# err, fd, dlc, data. A plain tuple, not a NamedTuple: `_parse_line` is the per-line parser
+# (the reference path, every line of `check --follow`), where building one costs.
 _Row = tuple[float, bytes, int, bool, bool, bool, bool, int, bytes]
+
+
+class _Skip(Exception):
+    """A line that is no well-formed record; the message is the skip's reason."""
 
 
 def _parse_line(raw: bytes, lineno: int, stats: InputStats) -> _Row | None:
@@ -91,82 +99,44 @@ def _parse_line(raw: bytes, lineno: int, stats: InputStats) -> _Row | None:
     fast = _FAST.fullmatch(raw)
     if fast is not None:  # the common case: a classic 11-bit data frame
         data = unhexlify(fast[4])
-        return float(fast[1]), fast[2], int(fast[3], 16), False, False, False, False, \
-            len(data), data
+        return (float(fast[1]), fast[2], int(fast[3], 16), False, False, False, False,
+                len(data), data)
+    try:
+        return _parse_general(raw, stats)
+    except _Skip as bad:
+        stats.skip(lineno, str(bad))
+        return None
+
+
+def _parse_general(raw: bytes, stats: InputStats) -> _Row | None:
+    """Any line `_FAST` does not take; raises _Skip for an unparseable record."""
     parts = raw.split()
     if not parts:
         return None
     if parts[0].startswith(b"DROPCOUNT"):
-        m = _DROP.search(raw)
-        if m is None:
-            stats.skip(lineno, "DROPCOUNT line without a count")
-            return None
-        stats.dropped += int(m.group(1))
-        stats.ignored += 1
+        _count_drops(raw, stats)
         return None
     if len(parts) < 3 or len(parts) > 4:
-        stats.skip(lineno, "expected '(timestamp) interface ID#DATA'")
-        return None
+        raise _Skip("expected '(timestamp) interface ID#DATA'")
     tok_ts, iface, frame = parts[0], parts[1], parts[2]
     if len(parts) == 4 and parts[3] not in (b"R", b"T"):
-        stats.skip(lineno, "unexpected text after the frame")
-        return None
-    if not (tok_ts.startswith(b"(") and tok_ts.endswith(b")")):
-        stats.skip(lineno, "timestamp is not in parentheses")
-        return None
-    try:
-        ts = float(tok_ts[1:-1])
-    except ValueError:
-        stats.skip(lineno, "timestamp is not a number")
-        return None
-    if ts != ts or ts in (float("inf"), float("-inf")):
-        stats.skip(lineno, "timestamp is not a finite number")
-        return None
+        raise _Skip("unexpected text after the frame")
+    ts = _timestamp(tok_ts)
     hash_pos = frame.find(b"#")
     if hash_pos == 5 and _CANXL.match(frame):
         stats.ignored += 1  # CAN XL frame: not CAN CC/FD traffic
         return None
     id_text = frame[:hash_pos]
     if hash_pos < 0 or len(id_text) not in (3, 8) or not _is_hex(id_text):
-        stats.skip(lineno, "CAN-ID must be 3 or 8 hex digits followed by '#'")
-        return None
+        raise _Skip("CAN-ID must be 3 or 8 hex digits followed by '#'")
     can_id = int(id_text, 16)
     ext = len(id_text) == 8
     rest = frame[hash_pos + 1 :]
-    fd = rtr = err = False
-    dlc = 0
-    data = b""
-    if rest.startswith(b"#"):  # CAN FD: ##<flags nibble><data>
-        if rest.startswith(b"##"):
-            stats.ignored += 1  # CAN XL frame: not CAN CC/FD traffic
-            return None
-        body = rest[2:]
-        if len(rest) < 2 or not _is_hex(rest[1:2]) or len(body) % 2 or len(body) > 128 or (
-            body and not _is_hex(body)
-        ):
-            stats.skip(lineno, "malformed CAN FD data")
-            return None
-        fd = True
-        data = bytes.fromhex(body.decode())
-        dlc = len(data)
-    elif rest[:1] in (b"R", b"r"):
-        rtr = True
-        tail, sep, raw_dlc = rest[1:].partition(b"_")
-        if (tail and not (len(tail) == 1 and b"0" <= tail <= b"8")) or _bad_raw_dlc(
-            sep, raw_dlc
-        ):
-            stats.skip(lineno, "malformed remote frame length")
-            return None
-        dlc = int(tail) if tail else 0
-    else:
-        body, sep, raw_dlc = rest.partition(b"_")  # a len8_dlc suffix (`_9`): DLC > 8
-        if len(body) % 2 or (body and not _is_hex(body)) or len(body) > 16 or _bad_raw_dlc(
-            sep, raw_dlc
-        ):
-            stats.skip(lineno, "data must be 0..8 bytes of hex")
-            return None
-        data = bytes.fromhex(body.decode())
-        dlc = len(data)
+    if rest.startswith(b"##"):
+        stats.ignored += 1  # CAN XL frame: not CAN CC/FD traffic
+        return None
+    fd, rtr, dlc, data = _payload(rest)
+    err = False
     if ext and can_id & CAN_ERR_FLAG:
         err = True
         ext = False
@@ -174,6 +144,55 @@ def _parse_line(raw: bytes, lineno: int, stats: InputStats) -> _Row | None:
     if err:
         can_id &= ~CAN_ERR_FLAG & CAN_EFF_MASK
     return ts, iface, can_id, ext, rtr, err, fd, dlc, data
+
+
+def _count_drops(raw: bytes, stats: InputStats) -> None:
+    """A `DROPCOUNT: dropped N` line: frames the logger lost."""
+    m = _DROP.search(raw)
+    if m is None:
+        raise _Skip("DROPCOUNT line without a count")
+    stats.dropped += int(m.group(1))
+    stats.ignored += 1
+
+
+def _timestamp(tok_ts: bytes) -> float:
+    """The `(seconds)` field."""
+    if not (tok_ts.startswith(b"(") and tok_ts.endswith(b")")):
+        raise _Skip("timestamp is not in parentheses")
+    try:
+        ts = float(tok_ts[1:-1])
+    except ValueError:
+        raise _Skip("timestamp is not a number") from None
+    if ts != ts or ts in (float("inf"), float("-inf")):
+        raise _Skip("timestamp is not a finite number")
+    return ts
+
+
+def _payload(rest: bytes) -> tuple[bool, bool, int, bytes]:
+    """(fd, rtr, dlc, data) of what follows `ID#`: `#<flags><data>` (CAN FD), `R[len]`
+    (remote) or hex data, either with an optional `_<dlc>` suffix."""
+    if rest.startswith(b"#"):  # CAN FD: ##<flags nibble><data>
+        body = rest[2:]
+        if len(rest) < 2 or not _is_hex(rest[1:2]) or len(body) % 2 or len(body) > 128 or (
+            body and not _is_hex(body)
+        ):
+            raise _Skip("malformed CAN FD data")
+        data = bytes.fromhex(body.decode())
+        return True, False, len(data), data
+    if rest[:1] in (b"R", b"r"):
+        tail, sep, raw_dlc = rest[1:].partition(b"_")
+        if (tail and not (len(tail) == 1 and b"0" <= tail <= b"8")) or _bad_raw_dlc(
+            sep, raw_dlc
+        ):
+            raise _Skip("malformed remote frame length")
+        return False, True, int(tail) if tail else 0, b""
+    body, sep, raw_dlc = rest.partition(b"_")  # a len8_dlc suffix (`_9`): DLC > 8
+    if len(body) % 2 or (body and not _is_hex(body)) or len(body) > 16 or _bad_raw_dlc(
+        sep, raw_dlc
+    ):
+        raise _Skip("data must be 0..8 bytes of hex")
+    data = bytes.fromhex(body.decode())
+    return False, False, len(data), data
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
@@ -192,7 +211,7 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
         row = _parse_line(raw, lineno, stats)
         if row is not None:
             ts, iface, can_id, ext, rtr, err, fd, dlc, data = row
-            yield lineno, (ts, iface.decode("latin-1"), can_id, ext, rtr, err, fd, dlc, data)
+            yield lineno, Row(ts, iface.decode("latin-1"), can_id, ext, rtr, err, fd, dlc, data)
 
 
 @dataclass
@@ -365,8 +384,9 @@ class _Channels:
 
         def rows_of(key: _NameKey) -> np.ndarray:
             lo, hi, length = key
-            return ((p.iface[:, 0] == np.uint64(lo)) & (p.iface[:, 1] == np.uint64(hi))
-                    & (p.iface_len == length))
+            rows: np.ndarray = ((p.iface[:, 0] == np.uint64(lo))
+                                & (p.iface[:, 1] == np.uint64(hi)) & (p.iface_len == length))
+            return rows
 
         for key, c in self.codes.items():
             hit = rows_of(key)
@@ -411,14 +431,16 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         # Register new channel names in order of first appearance, as the reference does.
         firsts: dict[bytes, int] = {name: row for row, name, _key, _hit in new}
         for row, vals in zip(slow_rows, slow_vals, strict=True):
-            if vals[1] not in chan_of and row < firsts.get(vals[1], row + 1):
-                firsts[vals[1]] = row
+            iface = vals[1]
+            if iface not in chan_of and row < firsts.get(iface, row + 1):
+                firsts[iface] = row
         for name, _row in sorted(firsts.items(), key=lambda kv: kv[1]):
             if name not in chan_of:
                 chan_of[name] = stats.channel_code(name.decode("latin-1"))
         for _row, name, key, hit in new:
             code[hit] = channels.codes[key] = chan_of[name]
-        slow = [(v[0], chan_of[v[1]], *v[2:]) for v in slow_vals]
+        slow = [SlowRow(ts, chan_of[iface], can_id, ext, rtr, err, fd, dlc, data)
+                for ts, iface, can_id, ext, rtr, err, fd, dlc, data in slow_vals]
         for batch in merged_batches(builder, block, p.fast, (p.ts, code, p.can_id, p.dlc, p.data),
                                     slow_rows, slow):
             account(stats, batch)
@@ -434,8 +456,8 @@ MANY_SLOW_LINES = 64  # below this, the slow path is cheaper than the vectorised
 
 def _lines_to_parse(block: Block, rows: np.ndarray, stats: InputStats) -> np.ndarray:
     """The slow rows that need `_parse_line`: blank lines are nothing (dropped here), and
-    lines that begin with `#` are unparseable records (counted here, in bulk, once the
-    first line numbers are kept). A file of blank or comment lines then costs what
+    lines that begin with `#` are unparseable records (counted here in bulk, but for the
+    first few, whose line numbers are kept). A file of blank or comment lines then costs what
     counting its lines costs, not a Python call per line. Under --strict a comment line
     goes to `_parse_line` (the first skip is fatal, with its reason)."""
     if rows.size < MANY_SLOW_LINES:
@@ -445,12 +467,17 @@ def _lines_to_parse(block: Block, rows: np.ndarray, stats: InputStats) -> np.nda
     blank = nonblank[ends - 1] - nonblank[starts - 1] == 0
     comment = ~blank & (block.buf[starts] == ord("#"))
     if stats.strict or not comment.any():
-        return rows[~blank]
-    if len(stats.skipped_lines) < MAX_SKIPPED_LINES_KEPT:
-        # the first few skipped line numbers are kept in file order: parse them all
-        return rows[~blank]
-    stats.skipped += int(comment.sum())  # only the count is left to keep
-    return rows[~blank & ~comment]
+        out: np.ndarray = rows[~blank]
+        return out
+    # Only the first few skipped line numbers are kept: the first comment lines go to
+    # `_parse_line` among the others, in file order; the rest can only be counted.
+    parse = ~blank & ~comment
+    commented = np.flatnonzero(comment)
+    room = max(MAX_SKIPPED_LINES_KEPT - len(stats.skipped_lines), 0)
+    parse[commented[:room]] = True
+    stats.skipped += len(commented) - min(room, len(commented))
+    out = rows[parse]
+    return out
 
 
 def _demote(p: _Parsed, bad: np.ndarray) -> _Parsed:

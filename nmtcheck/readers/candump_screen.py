@@ -145,7 +145,8 @@ class _Clock:
             except ValueError:  # digits in the right places, but month 13 or hour 25
                 raise _Bad("timestamp is not a date") from None
             fraction = int(dated[2]) / 10 ** len(dated[2])
-            return when.replace(tzinfo=timezone.utc).timestamp() + fraction
+            out: float = when.replace(tzinfo=timezone.utc).timestamp() + fraction
+            return out
         number = _NUMBER.match(stamp)
         if number is None:
             raise _Bad("timestamp is not a number")
@@ -215,4 +216,4 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
         except _Bad as exc:
             stats.skip(lineno, str(exc))
             continue
-        yield lineno, (ts, iface, can_id, ext, rtr, err, fd, dlc, data)
+        yield lineno, Row(ts, iface, can_id, ext, rtr, err, fd, dlc, data)

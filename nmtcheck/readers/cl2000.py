@@ -123,7 +123,7 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
             stats.skip(lineno, str(exc))
             continue
         stats.dropped += lost
-        yield lineno, (ts, CHANNEL, can_id, ext, False, False, False, dlc, data)
+        yield lineno, Row(ts, CHANNEL, can_id, ext, False, False, False, dlc, data)
 
 
 def _record(fields: list[bytes], layout: _Layout) -> tuple[float, int, bool, int, bytes, int]:

@@ -161,4 +161,4 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
         except _Bad as exc:
             stats.skip(lineno, str(exc))
             continue
-        yield lineno, (ts, chan, can_id, ext, rtr, err, fd, dlc, data)
+        yield lineno, Row(ts, chan, can_id, ext, rtr, err, fd, dlc, data)

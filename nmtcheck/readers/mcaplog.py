@@ -27,7 +27,7 @@ import json
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -302,27 +302,8 @@ class _McapFrames:
         try:
             if _read_exact(stream, len(MAGIC)) != MAGIC:
                 raise InputError(self.source.path, "not an MCAP file (bad magic)")
-            while True:
-                head = _read_exact(stream, 9)
-                if not head:
-                    # no footer: a recording that was not closed; what is there counts
-                    self.stats.truncated = True
-                    break
-                if len(head) < 9:
-                    self.stats.truncated = True
-                    self.stats.skip(0, "truncated record at the end of the file")
-                    break
-                opcode, length = struct.unpack("<BQ", head)
-                if length > MAX_RECORD:
-                    self.stats.truncated = True
-                    self.stats.skip(0, f"record length {length} is beyond 4 GiB: corrupt file, "
-                                       "rest not read")
-                    break
-                body = _read_exact(stream, length)
-                if len(body) < length:
-                    self.stats.truncated = True
-                    self.stats.skip(0, "truncated record at the end of the file")
-                    break
+            while (record := self._next_record(stream)) is not None:
+                opcode, head, body = record
                 if opcode == OP_MESSAGE:
                     loose += head
                     loose += body
@@ -333,16 +314,9 @@ class _McapFrames:
                 if loose:
                     yield from self._records(bytes(loose))
                     loose.clear()
-                if opcode == OP_CHUNK:
-                    records = self._chunk_records(body)
-                    if records is not None:
-                        yield from self._records(records)
-                elif opcode == OP_SCHEMA:
-                    self._schema(body)
-                elif opcode == OP_CHANNEL:
-                    self._channel(body)
-                elif opcode == OP_FOOTER:
+                if opcode == OP_FOOTER:
                     break
+                yield from self._record(opcode, body)
         except self.source.errors as exc:
             raise InputError(self.source.path,
                              f"read error (truncated or corrupt file?): {exc}") from None
@@ -351,6 +325,43 @@ class _McapFrames:
         if (batch := self.out.take()) is not None:
             yield batch
         self._check_selected_topics()
+
+    def _next_record(self, stream: IO[bytes]) -> tuple[int, bytes, bytes] | None:
+        """(opcode, header, body) of the next record; None where the file ends without a
+        footer or with a record cut short (the input is then truncated)."""
+        head = _read_exact(stream, 9)
+        if not head:
+            # no footer: a recording that was not closed; what is there counts
+            self.stats.truncated = True
+            return None
+        if len(head) < 9:
+            self.stats.truncated = True
+            self.stats.skip(0, "truncated record at the end of the file")
+            return None
+        opcode, length = struct.unpack("<BQ", head)
+        if length > MAX_RECORD:
+            self.stats.truncated = True
+            self.stats.skip(0, f"record length {length} is beyond 4 GiB: corrupt file, "
+                               "rest not read")
+            return None
+        body = _read_exact(stream, length)
+        if len(body) < length:
+            self.stats.truncated = True
+            self.stats.skip(0, "truncated record at the end of the file")
+            return None
+        return opcode, head, body
+
+    def _record(self, opcode: int, body: bytes) -> Iterator[FrameBatch]:
+        """A record other than a message or the footer: a chunk's messages, a schema, a
+        channel; the others say nothing about CAN frames."""
+        if opcode == OP_CHUNK:
+            records = self._chunk_records(body)
+            if records is not None:
+                yield from self._records(records)
+        elif opcode == OP_SCHEMA:
+            self._schema(body)
+        elif opcode == OP_CHANNEL:
+            self._channel(body)
 
     def _check_selected_topics(self) -> None:
         if self.selected is None:
@@ -477,7 +488,7 @@ class _McapFrames:
             from mcap_ros2.decoder import DecoderFactory as Ros2Factory
 
             self._ros2_factory = Ros2Factory()
-        decoder = self._ros2_factory.decoder_for("cdr", schema)
+        decoder: Callable[[bytes], Any] | None = self._ros2_factory.decoder_for("cdr", schema)
         assert decoder is not None
         return decoder
 

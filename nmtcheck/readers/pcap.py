@@ -84,7 +84,8 @@ def _plausible(raw_id: np.ndarray) -> np.ndarray:
     rtr = (raw_id & CAN_RTR_FLAG) != 0
     err = (raw_id & CAN_ERR_FLAG) != 0
     small = (raw_id & CAN_EFF_MASK) <= 0x7FF
-    return (eff & ~err) | (~eff & small & ~(err & rtr))
+    out: np.ndarray = (eff & ~err) | (~eff & small & ~(err & rtr))
+    return out
 
 
 DAMAGED_INTERFACE = -1  # the link type of an interface block that cannot be read

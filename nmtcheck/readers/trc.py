@@ -148,7 +148,7 @@ def _v1_row(tokens: list[bytes], version: str, start: float) -> Row | None:
         if kind == b"Warng":
             return None
         if kind == b"Error":
-            return ts, chan, 0, False, False, True, False, 0, b""
+            return Row(ts, chan, 0, False, False, True, False, 0, b"")
         if kind not in (b"Rx", b"Tx"):
             raise _Bad(f"unknown message type {kind.decode('latin-1')!r}")
     if not rest:
@@ -163,11 +163,12 @@ def _v1_row(tokens: list[bytes], version: str, start: float) -> Row | None:
     if dlc > 15:
         raise _Bad("DLC above 15")
     if len(rest) > 2 and rest[2] == b"ERROR":
-        return ts, chan, 0, False, False, True, False, 0, b""
+        return Row(ts, chan, 0, False, False, True, False, 0, b"")
     can_id, ext = _can_id(rest[0])
     if len(rest) > 2 and rest[2] == b"RTR":
-        return ts, chan, can_id, ext, True, False, False, dlc, b""
-    return ts, chan, can_id, ext, False, False, False, dlc, _hex_bytes(rest[2:], min(dlc, 8))
+        return Row(ts, chan, can_id, ext, True, False, False, dlc, b"")
+    return Row(ts, chan, can_id, ext, False, False, False, dlc,
+               _hex_bytes(rest[2:], min(dlc, 8)))
 
 
 class _V2Layout:
@@ -196,7 +197,7 @@ class _V2Layout:
         if self.bus is not None and self.bus < len(tokens):
             chan = str(_number(tokens[self.bus], "bus"))
         if kind == b"ER":  # columns after the bus may be empty: only time and bus count
-            return ts, chan, 0, False, False, True, False, 0, b""
+            return Row(ts, chan, 0, False, False, True, False, 0, b"")
         if kind not in V2_FRAME_TYPES:
             raise _Bad(f"unknown message type {kind.decode('latin-1')!r}")
         if len(tokens) < self.min_tokens:
@@ -215,9 +216,9 @@ class _V2Layout:
             if dlc > (64 if fd else 8):
                 raise _Bad("data length out of range")
         if rtr:
-            return ts, chan, can_id, ext, True, False, False, dlc, b""
+            return Row(ts, chan, can_id, ext, True, False, False, dlc, b"")
         data = _hex_bytes(tokens[self.data:], dlc if fd else min(dlc, 8))
-        return ts, chan, can_id, ext, False, False, fd, dlc, data[:8]
+        return Row(ts, chan, can_id, ext, False, False, fd, dlc, data[:8])
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:

@@ -61,9 +61,15 @@ STATE_COLORS = {
 SEVERITY_COLORS = {"error": "#b3261e", "warning": "#e69138", "info": "#3d85c6"}
 SOURCES = ("start", "bootup", "heartbeat", "guarding", "command", "timeout")
 _SOURCE_OF = [SOURCES.index(s) for s in TIMELINE_SOURCES]  # timeline's index -> the page's
-# A browser cannot draw millions of intervals in a row; a node that changes state on every
-# heartbeat gets its first ones drawn and the timeline says how many are not.
-MAX_DRAWN_INTERVALS = 20000
+# A browser cannot draw millions of intervals; a page holds at most this many, shared
+# among the nodes (each gets at least MIN_DRAWN_PER_NODE): a node that changes state on
+# every heartbeat gets its first ones drawn and the timeline says how many are not.
+MAX_DRAWN_INTERVALS = 200_000
+MIN_DRAWN_PER_NODE = 1000
+
+
+def drawn_per_node(nodes: int) -> int:
+    return max(MAX_DRAWN_INTERVALS // max(nodes, 1), MIN_DRAWN_PER_NODE)
 MAX_OCCURRENCES = 200  # per finding group: markers and listed messages; the count says the rest
 HISTOGRAM_BINS = 24
 TEMPLATE = "report.html.j2"
@@ -194,11 +200,12 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
               for i, (entry, res) in enumerate(zip(report["inputs"], results, strict=True))]
     intervals: dict[tuple[int, str, int], list[list[float | int]]] = {}
     left_out: dict[tuple[int, str], int] = {}  # intervals not drawn, by input and channel
+    per_node = drawn_per_node(sum(len(res.nodes()) for res in results))
     for res in results:
         begin = inputs[res.index]["start"]
         for m in res.nodes():
             ivs = m.intervals
-            shown = min(len(ivs), MAX_DRAWN_INTERVALS)
+            shown = min(len(ivs), per_node)
             if shown < len(ivs):
                 key = (res.index, m.channel)
                 left_out[key] = left_out.get(key, 0) + len(ivs) - shown
@@ -236,8 +243,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
             hidden = left_out.get((res.index, channel), 0)
             if hidden:
                 timelines[-1]["left_out"] = (f"{hidden} state intervals not drawn (at most "
-                                             f"{MAX_DRAWN_INTERVALS} per node; the JSON "
-                                             f"report has all)")
+                                             f"{per_node} per node; the JSON report has all)")
     rules = [{"code": r.code, "name": r.name, "severity": sev, "summary": r.summary,
               "doc": doc_html(r.doc), "findings": sum(1 for res in results
                                                       for f in res.findings if f.rule == r.code)}

@@ -61,20 +61,18 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "backwards_timestamps": s.backwards_timestamps, "truncated": s.truncated,
             "skipped_lines": s.skipped_lines, "channels": s.channels,
         })
-        for m in res.nodes():
-            nodes.append({
-                "input": res.index, "channel": m.channel, "node": m.node,
-                "first_seen": _r(m.first_show_ts), "last_seen": _r(m.last_seen),
-                "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
-                "bootups": m.bootup_count, "error_control": m.error_control,
-                "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
-                **_configured_vs_measured(m, res.model.end),
-            })
-        for f in res.findings:
-            findings.append({"input": f.input, "rule": f.rule, "name": f.name,
-                             "severity": f.severity, "channel": f.channel, "node": f.node,
-                             "time": _r(f.time), "frame_index": f.frame_index,
-                             "line": f.line or None, "message": f.message})
+        nodes.extend({
+            "input": res.index, "channel": m.channel, "node": m.node,
+            "first_seen": _r(m.first_show_ts), "last_seen": _r(m.last_seen),
+            "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
+            "bootups": m.bootup_count, "error_control": m.error_control,
+            "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
+            **_configured_vs_measured(m, res.model.end),
+        } for m in res.nodes())
+        findings.extend({"input": f.input, "rule": f.rule, "name": f.name,
+                         "severity": f.severity, "channel": f.channel, "node": f.node,
+                         "time": _r(f.time), "frame_index": f.frame_index,
+                         "line": f.line or None, "message": f.message} for f in res.findings)
     return {"tool": {"name": "nmtcheck", "version": __version__},
             "report_version": REPORT_VERSION, "inputs": inputs, "nodes": nodes,
             "timeline": _timeline(results), "findings": findings,

@@ -60,9 +60,9 @@ def _suite(res: InputResult, options: dict[str, object]) -> ET.Element:
     for name, nodes in nodes_by_channel(res, always_network=True).items():
         for node in nodes:
             for rule, _severity in rules:
-                if rule.scope == "input" or not by_case.get((name, node, rule.code)) and (
+                if rule.scope == "input" or (not by_case.get((name, node, rule.code)) and (
                         rule.scope == "network" if node is not None
-                        else rule.scope == "node"):
+                        else rule.scope == "node")):
                     continue  # a rule is checked for the network, or per node, or both
                 cases.append((name, node, rule))
     tests = failures = 0
