@@ -322,8 +322,8 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
                 if isinstance(bad, _Failure):
                     raise bad.error()
                 if isinstance(bad, Crashed):
-                    raise InputError(paths[first_bad], f"{bad.reason}; the other logs were "
-                                     "checked (run it alone to see the crash)")
+                    raise InputError(paths[first_bad], f"{bad.reason}; no report was written "
+                                     "(run it alone to see the crash)")
                 raise bad
         return [outcomes[i] for i in range(len(paths))]
     finally:

@@ -129,7 +129,8 @@ def test_faults_are_rows_and_the_run_goes_on(tmp_path: Path) -> None:
     (root / "bad" / "garbage.log").write_bytes(b"\x00\x01 not a CAN log at all\n" * 10)
     (root / "bad" / "empty.log").write_bytes(b"")
     (root / "bad" / "00000001.MFE").write_bytes(b"encrypted")
-    res = cli("check", "logs/**/*", "--results", "results", "--isolated", cwd=tmp_path)
+    res = cli("check", "logs/**/*", "--results", "results", "--isolated",
+              "--on-input-error", "continue", cwd=tmp_path)
     assert res.returncode == 0, res.stdout + res.stderr  # healthy: no error finding
     assert "input_error 2" in res.stdout and "unsupported 1" in res.stdout
     assert "garbage.log: unknown log format" in res.stdout
@@ -146,9 +147,21 @@ def test_faults_are_rows_and_the_run_goes_on(tmp_path: Path) -> None:
     assert "findings: 0 errors" in summary.stdout and "logs not checked" in summary.stdout
     assert "unsupported  " in summary.stdout
 
-    fail = cli("check", "logs/**/*", "--results", "results", "--isolated",
-               "--on-input-error", "fail", cwd=tmp_path)
-    assert_one_line_error(fail, "logs/bad/")  # the verdict counts the skipped logs too
+    fail = cli("check", "logs/**/*", "--results", "results", "--isolated", cwd=tmp_path)
+    assert_one_line_error(fail, "logs/bad/")  # by default an unreadable log never passes,
+    # and the verdict counts the logs skipped as already checked too
+
+
+def test_a_dataset_beside_or_above_the_logs_checks_them(tmp_path: Path) -> None:
+    """--results may be the logs' own folder: only the dataset's files are not logs."""
+    root = tmp_path / "logs"
+    root.mkdir()
+    shutil.copy(SAMPLES / "heartbeat_loss.log", root / "a.log")
+    res = cli("check", "*.log", "--results", ".", "--isolated", cwd=root)
+    assert res.returncode == 1, res.stdout + res.stderr  # its H001 fails the gate
+    assert "1 checked" in res.stdout
+    again = cli("check", "**/*", "--results", ".", "--isolated", cwd=root)
+    assert again.returncode == 1 and "1 already in the results" in again.stdout, again.stdout
 
 
 def test_a_log_that_kills_its_worker_is_retried_then_crashed(tmp_path: Path) -> None:
@@ -158,7 +171,7 @@ def test_a_log_that_kills_its_worker_is_retried_then_crashed(tmp_path: Path) -> 
                    "--executor", "local:2", cwd=tmp_path,
                    env={"NMTCHECK_TEST_CRASH": "CRASHME"})
     assert "5 checked" in res.stdout and "crashed 1" in res.stdout, res.stdout + res.stderr
-    assert res.returncode == 1  # the other logs' findings still decide
+    assert res.returncode == 2  # a log that could not be checked never passes
 
     inputs = api.read_results(tmp_path / "results").inputs.set_index("url")
     crashed = inputs.loc[str(root / "CRASHME.log")]
@@ -348,3 +361,17 @@ def test_tasks_in_flight_stay_within_the_window(tmp_path: Path,
                                          batch_files=1), profile, codes, None)
     assert out.files == out.status["ok"] == 12
     assert len(seen) == 12 and max(seen) < 2  # submitted only while fewer than 2 in flight
+
+
+def test_a_file_named_like_a_pattern_is_that_file(tmp_path: Path) -> None:
+    root = tmp_path / "logs"
+    root.mkdir()
+    shutil.copy(SAMPLES / "heartbeat_loss.log", root / "run [1].log")
+    res = cli("check", "logs/run [1].log", "--results", "results", "--isolated", cwd=tmp_path)
+    assert res.returncode == 1 and "1 checked" in res.stdout, res.stdout + res.stderr
+
+
+def test_a_field_twice_in_the_path_pattern_is_a_usage_error(tmp_path: Path) -> None:
+    res = cli("check", str(SAMPLES / "healthy.log"), "--results", "results", "--isolated",
+              "--path-pattern", "{device}/{device}/{split}.log", cwd=tmp_path)
+    assert_one_line_error(res, "--path-pattern", "{device} appears twice")

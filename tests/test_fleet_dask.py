@@ -4,6 +4,8 @@ that kills its worker every time (the test-only NMTCHECK_TEST_CRASH hook: os._ex
 
 from __future__ import annotations
 
+import json
+import re
 import shutil
 import subprocess
 import sys
@@ -15,28 +17,52 @@ from conftest import SAMPLES
 
 pytest.importorskip("pyarrow")
 distributed = pytest.importorskip("distributed")
-import dask  # noqa: E402
 import pandas as pd  # noqa: E402
 
 import nmtcheck  # noqa: E402
-from nmtcheck.errors import UsageError  # noqa: E402
-from nmtcheck.fleet.executors import make_executor, worker_info  # noqa: E402
 
 LOGS = ["heartbeat_loss.log", "healthy.log", "guard_toggle.log", "reset_no_bootup.log"]
+
+
+CLUSTER = """
+import sys, dask, distributed
+with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=50,
+                                       env={"NMTCHECK_TEST_CRASH": "CRASHME"})
+print(cluster.scheduler_address, flush=True)
+sys.stdin.read()  # until the tests are done
+cluster.close()
+"""
 
 
 @pytest.fixture(scope="module")
 def scheduler() -> Iterator[str]:
     """Two single-threaded worker processes with Dask's default worker settings; a worker
-    dies on any log whose name holds CRASHME, and the scheduler gives a task 2 tries."""
-    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
-        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0", silence_logs=50,
-                                           env={"NMTCHECK_TEST_CRASH": "CRASHME"})
+    dies on any log whose name holds CRASHME, and the scheduler gives a task 2 tries.
+
+    The cluster and every Dask client live in other processes: a client leaves threads
+    running in its process for good, and this test process forks (other tests check
+    the forked parse worker, which is not started while other threads run)."""
+    proc = subprocess.Popen([sys.executable, "-c", CLUSTER], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stdin is not None
     try:
-        yield cluster.scheduler_address
+        yield proc.stdout.readline().strip()
     finally:
-        cluster.close()
+        proc.stdin.close()
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def run_py(code: str, *args: str) -> str:
+    """`code` in a fresh Python (see `scheduler`); its standard output."""
+    res = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr
+    return res.stdout
 
 
 def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -54,7 +80,7 @@ def test_dask_cluster_run_retries_then_marks_the_crashing_log(scheduler: str,
     address = "dask://" + scheduler.removeprefix("tcp://")
     res = cli("check", "logs/*.log", "--results", "dask-results", "--executor", address,
               "--isolated", cwd=tmp_path)
-    assert res.returncode == 1, res.stdout + res.stderr
+    assert res.returncode == 2, res.stdout + res.stderr  # a log that was not checked
     assert "5 logs: 5 checked" in res.stdout and "crashed 1" in res.stdout
     # the cluster has Dask's defaults that slow nmtcheck down: the run says so
     assert "nmtcheck: warning: " in res.stderr and "MALLOC_TRIM_THRESHOLD_ is set" in res.stderr
@@ -80,22 +106,34 @@ def test_dask_cluster_run_retries_then_marks_the_crashing_log(scheduler: str,
     assert findings("dask-results") == findings("local-results") != []
 
 
-def test_dask_local_starts_workers_without_the_slow_defaults(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+def test_dask_local_starts_workers_without_the_slow_defaults() -> None:
     # a nanny sets its pre-spawn variables in its own process: the module's cluster's did
-    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
-    ex = make_executor("dask-local:1")
-    try:
-        assert ex.name == "dask-local:1" and ex.slots == 1
-        info = list(ex.client.run(worker_info).values())  # type: ignore[attr-defined]
-        assert info == [{"nmtcheck": nmtcheck.__version__, "malloc_trim": None,
-                         "profile": False}]
-    finally:
-        ex.close()
+    out = run_py("""
+import json, os
+os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+from nmtcheck.fleet.executors import make_executor, worker_info
+ex = make_executor("dask-local:1")
+try:
+    print(json.dumps([ex.name, ex.slots, list(ex.client.run(worker_info).values())]))
+finally:
+    ex.close()
+""")
+    name, slots, info = json.loads(out.strip().splitlines()[-1])
+    assert (name, slots) == ("dask-local:1", 1)
+    assert info == [{"nmtcheck": nmtcheck.__version__, "malloc_trim": None, "profile": False}]
 
 
-def test_client_worker_version_skew_is_a_usage_error(scheduler: str,
-                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(nmtcheck, "__version__", "0.0.0-client")
-    with pytest.raises(UsageError, match=r"the workers run nmtcheck .*this client 0\.0\.0"):
-        make_executor("dask://" + scheduler.removeprefix("tcp://"))
+def test_client_worker_version_skew_is_a_usage_error(scheduler: str) -> None:
+    out = run_py("""
+import sys
+import nmtcheck
+nmtcheck.__version__ = "0.0.0-client"
+from nmtcheck.errors import UsageError
+from nmtcheck.fleet.executors import make_executor
+try:
+    make_executor(sys.argv[1])
+    print("no error")
+except UsageError as exc:
+    print(f"UsageError: {exc}")
+""", "dask://" + scheduler.removeprefix("tcp://"))
+    assert re.search(r"UsageError: .*the workers run nmtcheck .*this client 0\.0\.0", out), out

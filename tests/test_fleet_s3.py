@@ -75,7 +75,7 @@ def test_s3_fleet_run_incremental_and_manifest(s3: Any, endpoint: str, tmp_path:
         s3.put_file(str(mf4), f"{BUCKET}/2026/2F6913DB/00000004/00000001.MF4")
     common = ("--results", f"s3://{BUCKET}/nmtcheck/", "--storage-option",
               f"endpoint_url={endpoint}", "--path-pattern", "{device}/{session}/{split}.log",
-              "--isolated", "--fail-on", "never")
+              "--isolated", "--fail-on", "never", "--on-input-error", "continue")
     res = cli("check", f"s3://{BUCKET}/2026/**", *common, cwd=tmp_path)
     n = 6 if mf4 is not None else 5
     assert res.returncode == 0, res.stdout + res.stderr

@@ -40,9 +40,11 @@ def fleet_options(f: Callable[..., Any]) -> Callable[..., Any]:
         click.option("--force", is_flag=True,
                      help="With --results: check again the logs the dataset already has "
                           "(same content, nmtcheck version and profile)."),
-        click.option("--on-input-error", type=click.Choice(["continue", "fail"]), default=None,
+        click.option("--on-input-error", type=click.Choice(["fail", "continue"]), default=None,
                      help="With --results: a log that cannot be read is an input_error row "
-                          "and the run goes on; 'fail' then exits 2 [default: continue]."),
+                          "and the run goes on; at the end 'fail' exits 2 naming it (an "
+                          "unreadable log never passes), 'continue' lets --fail-on decide "
+                          "over the logs that were read [default: fail]."),
     ]):
         f = opt(f)
     return f
@@ -108,7 +110,7 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
     failed = [(u, e) for u, e in out.errors]
     bad = sum(out.status.get(s, 0) + out.skipped_status.get(s, 0)
               for s in ("input_error", "crashed"))
-    if options.get("on_input_error") == "fail" and bad:
+    if options.get("on_input_error") != "continue" and bad:
         url, err = failed[0] if failed else ("", "")
         more = f" (and {bad - 1} more)" if bad > 1 else ""
         click.echo(f"nmtcheck: {err if err.startswith(url) else f'{url}: {err}'}{more}",

@@ -27,6 +27,7 @@ from nmtcheck.fleet.storage import filesystem, is_local
 SCHEMA_VERSION = 1
 MARKER = "_nmtcheck_dataset.json"
 TABLES = ("runs", "inputs", "findings", "node_stats")
+DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER)  # what a dataset's folder holds
 SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
 
 # (name, arrow type) per table; the partition column `date` is in the path, not the files.

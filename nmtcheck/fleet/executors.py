@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import warnings
 from collections.abc import Callable, Hashable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -51,6 +52,11 @@ _started: Any = None  # in a pool worker: where it says which task it starts
 def _init_worker(queue: Any, environ: dict[str, str] | None) -> None:
     global _started
     _started = queue
+    # A forked worker inherits the CLI's handlers, which turn a signal into an exception
+    # with a traceback: a worker the pool (or Ctrl-C) stops just ends; the parent reports.
+    for name in ("SIGTERM", "SIGHUP", "SIGINT"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_DFL)
     if environ is not None:  # the client's environment now, as a forked worker would have it
         os.environ.clear()
         os.environ.update(environ)
@@ -213,7 +219,7 @@ class LocalExecutor:
 
 # --- Dask -------------------------------------------------------------------------------
 
-# What nmtcheck sets on the Dask workers it starts. Dask's defaults cost nmtcheck about 4x:
+# What nmtcheck sets on the Dask workers it starts. Dask's defaults cost nmtcheck 5-7x here:
 # MALLOC_TRIM_THRESHOLD_=65536 (nanny.pre-spawn-environ) makes glibc give memory back to
 # the system after every numpy temporary, and the statistical profiler samples every
 # worker thread every 10 ms.
@@ -307,8 +313,8 @@ class DaskExecutor:
                  any(i["profile"] for i in info.values())))
                 if bad]
             if slow:
-                warnings.warn(f"{self.name}: {'; '.join(slow)}: nmtcheck runs up to 4x slower "
-                              "on these workers; start them with "
+                warnings.warn(f"{self.name}: {'; '.join(slow)}: nmtcheck ran 5-7x slower with "
+                              "these settings when measured; start the workers with "
                               "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False and without "
                               "MALLOC_TRIM_THRESHOLD_ in distributed.nanny.pre-spawn-environ",
                               stacklevel=2)

@@ -193,11 +193,14 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
 def _todo(listing: Iterator[FileInfo], opts: FleetOptions, done: dict[Any, Any],
           out: FleetOutcome, progress: _Progress) -> Iterator[FileInfo]:
     """The logs to check, counting the skipped ones (their verdicts still count)."""
-    from nmtcheck.fleet.dataset import done_key
+    from nmtcheck.fleet.dataset import DATASET_ENTRIES, done_key
     from nmtcheck.fleet.storage import complete
 
-    inside = opts.results.rstrip("/") + "/"  # `data/**` with --results data/results
-    for chunk in _chunks((fi for fi in listing if not fi.url.startswith(inside)), 256):
+    # `data/**` with --results data/results: the dataset's own files are no logs (but a
+    # log in the folder that holds the dataset is one)
+    root = opts.results.rstrip("/") + "/"
+    own = tuple(root + name for name in DATASET_ENTRIES)
+    for chunk in _chunks((fi for fi in listing if not fi.url.startswith(own)), 256):
         for fi in complete(chunk, opts.storage_options):
             out.files += 1
             prev = done.get(done_key(fi.url, fi.fingerprint))

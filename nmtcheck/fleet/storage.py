@@ -149,7 +149,7 @@ def expand(sources: list[str], manifest: str | None,
     (an S3 Inventory CSV's bucket,key columns too) and is streamed, never held whole."""
     for src in sources:
         fs, path = filesystem(src, storage_options)
-        if _has_magic(path):
+        if _has_magic(path) and not _exists(fs, path):  # `a [1].log` may be a file
             try:
                 found = fs.glob(path, detail=True)
             except Exception as exc:  # noqa: BLE001 - s3fs/botocore raise many kinds
@@ -227,6 +227,13 @@ def _inventory_size(line: str) -> int | None:
     return int(cols[3]) if len(cols) > 3 and cols[3].isdigit() else None
 
 
+def _exists(fs: Any, path: str) -> bool:
+    try:
+        return bool(fs.isfile(path))
+    except Exception:  # noqa: BLE001 - then it is a pattern to list
+        return False
+
+
 def _has_magic(path: str) -> bool:
     return any(c in path for c in "*?[")
 
@@ -264,6 +271,8 @@ class PathPattern:
             for i, part in enumerate(parts):
                 if i % 2 == 0:
                     regex += re.escape(part)
+                elif f"(?P<{part}>" in regex:
+                    raise UsageError(f"--path-pattern {pattern}: {{{part}}} appears twice")
                 elif part not in self.FIELDS:
                     raise UsageError(f"--path-pattern {pattern}: unknown field {{{part}}} "
                                      f"(known: {', '.join('{' + f + '}' for f in self.FIELDS)})")
