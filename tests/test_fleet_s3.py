@@ -42,6 +42,23 @@ def endpoint() -> Iterator[str]:
         yield f"http://127.0.0.1:{port}"
     finally:
         server.stop()
+        _stop_fsspec_io_thread()
+
+
+def _stop_fsspec_io_thread() -> None:
+    """s3fs runs on fsspec's event loop in a thread of its own, which lives as long as the
+    process; stop it (and the loop's resolver threads) so that later tests in this process
+    may fork (nmtcheck's parse worker is never forked while other threads run)."""
+    import fsspec.asyn
+
+    loop, thread = fsspec.asyn.loop[0], fsspec.asyn.iothread[0]
+    if loop is None or thread is None:
+        return
+    loop.call_soon_threadsafe(loop.stop)
+    thread.join(timeout=10)
+    loop.run_until_complete(loop.shutdown_default_executor())
+    loop.close()
+    fsspec.asyn.loop[0] = fsspec.asyn.iothread[0] = None
 
 
 @pytest.fixture
