@@ -52,10 +52,11 @@ LAUNCHER = ("import os, subprocess, sys; p = subprocess.Popen(sys.argv[1:], "
             "print(os.waitstatus_to_exitcode(st), ru.ru_maxrss)")
 
 
-def peak_rss_mb(log: Path) -> float:
+def peak_rss_mb(log: Path, *options: str) -> float:
+    """Peak RSS of `nmtcheck check LOG OPTIONS` (default: the JSON report on stdout)."""
     out = subprocess.run(
         [sys.executable, "-c", LAUNCHER, sys.executable, "-m", "nmtcheck", "check", str(log),
-         "--format", "json", "--fail-on", "never"],
+         *(options or ("--format", "json")), "--fail-on", "never"],
         env=dict(os.environ, PYTHONPATH=str(REPO)), capture_output=True, text=True, check=True)
     code, kb = out.stdout.split()
     assert code == "0"

@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from conftest import REPO
+from test_memory import peak_rss_mb
 
 from nmtcheck.checks import RULES
 from nmtcheck.engine import InputResult, check_input
@@ -125,21 +123,6 @@ def test_the_html_report_draws_a_bounded_number_of_intervals(
     assert f"{hidden} state intervals not drawn" in page
 
 
-LAUNCHER = ("import os, subprocess, sys; p = subprocess.Popen(sys.argv[1:], "
-            "stdout=subprocess.DEVNULL); _, st, ru = os.wait4(p.pid, 0); "
-            "print(os.waitstatus_to_exitcode(st), ru.ru_maxrss)")
-
-
-def peak_rss_mb(log: Path, out: Path) -> float:
-    res = subprocess.run(
-        [sys.executable, "-c", LAUNCHER, sys.executable, "-m", "nmtcheck", "check", str(log),
-         "-o", str(out), "--fail-on", "never"],
-        env=dict(os.environ, PYTHONPATH=str(REPO)), capture_output=True, text=True, check=True)
-    code, kb = res.stdout.split()
-    assert code == "0"
-    return int(kb) / 1024
-
-
 @pytest.mark.skipif(not hasattr(os, "wait4"), reason="needs os.wait4 (POSIX)")
 def test_memory_follows_frames_not_state_changes(tmp_path: Path) -> None:
     """Four times the state changes, written as a JSON report: well under the 5 KB per
@@ -147,8 +130,8 @@ def test_memory_follows_frames_not_state_changes(tmp_path: Path) -> None:
     small, large = tmp_path / "small.log", tmp_path / "large.log"
     write_flapping(small, 100_000)
     write_flapping(large, 400_000)
-    small_mb = peak_rss_mb(small, tmp_path / "small.json")
-    large_mb = peak_rss_mb(large, tmp_path / "large.json")
+    small_mb = peak_rss_mb(small, "-o", str(tmp_path / "small.json"))
+    large_mb = peak_rss_mb(large, "-o", str(tmp_path / "large.json"))
     assert large_mb - small_mb < 100, (small_mb, large_mb)  # < 350 bytes per state change
     doc = json.loads((tmp_path / "large.json").read_text())
     # a state per heartbeat, and UNKNOWN before the first one of nodes 2..10 (node 1's
