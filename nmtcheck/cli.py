@@ -19,7 +19,7 @@ import tempfile
 import traceback
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import click
 
@@ -160,17 +160,8 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
           jobs: int, max_findings: int, follow: bool = False, **fleet_args: Any) -> None:
     """Analyse each LOG (`-`: standard input; quoted globs are expanded), print the findings
     and set the exit code."""
-    config = discover(config_file, isolated)
-    if config is not None and config.format is not None and config.format not in FORMATS:
-        raise UsageError(f"{config.label}: format: unknown format {config.format!r} "
-                         f"(available: {', '.join(FORMATS)})")
-    fmt = fmt or (config.format if config else None) or "text"
-    fail_on = fail_on or (config.fail_on if config else None) or "error"
-    selected = _split(select) if select else (config.select or [] if config else [])
-    ignored = _split(ignore) if ignore else (config.ignore or [] if config else [])
-    if config is not None:  # a bad pattern in the file is named with the file
-        check_patterns([] if select else config.select or [], f"{config.label}: select")
-        check_patterns([] if ignore else config.ignore or [], f"{config.label}: ignore")
+    config, fmt, fail_on, selected, ignored = resolve_settings(
+        config_file, isolated, fmt, fail_on, select, ignore)
     if fleet_requested(fleet_args):  # --results: a fleet run (nmtcheck/fleet/)
         from nmtcheck.fleet.commands import run_fleet_check
 
@@ -233,6 +224,34 @@ def timeline(log: str, input_format: str | None, rules_profile: str | None,
     res = check_input(log, 0, profile, [], network, input_format, strict, channel,
                       {"topics": list(topics)} if topics else {})
     write_stdout([render_timeline(res, fmt)])
+
+
+class Settings(NamedTuple):
+    """What `check` and `monitor` take from the command line, else the configuration."""
+
+    config: Config | None
+    fmt: str
+    fail_on: str
+    select: list[str]
+    ignore: list[str]
+
+
+def resolve_settings(config_file: str | None, isolated: bool, fmt: str | None,
+                     fail_on: str | None, select: tuple[str, ...], ignore: tuple[str, ...]
+                     ) -> Settings:
+    """The command line wins over the configuration file; a bad value in the file is
+    named with the file."""
+    config = discover(config_file, isolated)
+    if config is not None and config.format is not None and config.format not in FORMATS:
+        raise UsageError(f"{config.label}: format: unknown format {config.format!r} "
+                         f"(available: {', '.join(FORMATS)})")
+    if config is not None:
+        check_patterns([] if select else config.select or [], f"{config.label}: select")
+        check_patterns([] if ignore else config.ignore or [], f"{config.label}: ignore")
+    return Settings(config, fmt or (config.format if config else None) or "text",
+                    fail_on or (config.fail_on if config else None) or "error",
+                    _split(select) if select else (config.select or [] if config else []),
+                    _split(ignore) if ignore else (config.ignore or [] if config else []))
 
 
 def expand_logs(logs: tuple[str, ...]) -> tuple[str, ...]:

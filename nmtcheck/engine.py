@@ -30,7 +30,7 @@ from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.frames import FrameBatch
 from nmtcheck.model import InputModel, Master, NodeModel, TimelineParams
 from nmtcheck.network import Network
-from nmtcheck.nmt import STATE_INDEX, UNKNOWN
+from nmtcheck.nmt import UNKNOWN
 from nmtcheck.profiles import Profile, RuleSettings
 from nmtcheck.readers import InputStats, open_input
 from nmtcheck.timeline import build
@@ -211,12 +211,11 @@ def _known(p: Problems, nodes: dict[tuple[str | None, int], NodeModel]) -> Probl
     those of the network (node -1) stay."""
     assert p.nodes is not None
     keep = p.nodes < 0
-    unknown = STATE_INDEX[UNKNOWN]
     for n in np.unique(p.nodes[p.nodes >= 0]).tolist():
         m = nodes.get((p.channel, n))
         if m is not None:
             sel = np.flatnonzero(p.nodes == n)
-            keep[sel] = m.intervals.state[m.interval_indices(p.time[sel])] != unknown
+            keep[sel] = m.known_at(p.time[sel])
     return p.subset(np.flatnonzero(keep))
 
 
@@ -250,15 +249,13 @@ def _keep(r: Rule, found: _Found, problems: list[tuple[Rule, Problem]],
     """Add a rule's problems to `problems`, but those of a node in UNKNOWN (unless the rule
     is exempt, SPEC §3) and those past the first `max_findings`; return how many of the
     latter were left out."""
-    unknown = STATE_INDEX[UNKNOWN]
     kept = left = 0
     for m, p in found:
         gated = p.node is not None and not r.exempt_from_unknown
         if isinstance(p, Problems):
             rows = np.arange(len(p))
             if gated:
-                rows = rows[:0] if m is None else rows[
-                    m.intervals.state[m.interval_indices(p.time)] != unknown]
+                rows = rows[:0] if m is None else rows[m.known_at(p.time)]
             room = len(rows) if not max_findings else max(max_findings - kept, 0)
             problems.extend((r, p.problem(i)) for i in rows[:room].tolist())
             kept += min(room, len(rows))

@@ -77,6 +77,7 @@ class Command:
 
 
 
+_UNKNOWN = STATES.index("UNKNOWN")
 _KNOWN_CS = np.zeros(256, bool)
 _KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
 
@@ -482,6 +483,12 @@ class NodeModel:
     def state_at(self, ts: float) -> str:
         """State after the evidence of a frame at `ts` (intervals starting at ts included)."""
         return STATES[self.intervals.state[self.interval_index(ts)]]
+
+    def known_at(self, ts: np.ndarray) -> np.ndarray:
+        """Whether the state is known (not UNKNOWN) at each time: findings of a node in
+        UNKNOWN are dropped (SPEC §3)."""
+        known: np.ndarray = self.intervals.state[self.interval_indices(ts)] != _UNKNOWN
+        return known
 
     def interval_index(self, ts: float) -> int:
         return max(int(np.searchsorted(self.interval_starts(), ts, side="right")) - 1, 0)

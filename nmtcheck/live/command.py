@@ -11,18 +11,17 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import click
 
-from nmtcheck.engine import MAX_FINDINGS_PER_RULE, InputResult, select_rules, summary
+from nmtcheck.engine import MAX_FINDINGS_PER_RULE, select_rules, summary
 from nmtcheck.errors import NmtcheckError, UsageError
 from nmtcheck.live.display import Display, finding_line
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.reporters import FORMATS, auto_format, format_for_path, renderer
+from nmtcheck.reporters import FORMATS, auto_format, format_for_path, streamer
 
 REFRESH_S = 0.25  # node table redraws
 HUMAN_FORMATS = ("text", "concise", "markdown")
@@ -74,21 +73,17 @@ def monitor(interface: str | None, channels: tuple[str, ...], bitrate: int | Non
             fmt: str | None, outputs: tuple[str, ...], quiet: bool) -> None:
     """Check a live CAN bus (any python-can interface): findings the moment they happen,
     a node table on a terminal, the reports of `nmtcheck check` at the end."""
-    from nmtcheck.cli import _load, _split
-    from nmtcheck.config import discover
+    from nmtcheck.cli import _load, resolve_settings
     from nmtcheck.live.bus import BusReader, close_buses, open_buses, parse_option
 
-    config = discover(config_file, isolated)
-    fmt = fmt or (config.format if config else None) or "text"
+    config, fmt, fail_on, selected, ignored = resolve_settings(
+        config_file, isolated, fmt, fail_on, select, ignore)
     if fmt not in FORMATS:
         raise UsageError(f"--format {fmt}: unknown format (available: {', '.join(FORMATS)})")
-    fail_on = fail_on or (config.fail_on if config else None) or "error"
-    selected = _split(select) if select else (config.select or [] if config else [])
-    ignored = _split(ignore) if ignore else (config.ignore or [] if config else [])
     profile, network, config_info = _load(rules_profile, network_file, dcf, config)
     rules = select_rules(profile, selected, ignored)
-    stdout_render = renderer(fmt)
-    files = [(path, renderer(format_for_path(path))) for path in outputs]
+    stdout_render = streamer(fmt)
+    files = [(path, streamer(format_for_path(path))) for path in outputs]
     for option, path in [*(("--output", p) for p in outputs),
                          *([("--record", record)] if record else [])]:
         if not Path(path).parent.is_dir():  # fail before the session, not after an hour
@@ -162,7 +157,7 @@ def finish(outcome: Outcome, files: list[tuple[str, Any]], stdout_render: Any,
     """Write every report, print the final one and the live summary; the exit code is
     `check`'s on the recording."""
     from nmtcheck.checks.base import fails
-    from nmtcheck.cli import EXIT_ERROR, EXIT_FINDINGS, EXIT_OK, write_stdout
+    from nmtcheck.cli import EXIT_ERROR, EXIT_FINDINGS, EXIT_OK, write_reports, write_stdout
 
     if outcome.result is None:
         click.echo(f"nmtcheck: {nothing} ({ended})", err=True)
@@ -170,7 +165,7 @@ def finish(outcome: Outcome, files: list[tuple[str, Any]], stdout_render: Any,
     results = [outcome.result]
     # stdout first: a report that cannot be written must not cost the session's verdict
     try:
-        write_stdout([as_text(stdout_render(results, options))])
+        write_stdout(stdout_render(results, options))
     except UsageError as exc:  # e.g. a full disk: still write the reports, then exit 2
         click.echo(live_summary(outcome, ended), err=True)
         write_reports(results, files, options)
@@ -178,18 +173,6 @@ def finish(outcome: Outcome, files: list[tuple[str, Any]], stdout_render: Any,
     click.echo(live_summary(outcome, ended), err=True)
     write_reports(results, files, options)
     return EXIT_FINDINGS if fails(summary(results), fail_on) else EXIT_OK
-
-
-def as_text(rendered: str | Iterable[str]) -> str:
-    """A report as one string (some renderers yield it in pieces)."""
-    return rendered if isinstance(rendered, str) else "".join(rendered)
-
-
-def write_reports(results: list[InputResult], files: list[tuple[str, Any]],
-                  options: dict[str, object]) -> None:
-    from nmtcheck.cli import write_reports as write
-
-    write(results, files, options)
 
 
 def live_summary(outcome: Outcome, ended: str) -> str:

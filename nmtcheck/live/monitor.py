@@ -18,7 +18,6 @@ import can
 
 from nmtcheck.checks.base import SEVERITIES
 from nmtcheck.engine import Finding, InputResult, select_rules
-from nmtcheck.live.command import as_text
 from nmtcheck.live.frames import from_message
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding, NodeState
@@ -133,7 +132,7 @@ class Monitor(can.Listener):
             "rules": {r.code: self.profile[r.code].severity for r in self.rules},
             "network_notes": list(self.network.notes) if self.network else [],
             "config": {"file": None, "profile": self.profile_name, "overrides": []}}
-        text = as_text(renderer(fmt)([res] if res is not None else [], options))
+        text = renderer(fmt)([res] if res is not None else [], options)
         if path is not None:
             with open(path, "w", encoding="utf-8") as f:
                 f.write(text)
