@@ -14,7 +14,12 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
   0-127 in turn on 000h, one frame in five a heartbeat of one of 16 nodes;
 - findings: 000h frames of every DLC but 2, in turn: a malformed NMT command
   (C002) per frame, each its own finding because neighbours differ in DLC;
-- nodes127: heartbeats (05h) of 127 nodes every 100 ms, nothing else.
+- nodes127: heartbeats (05h) of 127 nodes every 100 ms, nothing else;
+- emcy: EMCYs of 16 nodes, 100 us apart, error code and register cycling, one frame
+  in five a heartbeat: a node event per frame;
+- sdo: SDO expedited downloads to 1017h (producer heartbeat time) of 16 nodes and
+  their confirmations, 100 us apart, one frame in five a heartbeat: a configuration
+  write per two frames.
 
 Then runs `NMTCHECK check LOG --format text` (stdout to /dev/null) with one report
 file per run (`-o report.json`, ... ; `text` alone writes none) through a small
@@ -48,7 +53,7 @@ from generate import candump_lines, write_text  # noqa: E402
 from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
-KINDS = ("clean", "flapping", "commands", "findings", "nodes127")
+KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -102,8 +107,41 @@ def nodes127(i: np.ndarray) -> Frames:
     return _frames(i, i * 100_000 // 127, 0x700 + i % 127 + 1, np.ones(len(i), np.uint8), data)
 
 
+def emcy(i: np.ndarray) -> Frames:
+    """EMCYs of 16 nodes 100 us apart (error code and register cycling); every fifth
+    frame a heartbeat (05h) of one of them."""
+    hb = i % 5 == 4
+    node = (i // 5) % 16 + 1
+    data = np.zeros((len(i), 8), np.uint8)
+    code = np.asarray([0x0000, 0x1000, 0x2310, 0x3210, 0x8110, 0x8130], np.int64)[i % 6]
+    data[:, 0] = np.where(hb, 0x05, code & 0xFF)
+    data[:, 1] = np.where(hb, 0, code >> 8)
+    data[:, 2] = np.where(hb, 0, np.where(code == 0, 0, 0x01 | (i & 0x10)))
+    can_id = np.where(hb, 0x700, 0x080) + node
+    return _frames(i, i * 100, can_id, np.where(hb, 1, 8), data)
+
+
+def sdo(i: np.ndarray) -> Frames:
+    """SDO expedited downloads of 1017h (50..305 ms) to 16 nodes, each confirmed by the
+    next frame, 100 us apart; every fifth frame a heartbeat (05h) of one of them."""
+    hb = i % 5 == 4
+    k = (i // 5) * 4 + i % 5  # position among the SDO frames: request, response, ...
+    node = (k // 2) % 16 + 1
+    response = k % 2 == 1
+    ms = 50 + (k // 32) % 256
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = np.where(hb, 0x05, np.where(response, 0x60, 0x2B))
+    data[:, 1] = np.where(hb, 0, 0x17)
+    data[:, 2] = np.where(hb, 0, 0x10)
+    data[:, 4] = np.where(hb | response, 0, ms & 0xFF)
+    data[:, 5] = np.where(hb | response, 0, ms >> 8)
+    can_id = np.where(hb, 0x700 + (i // 5) % 16 + 1, np.where(response, 0x580, 0x600) + node)
+    return _frames(i, i * 100, can_id, np.where(hb, 1, 8), data)
+
+
 MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
-    "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127}
+    "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127,
+    "emcy": emcy, "sdo": sdo}
 
 
 def chunks(kind: str, n: int) -> Iterator[Frames]:

@@ -2,8 +2,12 @@
 
 One streaming pass over the frame batches keeps:
 
-* `events`: the few frames the NMT state model needs one by one: NMT
-  commands (ID 000h), EMCYs and the SDOs that configure error control.
+* `nmt`: the frames on CAN-ID 000h (NMT commands, valid or not) as compact
+  columns: a hostile log may hold nothing else.
+* `emcy`: the EMCY frames (081h..0FFh) as compact columns grouped by node:
+  context for the reports, and a node may send them as fast as the bus allows.
+* `events`: the few other frames the NMT state model needs one by one: the SDOs
+  that configure error control and PDOs.
 * `ec`: the error-control traffic (701h..77Fh) as compact columns grouped by
   node: heartbeats are the one NMT stream as dense as a node's period.
 * `store`: per frame a timestamp and line (to find "the first frame at or
@@ -55,8 +59,19 @@ EVENT_DTYPE = np.dtype([
     ("rtr", "?"), ("dlc", "i2"), ("data", "u1", (8,)),
 ])
 
-EC_COLUMNS = {"ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32,
-              "rtr": np.bool_, "dlc": np.int16, "value": np.uint8}
+# the frames on 000h: command specifier and node-ID are data bytes 0 and 1 (33 bytes a frame)
+NMT_COLUMNS: dict[str, type] = {
+    "ts": np.float64, "idx": np.int64, "line": np.int64, "chan": np.int32, "rtr": np.bool_,
+    "dlc": np.int16, "cs": np.uint8, "target": np.uint8}
+
+# EMCY frames: the 8 data bytes packed in one integer (26 bytes a frame)
+EMCY_COLUMNS: dict[str, type] = {
+    "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "dlc": np.int16,
+    "data": np.uint64}
+
+EC_COLUMNS: dict[str, type] = {
+    "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "rtr": np.bool_,
+    "dlc": np.int16, "value": np.uint8}
 
 STORE_BUDGET_BYTES = 8 << 20  # per store; past it chunks go to a temporary directory
 
@@ -177,13 +192,25 @@ class FirstTx(NamedTuple):
     kind: int  # KIND_*
 
 
-class NodeFrame(NamedTuple):
-    """One frame of the node-frame store (TPDO, RPDO, SDO response, EMCY)."""
+@dataclass
+class NodeFrames:
+    """Frames of the node-frame store as columns (`first_node_frame_after`'s answers)."""
 
-    ts: float
-    idx: int
-    line: int
-    kind: int  # KIND_*
+    ts: np.ndarray
+    idx: np.ndarray  # -1: no such frame
+    line: np.ndarray
+    kind: np.ndarray  # KIND_*
+
+    @classmethod
+    def none(cls, n: int) -> NodeFrames:
+        return cls(np.full(n, np.nan), np.full(n, -1, np.int64), np.zeros(n, np.int64),
+                   np.zeros(n, np.int8))
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+    def take(self, rows: np.ndarray | slice) -> NodeFrames:
+        return NodeFrames(self.ts[rows], self.idx[rows], self.line[rows], self.kind[rows])
 
 
 class FrameAt(NamedTuple):
@@ -207,7 +234,9 @@ class IdUse:
 class Decoded:
     """Everything later stages need from one input."""
 
-    events: np.ndarray  # EVENT_DTYPE, file order
+    events: np.ndarray  # EVENT_DTYPE, file order: EMCY and SDO frames
+    nmt: dict[str, np.ndarray]  # NMT_COLUMNS, file order: the frames on 000h
+    emcy: dict[str, np.ndarray]  # EMCY_COLUMNS, sorted by node key, file order within a key
     ec: dict[str, np.ndarray]  # EC_COLUMNS, sorted by node key, file order within a key
     frame_times: ChunkStore  # per batch: ts, base index, lines (see _lines)
     node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, line
@@ -219,17 +248,16 @@ class Decoded:
 
     def ec_rows(self, key: int) -> slice:
         """The rows of `ec` that belong to one node key."""
-        return self.ec_rows_between(key, key)
+        return key_rows(self.ec["key"], key, key)
 
     def ec_rows_between(self, lo: int, hi: int) -> slice:
         """The rows of `ec` whose node key is in lo..hi."""
-        keys = self.ec["key"]
-        return slice(int(np.searchsorted(keys, lo, side="left")),
-                     int(np.searchsorted(keys, hi, side="right")))
+        return key_rows(self.ec["key"], lo, hi)
 
     @property
     def last_event_ts(self) -> float | None:
-        times = [float(a.max()) for a in (self.events["ts"], self.ec["ts"]) if len(a)]
+        times = [float(a.max()) for a in (self.events["ts"], self.nmt["ts"], self.emcy["ts"],
+                                          self.ec["ts"]) if len(a)]
         return max(times) if times else None
 
     def close(self) -> None:
@@ -287,20 +315,22 @@ class Decoded:
             prev = (float(ts[-1]), int(chunk["base"][0]) + len(ts) - 1)
         return prev
 
-    def first_node_frame_after(
-        self, queries: list[tuple[int, float, int]]
-    ) -> list[NodeFrame | None]:
-        """For each (node key, moment, frame index): the node's first transmitted non-event
-        frame (TPDO, SDO response, EMCY) at or after the moment and after that frame in the
-        file."""
-        result: list[NodeFrame | None] = [None] * len(queries)
-        if not queries:
-            return result
-        qkeys = np.asarray([q[0] for q in queries], np.int64)
-        qts = np.asarray([q[1] for q in queries], np.float64)
-        wanted = np.unique(qkeys)
-        for chunk in self.node_frames.reaching(float(qts.min())):
-            tx = np.flatnonzero((chunk["kind"] != KIND_RPDO) & (chunk["ts"] >= qts.min())
+    def first_node_frame_after(self, keys: np.ndarray, moments: np.ndarray,
+                               after_idx: np.ndarray) -> NodeFrames:
+        """For each query (node key, moment, frame index): the node's first transmitted
+        non-event frame (TPDO, SDO response, EMCY) at or after the moment and after that
+        frame in the file, as columns (idx -1: none). A log may reset its nodes a million
+        times, so queries and answers are arrays, never objects."""
+        keys = np.asarray(keys, np.int64)
+        moments = np.asarray(moments, np.float64)
+        after_idx = np.asarray(after_idx, np.int64)
+        found = NodeFrames.none(len(keys))
+        if not len(keys) or not len(self.node_frames):
+            return found
+        wanted = np.unique(keys)
+        earliest = float(moments.min())
+        for chunk in self.node_frames.reaching(earliest):
+            tx = np.flatnonzero((chunk["kind"] != KIND_RPDO) & (chunk["ts"] >= earliest)
                                 & np.isin(chunk["key"], wanted))
             if not tx.size:
                 continue
@@ -309,22 +339,42 @@ class Decoded:
             idx = chunk["idx"][tx]
             order = np.lexsort((idx, ts, key))
             skey, sts, sidx = key[order], ts[order], idx[order]
-            lo = np.searchsorted(skey, qkeys, side="left")
-            hi = np.searchsorted(skey, qkeys, side="right")
-            for q in np.flatnonzero(hi > lo):
-                a, b = int(lo[q]), int(hi[q])
-                p = a + int(np.searchsorted(sts[a:b], qts[q], side="left"))
-                while p < b and sidx[p] <= queries[q][2]:
+            pos, hi = _first_at(skey, sts, keys, moments)
+            hit = np.flatnonzero(pos < hi)
+            # a frame earlier in the file than the query's own (timestamps out of order) is
+            # no answer: step past it (rare, so one query at a time)
+            for q in hit[sidx[pos[hit]] <= after_idx[hit]].tolist():
+                p = int(pos[q])
+                while p < hi[q] and sidx[p] <= after_idx[q]:
                     p += 1
-                if p < b:
-                    row = tx[order[p]]
-                    cand = NodeFrame(float(chunk["ts"][row]), int(chunk["idx"][row]),
-                                     int(node_frame_lines(chunk, np.asarray([row]))[0]),
-                                     int(chunk["kind"][row]))
-                    cur = result[q]
-                    if cur is None or cand.ts < cur.ts:
-                        result[q] = cand
-        return result
+                pos[q] = p
+            hit = hit[pos[hit] < hi[hit]]
+            rows = tx[order[pos[hit]]]
+            better = (found.idx[hit] < 0) | (chunk["ts"][rows] < found.ts[hit])
+            hit, rows = hit[better], rows[better]
+            found.ts[hit] = chunk["ts"][rows]
+            found.idx[hit] = chunk["idx"][rows]
+            found.line[hit] = node_frame_lines(chunk, rows)
+            found.kind[hit] = chunk["kind"][rows]
+        return found
+
+
+def _first_at(skey: np.ndarray, sts: np.ndarray, keys: np.ndarray, moments: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Per query (key, moment): the first position among its key's rows of (skey, sts),
+    sorted by key then time, whose time is >= the moment, and the end of its key's rows.
+    One searchsorted per distinct key, over all that key's queries."""
+    pos = np.zeros(len(keys), np.int64)
+    end = np.zeros(len(keys), np.int64)
+    by_key = np.argsort(keys, kind="stable")
+    sorted_keys = keys[by_key]
+    for k in np.unique(sorted_keys).tolist():
+        qa, qb = np.searchsorted(sorted_keys, [k, k + 1])
+        a, b = np.searchsorted(skey, [k, k + 1])
+        q = by_key[qa:qb]
+        pos[q] = a + np.searchsorted(sts[a:b], moments[q], side="left")
+        end[q] = b
+    return pos, end
 
 
 def _node_of(can_id: np.ndarray, bases: Iterable[int]) -> tuple[np.ndarray, np.ndarray]:
@@ -366,17 +416,23 @@ _CONFIG_INDICES = np.array([0x1016, 0x1017, 0x100C, 0x100D, 0x1400, 0x1401, 0x14
                             0x1800, 0x1801, 0x1802, 0x1803])
 
 
-def node_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
-    """EMCYs, SDO downloads to the objects that configure error control and PDOs, their
+def key_rows(keys: np.ndarray, lo: int, hi: int) -> slice:
+    """The rows of a column sorted by node key whose key is in lo..hi."""
+    return slice(int(np.searchsorted(keys, lo, side="left")),
+                 int(np.searchsorted(keys, hi, side="right")))
+
+
+def sdo_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
+    """SDO downloads to the objects that configure error control and PDOs, their
     confirmations, and every SDO abort: sparse frames the timeline decodes one by one."""
     data_frame = ~b.rtr & (b.dlc >= 4)
-    emcy = ~b.rtr & (cid >= EMCY_BASE + 1) & (cid <= EMCY_BASE + MAX_NODE_ID)
+    found = np.zeros(len(cid), bool)
     # SDO responses (581h..5FFh) and requests (601h..67Fh); 600h is no node's
     sdo = (data_frame & (cid >= SDO_TX_BASE + 1) & (cid <= SDO_RX_BASE + MAX_NODE_ID)
            & (cid != SDO_RX_BASE))
     rows = np.flatnonzero(sdo)
     if not rows.size:
-        return emcy
+        return found
     # Only the SDO frames' payloads are looked at (a few per thousand frames).
     data = b.data[rows]
     scid = cid[rows]
@@ -385,8 +441,8 @@ def node_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
     cmd = data[:, 0]
     request = (scid >= SDO_RX_BASE + 1) & ((cmd & 0xE0) == 0x20) & config
     response = (scid <= SDO_TX_BASE + MAX_NODE_ID) & (((cmd == 0x60) & config) | (cmd == 0x80))
-    emcy[rows[request | response]] = True
-    return emcy
+    found[rows[request | response]] = True
+    return found
 
 
 def _lines(line: np.ndarray) -> dict[str, np.ndarray]:
@@ -474,6 +530,8 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     for c in pdo_cob_ids:
         keep[c & STD_ID_MASK] = True
     event_parts: list[np.ndarray] = []
+    nmt_spool = ColumnSpool(NMT_COLUMNS)
+    emcy_spool = ColumnSpool(EMCY_COLUMNS)
     ec_spool = ColumnSpool(EC_COLUMNS)
     frame_times = ChunkStore()
     node_frames = ChunkStore()
@@ -496,7 +554,21 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
                 "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
                 "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EC_BASE),
                 "rtr": rtr, "dlc": dlc, "value": np.where((dlc >= 1) & ~rtr, b.data[sel, 0], 0)})
-        ev_mask = co & ((cid == NMT_ID) | node_events(cid, b))
+        nmt = co & (cid == NMT_ID)
+        if nmt.any():
+            sel = np.flatnonzero(nmt)
+            nmt_spool.append({"ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+                              "chan": b.chan[sel], "rtr": b.rtr[sel], "dlc": b.dlc[sel],
+                              "cs": b.data[sel, 0], "target": b.data[sel, 1]})
+        emcy = co & ~b.rtr & (cid >= EMCY_BASE + 1) & (cid <= EMCY_BASE + MAX_NODE_ID)
+        if emcy.any():
+            sel = np.flatnonzero(emcy)
+            emcy_spool.append({
+                "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+                "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EMCY_BASE),
+                "dlc": b.dlc[sel],
+                "data": np.ascontiguousarray(b.data[sel]).view(np.uint64).ravel()})
+        ev_mask = co & sdo_events(cid, b)
         if ev_mask.any():
             sel = np.flatnonzero(ev_mask)
             ev = np.empty(sel.size, EVENT_DTYPE)
@@ -550,19 +622,23 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
                     use.count += int(c)
 
     events = np.concatenate(event_parts) if event_parts else np.empty(0, EVENT_DTYPE)
-    ec_cols = _grouped(ec_spool)
+    nmt_cols = {name: nmt_spool.column(name) for name in NMT_COLUMNS}
+    nmt_spool.close()
+    emcy_cols = _grouped(emcy_spool, EMCY_COLUMNS)
+    emcy_spool.close()
+    ec_cols = _grouped(ec_spool, EC_COLUMNS)
     ec_spool.close()
-    return Decoded(events, ec_cols, frame_times, node_frames, restricted, first_tx,
-                   last_tx, standard)
+    return Decoded(events, nmt_cols, emcy_cols, ec_cols, frame_times, node_frames, restricted,
+                   first_tx, last_tx, standard)
 
 
-def _grouped(spool: ColumnSpool) -> dict[str, np.ndarray]:
-    """Join the error-control columns and group them by node key (stable, so file order
-    within a node), one column at a time to keep the peak low."""
+def _grouped(spool: ColumnSpool, columns: dict[str, type]) -> dict[str, np.ndarray]:
+    """Join spooled columns and group them by node key (stable, so file order within a
+    node), one column at a time to keep the peak low."""
     cols = {"key": spool.column("key")}
     order = np.argsort(cols["key"], kind="stable")
     cols["key"] = cols["key"][order]
-    for name in EC_COLUMNS:
+    for name in columns:
         if name != "key":
             cols[name] = spool.column(name)[order]
     return cols

@@ -216,7 +216,7 @@ def _known(p: Problems, nodes: dict[tuple[str | None, int], NodeModel]) -> Probl
         if m is not None:
             sel = np.flatnonzero(p.nodes == n)
             keep[sel] = m.known_at(p.time[sel])
-    return p.subset(np.flatnonzero(keep))
+    return p if keep.all() else p.subset(np.flatnonzero(keep))
 
 
 def _node_problems(r: Rule, model: InputModel, params: dict[str, Any]) -> _Found:
@@ -238,7 +238,7 @@ def _node_problems(r: Rule, model: InputModel, params: dict[str, Any]) -> _Found
 
 def _frame_of(at: Located | tuple[int, int]) -> tuple[int, int]:
     """(index, line) of what a finding points at: a frame, or an (index, line) pair."""
-    if isinstance(at, tuple) and not hasattr(at, "idx"):  # a NodeFrame is a tuple too
+    if isinstance(at, tuple) and not hasattr(at, "idx"):  # a named tuple is a frame
         return at
     frame = cast(Located, at)
     return frame.idx, frame.line

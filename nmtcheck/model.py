@@ -8,19 +8,22 @@ reports or a test looks at.
 
 from __future__ import annotations
 
+import heapq
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
 
+from nmtcheck import emcy
 from nmtcheck.decode import (
     KIND_RPDO,
     KIND_TPDO,
     Decoded,
     FirstTx,
-    NodeFrame,
+    NodeFrames,
     node_frame_lines,
 )
 from nmtcheck.frames import RPDO_BASES, TPDO_BASES
@@ -78,6 +81,7 @@ class Command:
 
 
 _UNKNOWN = STATES.index("UNKNOWN")
+QUERY_GROUP = 1 << 20  # resets asked of the node-frame store in one pass
 _KNOWN_CS = np.zeros(256, bool)
 _KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
 
@@ -88,6 +92,12 @@ def known_cs(cs: np.ndarray) -> np.ndarray:
     return known
 _RESET_CS = np.zeros(256, bool)
 _RESET_CS[list(RESETS)] = True
+
+
+def reset_cs(cs: np.ndarray) -> np.ndarray:
+    """Whether each byte is a reset command specifier (reset node, reset communication)."""
+    reset: np.ndarray = _RESET_CS[cs]
+    return reset
 
 
 class NmtTable:
@@ -124,48 +134,75 @@ class NmtTable:
 
 
 class CommandTable:
-    """The valid NMT commands that apply to one node, as columns: a log of nothing but
-    NMT commands gives every node one per frame."""
+    """The valid NMT commands that apply to one node, as positions into its channel's
+    `NmtTable`: a log of nothing but NMT commands gives each of 127 nodes every
+    broadcast, so a node holds a position per command, not a copy of the columns. The
+    columns (`ts`, `idx`, ...) are gathered on each access: take them once per check."""
 
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, cs: np.ndarray,
-                 broadcast: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.cs = np.asarray(cs, np.uint8)
-        self.broadcast = np.asarray(broadcast, bool)
-        self.is_reset = _RESET_CS[self.cs]
+    def __init__(self, nmt: NmtTable, pos: np.ndarray) -> None:
+        self.nmt = nmt
+        self.pos = np.asarray(pos, np.int32 if len(nmt) < 1 << 31 else np.int64)
+        self.is_reset = _RESET_CS[nmt.cs[self.pos]]
 
     @classmethod
     def empty(cls) -> CommandTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z)
+        return cls(NmtTable.empty(), np.zeros(0, np.int64))
 
     @classmethod
     def of(cls, nmt: NmtTable, pos: np.ndarray) -> CommandTable:
-        return cls(nmt.ts[pos], nmt.idx[pos], nmt.line[pos], nmt.cs[pos], nmt.target[pos] == 0)
+        return cls(nmt, pos)
 
     def __len__(self) -> int:
-        return len(self.ts)
+        return len(self.pos)
 
     def __getitem__(self, pos: int) -> Command:
-        return Command(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
-                       int(self.cs[pos]), bool(self.broadcast[pos]))
+        nmt, at = self.nmt, int(self.pos[pos])
+        return Command(float(nmt.ts[at]), int(nmt.idx[at]), int(nmt.line[at]), int(nmt.cs[at]),
+                       bool(nmt.target[at] == 0))
 
     def __iter__(self) -> Iterator[Command]:
         return (self[i] for i in range(len(self)))
 
     def name(self, pos: int) -> str:
-        return COMMAND_NAMES[int(self.cs[pos])] + (" (broadcast)" if self.broadcast[pos] else "")
+        at = int(self.pos[pos])
+        return COMMAND_NAMES[int(self.nmt.cs[at])] + (
+            " (broadcast)" if self.nmt.target[at] == 0 else "")
+
+    @property
+    def ts(self) -> np.ndarray:
+        ts: np.ndarray = self.nmt.ts[self.pos]
+        return ts
+
+    @property
+    def idx(self) -> np.ndarray:
+        idx: np.ndarray = self.nmt.idx[self.pos]
+        return idx
+
+    @property
+    def line(self) -> np.ndarray:
+        line: np.ndarray = self.nmt.line[self.pos]
+        return line
+
+    @property
+    def cs(self) -> np.ndarray:
+        cs: np.ndarray = self.nmt.cs[self.pos]
+        return cs
+
+    @property
+    def broadcast(self) -> np.ndarray:
+        broadcast: np.ndarray = self.nmt.target[self.pos] == 0
+        return broadcast
 
     @property
     def reset_idx(self) -> np.ndarray:
         """File positions of the reset commands (sorted: commands are in file order)."""
-        return self.idx[self.is_reset]
+        idx: np.ndarray = self.nmt.idx[self.pos[self.is_reset]]
+        return idx
 
     @property
     def reset_ts(self) -> np.ndarray:
-        return self.ts[self.is_reset]
+        ts: np.ndarray = self.nmt.ts[self.pos[self.is_reset]]
+        return ts
 
 
 @dataclass(frozen=True)
@@ -291,6 +328,73 @@ class NodeEvent:
     code: int | None = None
 
 
+class EmcyTable:
+    """A node's EMCY frames as columns, in file order (a node may send them as fast as
+    the bus allows): a `NodeEvent`, with its decoded text, is made when one is looked at."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, dlc: np.ndarray,
+                 data: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.dlc = np.asarray(dlc, np.int16)
+        self.data = np.asarray(data, np.uint64)  # the 8 data bytes, packed
+
+    @classmethod
+    def empty(cls) -> EmcyTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> NodeEvent:
+        code, text = _describe_emcy(int(self.data[pos]), int(self.dlc[pos]))
+        return NodeEvent(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]), "emcy",
+                         text, code)
+
+    def __iter__(self) -> Iterator[NodeEvent]:
+        for lo in range(0, len(self), 4096):  # plain numbers a block at a time
+            part = slice(lo, lo + 4096)
+            for ts, idx, line, dlc, data in zip(
+                    self.ts[part].tolist(), self.idx[part].tolist(), self.line[part].tolist(),
+                    self.dlc[part].tolist(), self.data[part].tolist(), strict=True):
+                code, text = _describe_emcy(data, dlc)
+                yield NodeEvent(ts, idx, line, "emcy", text, code)
+
+
+@lru_cache(maxsize=4096)
+def _describe_emcy(packed: int, dlc: int) -> tuple[int | None, str]:
+    """`emcy.describe` of packed data bytes: a node that floods the bus with EMCYs mostly
+    repeats a few of them."""
+    return emcy.describe(list(packed.to_bytes(8, sys.byteorder)), dlc)
+
+
+class NodeEvents:
+    """Everything a node said that is not a finding, in file order when iterated: its
+    EMCYs as columns (`emcy`), the SDO aborts and configuration writes as objects."""
+
+    def __init__(self) -> None:
+        self.emcy = EmcyTable.empty()
+        self._other: list[NodeEvent] = []
+
+    def append(self, event: NodeEvent) -> None:
+        self._other.append(event)
+
+    def __len__(self) -> int:
+        return len(self.emcy) + len(self._other)
+
+    def __bool__(self) -> bool:
+        return len(self) > 0
+
+    def __iter__(self) -> Iterator[NodeEvent]:
+        return heapq.merge(self.emcy, sorted(self._other, key=_by_idx), key=_by_idx)
+
+
+def _by_idx(e: NodeEvent) -> int:
+    return e.idx
+
+
 @dataclass
 class Interval:
     start: float
@@ -364,7 +468,7 @@ class NodeModel:
     intervals: IntervalTable = field(default_factory=IntervalTable.empty)
     writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
     consumer_writes: list[ConfigWrite] = field(default_factory=list)  # 1016h entries naming N
-    events: list[NodeEvent] = field(default_factory=list)
+    events: NodeEvents = field(default_factory=NodeEvents)
     # heartbeat_pairs() and the `ec.kind` it was computed from (classification replaces it)
     _pairs: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = field(
         default=None, init=False, repr=False, compare=False)
@@ -556,20 +660,56 @@ class InputModel:
         for cm in self.channels:
             yield from cm.nodes.values()
 
-    def first_tx_after_resets(self, m: NodeModel) -> list[NodeFrame | None]:
+    def events(self) -> Iterator[tuple[NodeModel, NodeEvent]]:
+        """Every node's events (EMCY, SDO aborts and writes) in file order, each made when
+        it is reached: a log may hold millions of EMCYs."""
+        return heapq.merge(*(_tagged(m) for m in self.nodes()), key=lambda me: me[1].idx)
+
+    def event_count(self) -> int:
+        return sum(len(m.events) for m in self.nodes())
+
+    def first_tx_after_resets(self, m: NodeModel) -> NodeFrames:
         """Per reset command to N (in file order): N's first TPDO, SDO response or EMCY at
-        or after it (None if none)."""
-        return self._first_tx_after_resets[m.key]
+        or after it, as columns (idx -1: none)."""
+        answered, frames = self._first_tx_after_resets.get(m.key, (None, None))
+        found = NodeFrames.none(len(m.commands.reset_idx))
+        if answered is not None and frames is not None:
+            found.ts[answered], found.idx[answered] = frames.ts, frames.idx
+            found.line[answered], found.kind[answered] = frames.line, frames.kind
+        return found
 
     @cached_property
-    def _first_tx_after_resets(self) -> dict[int, list[NodeFrame | None]]:
-        # one pass over the node-frame store answers every node's resets
-        nodes = list(self.nodes())
-        queries = [(m.key, t, i) for m in nodes for t, i in zip(
-            m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist(), strict=True)]
-        answers = iter(self.decoded.first_node_frame_after(queries))
-        return {m.key: [next(answers) for _ in range(len(m.commands.reset_idx))]
-                for m in nodes}
+    def _first_tx_after_resets(self) -> dict[int, tuple[np.ndarray, NodeFrames]]:
+        """Only the answered resets, per node key: a log may reset its nodes millions of
+        times and have no other frame. Nodes are asked in groups of about a million
+        resets, one pass over the node-frame store each."""
+        answers: dict[int, tuple[np.ndarray, NodeFrames]] = {}
+        if not len(self.decoded.node_frames):
+            return answers
+        group: list[NodeModel] = []
+        size = 0
+        for m in [*self.nodes(), None]:
+            if m is not None and m.key in self.decoded.first_tx:  # it sent something
+                group.append(m)
+                size += int(np.count_nonzero(m.commands.is_reset))
+                if size < QUERY_GROUP:
+                    continue
+            if not group:
+                continue
+            resets = [(m.key, m.commands.reset_ts, m.commands.reset_idx) for m in group]
+            found = self.decoded.first_node_frame_after(
+                np.concatenate([np.full(len(ts), key) for key, ts, _ in resets]),
+                np.concatenate([ts for _, ts, _ in resets]),
+                np.concatenate([idx for _, _, idx in resets]))
+            at = 0
+            for key, ts, _ in resets:
+                mine = found.take(slice(at, at + len(ts)))
+                answered = np.flatnonzero(mine.idx >= 0)
+                if answered.size:
+                    answers[key] = (answered, mine.take(answered))
+                at += len(ts)
+            group, size = [], 0
+        return answers
 
     def sent_while(self, states: tuple[str, ...]) -> SentFrames:
         """The stored node frames (TPDO, RPDO, SDO response, EMCY) sent while their node
@@ -583,6 +723,11 @@ class InputModel:
         if found is None:
             found = self._sent_while[states] = _sent_while(self, states)
         return found
+
+
+def _tagged(m: NodeModel) -> Iterator[tuple[NodeModel, NodeEvent]]:
+    for e in m.events:
+        yield m, e
 
 
 @dataclass(frozen=True)

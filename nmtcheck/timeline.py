@@ -6,7 +6,7 @@ found (configured, else the median interval), heartbeat and guarding timeouts
 are computed, and finally the state intervals are built, with OFFLINE from each
 timeout to the node's next frame of any kind. Everything is vectorised per node
 but the interval walk, which sees only the frames that can change the state.
-The sparse events (NMT commands, EMCY, configuration SDOs) are Python objects.
+NMT commands and EMCYs are columns too; only the configuration SDOs are Python objects.
 """
 
 from __future__ import annotations
@@ -17,21 +17,21 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nmtcheck import emcy
-from nmtcheck.decode import Decoded
+from nmtcheck.decode import Decoded, key_rows
 from nmtcheck.model import (
     ChannelModel,
     CommandTable,
     EcTable,
+    EmcyTable,
     InputModel,
     IntervalTable,
     Master,
     NmtTable,
     NodeConfig,
-    NodeEvent,
     NodeModel,
     TimelineParams,
     Timeout,
+    reset_cs,
 )
 from nmtcheck.nmt import (
     BOOTUP,
@@ -96,16 +96,16 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
     ev = decoded.events
     mine = ev["chan"] == chan
     rows = ev if mine.all() else ev[mine]  # one channel (the usual case): no copy
+    nmt = _nmt_table(decoded.nmt, chan)
     nodes = _Nodes(chan, name, configs)
     _nodes_that_sent(decoded, chan, nodes)
     ec_tables = _ec_tables(decoded, chan)
     for n, table in ec_tables.items():
         if not table.rtr.all():  # a node exists once it sends; requests alone do not
             nodes(n)
-    is_nmt = rows["can_id"] == 0
-    nmt = _nmt_table(rows[is_nmt])
     _first_shown_by_commands(nmt, nodes)
-    _emcy_and_sdo(rows[~is_nmt], nodes)
+    _emcy(decoded, chan, nodes)
+    _sdo(rows, nodes)
     for n, table in ec_tables.items():
         if n in nodes:  # requests to a node nothing else shows are not kept
             nodes[n].ec = table
@@ -135,24 +135,34 @@ def _nodes_that_sent(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
             m.last_seen = decoded.last_tx.get(key)
 
 
-def _emcy_and_sdo(rows: np.ndarray, nodes: _Nodes) -> None:
-    """EMCY messages become node events; SDO traffic is paired into configuration writes."""
+def _emcy(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
+    """Each node's EMCYs: views into the decoded columns (grouped by node)."""
+    cols = decoded.emcy
+    keys = cols["key"][key_rows(cols["key"], chan * 128, chan * 128 + 127)]
+    for key in np.unique(keys).tolist():
+        r = key_rows(cols["key"], key, key)
+        nodes(key - chan * 128).events.emcy = EmcyTable(
+            cols["ts"][r], cols["idx"][r], cols["line"][r], cols["dlc"][r], cols["data"][r])
+
+
+def _sdo(rows: np.ndarray, nodes: _Nodes) -> None:
+    """SDO traffic is paired into configuration writes."""
     sdo_rows: list[SdoFrame] = []
     for r in rows.tolist():
         ts, idx, line, _chan, can_id, _rtr, dlc, data = r
         data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
-        if 0x081 <= can_id <= 0x0FF:
-            code, text = emcy.describe(data, dlc)
-            nodes(can_id - 0x080).events.append(NodeEvent(ts, idx, line, "emcy", text, code))
-        elif 0x581 <= can_id <= 0x67F:
-            sdo_rows.append(SdoFrame(ts, idx, line, can_id, dlc, data))
+        sdo_rows.append(SdoFrame(ts, idx, line, can_id, dlc, data))
     pair_sdo_writes(sdo_rows, nodes, nodes)
 
 
-def _nmt_table(rows: np.ndarray) -> NmtTable:
-    data = rows["data"]
-    return NmtTable(rows["ts"], rows["idx"], rows["line"], rows["rtr"], rows["dlc"],
-                    data[:, 0], data[:, 1])
+def _nmt_table(cols: dict[str, np.ndarray], chan: int) -> NmtTable:
+    """The channel's frames on 000h: views of the decoded columns when the input has one
+    channel (a log of nothing but NMT frames must not be held twice)."""
+    mine = cols["chan"] == chan
+    names = ("ts", "idx", "line", "rtr", "dlc", "cs", "target")
+    if mine.all():
+        return NmtTable(*(cols[name] for name in names))
+    return NmtTable(*(cols[name][mine] for name in names))
 
 
 def _first_shown_by_commands(nmt: NmtTable, node_model: Callable[[int], NodeModel]) -> None:
@@ -212,8 +222,8 @@ def infer_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelinePara
     boot_idx = [b[0] for b in boots]
     found: dict[int, str] = {}
     for i in np.flatnonzero(valid.target == 0).tolist():
-        f_idx, f_ts, f_cs = valid.idx[i], valid.ts[i], valid.cs[i]
-        prev_idx = valid.idx[i - 1] if i else -1
+        f_idx, f_ts, f_cs = int(valid.idx[i]), float(valid.ts[i]), int(valid.cs[i])
+        prev_idx = int(valid.idx[i - 1]) if i else -1
         # every boot-up since the previous command and within the window: at a common
         # power-on the slaves' boot-ups may come after the master's
         k = bisect.bisect_left(boot_idx, f_idx) - 1
@@ -237,14 +247,14 @@ def infer_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelinePara
 
 
 class _Valid:
-    """The valid commands of a channel as plain lists (the master inference walks a few
-    of them at a time, by position)."""
+    """The valid commands of a channel as columns (the master inference walks a few of
+    them at a time, by position; a log may hold millions of them)."""
 
     def __init__(self, nmt: NmtTable) -> None:
         v = nmt.valid
-        self.ts: list[float] = nmt.ts[v].tolist()
-        self.idx: list[int] = nmt.idx[v].tolist()
-        self.cs: list[int] = nmt.cs[v].tolist()
+        self.ts = nmt.ts[v]
+        self.idx = nmt.idx[v]
+        self.cs = nmt.cs[v]
         self.target = nmt.target[v]
 
     def next_to(self, i: int, node: int) -> int | None:
@@ -255,7 +265,7 @@ class _Valid:
             seg = self.target[j:j + step]
             hit = np.flatnonzero((seg == 0) | (seg == node))
             if hit.size:
-                return self.idx[j + int(hit[0])]
+                return int(self.idx[j + int(hit[0])])
             j, step = j + step, step * 2
         return None
 
@@ -263,14 +273,24 @@ class _Valid:
 def _answers_reset(valid: _Valid, before: int, node: int, b_idx: int, b_ts: float,
                    params: TimelineParams) -> bool:
     """Whether a reset command to `node` (direct or broadcast) came in the B002 window
-    before its boot-up: a node that obeys a broadcast reset is not its sender."""
-    for j in range(before - 1, -1, -1):
-        if valid.idx[j] > b_idx:
-            continue
-        if valid.ts[j] < b_ts - params.reset_window_s - EPS:
-            return False
-        if valid.cs[j] in RESETS and int(valid.target[j]) in (0, node):
+    before its boot-up: a node that obeys a broadcast reset is not its sender. Walks back
+    from the `before`-th command in growing windows, skipping commands later in the file
+    than the boot-up, until one is older than the window."""
+    hi, step = before, 64
+    while hi > 0:
+        lo = max(hi - step, 0)
+        seg = slice(lo, hi)
+        considered = valid.idx[seg] <= b_idx
+        old = considered & (valid.ts[seg] < b_ts - params.reset_window_s - EPS)
+        reset = considered & reset_cs(valid.cs[seg]) & (
+            (valid.target[seg] == 0) | (valid.target[seg] == node))
+        last_old = np.flatnonzero(old)
+        last_reset = np.flatnonzero(reset)
+        if last_reset.size and (not last_old.size or last_reset[-1] > last_old[-1]):
             return True
+        if last_old.size:
+            return False
+        hi, step = lo, step * 2
     return False
 
 
@@ -282,7 +302,7 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
     Walks only the few frames around the command, so a hostile log with a million
     boot-ups and broadcasts stays linear enough.
     """
-    f_idx, f_ts, f_cs = valid.idx[i], valid.ts[i], valid.cs[i]
+    f_idx, f_ts, f_cs = int(valid.idx[i]), float(valid.ts[i]), int(valid.cs[i])
     p = int(np.searchsorted(t.idx[data], f_idx, side="right"))
     after = (int(q) for q in data[p:p + 256])  # the answer is in the next few frames
     if f_cs in RESETS:
@@ -496,9 +516,12 @@ def _offline_ends(decoded: Decoded, items: list[tuple[NodeModel, Timeout]]) -> N
     """Each timeout lasts until the node's next frame of any kind after its moment."""
     if not items:
         return
-    found = decoded.first_node_frame_after([(m.key, t.moment, t.after_idx) for m, t in items])
-    for (m, t), hit in zip(items, found, strict=True):
-        best = hit[0] if hit is not None else None
+    found = decoded.first_node_frame_after(np.asarray([m.key for m, _t in items]),
+                                           np.asarray([t.moment for _m, t in items]),
+                                           np.asarray([t.after_idx for _m, t in items]))
+    for (m, t), hit_idx, hit_ts in zip(items, found.idx.tolist(), found.ts.tolist(),
+                                       strict=True):
+        best = hit_ts if hit_idx >= 0 else None
         ec = m.ec
         p = ec.after(t.after_idx)
         step = 16

@@ -109,7 +109,7 @@ def test_emcy_and_segmented_download_are_node_events(checker) -> None:  # type: 
     fr = [(0.0, "701#00"), (0.5, "081#3081110000000000"), (0.6, "081#0000000000000000"),
           (0.7, "601#2117100002000000"), (0.701, "581#6017100000000000")]
     res = checker.run(candump(fr))
-    events = res.model.channels[0].nodes[1].events
+    events = list(res.model.channels[0].nodes[1].events)  # made one at a time
     assert [(e.kind, e.code) for e in events] == [("emcy", 0x8130), ("emcy", 0x0000),
                                                  ("sdo-segmented", None)]
     assert events[0].text.startswith("EMCY 8130h life guard error or heartbeat error")

@@ -71,7 +71,7 @@ class Problems:
     node: int | None
     time: np.ndarray
     message: Callable[[int], str]  # the i-th problem's message
-    frame_index: np.ndarray | None = None  # None: moments
+    frame_index: np.ndarray | None = None  # None: moments (or one row's -1: that row is)
     line: np.ndarray | None = None
     nodes: np.ndarray | None = None  # per problem, for a per-input rule (-1: the network)
 
@@ -85,9 +85,10 @@ class Problems:
         return None if n < 0 else n
 
     def problem(self, i: int) -> Problem:
+        idx = -1 if self.frame_index is None else int(self.frame_index[i])
         return Problem(self.channel, self.node_of(i), float(self.time[i]), self.message(i),
-                       None if self.frame_index is None else int(self.frame_index[i]),
-                       None if self.line is None else int(self.line[i]))
+                       None if idx < 0 else idx,
+                       None if self.line is None or idx < 0 else int(self.line[i]))
 
     def subset(self, rows: np.ndarray) -> Problems:
         """These rows only, in order (messages still made on demand)."""

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
-import bisect
 from collections.abc import Iterator
 
 import numpy as np
 
-from nmtcheck.checks.base import Found, NodeContext, Param, Params, rule
-from nmtcheck.decode import KIND_EC, KIND_NAMES
-from nmtcheck.model import EcFrame, NodeModel
-from nmtcheck.nmt import EPS, GUARD, HEARTBEAT, MALFORMED, any_between
+from nmtcheck.checks.base import Found, NodeContext, Param, Params, batch, rule
+from nmtcheck.decode import KIND_EC, KIND_NAMES, NodeFrames
+from nmtcheck.model import EcFrame, EcTable, NodeModel
+from nmtcheck.nmt import BOOTUP, EC_KIND_NAMES, EPS, GUARD, HEARTBEAT, MALFORMED, any_between
+
+_NEVER = np.iinfo(np.int64).max  # a frame index after every frame
 
 
 def _auto_window_s(m: NodeModel, value_ms: float) -> float:
@@ -50,45 +51,68 @@ def missing_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]
 
 
 def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float) -> Iterator[Found]:
-    """B001 (a): per reset command, a sign of life before the boot-up or no boot-up."""
+    """B001 (a): per reset command, a sign of life before the boot-up or no boot-up.
+
+    Vectorised over the resets (a log may reset a node a million times): one batch, in
+    reset order, of findings at a frame (the sign of life) or at a moment (the timeout).
+    """
     cmds, ec = m.commands, m.ec
-    rpos = np.flatnonzero(cmds.is_reset)  # plain lists: a log may reset a million times
+    rpos = np.flatnonzero(cmds.is_reset)
     if not len(rpos):
         return
-    r_ts, r_idx = cmds.ts[rpos].tolist(), cmds.idx[rpos].tolist()
-    bootups = m.bootups
-    boot_idx = [b.idx for b in bootups]
+    never = _NEVER
+    r_ts, r_idx = cmds.ts[rpos], cmds.idx[rpos]
+    next_idx = np.append(r_idx[1:], never)
+    next_ts = np.append(r_ts[1:], np.inf)
+    boot = _following(ec, ec.where(BOOTUP), r_idx)  # the boot-up after each reset
+    boot_idx, boot_ts = boot.idx, np.where(boot.idx < never, boot.ts, np.inf)
+    limit = np.minimum(boot_idx, next_idx)  # the wait ends at the boot-up or the next reset
     life = ec.where(HEARTBEAT, GUARD, MALFORMED)  # signs of life but the boot-up
-    life = life[~ec.stale[life]]  # a report queued before the reset is none
-    life_idx = ec.idx[life]
-    sign_at = np.searchsorted(life_idx, cmds.idx[rpos], side="right").tolist()
-    others = ctx.model.first_tx_after_resets(m)  # TPDO, SDO response, EMCY
-    for i, (c_ts, c_idx) in enumerate(zip(r_ts, r_idx, strict=True)):
-        next_reset = r_idx[i + 1] if i + 1 < len(r_idx) else None
-        k = bisect.bisect_right(boot_idx, c_idx)
-        boot = bootups[k] if k < len(bootups) else None
-        limit_idx = min(x for x in (boot.idx if boot else None, next_reset, 1 << 62)
-                        if x is not None)
-        k = sign_at[i]
-        sign = life[k] if k < len(life) and life_idx[k] < limit_idx else None
-        other = others[i]
-        if other is not None and other.idx < limit_idx and (
-                sign is None or other.idx < ec.idx[sign]):
-            yield (other.ts, f"{KIND_NAMES[other.kind]} from node {m.node} "
-                   f"{other.ts - c_ts:.3f} s after {cmds.name(rpos[i])} without a boot-up", other)
-            continue
-        if sign is not None:
-            f = ec[sign]
-            yield (f.ts, f"{f.kind} from node {m.node} {f.ts - c_ts:.3f} s after "
-                   f"{cmds.name(rpos[i])} without a boot-up", f)
-            continue
-        if next_reset is not None and (boot is None or next_reset < boot.idx) and (
-                r_ts[i + 1] - c_ts <= timeout + EPS):
-            continue  # a newer reset restarts the wait
-        if (boot is None or boot.ts - c_ts > timeout + EPS) and (
-                ctx.end > c_ts + timeout + EPS):
-            yield (c_ts + timeout, f"no boot-up from node {m.node} within {timeout:.3f} s "
-                   f"after {cmds.name(rpos[i])}")
+    sign = _following(ec, life[~ec.stale[life]], r_idx)  # a report queued before is none
+    has_sign = sign.idx < limit
+    other = ctx.model.first_tx_after_resets(m)  # TPDO, SDO response, EMCY
+    has_other = (other.idx >= 0) & (other.idx < limit) & (~has_sign | (other.idx < sign.idx))
+    has_sign &= ~has_other
+    restarted = ((next_idx < never) & (next_idx < boot_idx)
+                 & (next_ts - r_ts <= timeout + EPS))  # a newer reset restarts the wait
+    no_boot = (~has_other & ~has_sign & ~restarted & (boot_ts - r_ts > timeout + EPS)
+               & (ctx.end > r_ts + timeout + EPS))
+    found = np.flatnonzero(has_other | has_sign | no_boot)
+    if not found.size:
+        return
+    at_other, at_sign = has_other[found], has_sign[found]
+    choose = [at_other, at_sign]
+    time = np.select(choose, [other.ts[found], sign.ts[found]], r_ts[found] + timeout)
+    frame = np.select(choose, [other.idx[found], sign.idx[found]], -1)
+    line = np.select(choose, [other.line[found], sign.line[found]], -1)
+    # what was seen: a node-frame kind (> 0), -1 - an error-control kind, or 0: nothing
+    what = np.select(choose, [other.kind[found].astype(np.int64),
+                              -1 - sign.kind[found].astype(np.int64)], 0)
+    c_ts, c_pos = r_ts[found], rpos[found]
+
+    def message(i: int) -> str:
+        command = cmds.name(int(c_pos[i]))
+        if what[i] == 0:
+            return (f"no boot-up from node {m.node} within {timeout:.3f} s after {command}")
+        kind = KIND_NAMES[int(what[i])] if what[i] > 0 else EC_KIND_NAMES[-1 - int(what[i])]
+        return (f"{kind} from node {m.node} {float(time[i] - c_ts[i]):.3f} s after {command} "
+                "without a boot-up")
+
+    yield batch(time, message, frame, line)
+
+
+def _following(ec: EcTable, pos: np.ndarray, after_idx: np.ndarray) -> NodeFrames:
+    """Per frame index, the first of the node's frames at `pos` later in the file, as
+    columns (idx: int64 max if there is none)."""
+    n = len(after_idx)
+    if not len(pos):
+        return NodeFrames(np.full(n, np.inf), np.full(n, _NEVER), np.zeros(n, np.int64),
+                          np.zeros(n, np.int8))
+    k = np.searchsorted(ec.idx[pos], after_idx, side="right")
+    ok = k < len(pos)
+    rows = pos[np.where(ok, k, 0)]
+    return NodeFrames(np.where(ok, ec.ts[rows], np.inf), np.where(ok, ec.idx[rows], _NEVER),
+                      ec.line[rows], ec.kind[rows])
 
 
 def _late_start(m: NodeModel, ctx: NodeContext, late_start_ms: float) -> Iterator[Found]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,7 +19,15 @@ from nmtcheck.checks.base import (
     rule,
     run_starts,
 )
-from nmtcheck.model import EcFrame, EcTable, InputModel, NmtTable, NodeModel, known_cs
+from nmtcheck.model import (
+    ChannelModel,
+    EcFrame,
+    EcTable,
+    InputModel,
+    NmtTable,
+    NodeModel,
+    known_cs,
+)
 from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE
 
 
@@ -70,18 +79,41 @@ def malformed_nmt_command(model: InputModel, p: Params) -> Iterator[Problems]:
     **Example.** `000#0105000000000000` (DLC 8).
     """
     for cm in model.channels:
-        nmt = cm.nmt
-        bad = np.flatnonzero(~nmt.valid)  # columns: a log may hold millions of them
+        yield from _malformed_runs(cm)
+
+
+C002_CHUNK = 1 << 20  # NMT frames looked at together: a log may hold nothing else
+
+
+@dataclass
+class _Run:
+    """A run of malformed NMT frames with one defect for one node: where it starts, its
+    length, and what the next frame must share to continue it."""
+
+    at: int
+    length: int
+    node: int
+    same: tuple[int, int, int]  # defect, its value, the node's timeline interval
+
+
+def _malformed_runs(cm: ChannelModel) -> Iterator[Problems]:
+    """C002's runs on one channel, a chunk of frames at a time; a run may go on across
+    chunks, so the last run of each chunk waits for the next."""
+    nmt = cm.nmt
+    pending: _Run | None = None
+    for lo in range(0, len(nmt), C002_CHUNK):
+        bad = lo + np.flatnonzero(~nmt.valid[lo:lo + C002_CHUNK])
         if not bad.size:
             continue
         rtr, dlc, cs, target = nmt.rtr[bad], nmt.dlc[bad], nmt.cs[bad], nmt.target[bad]
         # the defect, as nmt_problem names it: (what, value); its text differs iff these do
         what = np.where(rtr, 0, np.where(dlc != 2, 1, np.where(~known_cs(cs), 2, 3)))
+        what = what.astype(np.int8)
         value = np.select([what == 0, what == 1, what == 2], [0, dlc, cs], target)
         # Only a 2-byte data frame has a node-ID byte; in a frame of the wrong length the
         # second byte addresses nobody, so the finding belongs to the network (node -1).
         node = np.where((target >= 1) & (target <= 127) & ~rtr & (dlc == 2),
-                        target.astype(np.int64), -1)
+                        target.astype(np.int16), np.int16(-1))
         interval = np.full(len(bad), -1, np.int64)  # a run stays within one interval
         for n in np.unique(node[node >= 0]).tolist():
             m = cm.nodes.get(n)
@@ -92,14 +124,36 @@ def malformed_nmt_command(model: InputModel, p: Params) -> Iterator[Problems]:
         join[1:] = ((what[1:] == what[:-1]) & (value[1:] == value[:-1])
                     & (node[1:] == node[:-1]) & (interval[1:] == interval[:-1]))
         first, length = run_starts(join)
-        at = bad[first]
+        at, nodes = bad[first], node[first].astype(np.int64)
+        if pending is not None and pending.same == (int(what[0]), int(value[0]),
+                                                    int(interval[0])) and (
+                pending.node == int(node[0])):
+            pending.length += int(length[0])  # the first run goes on from the last chunk
+            at, length, nodes = at[1:], length[1:], nodes[1:]
+        if pending is not None and len(at):
+            at = np.concatenate([[pending.at], at])
+            length = np.concatenate([[pending.length], length])
+            nodes = np.concatenate([[pending.node], nodes])
+            pending = None
+        if len(at):
+            last = int(first[-1]) if len(first) else 0
+            pending = _Run(int(at[-1]), int(length[-1]), int(nodes[-1]),
+                           (int(what[last]), int(value[last]), int(interval[last])))
+            yield from _c002_batch(cm.name, nmt, at[:-1], length[:-1], nodes[:-1])
+    if pending is not None:
+        yield from _c002_batch(cm.name, nmt, np.asarray([pending.at]),
+                               np.asarray([pending.length]), np.asarray([pending.node]))
 
-        def message(i: int, at: np.ndarray = at, length: np.ndarray = length,
-                    nmt: NmtTable = nmt) -> str:
-            return f"malformed NMT frame: {nmt[int(at[i])].problem}{count_note(int(length[i]))}"
 
-        yield Problems(cm.name, None, nmt.ts[at], message, nmt.idx[at], nmt.line[at],
-                       nodes=node[first])
+def _c002_batch(channel: str, nmt: NmtTable, at: np.ndarray, length: np.ndarray,
+                nodes: np.ndarray) -> Iterator[Problems]:
+    if not len(at):
+        return
+
+    def message(i: int) -> str:
+        return f"malformed NMT frame: {nmt[int(at[i])].problem}{count_note(int(length[i]))}"
+
+    yield Problems(channel, None, nmt.ts[at], message, nmt.idx[at], nmt.line[at], nodes=nodes)
 
 
 def _ec_runs(m: NodeModel, bad: Callable[[EcTable, np.ndarray], np.ndarray]

@@ -46,6 +46,9 @@ from nmtcheck.nmt import (
 _STATE_OF_CODE = np.full(128, -1, np.int8)  # state index of a 7-bit state code, -1 if none
 for _code, _state in STATE_OF_CODE.items():
     _STATE_OF_CODE[_code] = STATE_INDEX[_state]
+_COMMAND_STATE = np.zeros(256, np.int8)  # state index a command specifier commands
+for _cs, _state in COMMAND_STATE.items():
+    _COMMAND_STATE[_cs] = STATE_INDEX[_state]
 
 
 @dataclass
@@ -208,28 +211,77 @@ def command_not_obeyed(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fo
     ec = m.ec
     reports = ec.where(BOOTUP, HEARTBEAT, GUARD)  # frames that report a state
     reports = reports[~ec.stale[reports]]  # queued before a command: no evidence
-    rep_idx = ec.idx[reports]
-    rep_ts = ec.ts[reports]
-    rep_boot = ec.kind[reports] == BOOTUP
-    rep_state = _STATE_OF_CODE[ec.code[reports]]
-    first = np.searchsorted(rep_idx, cmds.idx[todo], side="right").tolist()
-    for j, k in zip(todo.tolist(), first, strict=True):
-        c_ts = float(cmds.ts[j])
-        target = STATE_INDEX[COMMAND_STATE[int(cmds.cs[j])]]
-        newer = int(cmds.idx[j + 1]) if j + 1 < len(cmds) else None
-        for q in range(k, len(reports)):
-            if (newer is not None and rep_idx[q] > newer) or rep_boot[q]:
+    state = _STATE_OF_CODE[ec.code[reports]]
+    boot = ec.kind[reports] == BOOTUP
+    reports, state, boot = (x[boot | (state >= 0)] for x in (reports, state, boot))
+    if not reports.size:
+        return
+    c_idx, c_ts, c_cs = cmds.idx, cmds.ts, cmds.cs
+    target = _COMMAND_STATE[c_cs[todo]]
+    newer = np.append(c_idx[1:], np.iinfo(np.int64).max)[todo]
+    c_ts = c_ts[todo]
+    # the first report after each command; the scan of its reports ends at a boot-up, a
+    # report after a newer command, or one of the commanded state, whichever comes first
+    rep_idx, rep_ts = ec.idx[reports], ec.ts[reports]
+    first = np.searchsorted(rep_idx, c_idx[todo], side="right")
+    ends = np.minimum(np.searchsorted(rep_idx, newer, side="right"), _next_where(boot, first))
+    for s_idx in np.unique(target).tolist():
+        mine = target == s_idx
+        ends[mine] = np.minimum(ends[mine], _next_where(state == s_idx, first[mine]))
+    # ... and the command is not obeyed if a report more than obey_ms after it comes first
+    late = _first_late(rep_ts, c_ts, first, ends, obey)
+    hit = np.flatnonzero(late < ends)
+    if not hit.size:
+        return
+    at = reports[late[hit]]
+    rep_state, expected, when, pos = state[late[hit]], target[hit], c_ts[hit], todo[hit]
+
+    def message(i: int) -> str:
+        return (f"node {m.node} reports {STATES[rep_state[i]]} {ec.ts[at[i]] - when[i]:.3f} s "
+                f"after NMT {cmds.name(int(pos[i]))} (expected {STATES[expected[i]]})")
+
+    yield batch(ec.ts[at], message, ec.idx[at], ec.line[at])
+
+
+def _next_where(flag: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """For each start position, the first position >= it where `flag` holds (len if none)."""
+    n = len(flag)
+    nxt = np.where(flag, np.arange(n), n)
+    nxt = np.minimum.accumulate(nxt[::-1])[::-1]
+    result: np.ndarray = np.append(nxt, n)[np.minimum(start, n)]
+    return result
+
+
+def _first_late(ts: np.ndarray, c_ts: np.ndarray, first: np.ndarray, ends: np.ndarray,
+                obey: float) -> np.ndarray:
+    """Per command, the first report at or after `first` more than `obey` after the
+    command's time (len(ts) if none; a walk only looks before `ends`): a binary search
+    when the reports' times never go back, else a walk (timestamps out of order)."""
+    n = len(ts)
+    if n < 2 or bool((np.diff(ts) >= 0).all()):
+        late = np.maximum(np.searchsorted(ts, c_ts + obey + EPS, side="right"), first)
+        # the exact test is ts - c_ts > obey + EPS: move over rounding at the boundary
+        while True:
+            back = np.flatnonzero((late > first) & (late > 0)
+                                  & (ts[np.maximum(late - 1, 0)] - c_ts > obey + EPS))
+            if not back.size:
                 break
-            state = int(rep_state[q])
-            if state < 0:
-                continue
-            if state == target:
+            late[back] -= 1
+        while True:
+            on = np.flatnonzero((late < n) & ~(ts[np.minimum(late, n - 1)] - c_ts > obey + EPS))
+            if not on.size:
                 break
-            if rep_ts[q] - c_ts > obey + EPS:
-                f = ec[reports[q]]
-                yield (f.ts, f"node {m.node} reports {STATES[state]} {f.ts - c_ts:.3f} s "
-                       f"after NMT {cmds.name(j)} (expected {STATES[target]})", f)
+            late[on] += 1
+        return np.asarray(late, np.int64)
+    late = np.full(len(c_ts), n, np.int64)
+    times = ts.tolist()
+    for j, (k, e, t) in enumerate(zip(first.tolist(), ends.tolist(), c_ts.tolist(),
+                                      strict=True)):
+        for q in range(k, min(e, n)):
+            if times[q] - t > obey + EPS:
+                late[j] = q
                 break
+    return late
 
 
 @rule("S005", "unexplained-state-change", "info")

@@ -110,9 +110,7 @@ def _timeline_lines(results: list[InputResult]) -> Iterator[str]:
 
 def _events(results: list[InputResult]) -> Iterator[dict[str, Any]]:
     for res in results:  # by input, then in file order
-        per_node = [(e.idx, m, e) for m in res.nodes() for e in m.events]
-        per_node.sort(key=lambda t: t[0])
-        for _idx, m, e in per_node:
+        for m, e in res.model.events():
             yield {"input": res.index, "channel": m.channel, "node": m.node,
                    "kind": e.kind, "time": _r(e.ts), "frame_index": e.idx,
                    "line": e.line or None, "code": e.code, "message": e.text}

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from itertools import groupby
+from itertools import groupby, islice
 
 from nmtcheck.engine import Finding, InputResult, summary
 from nmtcheck.reporters.common import (
@@ -65,11 +65,11 @@ def _node_table(res: InputResult) -> list[str]:
 def _node_events(res: InputResult) -> list[str]:
     """EMCYs, SDO aborts and configuration written in the trace: context, not findings."""
     start = res.stats.start or 0.0
-    events = sorted(((m, e) for m in res.nodes() for e in m.events), key=lambda me: me[1].idx)
     out = [f"    {e.ts - start:10.6f} s  line {e.line or '-':<7} {m.channel} node {m.node}: "
-           f"{e.text}" for m, e in events[:MAX_EVENTS_SHOWN]]
-    if len(events) > MAX_EVENTS_SHOWN:
-        out.append(f"    … {len(events) - MAX_EVENTS_SHOWN} more (see --format json)")
+           f"{e.text}" for m, e in islice(res.model.events(), MAX_EVENTS_SHOWN)]
+    total = res.model.event_count()
+    if total > MAX_EVENTS_SHOWN:
+        out.append(f"    … {total - MAX_EVENTS_SHOWN} more (see --format json)")
     return ["  node events (not findings):", *out] if out else []
 
 
