@@ -430,6 +430,11 @@ def main() -> None:
     debug = "--debug" in sys.argv[1:]
     if not debug:  # third-party logging (asammdf, canopen, can) never reaches stderr: every
         logging.getLogger().addHandler(logging.NullHandler())  # error is nmtcheck's one line
+    # Python finds the temporary directory by writing and removing a probe file there; a
+    # signal between the two would leave it behind, so that happens before the handlers
+    # (without a usable one, the first spill says so later).
+    with contextlib.suppress(OSError):
+        tempfile.gettempdir()
     for name in ("SIGTERM", "SIGHUP", "SIGINT"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), _raise_terminated)

@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from nmtcheck.frames import (
     EC_BASE,
@@ -81,7 +82,7 @@ class ColumnSpool:
     frames. Past a small budget they go to one file per column, so the decoder keeps
     no growing heap of small arrays (which glibc could not give back)."""
 
-    def __init__(self, dtypes: dict[str, type], budget: int = 4 << 20) -> None:
+    def __init__(self, dtypes: Mapping[str, DTypeLike], budget: int = 4 << 20) -> None:
         self._dtypes = dtypes
         self._parts: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
         self._size = 0
@@ -109,10 +110,15 @@ class ColumnSpool:
         """One whole column; the parts it was made of are released."""
         dtype = self._dtypes[name]
         parts = self._parts[name]
-        if self._tmp is not None:
+        if self._tmp is not None:  # the rest to the file too, then one read: no copy
             path = os.path.join(self._tmp.name, name)
-            parts.insert(0, np.fromfile(path, dtype))
+            with open(path, "ab") as f:
+                for part in parts:
+                    np.ascontiguousarray(part).tofile(f)
+            parts.clear()
+            col = np.fromfile(path, dtype)
             os.remove(path)
+            return col
         col = np.concatenate(parts) if parts else np.empty(0, dtype)
         parts.clear()
         return col
@@ -529,7 +535,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     keep = np.zeros(STD_IDS + 1, bool)  # 11-bit IDs stored for later attribution
     for c in pdo_cob_ids:
         keep[c & STD_ID_MASK] = True
-    event_parts: list[np.ndarray] = []
+    event_spool = ColumnSpool({"row": EVENT_DTYPE})  # SDO frames: rows of EVENT_DTYPE
     nmt_spool = ColumnSpool(NMT_COLUMNS)
     emcy_spool = ColumnSpool(EMCY_COLUMNS)
     ec_spool = ColumnSpool(EC_COLUMNS)
@@ -580,7 +586,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
             ev["rtr"] = b.rtr[sel]
             ev["dlc"] = b.dlc[sel]
             ev["data"] = b.data[sel]
-            event_parts.append(ev)
+            event_spool.append({"row": ev})
             for c in _written_pdo_cob_ids(ev):
                 keep[c] = True
 
@@ -621,7 +627,8 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
                 else:
                     use.count += int(c)
 
-    events = np.concatenate(event_parts) if event_parts else np.empty(0, EVENT_DTYPE)
+    events = event_spool.column("row")
+    event_spool.close()
     nmt_cols = {name: nmt_spool.column(name) for name in NMT_COLUMNS}
     nmt_spool.close()
     emcy_cols = _grouped(emcy_spool, EMCY_COLUMNS)

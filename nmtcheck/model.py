@@ -133,6 +133,18 @@ class NmtTable:
         return (self[i] for i in range(len(self)))
 
 
+class _Gathered:
+    """A `CommandTable` column: the NMT table's column of that name at the commands'
+    positions, gathered on each access."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, table: CommandTable, owner: type | None = None) -> np.ndarray:
+        column: np.ndarray = getattr(table.nmt, self.name)[table.pos]
+        return column
+
+
 class CommandTable:
     """The valid NMT commands that apply to one node, as positions into its channel's
     `NmtTable`: a log of nothing but NMT commands gives each of 127 nodes every
@@ -168,25 +180,10 @@ class CommandTable:
         return COMMAND_NAMES[int(self.nmt.cs[at])] + (
             " (broadcast)" if self.nmt.target[at] == 0 else "")
 
-    @property
-    def ts(self) -> np.ndarray:
-        ts: np.ndarray = self.nmt.ts[self.pos]
-        return ts
-
-    @property
-    def idx(self) -> np.ndarray:
-        idx: np.ndarray = self.nmt.idx[self.pos]
-        return idx
-
-    @property
-    def line(self) -> np.ndarray:
-        line: np.ndarray = self.nmt.line[self.pos]
-        return line
-
-    @property
-    def cs(self) -> np.ndarray:
-        cs: np.ndarray = self.nmt.cs[self.pos]
-        return cs
+    ts = _Gathered()
+    idx = _Gathered()
+    line = _Gathered()
+    cs = _Gathered()
 
     @property
     def broadcast(self) -> np.ndarray:

@@ -3,7 +3,7 @@ the trace (1017h, 1016h, 100Ch/100Dh, PDO COB-IDs), and how long each write hold
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import NamedTuple
 
 from nmtcheck import sdo
@@ -32,7 +32,7 @@ class _Request(NamedTuple):
     idx: int
 
 
-def pair_sdo_writes(rows: list[SdoFrame], nodes: dict[int, NodeModel],
+def pair_sdo_writes(rows: Iterable[SdoFrame], nodes: dict[int, NodeModel],
                     node_model: Callable[[int], NodeModel]) -> None:
     """Pair SDO requests with the server's answer: confirmed writes, aborts, segmented ones."""
     pending: dict[int, _Request] = {}  # by node

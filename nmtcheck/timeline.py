@@ -147,12 +147,15 @@ def _emcy(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
 
 def _sdo(rows: np.ndarray, nodes: _Nodes) -> None:
     """SDO traffic is paired into configuration writes."""
-    sdo_rows: list[SdoFrame] = []
-    for r in rows.tolist():
-        ts, idx, line, _chan, can_id, _rtr, dlc, data = r
-        data = [int(x) for x in data]  # plain ints: numpy uint8 would overflow on shifts
-        sdo_rows.append(SdoFrame(ts, idx, line, can_id, dlc, data))
-    pair_sdo_writes(sdo_rows, nodes, nodes)
+    pair_sdo_writes(_sdo_frames(rows), nodes, nodes)
+
+
+def _sdo_frames(rows: np.ndarray) -> Iterator[SdoFrame]:
+    """The SDO frames as plain Python values, a block of rows at a time."""
+    for lo in range(0, len(rows), 4096):
+        for ts, idx, line, _chan, can_id, _rtr, dlc, data in rows[lo:lo + 4096].tolist():
+            # plain ints: numpy uint8 would overflow on shifts
+            yield SdoFrame(ts, idx, line, can_id, dlc, [int(x) for x in data])
 
 
 def _nmt_table(cols: dict[str, np.ndarray], chan: int) -> NmtTable:
