@@ -1,9 +1,9 @@
 """What the timeline knows of an input: per channel its NMT frames and master, per node
 its error-control frames, commands, configuration, timeouts and state intervals.
 
-The dense streams (heartbeats, NMT frames, commands, intervals) are numpy columns;
-an object (`EcFrame`, `NmtFrame`, `Command`, `Interval`) is made only for what a rule
-reports or a test looks at.
+The dense streams (heartbeats, NMT frames, commands, EMCYs, intervals) are numpy
+columns; an object (`EcFrame`, `NmtFrame`, `Command`, `NodeEvent`, `Interval`) is made
+only for what a rule or a report looks at. Configuration writes are still objects.
 """
 
 from __future__ import annotations

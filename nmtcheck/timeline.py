@@ -21,6 +21,7 @@ from nmtcheck.decode import Decoded, key_rows
 from nmtcheck.model import (
     ChannelModel,
     CommandTable,
+    ConfigWrite,
     EcTable,
     EmcyTable,
     InputModel,
@@ -461,11 +462,7 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     # A heartbeat sent while a 1017h write is being confirmed already follows the new value
     # (stacks apply it before they answer): its gap is timed by that value.
     # A gap opened by a confirmed write is timed by the value in force after it.
-    at = ts[gap].copy()
-    by_heartbeat = what[gap] == _HB
-    for w in m.writes:
-        if w.index == 0x1017:
-            at[by_heartbeat & (ts[gap] >= w.request_ts) & (ts[gap] < w.ts)] = w.ts
+    at = _timed_from(ts[gap], what[gap] == _HB, writes)
     limit = m.config_series(at, lambda cfg: m.hb_timeout(cfg, params.timeout_factor))
     fire = (limit > 0) & (until - ts[gap] > limit + EPS)
     for g, lim, u, c in zip(gap[fire].tolist(), limit[fire].tolist(), until[fire].tolist(),
@@ -473,6 +470,28 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
         start = float(ts[g])
         m.timeouts.append(Timeout("H001", start + lim, start, int(idx[g]), lim,
                                   u - start if c else None))
+
+
+def _timed_from(start: np.ndarray, by_heartbeat: np.ndarray, writes: list[ConfigWrite]
+                ) -> np.ndarray:
+    """The moment whose configuration times each gap: its start, but for a gap opened by a
+    heartbeat between a 1017h write's request and its confirmation, the confirmation
+    (the last such write in file order). A binary search when the writes' request to
+    confirmation spans do not overlap (always, but in a hostile log), else write by write."""
+    at: np.ndarray = start.copy()
+    if not writes:
+        return at
+    req = np.asarray([w.request_ts for w in writes], np.float64)
+    conf = np.asarray([w.ts for w in writes], np.float64)
+    order = np.argsort(req, kind="stable")
+    if bool((np.diff(order) > 0).all()) and bool((conf[:-1] <= req[1:]).all()):
+        k = np.searchsorted(req, start, side="right") - 1
+        inside = by_heartbeat & (k >= 0) & (start < conf[np.maximum(k, 0)])
+        at[inside] = conf[k[inside]]
+        return at
+    for r, c in zip(req.tolist(), conf.tolist(), strict=True):
+        at[by_heartbeat & (start >= r) & (start < c)] = c
+    return at
 
 
 def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:

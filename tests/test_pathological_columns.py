@@ -24,6 +24,7 @@ from nmtcheck.checks import canid
 from nmtcheck.checks.state import _first_late
 from nmtcheck.model import ConfigWrite, NodeConfig, NodeModel
 from nmtcheck.nmt import EPS
+from nmtcheck.timeline import _timed_from
 
 
 def write_frames(path: Path, frames: int, kind: str) -> None:
@@ -158,3 +159,23 @@ def test_the_configuration_sweep_is_the_write_by_write_configuration(seed: int) 
     want = [_naive_config_at(m, at).heartbeat_ms for at in moments]
     assert np.array_equal(got, np.asarray([np.nan if v is None else v for v in want]),
                           equal_nan=True)
+
+
+@pytest.mark.parametrize("overlap", [False, True])
+def test_gaps_timed_from_a_write_being_confirmed(overlap: bool) -> None:
+    """A heartbeat between a 1017h write's request and its confirmation is timed from the
+    confirmation: by binary search when the spans do not overlap, else write by write;
+    both give what the write-by-write loop gives (the last covering write wins)."""
+    rnd = random.Random(3 + overlap)
+    writes, t = [], 0.0
+    for _ in range(40):
+        t += rnd.uniform(0.0, 0.5)
+        span = rnd.uniform(0.0, 1.5 if overlap else 0.2)
+        writes.append(ConfigWrite(t + span, 0, 0, 5, 0x1017, 0, 100, request_ts=t))
+        t += 0.0 if overlap else span
+    start = np.sort(np.asarray([rnd.uniform(0, t + 1) for _ in range(300)]))
+    by_heartbeat = np.asarray([rnd.random() < 0.8 for _ in range(300)])
+    want = start.copy()
+    for w in writes:
+        want[by_heartbeat & (start >= w.request_ts) & (start < w.ts)] = w.ts
+    assert np.array_equal(_timed_from(start, by_heartbeat, writes), want)
