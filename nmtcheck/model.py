@@ -3,7 +3,7 @@ its error-control frames, commands, configuration, timeouts and state intervals.
 
 The dense streams (heartbeats, NMT frames, commands, EMCYs, intervals) are numpy
 columns; an object (`EcFrame`, `NmtFrame`, `Command`, `NodeEvent`, `Interval`) is made
-only for what a rule or a report looks at. Configuration writes are still objects.
+only for what a rule or a report looks at.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from nmtcheck import emcy
+from nmtcheck import emcy, sdo
 from nmtcheck.decode import (
     KIND_RPDO,
     KIND_TPDO,
@@ -313,6 +313,69 @@ class ConfigWrite:
     request_idx: int = -1
 
 
+class WriteTable:
+    """Confirmed SDO writes to configuration objects as columns, in file order (a log may
+    write 1017h a million times): a `ConfigWrite` is made when one is looked at."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, node: np.ndarray,
+                 index: np.ndarray, sub: np.ndarray, value: np.ndarray, until: np.ndarray,
+                 request_ts: np.ndarray, request_idx: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)  # the server's confirmation (60h)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.node = np.asarray(node, np.int16)  # the SDO server whose object was written
+        self.index = np.asarray(index, np.int32)
+        self.sub = np.asarray(sub, np.uint8)
+        self.value = np.asarray(value, np.int64)
+        self.until = np.asarray(until, np.float64)  # next boot-up or reset: power-on values
+        self.request_ts = np.asarray(request_ts, np.float64)  # the server may act on it at once
+        self.request_idx = np.asarray(request_idx, np.int64)
+
+    _COLUMNS = ("ts", "idx", "line", "node", "index", "sub", "value", "until", "request_ts",
+                "request_idx")
+
+    @classmethod
+    def empty(cls) -> WriteTable:
+        return cls.of([])
+
+    @classmethod
+    def of(cls, writes: Iterable[ConfigWrite]) -> WriteTable:
+        rows = list(writes)
+        return cls(*(np.asarray([getattr(w, name) for w in rows]) for name in cls._COLUMNS))
+
+    @classmethod
+    def concat(cls, tables: list[WriteTable]) -> WriteTable:
+        if not tables:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(t, name) for t in tables]) for name in cls._COLUMNS))
+
+    def take(self, rows: np.ndarray) -> WriteTable:
+        return WriteTable(*(getattr(self, name)[rows] for name in self._COLUMNS))
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> ConfigWrite:
+        return ConfigWrite(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
+                           int(self.node[pos]), int(self.index[pos]), int(self.sub[pos]),
+                           int(self.value[pos]), float(self.until[pos]),
+                           float(self.request_ts[pos]), int(self.request_idx[pos]))
+
+    def __iter__(self) -> Iterator[ConfigWrite]:
+        return (self[i] for i in range(len(self)))
+
+    def events(self) -> Iterator[NodeEvent]:
+        """Each write as the node event the reports list."""
+        for lo in range(0, len(self), 4096):  # plain numbers a block at a time
+            part = slice(lo, lo + 4096)
+            for ts, idx, line, index, sub, value in zip(
+                    self.ts[part].tolist(), self.idx[part].tolist(), self.line[part].tolist(),
+                    self.index[part].tolist(), self.sub[part].tolist(),
+                    self.value[part].tolist(), strict=True):
+                yield NodeEvent(ts, idx, line, "sdo-write", f"{sdo.object_name(index, sub)} = "
+                                f"{value} ({value:X}h) written by SDO")
+
+
 @dataclass
 class NodeEvent:
     """Something a node said that is not a finding: EMCY, SDO abort, configuration write."""
@@ -369,23 +432,26 @@ def _describe_emcy(packed: int, dlc: int) -> tuple[int | None, str]:
 
 class NodeEvents:
     """Everything a node said that is not a finding, in file order when iterated: its
-    EMCYs as columns (`emcy`), the SDO aborts and configuration writes as objects."""
+    EMCYs (`emcy`) and configuration writes (`writes`) as columns, SDO aborts and
+    segmented downloads as objects."""
 
     def __init__(self) -> None:
         self.emcy = EmcyTable.empty()
+        self.writes = WriteTable.empty()
         self._other: list[NodeEvent] = []
 
     def append(self, event: NodeEvent) -> None:
         self._other.append(event)
 
     def __len__(self) -> int:
-        return len(self.emcy) + len(self._other)
+        return len(self.emcy) + len(self.writes) + len(self._other)
 
     def __bool__(self) -> bool:
         return len(self) > 0
 
     def __iter__(self) -> Iterator[NodeEvent]:
-        return heapq.merge(self.emcy, sorted(self._other, key=_by_idx), key=_by_idx)
+        return heapq.merge(self.emcy, self.writes.events(), sorted(self._other, key=_by_idx),
+                           key=_by_idx)
 
 
 def _by_idx(e: NodeEvent) -> int:
@@ -463,8 +529,8 @@ class NodeModel:
     median_s: float | None = None  # the median heartbeat interval, whatever is configured
     timeouts: list[Timeout] = field(default_factory=list)
     intervals: IntervalTable = field(default_factory=IntervalTable.empty)
-    writes: list[ConfigWrite] = field(default_factory=list)  # to N's own objects
-    consumer_writes: list[ConfigWrite] = field(default_factory=list)  # 1016h entries naming N
+    writes: WriteTable = field(default_factory=WriteTable.empty)  # to N's own objects
+    consumer_writes: WriteTable = field(default_factory=WriteTable.empty)  # 1016h naming N
     events: NodeEvents = field(default_factory=NodeEvents)
     # heartbeat_pairs() and the `ec.kind` it was computed from (classification replaces it)
     _pairs: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = field(
@@ -482,51 +548,55 @@ class NodeModel:
         node's own writes to one object the last confirmed in force wins, of the 1016h
         entries naming N the shortest consumer time (the first such entry on a tie).
         """
-        writes, consumers = self.writes, self.consumer_writes
-        own = sorted(range(len(writes)), key=lambda i: writes[i].ts)
-        cons = sorted(range(len(consumers)), key=lambda i: consumers[i].ts)
+        w, c = self.writes, self.consumer_writes
+        w_ts, w_index, w_until = w.ts.tolist(), w.index.tolist(), w.until.tolist()
+        c_ts, c_time, c_until = c.ts.tolist(), (c.value & 0xFFFF).tolist(), c.until.tolist()
+        own = np.argsort(w.ts, kind="stable").tolist()
+        cons = np.argsort(c.ts, kind="stable").tolist()
         latest: dict[int, list[int]] = {}  # per object: heap of -(position in `writes`)
         shortest: list[tuple[int, int]] = []  # heap of (consumer time, position)
-        a = c = 0
+        a = k = 0
         for at in moments:
-            while a < len(own) and writes[own[a]].ts <= at:
-                heapq.heappush(latest.setdefault(writes[own[a]].index, []), -own[a])
+            while a < len(own) and w_ts[own[a]] <= at:
+                heapq.heappush(latest.setdefault(w_index[own[a]], []), -own[a])
                 a += 1
-            while c < len(cons) and consumers[cons[c]].ts <= at:
-                if consumers[cons[c]].value & 0xFFFF:
-                    heapq.heappush(shortest, (consumers[cons[c]].value & 0xFFFF, cons[c]))
-                c += 1
+            while k < len(cons) and c_ts[cons[k]] <= at:
+                if c_time[cons[k]]:
+                    heapq.heappush(shortest, (c_time[cons[k]], cons[k]))
+                k += 1
             active = []
             for heap in latest.values():
-                while heap and writes[-heap[0]].until <= at:  # no longer holds
+                while heap and w_until[-heap[0]] <= at:  # no longer holds
                     heapq.heappop(heap)
                 if heap:
-                    active.append(writes[-heap[0]])
-            while shortest and consumers[shortest[0][1]].until <= at:
+                    active.append(-heap[0])
+            while shortest and c_until[shortest[0][1]] <= at:
                 heapq.heappop(shortest)
-            yield self._config_with(active, consumers[shortest[0][1]] if shortest else None)
+            yield self._config_with(active, shortest[0][1] if shortest else None)
 
-    def _config_with(self, active: list[ConfigWrite], consumer: ConfigWrite | None
-                     ) -> NodeConfig:
-        """The files' configuration with these writes (one per object) applied."""
+    def _config_with(self, active: list[int], consumer: int | None) -> NodeConfig:
+        """The files' configuration with these writes (positions in `writes`, one per
+        object) and this 1016h entry naming N (a position in `consumer_writes`) applied."""
         if not active and consumer is None:
             return self.config
         cfg = replace(self.config, tpdo_cob_ids=dict(self.config.tpdo_cob_ids),
                       rpdo_cob_ids=dict(self.config.rpdo_cob_ids))
-        for w in active:
-            if w.index == 0x1017:
-                cfg.heartbeat_ms = float(w.value)  # 0 written by SDO: heartbeat disabled
-            elif w.index == 0x100C:
-                cfg.guard_time_ms = float(w.value) or None
-            elif w.index == 0x100D:
-                cfg.life_time_factor = w.value or None
-            elif 0x1800 <= w.index <= 0x1803 or 0x1400 <= w.index <= 0x1403:
-                table = cfg.tpdo_cob_ids if w.index >= 0x1800 else cfg.rpdo_cob_ids
-                table[(w.index & 0x3) + 1] = None if w.value & 0x80000000 else w.value & 0x7FF
+        for pos in active:
+            index, value = int(self.writes.index[pos]), int(self.writes.value[pos])
+            if index == 0x1017:
+                cfg.heartbeat_ms = float(value)  # 0 written by SDO: heartbeat disabled
+            elif index == 0x100C:
+                cfg.guard_time_ms = float(value) or None
+            elif index == 0x100D:
+                cfg.life_time_factor = value or None
+            elif 0x1800 <= index <= 0x1803 or 0x1400 <= index <= 0x1403:
+                table = cfg.tpdo_cob_ids if index >= 0x1800 else cfg.rpdo_cob_ids
+                table[(index & 0x3) + 1] = None if value & 0x80000000 else value & 0x7FF
         if consumer is not None:
-            time_ms = float(consumer.value & 0xFFFF)
+            time_ms = float(int(self.consumer_writes.value[consumer]) & 0xFFFF)
             if cfg.consumer_timeout_ms is None or time_ms < cfg.consumer_timeout_ms:
-                cfg.consumer_timeout_ms, cfg.consumer_node = time_ms, consumer.node
+                cfg.consumer_timeout_ms = time_ms
+                cfg.consumer_node = int(self.consumer_writes.node[consumer])
         return cfg
 
     @property
@@ -540,9 +610,9 @@ class NodeModel:
         The configuration only changes where a write is confirmed or stops holding, so
         it is evaluated once per stretch between those moments.
         """
-        writes = self.writes + self.consumer_writes
-        bps = np.asarray(sorted({w.ts for w in writes}
-                                | {w.until for w in writes if w.until != float("inf")}))
+        moments = [t.ts for t in (self.writes, self.consumer_writes)] + [
+            t.until[np.isfinite(t.until)] for t in (self.writes, self.consumer_writes)]
+        bps = np.unique(np.concatenate(moments))
         values = [get(cfg) for cfg in self._configs_at([-np.inf, *bps.tolist()])]
         table = np.asarray([np.nan if v is None else v for v in values], np.float64)
         return table[np.searchsorted(bps, times, side="right")]
@@ -584,7 +654,7 @@ class NodeModel:
     def is_producer(self) -> bool:
         if self.config.heartbeat_ms is not None and self.config.heartbeat_ms > 0:
             return True
-        if any(w.index == 0x1017 and w.value for w in self.writes):
+        if bool(((self.writes.index == 0x1017) & (self.writes.value != 0)).any()):
             return True
         return self.ec.count(HEARTBEAT) >= 2
 
@@ -797,10 +867,11 @@ def _pdo_overrides(model: InputModel) -> list[_PdoOverride]:
                 (KIND_RPDO, m.config.rpdo_cob_ids, RPDO_BASES, 0x1400)):
             spans: list[tuple[int, int | None, float, float]] = [
                 (n, cob, -np.inf, np.inf) for n, cob in table.items()]
-            for w in m.writes:  # SDO-written COB-IDs hold until the next boot-up/reset
-                if index <= w.index <= index + 3:
-                    cob = None if w.value & 0x80000000 else w.value & 0x7FF
-                    spans.append(((w.index & 3) + 1, cob, w.ts, w.until))
+            # SDO-written COB-IDs hold until the next boot-up/reset
+            pdo = (m.writes.index >= index) & (m.writes.index <= index + 3)
+            for w in m.writes.take(np.flatnonzero(pdo)):
+                cob = None if w.value & 0x80000000 else w.value & 0x7FF
+                spans.append(((w.index & 3) + 1, cob, w.ts, w.until))
             for n, cob, start, until in spans:
                 default = bases[n - 1] + m.node
                 if cob != default:

@@ -21,7 +21,6 @@ from nmtcheck.decode import Decoded, key_rows
 from nmtcheck.model import (
     ChannelModel,
     CommandTable,
-    ConfigWrite,
     EcTable,
     EmcyTable,
     InputModel,
@@ -51,7 +50,7 @@ from nmtcheck.nmt import (
     STATE_OF_CODE,
     UNKNOWN,
 )
-from nmtcheck.sdo_config import SdoFrame, pair_sdo_writes, write_validity
+from nmtcheck.sdo_config import pair_sdo_writes, write_validity
 
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
@@ -148,15 +147,7 @@ def _emcy(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
 
 def _sdo(rows: np.ndarray, nodes: _Nodes) -> None:
     """SDO traffic is paired into configuration writes."""
-    pair_sdo_writes(_sdo_frames(rows), nodes, nodes)
-
-
-def _sdo_frames(rows: np.ndarray) -> Iterator[SdoFrame]:
-    """The SDO frames as plain Python values, a block of rows at a time."""
-    for lo in range(0, len(rows), 4096):
-        for ts, idx, line, _chan, can_id, _rtr, dlc, data in rows[lo:lo + 4096].tolist():
-            # plain ints: numpy uint8 would overflow on shifts
-            yield SdoFrame(ts, idx, line, can_id, dlc, [int(x) for x in data])
+    pair_sdo_writes(rows, nodes)
 
 
 def _nmt_table(cols: dict[str, np.ndarray], chan: int) -> NmtTable:
@@ -432,14 +423,13 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     ec = m.ec
     pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
     resets = m.commands.reset_idx
-    writes = [w for w in m.writes if w.index == 0x1017]
+    writes = m.writes.take(np.flatnonzero(m.writes.index == 0x1017))
     # the events as columns: heartbeats and boot-ups, reset commands, 1017h writes
-    ts = np.concatenate([ec.ts[pos], m.commands.reset_ts,
-                         np.asarray([w.ts for w in writes], np.float64)])
-    idx = np.concatenate([ec.idx[pos], resets, np.asarray([w.idx for w in writes], np.int64)])
+    ts = np.concatenate([ec.ts[pos], m.commands.reset_ts, writes.ts])
+    idx = np.concatenate([ec.idx[pos], resets, writes.idx])
     what = np.concatenate([np.where(ec.kind[pos] == HEARTBEAT, _HB, _BOOT).astype(np.int8),
                            np.full(len(resets), _RESET, np.int8),
-                           np.asarray([_ON if w.value else _OFF for w in writes], np.int8)])
+                           np.where(writes.value != 0, _ON, _OFF).astype(np.int8)])
     order = np.argsort(idx, kind="stable")
     ts, idx, what = ts[order], idx[order], what[order]
     if not ts.size:
@@ -462,7 +452,7 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     # A heartbeat sent while a 1017h write is being confirmed already follows the new value
     # (stacks apply it before they answer): its gap is timed by that value.
     # A gap opened by a confirmed write is timed by the value in force after it.
-    at = _timed_from(ts[gap], what[gap] == _HB, writes)
+    at = _timed_from(ts[gap], what[gap] == _HB, writes.request_ts, writes.ts)
     limit = m.config_series(at, lambda cfg: m.hb_timeout(cfg, params.timeout_factor))
     fire = (limit > 0) & (until - ts[gap] > limit + EPS)
     for g, lim, u, c in zip(gap[fire].tolist(), limit[fire].tolist(), until[fire].tolist(),
@@ -472,17 +462,16 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
                                   u - start if c else None))
 
 
-def _timed_from(start: np.ndarray, by_heartbeat: np.ndarray, writes: list[ConfigWrite]
-                ) -> np.ndarray:
+def _timed_from(start: np.ndarray, by_heartbeat: np.ndarray, req: np.ndarray,
+                conf: np.ndarray) -> np.ndarray:
     """The moment whose configuration times each gap: its start, but for a gap opened by a
-    heartbeat between a 1017h write's request and its confirmation, the confirmation
-    (the last such write in file order). A binary search when the writes' request to
-    confirmation spans do not overlap (always, but in a hostile log), else write by write."""
+    heartbeat between a 1017h write's request (`req`) and its confirmation (`conf`), the
+    confirmation (the last such write in file order). A binary search when the writes'
+    request to confirmation spans do not overlap (always, but in a hostile log), else
+    write by write."""
     at: np.ndarray = start.copy()
-    if not writes:
+    if not len(req):
         return at
-    req = np.asarray([w.request_ts for w in writes], np.float64)
-    conf = np.asarray([w.ts for w in writes], np.float64)
     order = np.argsort(req, kind="stable")
     if bool((np.diff(order) > 0).all()) and bool((conf[:-1] <= req[1:]).all()):
         k = np.searchsorted(req, start, side="right") - 1

@@ -63,7 +63,7 @@ def test_aborted_write_is_not_applied_and_decoded(checker) -> None:  # type: ign
     res = checker.run(candump(sorted(fr)), select="H003")
     assert res.findings == []  # 500 ms was refused: no mismatch against it
     node = res.model.channels[0].nodes[2]
-    assert node.writes == []
+    assert len(node.writes) == 0
     (ev,) = node.events
     assert ev.kind == "sdo-abort" and ev.code == 0x08000022
     assert "1017h" in ev.text and "present device state" in ev.text

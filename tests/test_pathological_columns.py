@@ -20,9 +20,10 @@ import pytest
 from conftest import Checker, candump
 from test_memory import peak_rss_mb
 
+from nmtcheck import sdo
 from nmtcheck.checks import canid
 from nmtcheck.checks.state import _first_late
-from nmtcheck.model import ConfigWrite, NodeConfig, NodeModel
+from nmtcheck.model import ConfigWrite, NodeConfig, NodeModel, WriteTable
 from nmtcheck.nmt import EPS
 from nmtcheck.timeline import _timed_from
 
@@ -146,12 +147,13 @@ def test_the_configuration_sweep_is_the_write_by_write_configuration(seed: int) 
         until = next((r for r in resets if r > ts), float("inf"))
         return ConfigWrite(ts, 0, 0, node, index, 0, value, until=until)
 
-    m.writes = sorted((write(rnd.choice([0x1017, 0x100C, 0x100D, 0x1800, 0x1801]),
-                             rnd.choice([0, 50, 100, 0x185, 0x80000185]))
-                       for _ in range(rnd.randint(0, 30))), key=lambda w: w.ts)
-    m.consumer_writes = [write(0x1016, rnd.choice([0, 200, 400, 500]) | 5 << 16,
-                               rnd.randint(1, 4)) for _ in range(rnd.randint(0, 8))]
-    moments = sorted({w.ts for w in m.writes + m.consumer_writes} | set(resets)
+    writes = sorted((write(rnd.choice([0x1017, 0x100C, 0x100D, 0x1800, 0x1801]),
+                           rnd.choice([0, 50, 100, 0x185, 0x80000185]))
+                     for _ in range(rnd.randint(0, 30))), key=lambda w: w.ts)
+    consumers = [write(0x1016, rnd.choice([0, 200, 400, 500]) | 5 << 16, rnd.randint(1, 4))
+                 for _ in range(rnd.randint(0, 8))]
+    m.writes, m.consumer_writes = WriteTable.of(writes), WriteTable.of(consumers)
+    moments = sorted({w.ts for w in writes + consumers} | set(resets)
                      | {rnd.uniform(-1, 11) for _ in range(20)})
     for at in moments:
         assert m.config_at(at) == _naive_config_at(m, at), at
@@ -178,4 +180,76 @@ def test_gaps_timed_from_a_write_being_confirmed(overlap: bool) -> None:
     want = start.copy()
     for w in writes:
         want[by_heartbeat & (start >= w.request_ts) & (start < w.ts)] = w.ts
-    assert np.array_equal(_timed_from(start, by_heartbeat, writes), want)
+    got = _timed_from(start, by_heartbeat, np.asarray([w.request_ts for w in writes]),
+                      np.asarray([w.ts for w in writes]))
+    assert np.array_equal(got, want)
+
+
+def _paired_frame_by_frame(frames: list[tuple[float, str]]
+                           ) -> dict[int, tuple[list[tuple[object, ...]], list[str]]]:
+    """The SDO pairing one frame at a time, as it was before it ran on columns: a request
+    is pending per server until a response to the same object answers it. The decoder
+    keeps only downloads to configuration objects, their confirmations and aborts."""
+    out: dict[int, tuple[list[tuple[object, ...]], list[str]]] = {}
+    pending: dict[int, tuple[int, int, int | None, float]] = {}
+    for ts, frame in frames:
+        cid, payload = frame.split("#")
+        can_id, data = int(cid, 16), list(bytes.fromhex(payload))
+        cmd, index, sub = data[0], data[1] | data[2] << 8, data[3]
+        kept = ((cmd & 0xE0 == 0x20 if can_id >= 0x601 else cmd == 0x60) and (
+            index in sdo.CONFIG_OBJECTS)) or (can_id < 0x601 and cmd == 0x80)
+        if not kept:
+            continue
+        if can_id >= 0x601:
+            n = can_id - 0x600
+            if cmd & 0xE0 == 0x20 and sdo.is_config_index(index, sub):
+                pending[n] = (index, sub, sdo.expedited_value(data), ts)
+            else:
+                pending.pop(n, None)
+            continue
+        n = can_id - 0x580
+        writes, events = out.setdefault(n, ([], []))
+        req = pending.get(n)
+        matches = req is not None and (req[0], req[1]) == (index, sub)
+        if cmd == 0x80:
+            events.append("sdo-abort " + ("matched" if matches else "unmatched"))
+            if matches:
+                pending.pop(n, None)
+        elif cmd == 0x60 and req is not None and matches:
+            pending.pop(n, None)
+            if req[2] is None:
+                events.append("sdo-segmented")
+            else:
+                writes.append((round(ts, 6), index, sub, req[2], round(req[3], 6)))
+                events.append("sdo-write")
+    return out
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_sdo_pairing_on_columns_is_the_frame_by_frame_pairing(checker: Checker,
+                                                              seed: int) -> None:
+    rnd = random.Random(seed)
+    objects = [(0x1017, 0), (0x100C, 0), (0x1016, 1), (0x1800, 1), (0x1017, 1), (0x2000, 0)]
+    frames = []
+    for i in range(300):
+        n = rnd.randint(1, 3)
+        index, sub = rnd.choice(objects)
+        where = f"{index & 0xFF:02X}{index >> 8:02X}{sub:02X}"
+        if rnd.random() < 0.5:  # a request: expedited (sized or not), segmented, an upload
+            cmd = rnd.choice(["2B", "2F", "23", "22", "21", "40"])
+            value = rnd.randint(0, 2**32 - 1)
+            frames.append((i * 0.001, f"{0x600 + n:03X}#{cmd}{where}{value:08X}"))
+        else:  # a confirmation or an abort
+            cmd = rnd.choice(["60", "60", "80"])
+            frames.append((i * 0.001, f"{0x580 + n:03X}#{cmd}{where}00000906"))
+    res = checker.run(candump(frames), select="B")
+    want = _paired_frame_by_frame(frames)
+    nodes = res.model.channels[0].nodes
+    for n, (writes, events) in want.items():
+        m = nodes[n]
+        got_writes = [(round(w.ts - 1000.0, 6), w.index, w.sub, w.value,
+                       round(w.request_ts - 1000.0, 6)) for w in m.writes]
+        assert got_writes == writes, n
+        got = [e.kind + (" matched" if e.kind == "sdo-abort" and " to " in e.text else
+                         " unmatched" if e.kind == "sdo-abort" else "") for e in m.events]
+        assert got == events, n

@@ -86,7 +86,7 @@ def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[F
     early &= ~between(m.commands.idx, ec.idx[a], ec.idx[b])
     # a new producer time starts a new phase: the first heartbeat after a 1017h write is
     # not early either
-    writes = np.asarray(sorted(w.request_idx for w in m.writes if w.index == 0x1017), np.int64)
+    writes = np.sort(m.writes.request_idx[m.writes.index == 0x1017])
     early &= ~between(writes, ec.idx[a], ec.idx[b])
     ea, eb, el, ep = a[early], b[early], limit[early], period[early]
     # a run: each early pair starts where the previous one ended, in one interval
