@@ -45,65 +45,60 @@ def pair_sdo_writes(rows: np.ndarray, node_model: Callable[[int], NodeModel]) ->
     """
     if not len(rows):
         return
-    cid = rows["can_id"].astype(np.int64)
+    request = rows["can_id"] >= 0x601
+    server = np.where(request, rows["can_id"].astype(np.int32) - 0x600,
+                      rows["can_id"].astype(np.int32) - 0x580)
+    by_server = np.argsort(server, kind="stable")  # file order within a server
+    bounds = np.flatnonzero(np.diff(server[by_server], prepend=-1, append=-1))
+    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
+        if request[by_server[a:b]].all():
+            continue  # requests no server answered pair nothing (and show no node)
+        mine = rows[by_server[a:b]]  # one server at a time bounds the columns below
+        _pair_server(mine, int(server[by_server[a]]), node_model(int(server[by_server[a]])))
+
+
+def _pair_server(rows: np.ndarray, n: int, m: NodeModel) -> None:
+    """`pair_sdo_writes` for the frames of one server N, in file order (every server that
+    answers is a node of the model, made by the caller)."""
     data = rows["data"]
     cmd = data[:, 0]
-    index = data[:, 1].astype(np.int64) | (data[:, 2].astype(np.int64) << 8)
-    sub = data[:, 3].astype(np.int64)
-    request = cid >= 0x601
-    server = np.where(request, cid - 0x600, cid - 0x580)
+    index = data[:, 1].astype(np.int32) | (data[:, 2].astype(np.int32) << 8)
+    sub = data[:, 3]
+    request = rows["can_id"] >= 0x601
     config = request & ((cmd & 0xE0) == 0x20) & _config_index(index, sub)
-    value, has_value = _expedited_values(data)
-    # by server, file order within: the latest request at or before each row
-    order = np.lexsort((np.arange(len(rows)), server))
-    pos = np.arange(len(order))
-    first_of_server = np.flatnonzero(np.concatenate([[True], server[order][1:]
-                                                     != server[order][:-1]]))
-    group = first_of_server[np.searchsorted(first_of_server, pos, side="right") - 1]
-    latest = np.maximum.accumulate(np.where(request[order], pos, -1))
-    latest = np.where(latest >= group, latest, -1)
-    answers = np.flatnonzero(~request[order])  # positions in `order` of the responses
-    resp = order[answers]
-    req = np.where(latest[answers] >= 0, order[np.maximum(latest[answers], 0)], -1)
-    matches = (req >= 0) & config[req] & (index[req] == index[resp]) & (sub[req] == sub[resp])
+    # each response and the latest request before it (-1: none)
+    latest = np.maximum.accumulate(np.where(request, np.arange(len(rows)), -1))
+    resp = np.flatnonzero(~request)
+    req = latest[resp]
+    at = np.maximum(req, 0)
+    matches = (req >= 0) & config[at] & (index[at] == index[resp]) & (sub[at] == sub[resp])
     # only the first matching response after a request answers it
     hit = np.flatnonzero(matches)
     _, first = np.unique(req[hit], return_index=True)
     answered = np.zeros(len(resp), bool)
     answered[hit[first]] = True
-    for n in np.unique(server[resp]).tolist():
-        node_model(n)  # every server that answers is a node
-    _events(rows, resp, req, answered, index, sub, node_model)
-    write = answered & (cmd[resp] == 0x60) & has_value[np.maximum(req, 0)]
+    value, has_value = _expedited_values(data[at])
+    confirmed = answered & (cmd[resp] == 0x60)
+    _events(rows, resp, answered, confirmed & ~has_value, index, sub, m)
+    write = confirmed & has_value
     r, q = resp[write], req[write]
-    if not len(r):
-        return
-    by_server = np.argsort(server[r], kind="stable")  # file order within a server
-    r, q = r[by_server], q[by_server]
-    bounds = np.flatnonzero(np.concatenate([[True], server[r][1:] != server[r][:-1], [True]]))
-    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
-        rr, qq = r[a:b], q[a:b]
-        m = node_model(int(server[rr[0]]))
-        m.writes = WriteTable(rows["ts"][rr], rows["idx"][rr], rows["line"][rr], server[rr],
-                              index[rr], sub[rr], value[qq], np.full(len(rr), np.inf),
-                              rows["ts"][qq], rows["idx"][qq])
-        m.events.writes = m.writes
+    m.writes = WriteTable(rows["ts"][r], rows["idx"][r], rows["line"][r], np.full(len(r), n),
+                          index[r], sub[r], value[write], np.full(len(r), np.inf),
+                          rows["ts"][q], rows["idx"][q])
+    m.events.writes = m.writes
 
 
-def _events(rows: np.ndarray, resp: np.ndarray, req: np.ndarray, answered: np.ndarray,
-            index: np.ndarray, sub: np.ndarray, node_model: Callable[[int], NodeModel]) -> None:
+def _events(rows: np.ndarray, resp: np.ndarray, answered: np.ndarray, segmented: np.ndarray,
+            index: np.ndarray, sub: np.ndarray, m: NodeModel) -> None:
     """SDO aborts and confirmed segmented downloads become node events (objects: a log
     full of them is not yet bounded)."""
     data = rows["data"]
-    cid = rows["can_id"].astype(np.int64)
-    cmd = data[resp, 0]
-    segmented = answered & (cmd == 0x60) & ~_expedited_values(data[np.maximum(req, 0)])[1]
-    for k in np.flatnonzero((cmd == 0x80) | segmented).tolist():
+    abort = data[resp, 0] == 0x80
+    for k in np.flatnonzero(abort | segmented).tolist():
         row = int(resp[k])
         ts, idx, line = float(rows["ts"][row]), int(rows["idx"][row]), int(rows["line"][row])
         i, s = int(index[row]), int(sub[row])
-        m = node_model(int(cid[row]) - 0x580)
-        if cmd[k] == 0x80:
+        if abort[k]:
             code = int.from_bytes(bytes(data[row, 4:8].tolist()), "little")
             what = f" to {sdo.object_name(i, s)}" if answered[k] else f" ({i:04X}h sub {s})"
             m.events.append(NodeEvent(ts, idx, line, "sdo-abort",
