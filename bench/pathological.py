@@ -19,7 +19,9 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
   in five a heartbeat: a node event per frame;
 - sdo: SDO expedited downloads to 1017h (producer heartbeat time) of 16 nodes and
   their confirmations, 100 us apart, one frame in five a heartbeat: a configuration
-  write per two frames.
+  write per two frames;
+- aborts: SDO aborts (1017h, code 06090011h) of 16 servers, 100 us apart, one frame in
+  five a heartbeat: a node event per frame.
 
 Then runs `NMTCHECK check LOG --format text` (stdout to /dev/null) with one report
 file per run (`-o report.json`, ... ; `text` alone writes none) through a small
@@ -53,7 +55,7 @@ from generate import candump_lines, write_text  # noqa: E402
 from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
-KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo")
+KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -139,9 +141,22 @@ def sdo(i: np.ndarray) -> Frames:
     return _frames(i, i * 100, can_id, np.where(hb, 1, 8), data)
 
 
+def aborts(i: np.ndarray) -> Frames:
+    """SDO aborts of a download to 1017h from 16 servers 100 us apart; every fifth frame a
+    heartbeat (05h) of one of them."""
+    hb = i % 5 == 4
+    node = (i // 5) % 16 + 1
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, :8] = np.asarray([0x80, 0x17, 0x10, 0x00, 0x11, 0x00, 0x09, 0x06], np.uint8)
+    data[hb, :] = 0
+    data[hb, 0] = 0x05
+    can_id = np.where(hb, 0x700, 0x580) + node
+    return _frames(i, i * 100, can_id, np.where(hb, 1, 8), data)
+
+
 MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
     "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127,
-    "emcy": emcy, "sdo": sdo}
+    "emcy": emcy, "sdo": sdo, "aborts": aborts}
 
 
 def chunks(kind: str, n: int) -> Iterator[Frames]:

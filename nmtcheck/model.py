@@ -430,28 +430,66 @@ def _describe_emcy(packed: int, dlc: int) -> tuple[int | None, str]:
     return emcy.describe(list(packed.to_bytes(8, sys.byteorder)), dlc)
 
 
+class SdoEventTable:
+    """A server's SDO aborts and confirmed segmented downloads as columns, in file order
+    (a log may abort a million of them): their texts are made as the reports read them."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, abort: np.ndarray,
+                 index: np.ndarray, sub: np.ndarray, code: np.ndarray,
+                 answered: np.ndarray) -> None:
+        self.ts = np.asarray(ts, np.float64)
+        self.idx = np.asarray(idx, np.int64)
+        self.line = np.asarray(line, np.int64)
+        self.abort = np.asarray(abort, bool)  # else a confirmed segmented download
+        self.index = np.asarray(index, np.int32)
+        self.sub = np.asarray(sub, np.uint8)
+        self.code = np.asarray(code, np.int64)  # the abort code
+        self.answered = np.asarray(answered, bool)  # it answers the pending request
+
+    @classmethod
+    def empty(cls) -> SdoEventTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __iter__(self) -> Iterator[NodeEvent]:
+        for lo in range(0, len(self), 4096):  # plain numbers a block at a time
+            part = slice(lo, lo + 4096)
+            for ts, idx, line, abort, index, sub, code, answered in zip(
+                    *(getattr(self, name)[part].tolist() for name in (
+                        "ts", "idx", "line", "abort", "index", "sub", "code", "answered")),
+                    strict=True):
+                if abort:
+                    what = (f" to {sdo.object_name(index, sub)}" if answered
+                            else f" ({index:04X}h sub {sub})")
+                    yield NodeEvent(ts, idx, line, "sdo-abort", f"SDO abort{what}: "
+                                    f"{code:08X}h {sdo.abort_text(code)}", code)
+                else:
+                    yield NodeEvent(ts, idx, line, "sdo-segmented", "segmented download to "
+                                    f"{sdo.object_name(index, sub)} confirmed; its value is "
+                                    "not applied")
+
+
 class NodeEvents:
-    """Everything a node said that is not a finding, in file order when iterated: its
-    EMCYs (`emcy`) and configuration writes (`writes`) as columns, SDO aborts and
-    segmented downloads as objects."""
+    """Everything a node said that is not a finding, in file order when iterated, each
+    kind as columns: EMCYs (`emcy`), configuration writes (`writes`), SDO aborts and
+    segmented downloads (`sdo`)."""
 
     def __init__(self) -> None:
         self.emcy = EmcyTable.empty()
         self.writes = WriteTable.empty()
-        self._other: list[NodeEvent] = []
-
-    def append(self, event: NodeEvent) -> None:
-        self._other.append(event)
+        self.sdo = SdoEventTable.empty()
 
     def __len__(self) -> int:
-        return len(self.emcy) + len(self.writes) + len(self._other)
+        return len(self.emcy) + len(self.writes) + len(self.sdo)
 
     def __bool__(self) -> bool:
         return len(self) > 0
 
     def __iter__(self) -> Iterator[NodeEvent]:
-        return heapq.merge(self.emcy, self.writes.events(), sorted(self._other, key=_by_idx),
-                           key=_by_idx)
+        return heapq.merge(self.emcy, self.writes.events(), self.sdo, key=_by_idx)
 
 
 def _by_idx(e: NodeEvent) -> int:

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from nmtcheck import sdo
-from nmtcheck.model import NodeEvent, NodeModel, WriteTable
+from nmtcheck.model import NodeModel, SdoEventTable, WriteTable
 from nmtcheck.nmt import BOOTUP
 
 _PDO_OBJECTS = np.asarray([i for i in sdo.CONFIG_OBJECTS if i not in (0x1016, 0x1017, 0x100C,
@@ -90,24 +90,15 @@ def _pair_server(rows: np.ndarray, n: int, m: NodeModel) -> None:
 
 def _events(rows: np.ndarray, resp: np.ndarray, answered: np.ndarray, segmented: np.ndarray,
             index: np.ndarray, sub: np.ndarray, m: NodeModel) -> None:
-    """SDO aborts and confirmed segmented downloads become node events (objects: a log
-    full of them is not yet bounded)."""
+    """SDO aborts and confirmed segmented downloads become node events (as columns)."""
     data = rows["data"]
     abort = data[resp, 0] == 0x80
-    for k in np.flatnonzero(abort | segmented).tolist():
-        row = int(resp[k])
-        ts, idx, line = float(rows["ts"][row]), int(rows["idx"][row]), int(rows["line"][row])
-        i, s = int(index[row]), int(sub[row])
-        if abort[k]:
-            code = int.from_bytes(bytes(data[row, 4:8].tolist()), "little")
-            what = f" to {sdo.object_name(i, s)}" if answered[k] else f" ({i:04X}h sub {s})"
-            m.events.append(NodeEvent(ts, idx, line, "sdo-abort",
-                                      f"SDO abort{what}: {code:08X}h {sdo.abort_text(code)}",
-                                      code))
-        else:
-            m.events.append(NodeEvent(ts, idx, line, "sdo-segmented",
-                                      f"segmented download to {sdo.object_name(i, s)}"
-                                      f" confirmed; its value is not applied"))
+    k = np.flatnonzero(abort | segmented)
+    r = resp[k]
+    code = (data[r, 4].astype(np.int64) | (data[r, 5].astype(np.int64) << 8)
+            | (data[r, 6].astype(np.int64) << 16) | (data[r, 7].astype(np.int64) << 24))
+    m.events.sdo = SdoEventTable(rows["ts"][r], rows["idx"][r], rows["line"][r], abort[k],
+                                 index[r], sub[r], code, answered[k])
 
 
 def write_validity(nodes: dict[int, NodeModel]) -> None:

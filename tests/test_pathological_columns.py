@@ -40,26 +40,31 @@ def write_frames(path: Path, frames: int, kind: str) -> None:
                 out.write(f"{ts}000#{('01', '02', '80', '81', '82')[i % 5]}{i % 128:02X}\n")
             elif kind == "malformed":  # DLC 1, 3, 4 in turn: a C002 finding each
                 out.write(f"{ts}000#01{('', f'{node:02X}00', f'{node:02X}0000')[i % 3]}\n")
-            else:  # an EMCY of one of 8 nodes
+            elif kind == "emcy":  # an EMCY of one of 8 nodes
                 out.write(f"{ts}{0x080 + node:03X}#{(i % 4) * 0x10:02X}10010000000000\n")
+            else:  # an SDO abort from one of 8 servers
+                out.write(f"{ts}{0x580 + node:03X}#8017100000000906\n")
 
 
 @pytest.mark.skipif(not hasattr(os, "wait4"), reason="needs os.wait4 (POSIX)")
-@pytest.mark.parametrize("kind", ["commands", "malformed", "emcy"])
-def test_memory_follows_frames_not_commands_defects_or_emcys(tmp_path: Path, kind: str) -> None:
-    """300 k more frames of one kind cost under 170 bytes each; as objects they cost
-    230-760 (NMT rows copied per channel, a command row per node for every broadcast, a
-    Python object per reset, a NodeEvent per EMCY). Measured on 2026-11-24: 112, 112 and
-    149 bytes now; 270, 230 and 764 at a12d5d1. The bytes per frame fall as logs grow
-    (the reader's and decoder's budgets fill first): 54 at 5 M NMT commands."""
+@pytest.mark.parametrize("kind", ["commands", "malformed", "emcy", "aborts"])
+def test_memory_follows_frames_not_commands_defects_or_events(tmp_path: Path,
+                                                              kind: str) -> None:
+    """300 k more frames of one kind cost a bounded number of bytes each, far below what
+    they cost as objects (NMT rows copied per channel, a command row per node for every
+    broadcast, a Python object per reset, a NodeEvent per EMCY or SDO abort). Measured on
+    2026-11-24 (commands, malformed, emcy, aborts): 112, 112, 149 and 188 bytes now;
+    270, 230, 764 and 781 at a12d5d1. The bytes per frame fall as logs grow (the reader's
+    and decoder's budgets fill first): 54 at 5 M NMT commands, 42 at 1 M SDO aborts."""
     small, large = tmp_path / "small.log", tmp_path / "large.log"
     write_frames(small, 100_000, kind)
     write_frames(large, 400_000, kind)
     small_mb = peak_rss_mb(small, "-o", str(tmp_path / "small.json"))
     large_mb = peak_rss_mb(large, "-o", str(tmp_path / "large.json"))
-    assert (large_mb - small_mb) * 2**20 / 300_000 < 170, (small_mb, large_mb)
+    bound = {"commands": 170, "malformed": 170, "emcy": 170, "aborts": 300}[kind]
+    assert (large_mb - small_mb) * 2**20 / 300_000 < bound, (small_mb, large_mb)
     doc = json.loads((tmp_path / "large.json").read_text())
-    if kind == "emcy":  # every EMCY is in the report, in file order
+    if kind in ("emcy", "aborts"):  # every event is in the report, in file order
         assert len(doc["events"]) == 360_000
         index = [e["frame_index"] for e in doc["events"]]
         assert index == sorted(index)
