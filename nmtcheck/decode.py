@@ -22,6 +22,7 @@ One streaming pass over the frame batches keeps:
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -77,6 +78,23 @@ EC_COLUMNS: dict[str, type] = {
 STORE_BUDGET_BYTES = 8 << 20  # per store; past it chunks go to a temporary directory
 
 
+_SIGNALS = {getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP")
+            if hasattr(signal, name)}
+
+
+def spill_directory() -> tempfile.TemporaryDirectory[str]:
+    """A temporary directory for spilled columns, made with the terminating signals held
+    back: one that came between making the directory and registering its clean-up would
+    leave the directory behind (the CLI turns these signals into an exception)."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return tempfile.TemporaryDirectory(prefix="nmtcheck-")
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    try:
+        return tempfile.TemporaryDirectory(prefix="nmtcheck-")
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
 class ColumnSpool:
     """Columns appended batch by batch and read back whole once: the error-control
     frames. Past a small budget they go to one file per column, so the decoder keeps
@@ -98,7 +116,7 @@ class ColumnSpool:
 
     def _flush(self) -> None:
         if self._tmp is None:
-            self._tmp = tempfile.TemporaryDirectory(prefix="nmtcheck-")
+            self._tmp = spill_directory()
         for name, parts in self._parts.items():
             with open(os.path.join(self._tmp.name, name), "ab") as f:
                 for part in parts:
@@ -164,7 +182,7 @@ class ChunkStore:
             self._in_memory += size
             return
         if self._tmp is None:
-            self._tmp = tempfile.TemporaryDirectory(prefix="nmtcheck-")
+            self._tmp = spill_directory()
         spilled: dict[str, _Spilled] = {}
         for name, col in cols.items():
             path = os.path.join(self._tmp.name, f"chunk{len(self._chunks)}.{name}")

@@ -164,6 +164,7 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         configs = network.configs() if network else {}
         model = build(decoded, stats.channels, start, end, timeline_params(profile), configs,
                       known_masters(network, stats.channels))
+        decoded.events = decoded.events[:0].copy()  # the SDO rows are paired into the model
         model.stats = stats
         model.expected = network.expected() if network else []
         if channel is not None:
