@@ -274,10 +274,6 @@ class Decoded:
         """The rows of `ec` that belong to one node key."""
         return key_rows(self.ec["key"], key, key)
 
-    def ec_rows_between(self, lo: int, hi: int) -> slice:
-        """The rows of `ec` whose node key is in lo..hi."""
-        return key_rows(self.ec["key"], lo, hi)
-
     @property
     def last_event_ts(self) -> float | None:
         times = [float(a.max()) for a in (self.events["ts"], self.nmt["ts"], self.emcy["ts"],
@@ -444,6 +440,13 @@ def key_rows(keys: np.ndarray, lo: int, hi: int) -> slice:
     """The rows of a column sorted by node key whose key is in lo..hi."""
     return slice(int(np.searchsorted(keys, lo, side="left")),
                  int(np.searchsorted(keys, hi, side="right")))
+
+
+def node_groups(cols: dict[str, np.ndarray], chan: int) -> Iterator[tuple[int, slice]]:
+    """Per node of the channel, its rows of columns grouped by node key (`ec`, `emcy`)."""
+    keys = cols["key"]
+    for key in np.unique(keys[key_rows(keys, chan * 128, chan * 128 + 127)]).tolist():
+        yield key - chan * 128, key_rows(keys, key, key)
 
 
 def sdo_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:

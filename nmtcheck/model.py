@@ -133,6 +133,13 @@ class NmtTable:
         return (self[i] for i in range(len(self)))
 
 
+def plain_rows(*columns: np.ndarray, block: int = 4096) -> Iterator[tuple[Any, ...]]:
+    """The rows of some columns as tuples of plain Python numbers, converted a block at a
+    time (`tolist` per block: fast, and memory stays flat however long the columns)."""
+    for lo in range(0, len(columns[0]) if columns else 0, block):
+        yield from zip(*(c[lo:lo + block].tolist() for c in columns), strict=True)
+
+
 class _Gathered:
     """A `CommandTable` column: the NMT table's column of that name at the commands'
     positions, gathered on each access."""
@@ -159,10 +166,6 @@ class CommandTable:
     @classmethod
     def empty(cls) -> CommandTable:
         return cls(NmtTable.empty(), np.zeros(0, np.int64))
-
-    @classmethod
-    def of(cls, nmt: NmtTable, pos: np.ndarray) -> CommandTable:
-        return cls(nmt, pos)
 
     def __len__(self) -> int:
         return len(self.pos)
@@ -366,14 +369,10 @@ class WriteTable:
 
     def events(self) -> Iterator[NodeEvent]:
         """Each write as the node event the reports list."""
-        for lo in range(0, len(self), 4096):  # plain numbers a block at a time
-            part = slice(lo, lo + 4096)
-            for ts, idx, line, index, sub, value in zip(
-                    self.ts[part].tolist(), self.idx[part].tolist(), self.line[part].tolist(),
-                    self.index[part].tolist(), self.sub[part].tolist(),
-                    self.value[part].tolist(), strict=True):
-                yield NodeEvent(ts, idx, line, "sdo-write", f"{sdo.object_name(index, sub)} = "
-                                f"{value} ({value:X}h) written by SDO")
+        for ts, idx, line, index, sub, value in plain_rows(
+                self.ts, self.idx, self.line, self.index, self.sub, self.value):
+            yield NodeEvent(ts, idx, line, "sdo-write", f"{sdo.object_name(index, sub)} = "
+                            f"{value} ({value:X}h) written by SDO")
 
 
 @dataclass
@@ -414,13 +413,10 @@ class EmcyTable:
                          text, code)
 
     def __iter__(self) -> Iterator[NodeEvent]:
-        for lo in range(0, len(self), 4096):  # plain numbers a block at a time
-            part = slice(lo, lo + 4096)
-            for ts, idx, line, dlc, data in zip(
-                    self.ts[part].tolist(), self.idx[part].tolist(), self.line[part].tolist(),
-                    self.dlc[part].tolist(), self.data[part].tolist(), strict=True):
-                code, text = _describe_emcy(data, dlc)
-                yield NodeEvent(ts, idx, line, "emcy", text, code)
+        for ts, idx, line, dlc, data in plain_rows(self.ts, self.idx, self.line, self.dlc,
+                                                   self.data):
+            code, text = _describe_emcy(data, dlc)
+            yield NodeEvent(ts, idx, line, "emcy", text, code)
 
 
 @lru_cache(maxsize=4096)
@@ -455,21 +451,18 @@ class SdoEventTable:
         return len(self.ts)
 
     def __iter__(self) -> Iterator[NodeEvent]:
-        for lo in range(0, len(self), 4096):  # plain numbers a block at a time
-            part = slice(lo, lo + 4096)
-            for ts, idx, line, abort, index, sub, code, answered in zip(
-                    *(getattr(self, name)[part].tolist() for name in (
-                        "ts", "idx", "line", "abort", "index", "sub", "code", "answered")),
-                    strict=True):
-                if abort:
-                    what = (f" to {sdo.object_name(index, sub)}" if answered
-                            else f" ({index:04X}h sub {sub})")
-                    yield NodeEvent(ts, idx, line, "sdo-abort", f"SDO abort{what}: "
-                                    f"{code:08X}h {sdo.abort_text(code)}", code)
-                else:
-                    yield NodeEvent(ts, idx, line, "sdo-segmented", "segmented download to "
-                                    f"{sdo.object_name(index, sub)} confirmed; its value is "
-                                    "not applied")
+        for ts, idx, line, abort, index, sub, code, answered in plain_rows(
+                self.ts, self.idx, self.line, self.abort, self.index, self.sub, self.code,
+                self.answered):
+            if abort:
+                what = (f" to {sdo.object_name(index, sub)}" if answered
+                        else f" ({index:04X}h sub {sub})")
+                yield NodeEvent(ts, idx, line, "sdo-abort", f"SDO abort{what}: "
+                                f"{code:08X}h {sdo.abort_text(code)}", code)
+            else:
+                yield NodeEvent(ts, idx, line, "sdo-segmented", "segmented download to "
+                                f"{sdo.object_name(index, sub)} confirmed; its value is "
+                                "not applied")
 
 
 class NodeEvents:
@@ -826,16 +819,17 @@ class InputModel:
         answers: dict[int, tuple[np.ndarray, NodeFrames]] = {}
         if not len(self.decoded.node_frames):
             return answers
-        group: list[NodeModel] = []
+        groups: list[list[NodeModel]] = [[]]
         size = 0
-        for m in [*self.nodes(), None]:
-            if m is not None and m.key in self.decoded.first_tx:  # it sent something
-                group.append(m)
-                size += int(np.count_nonzero(m.commands.is_reset))
-                if size < QUERY_GROUP:
-                    continue
-            if not group:
+        for m in self.nodes():
+            if m.key not in self.decoded.first_tx:  # it never sent anything
                 continue
+            if size >= QUERY_GROUP:
+                groups.append([])
+                size = 0
+            groups[-1].append(m)
+            size += int(np.count_nonzero(m.commands.is_reset))
+        for group in filter(None, groups):
             resets = [(m.key, m.commands.reset_ts, m.commands.reset_idx) for m in group]
             found = self.decoded.first_node_frame_after(
                 np.concatenate([np.full(len(ts), key) for key, ts, _ in resets]),
@@ -848,7 +842,6 @@ class InputModel:
                 if answered.size:
                     answers[key] = (answered, mine.take(answered))
                 at += len(ts)
-            group, size = [], 0
         return answers
 
     def sent_while(self, states: tuple[str, ...]) -> SentFrames:

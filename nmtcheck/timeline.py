@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nmtcheck.decode import Decoded, key_rows
+from nmtcheck.decode import Decoded, node_groups
 from nmtcheck.model import (
     ChannelModel,
     CommandTable,
@@ -105,7 +105,7 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
             nodes(n)
     _first_shown_by_commands(nmt, nodes)
     _emcy(decoded, chan, nodes)
-    _sdo(rows, nodes)
+    pair_sdo_writes(rows, nodes)  # SDO traffic: the configuration written in the trace
     for n, table in ec_tables.items():
         if n in nodes:  # requests to a node nothing else shows are not kept
             nodes[n].ec = table
@@ -138,16 +138,9 @@ def _nodes_that_sent(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
 def _emcy(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
     """Each node's EMCYs: views into the decoded columns (grouped by node)."""
     cols = decoded.emcy
-    keys = cols["key"][key_rows(cols["key"], chan * 128, chan * 128 + 127)]
-    for key in np.unique(keys).tolist():
-        r = key_rows(cols["key"], key, key)
-        nodes(key - chan * 128).events.emcy = EmcyTable(
-            cols["ts"][r], cols["idx"][r], cols["line"][r], cols["dlc"][r], cols["data"][r])
-
-
-def _sdo(rows: np.ndarray, nodes: _Nodes) -> None:
-    """SDO traffic is paired into configuration writes."""
-    pair_sdo_writes(rows, nodes)
+    for n, r in node_groups(cols, chan):
+        nodes(n).events.emcy = EmcyTable(cols["ts"][r], cols["idx"][r], cols["line"][r],
+                                         cols["dlc"][r], cols["data"][r])
 
 
 def _nmt_table(cols: dict[str, np.ndarray], chan: int) -> NmtTable:
@@ -184,7 +177,7 @@ def _apply_commands(nmt: NmtTable, nodes: dict[int, NodeModel],
         mine = nmt.valid & (nmt.target == n)
         if (master is None or n != master.node) and m.first_show_idx is not None:
             mine |= broadcast & (m.first_show_idx < nmt.idx)
-        m.commands = CommandTable.of(nmt, np.flatnonzero(mine))
+        m.commands = CommandTable(nmt, np.flatnonzero(mine))
 
 
 def _channel_master(name: str, nmt: NmtTable, tables: dict[int, EcTable],
@@ -327,15 +320,9 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
 
 def _ec_tables(decoded: Decoded, chan: int) -> dict[int, EcTable]:
     """One column table per node of the channel: views into the decoded columns."""
-    tables: dict[int, EcTable] = {}
     ec = decoded.ec
-    rows = decoded.ec_rows_between(chan * 128, chan * 128 + 127)
-    keys = ec["key"][rows]
-    for key in np.unique(keys).tolist():
-        r = decoded.ec_rows(key)
-        tables[key - chan * 128] = EcTable(ec["ts"][r], ec["idx"][r], ec["line"][r],
-                                           ec["rtr"][r], ec["dlc"][r], ec["value"][r])
-    return tables
+    return {n: EcTable(ec["ts"][r], ec["idx"][r], ec["line"][r], ec["rtr"][r], ec["dlc"][r],
+                       ec["value"][r]) for n, r in node_groups(ec, chan)}
 
 
 def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> None:

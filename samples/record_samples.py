@@ -1183,20 +1183,15 @@ def verify(name: str, frames: list[can.Message]) -> list[str]:
 
     _check_bootups_first(frames)
 
-    if name == "healthy":
-        _verify_healthy(name, frames, t0, rel, ev)
-    elif name == "heartbeat_loss":
-        _verify_heartbeat_loss(name, frames, t0, rel, ev)
-    elif name == "pdo_preop":
-        _verify_pdo_preop(name, frames, t0, rel, ev)
-    elif name == "guard_toggle":
-        _verify_guard_toggle(name, frames, t0, rel, ev)
-    elif name == "ignored_command":
-        _verify_ignored_command(name, frames, t0, rel, ev)
-    elif name == "reset_no_bootup":
-        _verify_reset_no_bootup(name, frames, t0, rel, ev)
-    elif name in ("sdo_config", "ignored_1017"):
-        _verify_sdo_config_ignored_1017(name, frames, t0, rel, ev)
+    verify = {
+        "healthy": _verify_healthy, "heartbeat_loss": _verify_heartbeat_loss,
+        "pdo_preop": _verify_pdo_preop, "guard_toggle": _verify_guard_toggle,
+        "ignored_command": _verify_ignored_command, "reset_no_bootup": _verify_reset_no_bootup,
+        "sdo_config": _verify_sdo_config_ignored_1017,
+        "ignored_1017": _verify_sdo_config_ignored_1017,
+    }.get(name)
+    if verify is not None:
+        verify(name, frames, t0, rel, ev)
     return ev
 
 
