@@ -21,7 +21,15 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
   their confirmations, 100 us apart, one frame in five a heartbeat: a configuration
   write per two frames;
 - aborts: SDO aborts (1017h, code 06090011h) of 16 servers, 100 us apart, one frame in
-  five a heartbeat: a node event per frame.
+  five a heartbeat: a node event per frame;
+- channels (issue 24): N/2 interfaces `c0`, `c1`, ... of two frames each (a heartbeat
+  705#00, then a TPDO 185#01 of node 5 on every interface), 1 ms apart: the channel
+  dimension (40,000 channels at N = 80,000);
+- canids: every 11-bit CAN-ID 000h..7FFh in turn, one data byte, 100 us apart: the
+  CAN-ID dimension (NMT, SYNC, EMCY, PDOs, SDOs, heartbeats of every node 1..127);
+- extended: 29-bit J1939 frames (18FEF100h + source address, 8 bytes) with one
+  heartbeat in five, 100 us apart: the vectorised reader's 8-digit IDs;
+- errorframes: error frames (`20000004#...`) with one heartbeat in five: likewise.
 
 Then runs `NMTCHECK check LOG --format text` (stdout to /dev/null) with one report
 file per run (`-o report.json`, ... ; `text` alone writes none) through a small
@@ -55,7 +63,8 @@ from generate import candump_lines, write_text  # noqa: E402
 from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
-KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts")
+KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts",
+         "channels", "canids", "extended", "errorframes")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -172,13 +181,50 @@ def label(n: int) -> str:
     return f"{n // 10**6}M" if n % 10**6 == 0 else str(n)
 
 
+def channels_lines(n: int) -> Iterator[bytes]:
+    """N/2 interfaces of two frames each: 705#00 on every one, then 185#01 on every one."""
+    half = max(n // 2, 1)
+    for a in range(0, n, CHUNK_FRAMES):
+        yield "".join(
+            f"({1_700_000_000 + i / 1000:.6f}) c{i % half} {'705#00' if i < half else '185#01'}\n"
+            for i in range(a, min(n, a + CHUNK_FRAMES))).encode()
+
+
+def canids_lines(n: int) -> Iterator[bytes]:
+    """Every 11-bit CAN-ID in turn, one data byte, 100 us apart."""
+    for a in range(0, n, CHUNK_FRAMES):
+        yield "".join(f"({1_700_000_000 + i / 10_000:.6f}) can0 {i % 2048:03X}#{i % 251:02X}\n"
+                      for i in range(a, min(n, a + CHUNK_FRAMES))).encode()
+
+
+def _wide_lines(n: int, ident: Callable[[int], str]) -> Iterator[bytes]:
+    for a in range(0, n, CHUNK_FRAMES):
+        yield "".join(
+            f"({1_700_000_000 + i / 10_000:.6f}) can0 "
+            + (f"{0x701 + (i // 5) % 16:03X}#05" if i % 5 == 4 else ident(i)) + "\n"
+            for i in range(a, min(n, a + CHUNK_FRAMES))).encode()
+
+
+TEXT_MAKERS: dict[str, Callable[[int], Iterator[bytes]]] = {
+    "channels": channels_lines, "canids": canids_lines,
+    "extended": lambda n: _wide_lines(n, lambda i: f"{0x18FEF100 + i % 256:08X}#"
+                                                   f"{i % 4096:04X}00000000FFFF"),
+    "errorframes": lambda n: _wide_lines(n, lambda i: "20000004#0000080000000000"),
+}
+
+
 def generate(kind: str, n: int, data: Path) -> Path:
     """The candump log (written unless already there)."""
     path = data / f"{kind}-{label(n)}.log"
     if not path.exists():
         data.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".log.part")
-        write_text(tmp, chunks(kind, n), candump_lines)
+        if kind in TEXT_MAKERS:
+            with tmp.open("wb") as out:
+                for piece in TEXT_MAKERS[kind](n):
+                    out.write(piece)
+        else:
+            write_text(tmp, chunks(kind, n), candump_lines)
         os.replace(tmp, path)
     return path
 

@@ -1,8 +1,9 @@
 """The Python API: check logs into pandas DataFrames, read a fleet's results dataset.
 
     report = nmtcheck.check(["run1.log", "run2.asc"], network="net.toml")
-    report.findings   # one row per finding: the JSON report's fields (SPEC §7) + path
-    report.timeline   # state intervals;  report.nodes: per-node statistics
+    report.findings   # one row per finding: the JSON report's fields (SPEC §7) + path,
+                      # time_offset (s from the first frame), time_utc (datetime64, UTC)
+    report.timeline   # state intervals (start/end + _offset, _utc);  report.nodes
     results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats
 
 The columns are the JSON report's field names, so code written against one reads the other.
@@ -41,11 +42,33 @@ class Report:
 
         return fails(self.summary, fail_on)
 
-    def to_json(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """The JSON report (SPEC §7) as a dict."""
         from nmtcheck.reporters.json import report_dict
 
         return report_dict(self.results)
+
+    def to_json(self) -> str:
+        """The JSON report (SPEC §7) as text, as `nmtcheck check --format json` writes it
+        (a string, as pandas' `to_json` returns one; `to_dict` gives the dict)."""
+        from nmtcheck.reporters.json import render
+
+        return render(self.results, {})
+
+    def _repr_html_(self) -> str:
+        """A notebook's view: the verdict, the counts and the findings table."""
+        from html import escape
+
+        from nmtcheck.reporters.common import counts_phrase
+
+        word = "FAIL" if self.failed() else "PASS"
+        head = (f"<p><b>nmtcheck: {word}</b> (--fail-on error): "
+                f"{escape(counts_phrase(self.summary))} in {len(self.inputs)} input(s)</p>")
+        columns = [c for c in ("path", "rule", "name", "severity", "channel", "node",
+                               "time_offset", "line", "message") if c in self.findings.columns]
+        table = (self.findings[columns].to_html(index=False, max_rows=50)
+                 if len(self.findings) else "<p>No findings.</p>")
+        return head + table
 
 
 def _frame(rows: list[dict[str, Any]], columns: list[str]) -> pd.DataFrame:
@@ -56,6 +79,29 @@ def _frame(rows: list[dict[str, Any]], columns: list[str]) -> pd.DataFrame:
     first = [c for c in columns if c in df.columns]
     ordered: pd.DataFrame = df[first + [c for c in df.columns if c not in first]]
     return ordered
+
+
+def _with_times(df: pd.DataFrame, starts: list[tuple[float, bool]],
+                columns: tuple[str, ...]) -> pd.DataFrame:
+    """Beside each time column (in the log's own time base: epoch seconds for candump,
+    seconds from the measurement's start for ASC) `<col>_offset`, seconds from the input's
+    first frame, and `<col>_utc`, a `datetime64[ns, UTC]` where the input's time is
+    absolute (SPEC §7 `start_utc`), else NaT."""
+    if df.empty or "input" not in df.columns:
+        for col in columns:
+            df[f"{col}_offset"] = pd.Series(dtype="float64")
+            df[f"{col}_utc"] = pd.Series(dtype="datetime64[ns, UTC]")
+        return df
+    first = df["input"].map(lambda i: starts[int(i)][0]).astype("float64")
+    absolute = df["input"].map(lambda i: starts[int(i)][1]).astype(bool)
+    for col in columns:
+        seconds = df[col].astype("float64")
+        df[f"{col}_offset"] = seconds - first
+        # to the microsecond, as the logs write them (a float's last bits are no time)
+        stamps = pd.to_datetime((seconds.where(absolute) * 1e6).round(), unit="us", utc=True)
+        stamps = stamps.astype("datetime64[ns, UTC]")
+        df[f"{col}_utc"] = stamps
+    return df
 
 
 def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -100,8 +146,11 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
 
     inputs = _frame([{"input": i, **r} for i, r in enumerate(doc["inputs"])],
                     ["input", "path", "format", "frames"])
-    return Report(findings=_frame(with_path(doc["findings"]), FINDING_COLUMNS),
-                  timeline=_frame(with_path(doc["timeline"]), TIMELINE_COLUMNS),
+    starts = [(r["start"], r.get("start_utc") is not None) for r in doc["inputs"]]
+    return Report(findings=_with_times(_frame(with_path(doc["findings"]), FINDING_COLUMNS),
+                                       starts, ("time",)),
+                  timeline=_with_times(_frame(with_path(doc["timeline"]), TIMELINE_COLUMNS),
+                                       starts, ("start", "end")),
                   nodes=_frame(with_path(doc["nodes"]), NODE_COLUMNS),
                   inputs=inputs, summary=summary(results), results=results)
 

@@ -36,12 +36,13 @@ from nmtcheck.engine import (
     select_rules,
     summary,
 )
-from nmtcheck.errors import NmtcheckError, UsageError
+from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.fleet.commands import fleet, fleet_options, fleet_requested
 from nmtcheck.live.command import monitor as live_monitor
 from nmtcheck.network import Network, load_network
 from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
+from nmtcheck.readers import open_input
 from nmtcheck.reporters import (
     FORMATS,
     Streamer,
@@ -49,7 +50,8 @@ from nmtcheck.reporters import (
     statistics_renderer,
     streamer,
 )
-from nmtcheck.reporters.common import spreadsheet_safe
+from nmtcheck.reporters.common import plural, spreadsheet_safe
+from nmtcheck.safe_text import escape_controls
 
 EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
 
@@ -162,6 +164,7 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
     and set the exit code."""
     config, fmt, fail_on, selected, ignored = resolve_settings(
         config_file, isolated, fmt, fail_on, select, ignore)
+    check_outputs(outputs)  # before any log is read: not after a long analysis (SPEC §4)
     if fleet_requested(fleet_args):  # --results: a fleet run (nmtcheck/fleet/)
         from nmtcheck.fleet.commands import run_fleet_check
 
@@ -173,13 +176,13 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
             max_findings=max_findings, quiet=quiet, outputs=outputs, statistics=statistics))
     if not logs:
         raise click.UsageError("Missing argument 'LOGS...'.")
-    logs = expand_logs(logs)
-    if "-" in logs:
-        jobs = 1  # worker processes do not share this process's standard input
     profile, network, config_info = _load(rules_profile, network_file, dcf, config)
     rules = select_rules(profile, selected, ignored)
     stdout_render = streamer(fmt) if not statistics else statistics_renderer(fmt)
     files = [(path, streamer(format_for_path(path))) for path in outputs]
+    logs, not_logs = expand_inputs(logs)
+    if "-" in logs:
+        jobs = 1  # worker processes do not share this process's standard input
     reader_options: dict[str, object] = {"topics": list(topics)} if topics else {}
     progress = (ProgressBar(len(logs)) if sys.stderr.isatty() and not quiet and not follow
                 else None)
@@ -191,8 +194,10 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
                                   input_format=input_format, strict=strict, channel=channel,
                                   max_findings=max_findings)
         else:
+            # one unreadable input among several hides none of the others (SPEC §4)
             results = check_inputs(logs, jobs or os.cpu_count() or 1, profile, rules,
-                                   progress=progress, network=network,
+                                   progress=progress, keep_going=len(logs) > 1,
+                                   network=network,
                                    input_format=input_format, strict=strict, channel=channel,
                                    reader_options=reader_options, max_findings=max_findings)
     finally:
@@ -202,9 +207,14 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
                                   "rules": {r.code: profile[r.code].severity for r in rules},
                                   "network_notes": list(network.notes) if network else [],
                                   "max_findings": max_findings,
-                                  "config": config_info}
+                                  "config": config_info, "not_logs": not_logs}
     write_reports(results, files, options)
     write_stdout(stdout_render(results, options))
+    unreadable = [res for res in results if res.error is not None]
+    for res in unreadable:  # named in every report, and here, one line each
+        click.echo(escape_controls(f"nmtcheck: {res.stats.path}: {res.error}"), err=True)
+    if unreadable:
+        sys.exit(EXIT_ERROR)
     if fails(summary(results), fail_on):
         sys.exit(EXIT_FINDINGS)
 
@@ -252,6 +262,57 @@ def resolve_settings(config_file: str | None, isolated: bool, fmt: str | None,
                     fail_on or (config.fail_on if config else None) or "error",
                     _split(select) if select else (config.select or [] if config else []),
                     _split(ignore) if ignore else (config.ignore or [] if config else []))
+
+
+def check_outputs(outputs: Iterable[str]) -> None:
+    """Every `-o` path can be written: its directory exists, and it is no directory."""
+    for path in outputs:
+        target = Path(path)
+        parent = target.parent
+        if not parent.is_dir():
+            raise UsageError(f"--output {path}: the directory {str(parent)!r} does not exist")
+        if target.is_dir():
+            raise UsageError(f"--output {path}: is a directory")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise UsageError(f"--output {path}: cannot write in {str(parent)!r}: "
+                             "permission denied")
+
+
+def expand_inputs(args: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
+    """The LOG arguments as files (`expand_logs`), a directory standing for every log below
+    it, recursively, in name order (as ruff takes a directory); and the files below those
+    directories whose content is no log format (or empty): skipped and counted, not errors.
+    Hidden files and directories (`.git`) are not looked at."""
+    out: list[str] = []
+    not_logs: list[str] = []
+    for arg in expand_logs(args):
+        if arg == "-" or not os.path.isdir(arg):
+            out.append(arg)
+            continue
+        found = []
+        for root, dirs, names in os.walk(arg):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            found += [os.path.join(root, n) for n in sorted(names) if not n.startswith(".")]
+        logs = [p for p in found if is_log(p)]
+        not_logs += [p for p in found if p not in set(logs)]
+        if not logs:
+            raise UsageError(f"{arg}: no log file below this directory"
+                             + (f" ({plural(len(found), 'file')} whose content is no log "
+                                "format)" if found else ""))
+        out += logs
+    return tuple(out), not_logs
+
+
+def is_log(path: str) -> bool:
+    """Whether the content of `path` is a log format nmtcheck reads (detected from the
+    first bytes, as `check` does). A file that cannot be opened counts as a log: checking
+    it names the reason."""
+    try:
+        opened = open_input(path)
+    except InputError as exc:
+        return not exc.message.startswith(("unknown log format", "empty file"))
+    opened.batches.close()
+    return True
 
 
 def expand_logs(logs: tuple[str, ...]) -> tuple[str, ...]:
@@ -379,7 +440,9 @@ def render_timeline(res: InputResult, fmt: str) -> str:
         for c, n, s, a, b, src in rows:
             w.writerow([spreadsheet_safe(c), n, s, f"{a:.6f}", f"{b:.6f}", src])
         return out.getvalue()
-    lines = [f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
+    lines = [f"{res.stats.path}: no timestamps: order only, times are frame numbers"
+             if res.stats.order_only else
+             f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
     for m in res.nodes():
         lines.append(f"{m.channel} node {m.node}:")
         lines.extend(f"  {iv.start - start:12.6f} .. {iv.end - start:12.6f}  {iv.state:<16} "
@@ -449,16 +512,16 @@ def main() -> None:
         click.echo("nmtcheck: aborted", err=True)
         sys.exit(EXIT_ERROR)
     except click.ClickException as exc:
-        click.echo(f"nmtcheck: {exc.format_message()}", err=True)
+        click.echo(escape_controls(f"nmtcheck: {exc.format_message()}"), err=True)
         sys.exit(EXIT_ERROR)
     except NmtcheckError as exc:
-        click.echo(f"nmtcheck: {exc}", err=True)
+        click.echo(escape_controls(f"nmtcheck: {exc}"), err=True)
         sys.exit(EXIT_ERROR)
     except BrokenPipeError:
         sys.exit(EXIT_OK)
     except Exception as exc:  # noqa: BLE001 - a CI gate must fail cleanly
         if debug:
             traceback.print_exc()
-        click.echo(f"nmtcheck: internal error: {type(exc).__name__}: {exc} "
-                   f"(please report; --debug shows the traceback)", err=True)
+        click.echo(escape_controls(f"nmtcheck: internal error: {type(exc).__name__}: {exc} "
+                                   f"(please report; --debug shows the traceback)"), err=True)
         sys.exit(EXIT_ERROR)

@@ -3,13 +3,16 @@
 Found as ruff and pytest find theirs: from the current directory upward, the first
 directory that holds `nmtcheck.toml`, or a `pyproject.toml` with a `[tool.nmtcheck]`
 table (`nmtcheck.toml` first when a directory has both), ends the search; so does a
-repository root (a directory holding `.git`), after it has been looked at. Command-line
+repository root (a directory holding `.git`), after it has been looked at. A
+`pyproject.toml` on that path that cannot be parsed stops the run (exit 2, naming file
+and line), as in ruff and pytest, never skipped in silence. Command-line
 options win over the file, key by key; `--isolated` ignores it.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,12 +78,32 @@ def find_config(start: Path | None = None) -> Path | None:
 
 
 def _has_tool_table(path: Path) -> bool:
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
-        return False  # another tool's broken pyproject is not ours to reject while searching
-    tool = data.get("tool")
+    """Whether a pyproject.toml on the discovery path has `[tool.nmtcheck]`. One that cannot
+    be parsed is an error naming its file and line, as in ruff and pytest: skipping it
+    would silently check with another configuration (SPEC §4)."""
+    tool = _parse(path).get("tool")
     return isinstance(tool, dict) and "nmtcheck" in tool
+
+
+def _parse(path: Path) -> dict[str, Any]:
+    """A TOML file's content; errors name the file (and line) it could not be read at."""
+    try:
+        data: dict[str, Any] = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        line = getattr(exc, "lineno", None) or _line_of(str(exc))
+        where = f"{path}:{line}" if line else str(path)
+        raise UsageError(f"{where}: invalid TOML: {exc}") from None
+    except UnicodeDecodeError:
+        raise UsageError(f"{path}: cannot read: not UTF-8 text") from None
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return data
+
+
+def _line_of(message: str) -> int | None:
+    """The line number in tomllib's message (`... (at line 3, column 9)`)."""
+    found = re.search(r"at line (\d+)", message)
+    return int(found.group(1)) if found else None
 
 
 def _patterns(where: str, key: str, value: Any) -> list[str]:
@@ -113,14 +136,7 @@ def load_config(path: Path) -> Config:
 
 def _read_table(path: Path) -> tuple[str, dict[str, Any]]:
     """The name to give the configuration in messages, and its table."""
-    try:
-        data: dict[str, Any] = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise UsageError(f"{path}: invalid TOML: {exc}") from None
-    except UnicodeDecodeError:
-        raise UsageError(f"{path}: cannot read: not UTF-8 text") from None
-    except OSError as exc:
-        raise UsageError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    data = _parse(path)
     if path.name != PYPROJECT:
         return str(path), data
     tool = data.get("tool", {})

@@ -336,11 +336,13 @@ class Decoded:
         return prev
 
     def first_node_frame_after(self, keys: np.ndarray, moments: np.ndarray,
-                               after_idx: np.ndarray) -> NodeFrames:
+                               after_idx: np.ndarray, kinds: tuple[int, ...] | None = None
+                               ) -> NodeFrames:
         """For each query (node key, moment, frame index): the node's first transmitted
-        non-event frame (TPDO, SDO response, EMCY) at or after the moment and after that
-        frame in the file, as columns (idx -1: none). A log may reset its nodes a million
-        times, so queries and answers are arrays, never objects."""
+        non-event frame (TPDO, SDO response, EMCY; only `kinds` if given) at or after the
+        moment and after that frame in the file, as columns (idx -1: none). A log may
+        reset its nodes a million times, so queries and answers are arrays, never
+        objects."""
         keys = np.asarray(keys, np.int64)
         moments = np.asarray(moments, np.float64)
         after_idx = np.asarray(after_idx, np.int64)
@@ -350,7 +352,9 @@ class Decoded:
         wanted = np.unique(keys)
         earliest = float(moments.min())
         for chunk in self.node_frames.reaching(earliest):
-            tx = np.flatnonzero((chunk["kind"] != KIND_RPDO) & (chunk["ts"] >= earliest)
+            sent = (chunk["kind"] != KIND_RPDO) if kinds is None else np.isin(
+                chunk["kind"], kinds)
+            tx = np.flatnonzero(sent & (chunk["ts"] >= earliest)
                                 & np.isin(chunk["key"], wanted))
             if not tx.size:
                 continue

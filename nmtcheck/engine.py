@@ -8,12 +8,16 @@ the per-rule cap are applied in one place for every rule.
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, cast
 
 import numpy as np
 
+from nmtcheck import boot as boot_stage
+from nmtcheck import causes as cause_stage
+from nmtcheck.boot import BootAnalysis
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import (
     SEVERITIES,
@@ -27,12 +31,15 @@ from nmtcheck.checks.base import (
 )
 from nmtcheck.decode import decode
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
+from nmtcheck.evaluated import finding_bases
+from nmtcheck.evaluated import not_evaluated as rules_not_evaluated
 from nmtcheck.frames import FrameBatch
 from nmtcheck.model import InputModel, Master, NodeModel, TimelineParams
 from nmtcheck.network import Network
 from nmtcheck.nmt import UNKNOWN
 from nmtcheck.profiles import Profile, RuleSettings
-from nmtcheck.readers import InputStats, open_input
+from nmtcheck.readers import InputStats, open_input, printable_path
+from nmtcheck.sdo_transfers import SdoSpool, tee
 from nmtcheck.timeline import build
 
 
@@ -48,6 +55,14 @@ class Finding:
     frame_index: int | None
     line: int | None
     message: str
+    # configured | measured: where the limit of a time rule came from (SPEC §7), else None
+    basis: str | None = None
+    # SPEC §8: P findings' Lely-compatible letter and proving frame; the events that may
+    # explain H001, G002, B001 (a), B002 and S004 findings (None: the field does not apply)
+    boot_letter: str | None = None
+    evidence: dict[str, Any] | None = None
+    causes: list[dict[str, Any]] | None = None
+    causes_omitted: int | None = None
 
 
 MAX_FINDINGS_PER_RULE = 10000  # per input; the rest is counted, never silently dropped
@@ -70,6 +85,10 @@ class InputResult:
     model: InputModel
     findings: list[Finding] = field(default_factory=list)
     omitted: list[Omitted] = field(default_factory=list)
+    # selected rules that could not be evaluated on this input: code -> reason (SPEC §7)
+    not_evaluated: dict[str, str] = field(default_factory=dict)
+    error: str | None = None  # why the input could not be read (then it has nothing else)
+    boot: BootAnalysis | None = None  # the CiA 302-2 boot processes (SPEC §8.5)
 
     def nodes(self) -> list[NodeModel]:
         return list(self.model.nodes())
@@ -90,7 +109,11 @@ def check_patterns(patterns: list[str], where: str = "--select/--ignore") -> Non
     """Every pattern names at least one rule (else a usage error naming `where`)."""
     for pat in patterns:
         if not any(_specificity(r, pat) >= 0 for r in RULES):
-            raise UsageError(f"{where}: {pat!r} matches no rule code or name")
+            close = difflib.get_close_matches(
+                pat.lower(), [r.name for r in RULES] + [r.code.lower() for r in RULES], 1, 0.6)
+            hint = (f" (did you mean {close[0].upper() if close[0][1:].isdigit() else close[0]!r}?)"
+                    if close else "")
+            raise UsageError(f"{where}: {pat!r} matches no rule code or name{hint}")
 
 
 def select_rules(profile: Profile, select: list[str], ignore: list[str]) -> list[Rule]:
@@ -125,6 +148,7 @@ def timeline_params(profile: Profile) -> TimelineParams:
         master_window_s=profile.timeline["master_window_ms"] / 1000.0,
         reset_window_s=profile["B002"].params["reset_window_ms"] / 1000.0,
         bootup_timeout_s=profile["B001"].params["bootup_timeout_ms"] / 1000.0,
+        bootup_grace_s=profile["B001"].params["grace_ms"] / 1000.0,
         repeat_window_ms=profile["B003"].params["repeat_window_ms"],
     )
 
@@ -150,19 +174,27 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
     opened = open_input(path, input_format, strict, reader_options)
     pdo_ids = {c for cfg, _channel in (network.nodes.values() if network else ())
                for c in [*cfg.tpdo_cob_ids.values(), *cfg.rpdo_cob_ids.values()] if c is not None}
-    decoded = decode(_counted(opened.batches, progress) if progress else opened.batches,
-                     pdo_ids)
     stats = opened.stats
+    selected = [r.code for r in rules]
+    spool = SdoSpool()  # the SDO and error frames, per server (SPEC §8.3.1, §8.6)
+    batches = tee(_in_order(opened.batches, stats), spool)
+    decoded = decode(_counted(batches, progress) if progress else batches, pdo_ids)
     try:
         if stats.frames == 0:
             start = end = 0.0
+        elif stats.order_only:  # the frame index stands for the time (SPEC §1)
+            start, end = 0.0, float(stats.frames - 1)
+            stats.start, stats.end = start, end
+            profile = order_only_profile(profile)
+            rules = [r for r in rules if r.code not in TIME_RULES]
         else:
             start, end = float(stats.start or 0.0), float(stats.end or 0.0)
             last = decoded.last_event_ts
             if last is not None:
                 end = max(end, last)
         configs = network.configs() if network else {}
-        model = build(decoded, stats.channels, start, end, timeline_params(profile), configs,
+        params = replace(timeline_params(profile), order_only=stats.order_only)
+        model = build(decoded, stats.channels, start, end, params, configs,
                       known_masters(network, stats.channels))
         decoded.events = decoded.events[:0].copy()  # the SDO rows are paired into the model
         model.stats = stats
@@ -173,6 +205,7 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                                  f"{', '.join(stats.channels) or 'none'})")
             model.channels = [cm for cm in model.channels if cm.name == channel]
         result = InputResult(index, stats, model)
+        result.boot = boot_stage.run(model, spool, network, profile)
         problems: list[tuple[Rule, Problem]] = []
         for r in rules:
             found = _node_problems(r, model, profile[r.code].params) if r.per_node else (
@@ -186,9 +219,13 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             result.findings.append(Finding(index, r.code, r.name, settings.severity, p.channel,
                                            p.node, p.time, p.frame_index, p.line, p.message))
         result.findings.sort(key=lambda f: (f.time, f.frame_index or 0, f.rule))
+        finding_bases(model, result.findings)
+        cause_stage.attach(result, spool, profile)
+        result.not_evaluated = not_evaluated(model, selected, stats.order_only, network)
         return result
     finally:
         decoded.close()
+        spool.close()
 
 
 # (the node when known, a problem or a batch): the rule's problems in the order it found them
@@ -272,6 +309,94 @@ def _keep(r: Rule, found: _Found, problems: list[tuple[Rule, Problem]],
     return left
 
 
+# rules that need time: not evaluated on an input without timestamps (SPEC §1, I006)
+TIME_RULES = {"H001": "heartbeat timeouts need time", "H002": "heartbeat spacing needs time",
+              "H003": "heartbeat periods need time", "H004": "consumer times need time",
+              "G002": "guarding response times need time",
+              "G003": "guarding intervals need time",
+              "S004": "obey_ms: whether a report came too late needs time"}
+# the time windows of the rules that need only order: a frame index stands for the time,
+# so each window is made empty (grace, obey) or endless (explaining, repeating, awaiting)
+_ORDER_ONLY_PARAMS = {("B001", "bootup_timeout_ms"): float("inf"),
+                      ("B001", "late_start_ms"): float("inf"), ("B001", "grace_ms"): 0.0,
+                      ("B002", "reset_window_ms"): float("inf"),
+                      ("B003", "repeat_window_ms"): float("inf"),
+                      ("S001", "grace_ms"): 0.0, ("S003", "grace_ms"): 0.0,
+                      ("S004", "obey_ms"): 0.0}
+MAX_TIMELESS_LOOKAHEAD = 1 << 20  # frames held back while every timestamp so far is equal
+
+
+def order_only_profile(profile: Profile) -> Profile:
+    """The profile for an input without timestamps: the order rules' windows as above."""
+    out = Profile({code: replace(st, params=dict(st.params)) for code, st in profile.items()})
+    out.timeline = dict(profile.timeline, master_window_ms=float("inf"))
+    for (code, name), value in _ORDER_ONLY_PARAMS.items():
+        if code in out and name in out[code].params:
+            out[code].params[name] = value
+    return out
+
+
+def _in_order(batches: Iterator[FrameBatch], stats: InputStats) -> Iterator[FrameBatch]:
+    """The batches, with the frame index as the time when the input has no usable
+    timestamps (none written, or every one equal: SPEC §1): the timeline is then ordered
+    by frame index. Frames are held back while every timestamp so far is equal (up to
+    MAX_TIMELESS_LOOKAHEAD of them), so that a log whose stamps are all equal is known
+    as one before its frames go on."""
+    held: list[FrameBatch] = []
+    count = 0
+    first: float | None = None
+    for batch in batches:
+        if stats.order_only or not stats.timestamped:
+            stats.order_only = True
+            yield from (_by_index(b) for b in held)
+            held.clear()
+            yield _by_index(batch)
+            continue
+        if count <= MAX_TIMELESS_LOOKAHEAD and len(batch):
+            first = float(batch.ts[0]) if first is None else first
+            if bool((batch.ts == first).all()) and count + len(batch) <= MAX_TIMELESS_LOOKAHEAD:
+                held.append(batch)
+                count += len(batch)
+                continue
+        yield from held
+        held.clear()
+        count = MAX_TIMELESS_LOOKAHEAD + 1  # stamps differ: nothing is held back any more
+        yield batch
+    if held and count >= 2:
+        stats.order_only = True
+        yield from (_by_index(b) for b in held)
+    else:
+        yield from held
+
+
+def _by_index(batch: FrameBatch) -> FrameBatch:
+    return replace(batch, ts=batch.index.astype(np.float64))
+
+
+def not_evaluated(model: InputModel, codes: list[str], order_only: bool,
+                  network: Network | None) -> dict[str, str]:
+    """The selected rules that could not be evaluated on this input, with the reason:
+    those that need time on an input without timestamps (SPEC §1, I006), and those that
+    lack the configuration they compare with (nmtcheck/evaluated.py)."""
+    out = {c: f"no timestamps: {TIME_RULES[c]}" for c in codes
+           if order_only and c in TIME_RULES}
+    found = rules_not_evaluated(model, [c for c in codes if c not in out], network is not None)
+    return {c: out.get(c) or found[c] for c in codes if c in out or c in found}
+
+
+def failed_input(path: str, index: int, reason: str) -> InputResult:
+    """The result of an input that could not be read, among several (SPEC §4): no counts,
+    nodes or findings, only the reason, named in every report."""
+    stats = InputStats(path=printable_path(path))
+    decoded = decode(iter(()))
+    try:
+        model = build(decoded, [], 0.0, 0.0, TimelineParams(), {})
+    finally:
+        decoded.close()
+    model.stats = stats
+    return InputResult(index, stats, model, error=reason)
+
+
 def _counted(batches: Iterator[FrameBatch], progress: Callable[[int], object]
              ) -> Iterator[FrameBatch]:
     """The batches, telling `progress` how many frames each one has (for a progress bar)."""
@@ -280,14 +405,22 @@ def _counted(batches: Iterator[FrameBatch], progress: Callable[[int], object]
         yield batch
 
 
+def error_reason(exc: InputError) -> str:
+    """An input error's one-line reason without the path (`inputs[i].error`)."""
+    return f"line {exc.line}: {exc.message}" if exc.line else exc.message
+
+
 def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[Rule],
-                 progress: Progress | None = None, **options: Any) -> list[InputResult]:
+                 progress: Progress | None = None, keep_going: bool = False,
+                 **options: Any) -> list[InputResult]:
     """`check_input` for each path (index = position; `options` are its keyword arguments),
     results in order. With jobs > 1 the inputs are checked in that many processes: checking
     many logs is CPU-bound and scales with the cores. The first input that fails (in order)
-    raises, as in a serial run. A worker that dies (a crash in a library, the OOM killer)
-    costs only the logs it was checking, which are tried again; a log that kills its worker
-    every time is an input error naming it, never a BrokenProcessPool for every other log."""
+    raises, as in a serial run — unless `keep_going`: then an input that cannot be read
+    gets a result with its `error` and the others are checked (SPEC §4). A worker that dies
+    (a crash in a library, the OOM killer) costs only the logs it was checking, which are
+    tried again; a log that kills its worker every time is an input error naming it, never
+    a BrokenProcessPool for every other log."""
     if jobs <= 1 or len(paths) <= 1:
         results = []
         for i, path in enumerate(paths):
@@ -295,7 +428,12 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
             if progress:
                 progress.start_input(path)
                 kw["progress"] = progress.frames
-            results.append(check_input(path, i, profile, rules, **kw))
+            try:
+                results.append(check_input(path, i, profile, rules, **kw))
+            except InputError as exc:
+                if not keep_going:
+                    raise
+                results.append(failed_input(path, i, error_reason(exc)))
         return results
     from nmtcheck.fleet.executors import Crashed, ResilientPool
 
@@ -313,6 +451,9 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
                 if progress and isinstance(outcome, InputResult):
                     progress.start_input(paths[key])
                     progress.frames(outcome.stats.frames)
+            if keep_going:  # an unreadable input is a result of its own
+                outcomes.update({i: _failed(paths[i], i, o) for i, o in outcomes.items()
+                                 if not isinstance(o, InputResult)})
             first_bad = min((i for i, o in outcomes.items()
                              if not isinstance(o, InputResult)), default=None)
             if first_bad is not None and all(i in outcomes for i in range(first_bad)):
@@ -344,6 +485,20 @@ class _Failure:
 
     def error(self) -> NmtcheckError:
         return InputError(*self.args) if self.kind == "input" else UsageError(*self.args)
+
+
+def _failed(path: str, index: int, outcome: Any) -> Any:
+    """A worker's input error (or the crash of every try) as the input's failed result;
+    anything else (a usage error) as it was."""
+    from nmtcheck.fleet.executors import Crashed
+
+    if isinstance(outcome, _Failure) and outcome.kind == "input":
+        error = outcome.error()
+        assert isinstance(error, InputError)
+        return failed_input(path, index, error_reason(error))
+    if isinstance(outcome, Crashed):
+        return failed_input(path, index, f"{outcome.reason} (run it alone to see the crash)")
+    return outcome
 
 
 def _check_in_worker(path: str, index: int, profile: Profile, codes: list[str],

@@ -271,8 +271,12 @@ class EcTable:
         return [self[int(p)] for p in positions]
 
     def where(self, *kinds: int) -> np.ndarray:
-        """Positions of the frames of these kinds."""
-        return np.flatnonzero(np.isin(self.kind, kinds))
+        """Positions of the frames of these kinds (compared one kind at a time: np.isin
+        costs far more on the few frames most nodes have)."""
+        hit = self.kind == kinds[0]
+        for k in kinds[1:]:
+            hit |= self.kind == k
+        return np.flatnonzero(hit)
 
     def count(self, kind: int) -> int:
         return int(np.count_nonzero(self.kind == kind))
@@ -539,6 +543,13 @@ class NodeConfig:
     tpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # PDO 1..4 -> COB-ID
     rpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # None: not valid
     expected: bool = False
+    # this node's own 1016h entries from its device file: producer node -> consumer time (ms)
+    consumes: dict[int, float] = field(default_factory=dict)
+
+
+# error-control objects whose file value gives way once SDO writes them (SPEC §6)
+_ERROR_CONTROL_OBJECTS = {0x1017: "heartbeat_ms", 0x100C: "guard_time_ms",
+                          0x100D: "life_time_factor"}
 
 
 @dataclass
@@ -558,11 +569,23 @@ class NodeModel:
     period_s: float | None = None
     period_source: str = "none"  # configured | measured | none
     median_s: float | None = None  # the median heartbeat interval, whatever is configured
+    # the measured period per producer-time segment (SPEC §2): segment k runs from
+    # seg_bounds[k-1] to seg_bounds[k]; NaN where the segment has no interval of its own
+    seg_bounds: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    seg_median: np.ndarray = field(default_factory=lambda: np.full(1, np.nan))
     timeouts: list[Timeout] = field(default_factory=list)
     intervals: IntervalTable = field(default_factory=IntervalTable.empty)
     writes: WriteTable = field(default_factory=WriteTable.empty)  # to N's own objects
     consumer_writes: WriteTable = field(default_factory=WriteTable.empty)  # 1016h naming N
     events: NodeEvents = field(default_factory=NodeEvents)
+    is_master: bool = False  # the channel's NMT master (SPEC §2)
+    order_only: bool = False  # the input has no timestamps: no period is measured
+    self_starts: list[tuple[float, int]] = field(default_factory=list)  # (ts, frame index)
+    # after a boot-up, spans where nothing shows whether N started itself (no S001)
+    unproven_spans: list[tuple[float, float]] = field(default_factory=list)
+    # the master's own broadcasts that its frames show it obeyed: applied to its timeline,
+    # never a finding for it (B001, B002, B003, S004)
+    own_command_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     # heartbeat_pairs() and the `ec.kind` it was computed from (classification replaces it)
     _pairs: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = field(
         default=None, init=False, repr=False, compare=False)
@@ -608,10 +631,11 @@ class NodeModel:
     def _config_with(self, active: list[int], consumer: int | None) -> NodeConfig:
         """The files' configuration with these writes (positions in `writes`, one per
         object) and this 1016h entry naming N (a position in `consumer_writes`) applied."""
+        base = self._base_config
         if not active and consumer is None:
-            return self.config
-        cfg = replace(self.config, tpdo_cob_ids=dict(self.config.tpdo_cob_ids),
-                      rpdo_cob_ids=dict(self.config.rpdo_cob_ids))
+            return base
+        cfg = replace(base, tpdo_cob_ids=dict(base.tpdo_cob_ids),
+                      rpdo_cob_ids=dict(base.rpdo_cob_ids))
         for pos in active:
             index, value = int(self.writes.index[pos]), int(self.writes.value[pos])
             if index == 0x1017:
@@ -628,6 +652,22 @@ class NodeModel:
             if cfg.consumer_timeout_ms is None or time_ms < cfg.consumer_timeout_ms:
                 cfg.consumer_timeout_ms = time_ms
                 cfg.consumer_node = int(self.consumer_writes.node[consumer])
+        return cfg
+
+    @cached_property
+    def _base_config(self) -> NodeConfig:
+        """The files' configuration less the error-control objects written by SDO in the
+        trace: what a reset does to a written value differs between stacks (Lely restores
+        the power-on value, CANopenNode keeps the written one), and a device's power-on
+        value before its master writes is not the file's configured one either, so such
+        an object has a known value only while a confirmed write holds (SPEC §6)."""
+        written = set(np.unique(self.writes.index).tolist()) if len(self.writes) else set()
+        if not written & set(_ERROR_CONTROL_OBJECTS):
+            return self.config
+        cfg = replace(self.config)
+        for index, name in _ERROR_CONTROL_OBJECTS.items():
+            if index in written:
+                setattr(cfg, name, None)
         return cfg
 
     @property
@@ -708,11 +748,27 @@ class NodeModel:
 
     def periods_at(self, times: np.ndarray) -> np.ndarray:
         """N's heartbeat period in force at each time (SPEC §2): the producer time (1017h)
-        in force if non-zero, else the whole-trace median (NaN if neither is known)."""
-        series = self.config_series(np.asarray(times, np.float64),
-                                    lambda cfg: cfg.heartbeat_ms)
+        in force if non-zero, else the median interval of the producer-time segment
+        holding that time, else the whole-trace median (NaN if none is known)."""
+        times = np.asarray(times, np.float64)
+        series = self.config_series(times, lambda cfg: cfg.heartbeat_ms)
+        return np.where(series > 0, series / 1000.0, self.measured_periods_at(times))
+
+    def measured_periods_at(self, times: np.ndarray) -> np.ndarray:
+        """The measured period of the producer-time segment holding each time."""
         fallback = self.median_s if self.median_s and self.median_s > 0 else np.nan
-        return np.where(series > 0, series / 1000.0, fallback)
+        seg = self.seg_median[np.searchsorted(self.seg_bounds, times, side="right")]
+        return np.where(seg > 0, seg, fallback)
+
+    def hb_timeouts_at(self, times: np.ndarray, timeout_factor: float) -> np.ndarray:
+        """`hb_timeout` at each time, the measured period being the segment's (NaN where
+        there is none: no period known, or 1017h = 0 written)."""
+        times = np.asarray(times, np.float64)
+        hb = self.config_series(times, lambda cfg: cfg.heartbeat_ms)
+        cons = self.config_series(times, lambda cfg: cfg.consumer_timeout_ms or None)
+        period = np.where(hb > 0, hb / 1000.0, self.measured_periods_at(times))
+        return np.where(hb == 0, np.nan,
+                        np.where(cons > 0, cons / 1000.0, timeout_factor * period))
 
     def interval_starts(self) -> np.ndarray:
         return self.intervals.start
@@ -751,6 +807,8 @@ class TimelineParams:
     master_window_s: float = 1.0  # [timeline] master_window_ms: boot-up -> broadcast
     reset_window_s: float = 10.0  # B002: a reset this recent explains a boot-up
     bootup_timeout_s: float = 5.0  # B001: a reset node boots within this
+    bootup_grace_s: float = 0.005  # B001: frames this soon after a reset were queued before
+    order_only: bool = False  # no timestamps: the frame index is the time, no timeouts
     repeat_window_ms: float = 0.0  # B003: boot-ups this close repeat (0: auto); B002 skips them
 
 
@@ -833,7 +891,8 @@ class InputModel:
             resets = [(m.key, m.commands.reset_ts, m.commands.reset_idx) for m in group]
             found = self.decoded.first_node_frame_after(
                 np.concatenate([np.full(len(ts), key) for key, ts, _ in resets]),
-                np.concatenate([ts for _, ts, _ in resets]),
+                np.concatenate([ts for _, ts, _ in resets]) + self.timeline.bootup_grace_s
+                + EPS,
                 np.concatenate([idx for _, _, idx in resets]))
             at = 0
             for key, ts, _ in resets:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from nmtcheck import boot_config
 from nmtcheck.devicefile import DeviceValues, load_device_file
 from nmtcheck.errors import UsageError
 from nmtcheck.model import NodeConfig
@@ -40,6 +41,21 @@ class Network:
     path: str | None = None  # the network file, if any
     master: int | None = None  # top-level `master = M`
     channel_masters: dict[str, int] = field(default_factory=dict)  # [channels.NAME] master
+    # SPEC §8.2.1: the [boot] tables (top level, per channel) and the per-node boot keys
+    boot: boot_config.BootTable | None = None
+    channel_boot: dict[str, boot_config.BootTable] = field(default_factory=dict)
+    boot_nodes: dict[int, dict[str, Any]] = field(default_factory=dict)
+
+    def boot_config(self, channel: str) -> boot_config.BootConfig:
+        """The boot configuration of a channel (SPEC §8.2.2)."""
+        table = self.channel_boot.get(channel, self.boot) or boot_config.BootTable()
+        found = self.master_for(channel)
+        dev = self.devices.get(found[0]) if found else None
+        mine = [n for n, (_cfg, ch) in self.nodes.items() if ch in (None, channel)]
+        return boot_config.channel_config(
+            table, {n: v for n, v in self.boot_nodes.items() if n in mine},
+            {n: d.path for n, d in self.devices.items() if n in mine},
+            dev.path if dev is not None and dev.nmt_master else None)
 
     def master_for(self, channel: str) -> tuple[int, str, str] | None:
         """(node, source, detail) of the channel's NMT master as the files name it: source
@@ -126,13 +142,23 @@ def _read_network_file(path: str, net: Network) -> dict[int, dict[str, Any]]:
     """The masters of the network file (into `net`) and its [nodes.N] tables, validated."""
     data = _read_toml(path)
     for key in data:
-        if key not in ("nodes", "channels", "master"):
-            raise UsageError(f"{path}: unknown key {key!r} (expected master, "
+        if key not in ("nodes", "channels", "master", "boot"):
+            raise UsageError(f"{path}: unknown key {key!r} (expected master, [boot], "
                              f"[nodes.N] and [channels.NAME] tables)")
+    base = Path(path).resolve().parent
+    if "boot" in data:
+        net.boot = boot_config.read_boot_table(f"{path}: [boot]", data["boot"], base)
     if "master" in data:
         net.master = _master(f"{path}: master", data["master"])
     _read_channels(path, data.get("channels", {}), net)
-    return _read_nodes(path, data.get("nodes", {}), Path(path).resolve().parent)
+    tables = _read_nodes(path, data.get("nodes", {}), base)
+    for n, values in tables.items():
+        keys = {k: values.pop(k) for k in list(values) if k in boot_config.NODE_KEYS}
+        if keys:
+            net.boot_nodes[n] = keys
+            if "manager_consumer_ms" in keys and "consumer_timeout_ms" not in values:
+                values["consumer_timeout_ms"] = keys["manager_consumer_ms"]
+    return tables
 
 
 def _read_channels(path: str, channels: Any, net: Network) -> None:
@@ -144,8 +170,12 @@ def _read_channels(path: str, channels: Any, net: Network) -> None:
         if not isinstance(table, dict):
             raise UsageError(f"{where}: expected a table")
         for key, value in table.items():
+            if key == "boot":
+                net.channel_boot[name] = boot_config.read_boot_table(
+                    f"{where} boot", value, Path(path).resolve().parent)
+                continue
             if key != "master":
-                raise UsageError(f"{where} {key}: unknown key (known: master)")
+                raise UsageError(f"{where} {key}: unknown key (known: master, boot)")
             net.channel_masters[name] = _master(f"{where} master", value)
 
 
@@ -163,8 +193,12 @@ def _read_nodes(path: str, nodes: Any, base: Path) -> dict[int, dict[str, Any]]:
             raise UsageError(f"{where}: expected a table")
         values: dict[str, Any] = {}
         for key, value in table.items():
+            if key in boot_config.NODE_KEYS:
+                values[key] = boot_config.read_node_key(f"{where} {key}", key, value)
+                continue
             if key not in _KEYS:
-                raise UsageError(f"{where} {key}: unknown key (known: {', '.join(_KEYS)})")
+                known = ", ".join([*_KEYS, *boot_config.NODE_KEYS])
+                raise UsageError(f"{where} {key}: unknown key (known: {known})")
             values[key] = _value(f"{where} {key}", value, _KEYS[key])
         for key in ("dcf", "eds"):
             if key in values:
@@ -197,6 +231,7 @@ def _node_config(net: Network, node: int, values: dict[str, Any]) -> NodeConfig:
     ltf = pick("life_time_factor", dev.life_time_factor if dev else None)
     cfg.life_time_factor = int(ltf) if ltf else None
     if dev is not None:
+        cfg.consumes = dict(dev.consumers)
         cfg.tpdo_cob_ids = dict(dev.tpdo_cob_ids)
         cfg.rpdo_cob_ids = dict(dev.rpdo_cob_ids)
     return cfg

@@ -45,7 +45,7 @@ def state_name(code: int) -> str:
 REQUEST, BOOTUP, HEARTBEAT, GUARD, MALFORMED = range(5)
 EC_KIND_NAMES = ("request", "bootup", "heartbeat", "guard", "malformed")  # by EcTable.kind
 
-SOURCES = ("start", "command", "timeout", "bootup", "heartbeat", "guarding")
+SOURCES = ("start", "command", "timeout", "bootup", "heartbeat", "guarding", "self-start")
 SOURCE_INDEX = {s: i for i, s in enumerate(SOURCES)}
 
 

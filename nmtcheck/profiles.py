@@ -26,7 +26,11 @@ class RuleSettings:
     params: dict[str, Any] = field(default_factory=dict)
 
 
-TIMELINE_PARAMS = {"master_window_ms": 1000.0}  # [timeline]: parameters of no single rule
+# [timeline]: parameters of no single rule (the boot process and cause chains: SPEC §8)
+TIMELINE_PARAMS = {"master_window_ms": 1000.0, "boot_probe_window_ms": 1000.0,
+                   "sdo_timeout_ms": 1000.0, "causes_before_ms": 1000.0,
+                   "causes_after_ms": 500.0, "causes_max": 5.0, "silence_min_ms": 100.0,
+                   "reboot_cluster_ms": 500.0}
 
 
 class Profile(dict[str, RuleSettings]):

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nmtcheck.decode import Decoded, node_groups
+from nmtcheck.decode import KIND_TPDO, Decoded, node_groups
 from nmtcheck.model import (
     ChannelModel,
     CommandTable,
@@ -42,6 +42,7 @@ from nmtcheck.nmt import (
     HEARTBEAT,
     MALFORMED,
     OFFLINE,
+    OPERATIONAL,
     PRE_OPERATIONAL,
     REQUEST,
     RESETS,
@@ -49,6 +50,7 @@ from nmtcheck.nmt import (
     STATE_INDEX,
     STATE_OF_CODE,
     UNKNOWN,
+    between,
 )
 from nmtcheck.sdo_config import pair_sdo_writes, write_validity
 
@@ -61,11 +63,19 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     `masters`: the NMT master of a channel (by name) known from the network or device
     files; on other channels it is inferred from the start-up pattern (SPEC §2).
     """
-    models = [_channel(decoded, chan, name, start, end, params, configs, masters or {})
+    # each channel's rows, found once: a log may have tens of thousands of channels
+    ev_rows, nmt_rows = _rows_by_channel(decoded.events["chan"]), _rows_by_channel(
+        decoded.nmt["chan"])
+    sent: dict[int, list[int]] = {}
+    for key in decoded.first_tx:
+        sent.setdefault(key // 128, []).append(key)
+    models = [_channel(decoded, chan, name, start, end, params, configs, masters or {},
+                       ev_rows.get(chan), nmt_rows.get(chan), sent.get(chan, []))
               for chan, name in enumerate(channels)]
     # OFFLINE lasts until the node's next frame of any kind: one pass for all channels
     _offline_ends(decoded, [(m, t) for cm in models for m in cm.nodes.values()
                             for t in m.timeouts])
+    _self_starts(decoded, [m for cm in models for m in cm.nodes.values()], end)
     for cm in models:
         for m in cm.nodes.values():
             m.intervals = _intervals(m, start, end, params.obey_s)
@@ -88,17 +98,37 @@ class _Nodes(dict[int, NodeModel]):
         return m
 
 
+def _rows_by_channel(chan: np.ndarray) -> dict[int, np.ndarray | None]:
+    """Per channel code, the positions of its rows (None: every row is that channel's,
+    the usual case, so no copy is made)."""
+    if not len(chan):
+        return {}
+    first = int(chan[0])
+    if bool((chan == first).all()):
+        return {first: None}
+    order = np.argsort(chan, kind="stable")
+    codes, starts = np.unique(chan[order], return_index=True)
+    bounds = np.append(starts, len(order))
+    return {int(c): order[bounds[i]:bounds[i + 1]] for i, c in enumerate(codes.tolist())}
+
+
 def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
              params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig],
-             masters: dict[str, Master]) -> ChannelModel:
+             masters: dict[str, Master], ev_rows: np.ndarray | None,
+             nmt_rows: np.ndarray | None, sent: list[int]) -> ChannelModel:
     """One channel's nodes, commands and master, each node classified and timed (the
-    state intervals come last, once every node's timeouts have their ends)."""
+    state intervals come last, once every node's timeouts have their ends).
+
+    `ev_rows`/`nmt_rows`: the channel's rows of the decoded events and NMT frames (None:
+    all of them); `sent`: the node keys of the channel that transmitted."""
     ev = decoded.events
-    mine = ev["chan"] == chan
-    rows = ev if mine.all() else ev[mine]  # one channel (the usual case): no copy
-    nmt = _nmt_table(decoded.nmt, chan)
+    if ev_rows is None:
+        rows = ev if not len(ev) or int(ev["chan"][0]) == chan else ev[:0]
+    else:
+        rows = ev[ev_rows]
+    nmt = _nmt_table(decoded.nmt, chan, nmt_rows)
     nodes = _Nodes(chan, name, configs)
-    _nodes_that_sent(decoded, chan, nodes)
+    _nodes_that_sent(decoded, sent, nodes)
     ec_tables = _ec_tables(decoded, chan)
     for n, table in ec_tables.items():
         if not table.rtr.all():  # a node exists once it sends; requests alone do not
@@ -110,7 +140,7 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
         if n in nodes:  # requests to a node nothing else shows are not kept
             nodes[n].ec = table
     master, master_note = _channel_master(name, nmt, ec_tables, params, masters, start)
-    _apply_commands(nmt, nodes, master)
+    _apply_commands(nmt, nodes, master, params)
     for m in nodes.values():
         _classify(m, params, with_period=False)  # boot-ups bound the SDO-written values
     write_validity(nodes)
@@ -118,17 +148,23 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
         _find_period(m)
         _classify(m, params, with_period=True)
         _find_period(m)
+        if params.order_only:  # frame numbers are no time: nothing was measured
+            m.order_only = True
+            m.median_s = m.period_s = None
+            m.period_source = "none"
     for m in nodes.values():
-        _heartbeat_timeouts(m, params, end)
-        _guard_timeouts(m, params, end)
+        if not params.order_only:  # no timestamps: no timeouts either (SPEC §1)
+            _heartbeat_timeouts(m, params, end)
+            _guard_timeouts(m, params, end)
     return ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master, master_note)
 
 
-def _nodes_that_sent(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
+def _nodes_that_sent(decoded: Decoded, keys: list[int], nodes: _Nodes) -> None:
     """Nodes that transmitted anything (TPDO, SDO, EMCY, error control) exist from their
     first frame."""
-    for key, first in decoded.first_tx.items():
-        if key // 128 == chan and 1 <= key % 128 <= 127:
+    for key in keys:
+        first = decoded.first_tx[key]
+        if 1 <= key % 128 <= 127:
             m = nodes(key % 128)
             m.first_tx = first
             m.first_show_idx, m.first_show_ts = first.idx, first.ts
@@ -143,14 +179,16 @@ def _emcy(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
                                          cols["dlc"][r], cols["data"][r])
 
 
-def _nmt_table(cols: dict[str, np.ndarray], chan: int) -> NmtTable:
-    """The channel's frames on 000h: views of the decoded columns when the input has one
-    channel (a log of nothing but NMT frames must not be held twice)."""
-    mine = cols["chan"] == chan
+def _nmt_table(cols: dict[str, np.ndarray], chan: int, rows: np.ndarray | None) -> NmtTable:
+    """The channel's frames on 000h (`rows`; None: all of them): views of the decoded
+    columns when the input has one channel (a log of nothing but NMT frames must not be
+    held twice)."""
     names = ("ts", "idx", "line", "rtr", "dlc", "cs", "target")
-    if mine.all():
+    if rows is None:
+        if len(cols["chan"]) and int(cols["chan"][0]) != chan:
+            return NmtTable(*(cols[name][:0] for name in names))
         return NmtTable(*(cols[name] for name in names))
-    return NmtTable(*(cols[name][mine] for name in names))
+    return NmtTable(*(cols[name][rows] for name in names))
 
 
 def _first_shown_by_commands(nmt: NmtTable, node_model: Callable[[int], NodeModel]) -> None:
@@ -168,16 +206,92 @@ def _first_shown_by_commands(nmt: NmtTable, node_model: Callable[[int], NodeMode
 
 
 def _apply_commands(nmt: NmtTable, nodes: dict[int, NodeModel],
-                    master: Master | None) -> None:
+                    master: Master | None, params: TimelineParams) -> None:
     """Each valid command to the nodes it applies to: a direct one to its target, a
-    broadcast to every node seen before it but the channel's master, which does not
-    receive its own frames (SPEC §2)."""
+    broadcast to every node seen before it; to the channel's master only where its own
+    frames show that it obeyed (SPEC §2: a CAN controller does not receive its own
+    frames, so Lely's master ignores its own `000#8200`, while CANopenNode applies its
+    own commands to itself, and Lely's master obeys its own `000#8100`)."""
     broadcast = nmt.valid & (nmt.target == 0)
     for n, m in nodes.items():
         mine = nmt.valid & (nmt.target == n)
-        if (master is None or n != master.node) and m.first_show_idx is not None:
-            mine |= broadcast & (m.first_show_idx < nmt.idx)
+        if m.first_show_idx is not None:
+            seen = broadcast & (m.first_show_idx < nmt.idx)
+            if master is not None and n == master.node:
+                m.is_master = True
+                own = np.flatnonzero(seen)
+                obeyed = own[_master_obeyed(m, nmt, own, mine, params)]
+                m.own_command_idx = nmt.idx[obeyed]
+                seen = np.zeros(len(nmt), bool)
+                seen[obeyed] = True
+            mine |= seen
         m.commands = CommandTable(nmt, np.flatnonzero(mine))
+
+
+def _next_of(marks: np.ndarray, after: np.ndarray, values: np.ndarray | None = None,
+             none: float = np.iinfo(np.int64).max) -> np.ndarray:
+    """Per entry of `after`, the first of the sorted `marks` greater than it (or that
+    mark's entry of `values`), `none` where there is none."""
+    k = np.searchsorted(marks, after, side="right")
+    if not len(marks):
+        return np.full(len(after), none)
+    got = (marks if values is None else values)[np.minimum(k, len(marks) - 1)]
+    return np.where(k < len(marks), got, none)
+
+
+def _master_obeyed(m: NodeModel, nmt: NmtTable, own: np.ndarray, direct: np.ndarray,
+                   params: TimelineParams) -> np.ndarray:
+    """Which of the master's own broadcasts (positions `own` in `nmt`) its frames show it
+    obeyed: after a reset, a boot-up within `bootup_timeout_ms` that no other reset to it
+    explains; after start/stop/pre-operational, its next error-control message that is
+    not a stale one reporting the commanded state."""
+    if not own.size:
+        return np.zeros(0, bool)
+    t = m.ec
+    data = np.flatnonzero(~t.rtr & (t.dlc == 1))
+    d_idx, d_ts, d_val = t.idx[data], t.ts[data], t.value[data].astype(np.int64)
+    boot = d_val == 0
+    c_idx, c_ts, c_cs = nmt.idx[own], nmt.ts[own], nmt.cs[own].astype(np.int64)
+    is_reset = reset_cs(c_cs)
+    obeyed = np.zeros(len(own), bool)
+    # resets: the first boot-up after the command, unless another reset reaching the
+    # master comes first
+    b_idx, b_ts = d_idx[boot], d_ts[boot]
+    k = np.searchsorted(b_idx, c_idx, side="right")
+    has = k < len(b_idx)
+    kb = np.minimum(k, max(len(b_idx) - 1, 0))
+    reaching = np.flatnonzero(nmt.valid & reset_cs(nmt.cs) & ((nmt.target == 0) | direct))
+    next_reset = _next_of(nmt.idx[reaching], c_idx)
+    if len(b_idx):
+        obeyed |= is_reset & has & (b_idx[kb] < next_reset) & (
+            b_ts[kb] - c_ts <= params.bootup_timeout_s + EPS)
+    # start, stop, pre-operational: the next report that is not stale, before a boot-up
+    code = d_val & 0x7F
+    state = np.full(len(data), -1, np.int64)
+    for c, st in STATE_OF_CODE.items():
+        state[code == c] = STATE_INDEX[st]
+    state[boot] = -2
+    p = np.searchsorted(d_idx, c_idx, side="right")
+    prior = np.where(p > 0, state[np.maximum(p - 1, 0)], -1) if len(data) else p * 0 - 1
+    wanted = np.asarray([STATE_INDEX[COMMAND_STATE[c]] for c in c_cs.tolist()], np.int64)
+    undecided = ~is_reset
+    reach_idx = nmt.idx[nmt.valid & ((nmt.target == 0) | direct)]
+    for j in range(4):  # a stale report or two may come first
+        q = p + j
+        ok = undecided & (q < len(data))
+        if not ok.any():
+            break
+        qq = np.minimum(q, max(len(data) - 1, 0))
+        st, dt = state[qq], d_ts[qq] - c_ts
+        # a later command reaching the master came first: that one decides
+        later_cmd = ok & (np.searchsorted(reach_idx, c_idx, side="right")
+                          < np.searchsorted(reach_idx, d_idx[qq], side="left"))
+        stale = ok & ~later_cmd & (st == prior) & (st != wanted) & (
+            dt <= params.obey_s + EPS) & (st >= 0)
+        decide = ok & ~stale
+        obeyed |= decide & ~later_cmd & (st == wanted)
+        undecided &= ~decide
+    return obeyed
 
 
 def _channel_master(name: str, nmt: NmtTable, tables: dict[int, EcTable],
@@ -201,7 +315,7 @@ def infer_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelinePara
     and the slaves drop out by obeying the broadcast.
     """
     if not (nmt.valid & (nmt.target == 0)).any():
-        return None, "not inferred: no broadcast NMT command"
+        return _burst_master(nmt, tables, params, start)
     valid = _Valid(nmt)
     # each node's data frames of DLC 1 (boot-ups and heartbeats), once per channel
     reports = {n: np.flatnonzero(~t.rtr & (t.dlc == 1)) for n, t in tables.items()}
@@ -231,6 +345,53 @@ def infer_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelinePara
     if found:
         return None, ("not inferred: several nodes start like a master ("
                       + ", ".join(str(n) for n in sorted(found)) + ")")
+    return None, "not inferred: no node starts like a master"
+
+
+MAX_BURSTS_LOOKED_AT = 16
+
+
+def _burst_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelineParams,
+                  start: float) -> tuple[Master | None, str]:
+    """A CiA 302 manager with keep-alive slaves resets node by node instead of
+    broadcasting (SPEC §2): after its boot-up, a burst of direct resets to at least two
+    other node-IDs, no other command between, that leaves out exactly one node-ID 1-127:
+    its own. The boot-up must answer no reset."""
+    valid = _Valid(nmt)
+    direct_reset = reset_cs(valid.cs) & (valid.target != 0)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], direct_reset.astype(np.int8), [0]])))
+    notes: list[str] = []
+    bursts = 0
+    for lo, hi in zip(edges[::2][:MAX_BURSTS_LOOKED_AT].tolist(),
+                      edges[1::2][:MAX_BURSTS_LOOKED_AT].tolist(), strict=True):
+        targets = set(valid.target[lo:hi].tolist())
+        if len(targets) < 2:
+            continue
+        bursts += 1
+        left_out = sorted(set(range(1, 128)) - targets)
+        b_ts = float(valid.ts[lo])
+        if len(left_out) != 1:
+            notes.append(f"the reset burst at {b_ts - start:.6f} s leaves out node-IDs "
+                         f"{', '.join(map(str, left_out[:5]))}"
+                         f"{' …' if len(left_out) > 5 else ''}")
+            continue
+        (node,) = left_out
+        t = tables.get(node)
+        if t is None:
+            continue
+        boots = np.flatnonzero(~t.rtr & (t.dlc == 1) & (t.value == 0) & (t.idx < valid.idx[lo])
+                               & (t.ts >= b_ts - params.master_window_s - EPS))
+        if lo > 0:
+            boots = boots[t.idx[boots] > valid.idx[lo - 1]]
+        for q in boots[::-1].tolist():
+            if not _answers_reset(valid, lo, node, int(t.idx[q]), float(t.ts[q]), params):
+                why = (f"boot-up at {float(t.ts[q]) - start:.6f} s, then a burst of resets "
+                       f"to every other node-ID at {b_ts - start:.6f} s")
+                return Master(node, "inferred", why), why
+    if notes:
+        return None, "not inferred: " + "; ".join(notes[:2])
+    if not bursts:
+        return None, "not inferred: no broadcast NMT command or burst of resets"
     return None, "not inferred: no node starts like a master"
 
 
@@ -300,7 +461,7 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
             if not boot and dt <= params.obey_s + EPS:
                 continue  # may have been queued before the command
             return not boot or dt > params.bootup_timeout_s + EPS
-        return False
+        return True  # no boot-up from it as far as the trace goes
     prior = None
     for q in data[max(p - 256, 0):p][::-1].tolist():
         prior = STATE_OF_CODE.get(int(t.value[q]) & 0x7F)
@@ -336,12 +497,33 @@ def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> None:
         ec.dlc != 1, MALFORMED, np.where(ec.value == 0, BOOTUP, HEARTBEAT))).astype(np.int8)
     if kind.size and (kind == REQUEST).any():
         periods = m.periods_at(ec.ts) if with_period else np.full(len(ec), np.nan)
-        _classify_guarding(ec, kind, params, periods)
+        _classify_guarding(ec, kind, params, periods, _heartbeat_disabled(m, kind))
     ec.kind = kind
 
 
+def _heartbeat_disabled(m: NodeModel, kind: np.ndarray) -> np.ndarray:
+    """Per error-control frame, whether a confirmed 1017h = 0 write holds (in file order:
+    the latest 1017h write before it, with no boot-up or reset command of N between):
+    N produces no heartbeat, so an answer to a pending request is a guarding response (a
+    master switching N from heartbeat to guarding)."""
+    ec, w = m.ec, m.writes
+    hb = np.flatnonzero(w.index == 0x1017)
+    if not hb.size:
+        return np.zeros(len(ec), bool)
+    w_idx = w.idx[hb]
+    order = np.argsort(w_idx, kind="stable")
+    w_idx, w_val = w_idx[order], w.value[hb][order]
+    k = np.searchsorted(w_idx, ec.idx, side="left") - 1  # the latest write before
+    has = k >= 0
+    latest = np.where(has, w_idx[np.maximum(k, 0)], -1)
+    ends = np.sort(np.concatenate([ec.idx[kind == BOOTUP], m.commands.reset_idx]))
+    ended = between(ends, latest, ec.idx) | np.isin(ec.idx, ends)
+    disabled: np.ndarray = has & (w_val[np.maximum(k, 0)] == 0) & ~ended
+    return disabled
+
+
 def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
-                       periods: np.ndarray) -> None:
+                       periods: np.ndarray, disabled: np.ndarray) -> None:
     """Where remote requests are pending, a data frame may be a guarding response: the
     order matters, so this walks the frames (plain Python ints, no objects).
 
@@ -352,8 +534,9 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
     last_hb: float | None = None
     early: float | None = None  # the early limit at the last heartbeat
     timeout = params.response_timeout_s + EPS
-    for i, (k, ts, value, period) in enumerate(zip(
-            kind.tolist(), ec.ts.tolist(), ec.value.tolist(), periods.tolist(), strict=True)):
+    for i, (k, ts, value, period, off) in enumerate(zip(
+            kind.tolist(), ec.ts.tolist(), ec.value.tolist(), periods.tolist(),
+            disabled.tolist(), strict=True)):
         if k == REQUEST:
             pending = ts
         elif k == BOOTUP:
@@ -365,7 +548,7 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
         elif k == HEARTBEAT:
             is_guard = False
             if pending is not None and ts - pending <= timeout:
-                if hb_since_boot >= 2:
+                if hb_since_boot >= 2 and not off:
                     is_guard = bool(value & 0x80) or (
                         early is not None and last_hb is not None and ts - last_hb < early)
                 else:
@@ -386,12 +569,43 @@ def _find_period(m: NodeModel) -> None:
     """
     intervals = m.heartbeat_intervals()
     m.median_s = float(np.median(intervals)) if intervals.size else None
+    m.seg_bounds, m.seg_median = _segment_medians(m)
     if m.config.heartbeat_ms:
         m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
     elif m.median_s is not None:
         m.period_s, m.period_source = m.median_s, "measured"
     else:
         m.period_s, m.period_source = None, "none"
+
+
+def _segment_medians(m: NodeModel) -> tuple[np.ndarray, np.ndarray]:
+    """The median heartbeat interval of each producer-time segment (SPEC §2): segments
+    run between N's boot-ups, reset commands to N and confirmed 1017h writes to N, so
+    that heartbeats sent under a power-on producer time never judge those sent under
+    the one the master wrote. Returns the segments' bounds and one median per segment
+    (NaN: no interval of its own); an interval across a bound belongs to none."""
+    ec = m.ec
+    bounds = np.unique(np.concatenate([
+        ec.ts[ec.kind == BOOTUP], m.commands.reset_ts,
+        m.writes.ts[m.writes.index == 0x1017]]).astype(np.float64))
+    medians = np.full(len(bounds) + 1, np.nan)
+    a, b = m.heartbeat_pairs()
+    if not a.size:
+        return bounds, medians
+    seg_a = np.searchsorted(bounds, ec.ts[a], side="right")
+    seg_b = np.searchsorted(bounds, ec.ts[b], side="right")
+    inside = seg_a == seg_b
+    seg, gaps = seg_a[inside], (ec.ts[b] - ec.ts[a])[inside]
+    if not seg.size:
+        return bounds, medians
+    order = np.lexsort((gaps, seg))  # by segment, then by length: medians by position
+    seg, gaps = seg[order], gaps[order]
+    first = np.flatnonzero(np.concatenate([[True], seg[1:] != seg[:-1]]))
+    count = np.diff(np.append(first, len(seg)))
+    lo = first + (count - 1) // 2
+    hi = first + count // 2
+    medians[seg[first]] = (gaps[lo] + gaps[hi]) / 2.0
+    return bounds, medians
 
 
 _HB, _BOOT, _RESET, _OFF, _ON = range(5)  # what happens to a heartbeat gap (H001)
@@ -440,8 +654,9 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     # (stacks apply it before they answer): its gap is timed by that value.
     # A gap opened by a confirmed write is timed by the value in force after it.
     at = _timed_from(ts[gap], what[gap] == _HB, writes.request_ts, writes.ts)
-    limit = m.config_series(at, lambda cfg: m.hb_timeout(cfg, params.timeout_factor))
-    fire = (limit > 0) & (until - ts[gap] > limit + EPS)
+    limit = m.hb_timeouts_at(at, params.timeout_factor)
+    with np.errstate(invalid="ignore"):
+        fire = (limit > 0) & (until - ts[gap] > limit + EPS)
     for g, lim, u, c in zip(gap[fire].tolist(), limit[fire].tolist(), until[fire].tolist(),
                             closed[fire].tolist(), strict=True):
         start = float(ts[g])
@@ -536,6 +751,58 @@ def _offline_ends(decoded: Decoded, items: list[tuple[NodeModel, Timeout]]) -> N
         t.ended_by = best
 
 
+def _self_starts(decoded: Decoded, nodes: list[NodeModel], end: float) -> None:
+    """Nodes that entered OPERATIONAL by themselves after a boot-up (SPEC §2 Self-start).
+
+    N's first error-control message after a boot-up (no NMT command to N between)
+    reporting OPERATIONAL: N started itself, from its first TPDO after the boot-up, else
+    from that message. When a reset command to N or N's next boot-up (or the end of the
+    trace) comes before any message and no other command did, nothing shows whether N
+    started itself: that span goes to `m.unproven_spans` (its PDOs are no S001).
+    """
+    queries: list[tuple[NodeModel, int, int, int]] = []  # node, boot pos, boot idx, msg idx
+    for m in nodes:
+        ec = m.ec
+        boots = ec.where(BOOTUP)
+        if not boots.size:
+            continue
+        msgs = ec.where(HEARTBEAT, GUARD)
+        msgs = msgs[_CODE_STATE[ec.value[msgs] & 0x7F] >= 0]
+        b_idx, b_ts = ec.idx[boots], ec.ts[boots]
+        never = np.iinfo(np.int64).max
+        next_boot = np.append(b_idx[1:], never)
+        next_boot_ts = np.append(b_ts[1:], end)
+        r_idx, r_ts = m.commands.reset_idx, m.commands.reset_ts
+        msg: np.ndarray = _next_of(ec.idx[msgs], b_idx, msgs, -1).astype(np.int64)
+        msg_idx = np.where(msg >= 0, ec.idx[msg], never)
+        next_cmd = _next_of(m.commands.idx, b_idx)
+        next_reset = _next_of(r_idx, b_idx)
+        next_reset_ts = _next_of(r_idx, b_idx, r_ts, end)
+        stop = np.minimum(next_boot, next_reset)
+        answered = (msg_idx < stop) & (msg_idx < next_cmd)
+        started = answered & (_CODE_STATE[ec.value[msg] & 0x7F] == STATE_INDEX[OPERATIONAL])
+        queries.extend((m, int(boots[i]), int(b_idx[i]), int(msg_idx[i]))
+                       for i in np.flatnonzero(started).tolist())
+        # no message before the next reset or boot-up, and no other command before it
+        unknown = (msg_idx >= stop) & (next_cmd >= stop)
+        m.unproven_spans = [(float(a), float(b)) for a, b in zip(
+            b_ts[unknown].tolist(), np.minimum(next_boot_ts, next_reset_ts)[unknown].tolist(),
+            strict=True)]
+    if not queries:
+        return
+    found = decoded.first_node_frame_after(
+        np.asarray([m.key for m, *_ in queries]),
+        np.asarray([float(m.ec.ts[p]) for m, p, _, _ in queries]),
+        np.asarray([b for _m, _p, b, _ in queries]), kinds=(KIND_TPDO,))
+    for (m, _p, _b, report_idx), t_idx, t_ts in zip(queries, found.idx.tolist(),
+                                                   found.ts.tolist(), strict=True):
+        if 0 <= t_idx < report_idx:
+            m.self_starts.append((t_ts, t_idx))
+        else:
+            q = int(np.searchsorted(m.ec.idx, report_idx))
+            m.self_starts.append((float(m.ec.ts[q]), report_idx))
+
+
 # state index a data byte reports, -1 if none (boot-up handled apart)
 _STATE_OF_BYTE = np.full(256, -1, np.int8)
 for _code, _state in STATE_OF_CODE.items():
@@ -607,6 +874,13 @@ def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, i
                            np.full(len(backs), _EV_BACK, np.int8)])
     ref = np.concatenate([pos, np.arange(len(cmds)), np.arange(len(m.timeouts)),
                           back_of]).astype(np.int64)
+    if m.self_starts:  # a node that started itself: OPERATIONAL from its first TPDO, a
+        # step like a command's (references past the commands: see _intervals)
+        ts = np.concatenate([ts, [t for t, _i in m.self_starts]])
+        order = np.concatenate([order, np.ones(len(m.self_starts), np.int8)])
+        idx = np.concatenate([idx, [i for _t, i in m.self_starts]]).astype(np.int64)
+        what = np.concatenate([what, np.full(len(m.self_starts), _EV_CMD, np.int8)])
+        ref = np.concatenate([ref, len(cmds) + np.arange(len(m.self_starts))])
     steps = np.lexsort((idx, order, ts))
     for lo in range(0, len(steps), STEP_CHUNK):  # a node may have millions of steps: a
         part = steps[lo:lo + STEP_CHUNK]  # chunk of them at a time as Python numbers
@@ -626,12 +900,16 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     # compact arrays, not lists: one entry per frame, read one at a time
     kind = array("b", ec.kind.astype(np.int8).tobytes())
     code_state = array("b", _CODE_STATE[ec.value & 0x7F].tobytes())
-    cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()]
+    # per command, then per self-start (SPEC §2): the state it sets and the source
+    cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()] + [
+        STATE_INDEX[OPERATIONAL]] * len(m.self_starts)
+    cmd_source = [SOURCE_INDEX["command"]] * len(cmds) + [
+        SOURCE_INDEX["self-start"]] * len(m.self_starts)
     ended_by = [t.ended_by for t in m.timeouts]
 
     unknown, offline, pre_op = STATE_INDEX[UNKNOWN], STATE_INDEX[OFFLINE], STATE_INDEX[
         PRE_OPERATIONAL]
-    src_timeout, src_command = SOURCE_INDEX["timeout"], SOURCE_INDEX["command"]
+    src_timeout = SOURCE_INDEX["timeout"]
     starts = array("d", [start])  # the intervals so far (8 + 1 + 1 bytes each)
     states = array("b", [unknown])
     sources = array("b", [SOURCE_INDEX["start"]])
@@ -676,9 +954,9 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
         elif w == _EV_CMD:
             last_cmd = (at, pre_offline if cur == offline and pre_offline is not None else cur)
             if cur == offline:
-                saved = (cmd_state[r], src_command)
+                saved = (cmd_state[r], cmd_source[r])
             else:
-                go(at, cmd_state[r], src_command)
+                go(at, cmd_state[r], cmd_source[r])
         elif w == _EV_TIMEOUT and cur not in (unknown, offline):
             saved = (cur, sources[-1])
             pre_offline = cur  # what a stale report after a command here would still say

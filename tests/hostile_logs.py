@@ -160,6 +160,7 @@ def record_lines(fmt: str, data: bytes) -> list[int]:
         lines[0] = lines[0][3:]
     out = []
     header_done = False
+    explaining = False  # candump-screen: right below an error frame (`-e` explains it)
     for no, raw in enumerate(lines, 1):
         line = raw.strip()
         if not line:
@@ -168,8 +169,13 @@ def record_lines(fmt: str, data: bytes) -> list[int]:
             continue
         if fmt == "cl2000" and line.startswith(b"#"):
             continue
-        if fmt == "candump-screen" and raw[:1] == b"\t":
-            continue
+        if fmt == "candump-screen":
+            # `-e` prints an error frame's explanation on tab-indented lines below it; any
+            # other tab-indented line is a record (SPEC §1: leading white space is no part
+            # of a record)
+            if explaining and raw[:1] == b"\t" and b"[" not in raw:
+                continue
+            explaining = b"ERRORFRAME" in raw
         if fmt == "asc" and _asc_header(raw):
             continue
         if fmt in ("csv", "cl2000") and not header_done:

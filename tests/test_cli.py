@@ -24,7 +24,7 @@ HB_LOSS = SAMPLES / "heartbeat_loss.log"
 def test_healthy_sample_passes(tmp_path: Path) -> None:
     res = run("check", str(HEALTHY), cwd=tmp_path)
     assert res.returncode == 0, res.stdout + res.stderr
-    assert "PASS: 0 error(s)" in res.stdout
+    assert "PASS: 0 errors," in res.stdout
     assert "skipped records: 0" in res.stdout
 
 
@@ -32,7 +32,7 @@ def test_fault_sample_fails_with_exit_1(tmp_path: Path) -> None:
     res = run("check", str(HB_LOSS), cwd=tmp_path)
     assert res.returncode == 1
     assert "H001 heartbeat-timeout" in res.stdout
-    assert res.stdout.strip().splitlines()[-1].startswith("FAIL: 1 error(s)")
+    assert res.stdout.strip().splitlines()[-1].startswith("FAIL: 1 error,")
 
 
 def test_fail_on_never_and_ignore(tmp_path: Path) -> None:
@@ -77,7 +77,7 @@ def test_json_report_has_spec_fields(tmp_path: Path) -> None:
             "message"} <= set(f)
     assert (f["rule"], f["name"], f["severity"], f["node"]) == ("H001", "heartbeat-timeout",
                                                                "error", 3)
-    assert rep["summary"] == {"error": 1, "warning": 0, "info": 0}
+    assert rep["summary"] == {"error": 1, "warning": 0, "info": 0, "verdict": "fail"}
     # The timeout's frame is the first frame at or after the moment it expired.
     assert f["line"] == f["frame_index"] + 1
     offline = [iv for iv in rep["timeline"] if iv["state"] == "OFFLINE"]
@@ -106,7 +106,7 @@ def test_timeline_formats(tmp_path: Path) -> None:
 def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
     res = run("rules", cwd=tmp_path)
     assert res.returncode == 0
-    assert len(res.stdout.strip().splitlines()) == 26  # the SPEC §3 catalogue
+    assert len(res.stdout.strip().splitlines()) == 28  # the SPEC §3 catalogue
     doc = run("rules", "H001", cwd=tmp_path)
     assert "heartbeat-timeout" in doc.stdout and "timeout_factor" in doc.stdout
     assert "Why it matters" in doc.stdout and "Example" in doc.stdout
@@ -115,7 +115,7 @@ def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("make, needle", [
     (lambda p: str(p / "missing.log"), "no such file"),
-    (lambda p: str(p), "is a directory"),
+    (lambda p: str(p), "no log file below this directory"),
     (lambda p: ((p / "empty.log").write_text("") and str(p / "empty.log")) or str(p / "empty.log"),
      "empty file"),
     (lambda p: (p / "x.bin").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(100)) and str(p / "x.bin"),

@@ -129,7 +129,7 @@ def test_text_names_the_file_on_every_group_and_rolls_up(tmp_path: Path) -> None
     assert len(shown) == 3 + 1  # three of a.log's seven, and heartbeat_loss.log's one
     more = [line for line in out.splitlines() if "… 4 more H001 heartbeat-timeout" in line]
     assert len(more) == 1 and "(error)" in more[0]
-    assert "FAIL: 8 error(s)" in out  # the verdict counts every finding
+    assert "FAIL: 8 errors," in out  # the verdict counts every finding
     # exactly one more than shown is printed, not rolled up
     b = repeated_timeouts(tmp_path / "b.log", 4)
     out = run("check", str(b), "-q", cwd=tmp_path).stdout
@@ -156,10 +156,10 @@ def test_rule_names_select_and_ignore() -> None:
 
 @pytest.mark.parametrize("select, ignore, expected", [
     ("H001", "H", ["H001"]),                     # the example
-    ("H", "H001", ["H002", "H003"]),
-    ("H", "heartbeat-timeout", ["H002", "H003"]),
+    ("H", "H001", ["H002", "H003", "H004"]),
+    ("H", "heartbeat-timeout", ["H002", "H003", "H004"]),
     ("heartbeat-timeout", "H", ["H001"]),
-    ("H00", "H", ["H001", "H002", "H003"]),       # a longer prefix is more specific
+    ("H00", "H", ["H001", "H002", "H003", "H004"]),       # a longer prefix is more specific
     ("H", "H00", []),
     ("H", "H", []),                              # equal specificity: --ignore wins
     ("H001", "heartbeat-timeout", []),

@@ -35,7 +35,9 @@ from nmtcheck.frames import FrameBatch
 from nmtcheck.profiles import load_profile
 from nmtcheck.readers import FORMATS, MAX_LEADING_LINES, TEXT_FORMATS, detect_format, open_input
 
-COMMENT = b"# recorded on bench 3"
+# A note without a comment mark: a skipped record. (A `# ...` line is a comment, a non-frame
+# record: tests/test_readers_pasted.py.)
+COMMENT = b"recorded on bench 3"
 SAMPLE_FILES = sorted(p for p in SAMPLES.rglob("*") if p.suffix in (".log", ".asc"))
 # Real text logs of the shared corpus (LGPL/GPL, so not copied into tests/data, except
 # multiGeneratorCAN.log): used when ../shared is beside the checkout.
@@ -159,7 +161,8 @@ def test_blank_and_comment_lines_on_top(tmp_path: Path) -> None:
     log.write_bytes(b"\n   \n" + _commented(raw, b"# bench 3", b"", b"=== banner ===", b"\t"))
     stats, _ = read_columns(log)
     assert stats.format == "candump"
-    assert stats.skipped == 2 and stats.skipped_lines == [3, 5]
+    assert stats.skipped == 1 and stats.skipped_lines == [5]  # the banner
+    assert stats.ignored == stats.notes == 1  # `# bench 3`: a comment, no skipped record
 
 
 def test_asc_comment_before_the_header_is_the_formats_own(tmp_path: Path) -> None:
@@ -181,14 +184,14 @@ def test_compressed_log_with_a_comment_on_top(tmp_path: Path) -> None:
 
 def test_as_many_leading_lines_as_the_limit(tmp_path: Path) -> None:
     raw = (SAMPLES / "healthy.log").read_bytes()
-    notes = [b"# note %d" % i for i in range(1, MAX_LEADING_LINES + 1)]
+    notes = [b"note %d" % i for i in range(1, MAX_LEADING_LINES + 1)]
     log = tmp_path / "many.log"
     log.write_bytes(_commented(raw, *notes))
     stats, _ = read_columns(log)
     assert stats.format == "candump" and stats.skipped == MAX_LEADING_LINES
     assert stats.skipped_lines == list(range(1, 11))  # the first few are kept
     # one more: detection gives up (it only looks at the first lines), as before
-    log.write_bytes(_commented(raw, *notes, b"# one too many"))
+    log.write_bytes(_commented(raw, *notes, b"one too many"))
     with pytest.raises(InputError, match="unknown log format"):
         open_input(str(log))
 

@@ -149,7 +149,7 @@ def test_quoted_globs_are_expanded_with_one_combined_verdict(tmp_path: Path) -> 
     assert [i["path"] for i in json_inputs(every)] == [
         "logs/a.log", "logs/b.log", "logs/sub/c.log"]
     text = assert_report(run("check", "logs/*.log", "logs/sub/?.log", cwd=tmp_path), 1)
-    assert text.count(" (candump): ") == 3 and "FAIL: 1 error(s)" in text
+    assert text.count(" (candump): ") == 3 and "FAIL: 1 error," in text
 
 
 def test_a_pattern_matching_nothing_and_a_literal_name_with_brackets(tmp_path: Path) -> None:
@@ -160,16 +160,26 @@ def test_a_pattern_matching_nothing_and_a_literal_name_with_brackets(tmp_path: P
 
 
 def test_one_unreadable_input_among_several_is_exit_2_naming_it(tmp_path: Path) -> None:
+    # the good input is still checked and reported (SPEC §4); the bad one is named on
+    # stderr, in the report, and makes the exit code 2
     (tmp_path / "bad.log").write_bytes(b"\x00" * 100)
     res = run("check", str(HEALTHY), str(tmp_path / "bad.log"), cwd=tmp_path)
-    assert_one_line_error(res, "bad.log", "unknown log format")
+    assert res.returncode == 2
+    (line,) = res.stderr.decode().strip().splitlines()
+    assert line.startswith("nmtcheck: ") and "bad.log: unknown log format" in line
+    out = res.stdout.decode()
+    assert "healthy.log (candump): 351 frames" in out
+    assert "bad.log: cannot be checked: unknown log format" in out
+    assert out.strip().splitlines()[-1].startswith("FAIL: 0 errors, 0 warnings, 0 info "
+                                                          "in 2 inputs, 1 of them could not")
 
 
 # --- paths that are not logs --------------------------------------------------------------
 
 
 def test_directory_missing_file_and_broken_links(tmp_path: Path) -> None:
-    assert_one_line_error(run("check", str(tmp_path), cwd=tmp_path), "is a directory")
+    assert_one_line_error(run("check", str(tmp_path), cwd=tmp_path),
+                          "no log file below this directory")
     assert_one_line_error(run("check", "missing.log", cwd=tmp_path), "missing.log: no such file")
     (tmp_path / "dangling.log").symlink_to(tmp_path / "gone.log")
     assert_one_line_error(run("check", "dangling.log", cwd=tmp_path),

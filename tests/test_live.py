@@ -48,6 +48,7 @@ def frames_of(path: Path) -> list[LiveFrame]:
 
 
 SAMPLE_LOGS = sorted([*SAMPLES.glob("canopen_master/*.log"), *SAMPLES.glob("lely/*.log"),
+                      *SAMPLES.glob("lely/*/*.log"), *SAMPLES.glob("canopennode/*.log"),
                       *SAMPLES.glob("*.log")])
 
 
@@ -68,7 +69,10 @@ def test_accelerated_replay_equals_offline(path: Path, with_network: bool, tmp_p
     key = [(f.rule, f.node, round(f.time, 6), f.message) for f in original.findings]
     assert [(f.rule, f.node, round(f.time, 6), f.message)
             for f in outcome.result.findings] == key
-    assert [lf for lf in outcome.live if lf.confirmed != "confirmed"] == []
+    # a provisional live finding (it rests on what only the whole trace settles: a period
+    # measured so far, a file's producer time that a later SDO write voids) may be
+    # withdrawn by the offline check; a certain one must be confirmed
+    assert [lf for lf in outcome.live if lf.confirmed != "confirmed" and lf.certain] == []
     live = {(lf.rule, lf.node, round(lf.time, 3)) for lf in outcome.live}
     for f in original.findings:
         if f.rule in LIVE_RULES:

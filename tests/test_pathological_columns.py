@@ -119,11 +119,21 @@ def test_the_first_late_report_by_binary_search_is_the_walk() -> None:
 
 
 def _naive_config_at(m: NodeModel, ts: float) -> NodeConfig:
-    """The configuration in force, write by write (what the sweep replaced)."""
+    """The configuration in force, write by write (what the sweep replaced). An
+    error-control object written by SDO anywhere in the trace has no file value (SPEC §6,
+    revised 2026-11-26: a reset does not always restore it, and the power-on value before
+    the first write is not the file's configured one)."""
     active = [w for w in m.writes if w.ts <= ts < w.until]
     consumers = [w for w in m.consumer_writes if w.ts <= ts < w.until]
+    written = {w.index for w in m.writes}
     cfg = replace(m.config, tpdo_cob_ids=dict(m.config.tpdo_cob_ids),
                   rpdo_cob_ids=dict(m.config.rpdo_cob_ids))
+    if 0x1017 in written:
+        cfg.heartbeat_ms = None
+    if 0x100C in written:
+        cfg.guard_time_ms = None
+    if 0x100D in written:
+        cfg.life_time_factor = None
     for w in active:
         if w.index == 0x1017:
             cfg.heartbeat_ms = float(w.value)

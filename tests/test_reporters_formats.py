@@ -69,6 +69,11 @@ JUNIT_XSD = """<?xml version="1.0" encoding="UTF-8"?>
         <xs:element name="testcase" minOccurs="0" maxOccurs="unbounded">
           <xs:complexType>
             <xs:sequence>
+              <xs:element name="skipped" minOccurs="0">
+                <xs:complexType><xs:simpleContent><xs:extension base="xs:string">
+                  <xs:attribute name="message" type="xs:string"/>
+                </xs:extension></xs:simpleContent></xs:complexType>
+              </xs:element>
               <xs:element name="failure" minOccurs="0" maxOccurs="unbounded">
                 <xs:complexType><xs:simpleContent><xs:extension base="xs:string">
                   <xs:attribute name="type" type="xs:string"/>
@@ -204,7 +209,8 @@ def test_github_annotations_escape_and_point_at_lines(tmp_path: Path) -> None:
     res.findings[0].message = "50% lost\nsecond line"
     lines = github.render([res], OPTIONS).splitlines()
     assert lines[0] == ("::error file=logs/a%2Cb%3Ac.log,line=7,title=H001 heartbeat-timeout "
-                        "(can0 node 3)::50%25 lost%0Asecond line [at 0.650 s]")
+                        "(can0 node 3)::50%25 lost%0Asecond line [at 0.650 s]  [limit measured "
+                        "from the trace: --network or --dcf gives the configured one]")
     assert lines[-1] == "nmtcheck FAIL: 1 error, 0 warnings, 0 info in 1 input (--fail-on error)"
 
 
@@ -241,7 +247,8 @@ def test_markdown_groups_repeats_and_escapes_cells(tmp_path: Path) -> None:
     assert text.startswith("## nmtcheck: ❌ FAIL\n\n**3 errors, 0 warnings, 0 info**")
     rows = [line for line in text.splitlines() if line.startswith("| error |")]
     assert rows == ["| error | H001 heartbeat-timeout | can0 node 3 | 0.650 s | 7 | 3 | "
-                    "a \\| b &lt;c> |"]
+                    "a \\| b &lt;c>  [limit measured from the trace: --network or --dcf "
+                    "gives the configured one] |"]
     assert "<details><summary>Nodes</summary>" in text
 
 

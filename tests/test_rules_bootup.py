@@ -197,9 +197,11 @@ def test_b003_repeat_window_ms_from_profile(checker: Checker, tmp_path: Path) ->
 
 
 def test_b001_tpdo_logged_with_the_resets_timestamp_but_after_it(checker: Checker) -> None:
-    """Sign of life is judged in file order: a TPDO stamped with the reset's own time but
-    logged after it still comes before the boot-up."""
+    """A TPDO stamped with the reset's own time but logged after it left the controller
+    before the node processed the reset (SPEC §3 B001 `grace_ms`, revised 2026-11-26:
+    before, this was a sign of life); one 10 ms later, past the grace, is one."""
     fr = [(0.0, "702#00"), (0.05, "000#0100")] + [(0.1 * i, "702#05") for i in range(1, 10)]
     text = candump(fr) + "(1001.000000) can0 000#8102\n(1001.000000) can0 182#01\n"
-    text += candump([(1.05, "702#00")])
-    assert checker.findings(text, select="B001") == [("B001", 2, 1.0)]
+    assert checker.findings(text + candump([(1.05, "702#00")]), select="B001") == []
+    text += "(1001.010000) can0 182#02\n" + candump([(1.05, "702#00")])
+    assert checker.findings(text, select="B001") == [("B001", 2, 1.01)]

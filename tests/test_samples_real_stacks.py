@@ -55,8 +55,31 @@ LELY_BARE: dict[str, Expected] = {  # where the verdict without the network file
     "self_1017": [("H001", 2, 4.14, 9.91)] * 24 + [("H003", 2, 9.74, 9.76)],
 }
 
-CASES = [("canopen_master", name, exp, exp) for name, exp in CANOPEN_MASTER.items()] + [
-    ("lely", name, LELY_BARE.get(name, exp), exp) for name, exp in LELY.items()]
+# Lely start-ups of a CiA 302 manager (samples/lely/README.md, "Further recordings"), each
+# in its own folder with its network.toml: (bare, with the network file, master inferred
+# without it, or None where SPEC §2 infers none)
+LELY_MANAGER: dict[str, tuple[Expected, Expected, int | None]] = {
+    # keep-alive slave: resets node by node (000#8203..827F), the ~123 absent IDs are no
+    # B001; the burst leaves out node-IDs 1 and 2 (the keep-alive slave), so no master
+    # can be inferred
+    "keepalive/keepalive": ([], [], None),
+    # 000#8100 with TPDOs queued before it (2-3 us later): no sign of life, no S001
+    "reset_all/reset_all": ([], [], 1),
+    # mandatory node 3 lost: the master resets all, itself included (701#00 after its own
+    # 000#8100, no B002), then 000#8200, which it ignores; nodes 2 and 4 boot twice, once
+    # per reset (no B003); node 3 comes back without a boot-up (B001). With the file the
+    # master's RPDOs (182h, 184h) while it waits pre-operational are S002 (info).
+    "mandatory/mandatory_lost": (
+        [("H001", 3, 5.04, 5.06), ("B001", 3, 6.99, 7.01)],
+        [("H001", 3, 5.19, 5.21), ("B001", 3, 6.99, 7.01), ("S002", 1, 5.35, 5.36)], 1),
+    # the same, but node 3 reboots: its boot-up answers the resets of 5.20 s
+    "mandatory/mandatory_reboot": (
+        [("H001", 3, 5.04, 5.06)], [("H001", 3, 5.19, 5.21), ("S002", 1, 5.35, 5.36)], 1),
+}
+
+CASES = [("canopen_master", name, exp, exp, 1) for name, exp in CANOPEN_MASTER.items()] + [
+    ("lely", name, LELY_BARE.get(name, exp), exp, 1) for name, exp in LELY.items()] + [
+    ("lely", name, bare, net, master) for name, (bare, net, master) in LELY_MANAGER.items()]
 
 
 def _check(path: Path, network: Path | None) -> InputResult:
@@ -66,12 +89,12 @@ def _check(path: Path, network: Path | None) -> InputResult:
 
 
 @pytest.mark.parametrize("with_network", [False, True], ids=["bare", "network"])
-@pytest.mark.parametrize(("stack", "name", "bare", "networked"), CASES,
-                         ids=[f"{s}/{n}" for s, n, _b, _e in CASES])
+@pytest.mark.parametrize(("stack", "name", "bare", "networked", "master"), CASES,
+                         ids=[f"{s}/{n}" for s, n, _b, _e, _m in CASES])
 def test_real_stack_sample(stack: str, name: str, bare: Expected, networked: Expected,
-                           with_network: bool) -> None:
-    folder = SAMPLES / stack
-    res = _check(folder / f"{name}.log", folder / "network.toml" if with_network else None)
+                           master: int | None, with_network: bool) -> None:
+    log = SAMPLES / stack / f"{name}.log"
+    res = _check(log, log.parent / "network.toml" if with_network else None)
     assert res.stats.skipped == 0 and res.stats.frames > 100
     start = res.stats.start or 0.0
     got = [(f.rule, f.node, round(f.time - start, 4)) for f in res.findings]
@@ -82,11 +105,91 @@ def test_real_stack_sample(stack: str, name: str, bare: Expected, networked: Exp
         assert fit is not None, (rule, node, t, got)
         expected.remove(fit)
     (cm,) = res.model.channels
+    if not with_network and master is None:
+        assert cm.master is None and cm.master_note.startswith("not inferred: "), cm.master_note
+        return
     assert cm.master is not None and cm.master.node == 1
     assert cm.master.source == ("network" if with_network else "inferred")
 
 
 def test_every_recorded_log_has_an_expectation() -> None:
-    for stack, table in (("canopen_master", CANOPEN_MASTER), ("lely", LELY)):
-        logs = {p.stem for p in (SAMPLES / stack).glob("*.log")}
+    for stack, table in (("canopen_master", CANOPEN_MASTER), ("lely", LELY),
+                         ("lely", LELY_MANAGER)):
+        logs = {str(p.relative_to(SAMPLES / stack).with_suffix(""))
+                for p in (SAMPLES / stack).glob("*/*.log" if table is LELY_MANAGER else "*.log")}
         assert logs == set(table), stack
+
+
+# CANopenNode v4 (samples/canopennode/, README there): a master application on
+# CANopenNode's own NMT master and SDO client, three slaves that power on heartbeating
+# every 1000 ms and are set to 100 ms by SDO. The master applies its own NMT commands
+# (boots again after its own 000#8200), so no master can be inferred from the trace:
+# without `master = 1` the master's own state changes are S005 (info).
+CANOPENNODE: dict[str, Expected] = {
+    "healthy": [],  # power-on at 1000 ms, written 100 ms: no H001 on the power-on period
+    "late_master": [],  # the slaves heartbeat at 1000 ms for 2 s before the master starts
+    "write_1017": [],  # node 4 switched from heartbeat to guarding by 1017h = 0
+    "self_start": [],  # node 3 starts itself (TPDO 16 us after its boot-up)
+    "master_obeys": [],  # the master boots again after its 000#8200, 7Fh after 000#8000
+    "broadcast": [],  # pre-operational/start to all
+    "stopped_sdo": [],  # a stopped node ignores SDO; EMCY held until the next start
+    "guard_toggle": [("G001", 4, 2.16, 2.17)],  # one repeated toggle (patched build)
+    # a second device with node-ID 3 (B002: its boot-up), heartbeats alternate 05h/7Fh
+    "duplicate_id": [("B002", 3, 3.52, 3.53), ("N002", 3, 5.50, 5.51)]
+    + [("S005", 3, 4.50, 9.51)] * 11,
+    # node 3 unplugged: heartbeat timeout (1.5 x 100 ms), back pre-operational, no reset
+    "unplugged_heartbeat": [("H001", 3, 5.12, 5.13), ("S005", 3, 7.02, 7.03)],
+    "unplugged_guarded": [("G002", 4, 5.17, 5.18), ("S005", 4, 7.08, 7.09)],
+}
+CANOPENNODE_NO_MASTER: dict[str, Expected] = {  # the master's own changes are S005
+    "guard_toggle": [("S005", 1, 2.26, 2.27)],
+    "unplugged_heartbeat": [("S005", 1, 5.27, 5.28)],
+    "unplugged_guarded": [("S005", 1, 5.17, 5.18)],
+}
+_NETWORKS = {
+    "bare": None,
+    "network": "",  # as recorded: master = 1, the power-on producer times
+    "no-master": "master = 1\n",  # the same without `master =`
+    # the producer times the master writes (100 ms), as a DCF of the configured network
+    # would give them
+    "configured": "heartbeat_ms = 1000     # power-on 1017h\n",
+}
+
+
+@pytest.mark.parametrize("variant", list(_NETWORKS))
+@pytest.mark.parametrize("name", list(CANOPENNODE))
+def test_canopennode_sample(name: str, variant: str, tmp_path: Path) -> None:
+    folder = SAMPLES / "canopennode"
+    net_file = folder / ("network_duplicate.toml" if name == "duplicate_id" else "network.toml")
+    drop = _NETWORKS[variant]
+    if drop is None:
+        network = None
+    else:
+        text = net_file.read_text(encoding="utf-8")
+        if drop:
+            assert drop in text or name == "duplicate_id"
+            text = text.replace(drop, "heartbeat_ms = 100\n" if "1000" in drop else "")
+        network = tmp_path / "network.toml"
+        network.write_text(text, encoding="utf-8")
+    res = _check(folder / f"{name}.log", network)
+    assert res.stats.skipped == 0
+    start = res.stats.start or 0.0
+    got = [(f.rule, f.node, round(f.time - start, 4)) for f in res.findings]
+    master_known = variant in ("network", "configured") and name != "duplicate_id"
+    expected = list(CANOPENNODE[name])
+    if not master_known:
+        expected += CANOPENNODE_NO_MASTER.get(name, [])
+    assert len(got) == len(expected), got
+    for rule, node, t in got:
+        fit = next((e for e in expected if e[:2] == (rule, node) and e[2] <= t <= e[3]), None)
+        assert fit is not None, (rule, node, t, got)
+        expected.remove(fit)
+    (cm,) = res.model.channels
+    if master_known:
+        assert cm.master is not None and (cm.master.node, cm.master.source) == (1, "network")
+    else:  # it obeys its own broadcasts: nothing shows it sent them
+        assert cm.master is None
+
+
+def test_every_canopennode_log_has_an_expectation() -> None:
+    assert {p.stem for p in (SAMPLES / "canopennode").glob("*.log")} == set(CANOPENNODE)

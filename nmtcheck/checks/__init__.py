@@ -3,6 +3,16 @@
 from __future__ import annotations
 
 from nmtcheck.checks.base import Rule
+from nmtcheck.checks.boot import (
+    boot_download_failed,
+    boot_identity_mismatch,
+    boot_no_error_control,
+    boot_no_response,
+    boot_slave_already_operational,
+    boot_stalled,
+    mandatory_slave_not_booted,
+    start_before_boot_complete,
+)
 from nmtcheck.checks.bootup import bootup_repeated, missing_bootup, unexpected_bootup
 from nmtcheck.checks.canid import (
     malformed_error_control,
@@ -17,12 +27,14 @@ from nmtcheck.checks.guarding import (
     guarding_with_heartbeat,
 )
 from nmtcheck.checks.heartbeat import (
+    consumer_without_producer,
     heartbeat_period_mismatch,
     heartbeat_timeout,
     heartbeat_too_early,
 )
 from nmtcheck.checks.inputs import (
     frames_lost,
+    no_timestamps,
     nothing_to_check,
     skipped_records,
     timestamps_backwards,
@@ -44,6 +56,7 @@ RULES: list[Rule] = [
     heartbeat_timeout,
     heartbeat_too_early,
     heartbeat_period_mismatch,
+    consumer_without_producer,
     guard_toggle,
     guard_no_response,
     guard_interval_exceeded,
@@ -59,11 +72,20 @@ RULES: list[Rule] = [
     unknown_nmt_state,
     missing_node,
     duplicate_node_id,
+    boot_identity_mismatch,
+    boot_no_response,
+    boot_download_failed,
+    boot_no_error_control,
+    boot_slave_already_operational,
+    mandatory_slave_not_booted,
+    start_before_boot_complete,
+    boot_stalled,
     nothing_to_check,
     truncated_input,
     skipped_records,
     frames_lost,
     timestamps_backwards,
+    no_timestamps,
 ]
 
 BY_CODE: dict[str, Rule] = {r.code: r for r in RULES}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 
 import numpy as np
@@ -9,7 +10,7 @@ import numpy as np
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, batch, rule
 from nmtcheck.decode import KIND_EC, KIND_NAMES, NodeFrames
 from nmtcheck.model import EcFrame, EcTable, NodeModel
-from nmtcheck.nmt import BOOTUP, EC_KIND_NAMES, EPS, GUARD, HEARTBEAT, MALFORMED, any_between
+from nmtcheck.nmt import BOOTUP, EC_KIND_NAMES, EPS, GUARD, HEARTBEAT, MALFORMED
 
 _NEVER = np.iinfo(np.int64).max  # a frame index after every frame
 
@@ -27,6 +28,9 @@ def _auto_window_s(m: NodeModel, value_ms: float) -> float:
       Param("late_start_ms", float,
             "first heartbeat later than this after the trace start without a boot-up "
             "(0 = 3 x the node's heartbeat period, at least 1000 ms)", 0.0),
+      Param("grace_ms", float,
+            "a frame this soon after the reset command was queued before it: no sign of life",
+            5.0),
       exempt_from_unknown=True)
 def missing_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
     """A node did not announce its (re)start with a boot-up message.
@@ -34,7 +38,13 @@ def missing_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]
     **What it checks.** (a) After a reset-node or reset-communication command to
     N (direct or broadcast), N shows a sign of life (heartbeat, guarding
     response, TPDO, SDO response, EMCY) before its boot-up, or sends no boot-up
-    within `bootup_timeout_ms` while the trace goes on. (b) N's first frame in
+    within `bootup_timeout_ms` while the trace goes on. A frame of N within
+    `grace_ms` after the command left N's controller before N processed it: no
+    sign of life. "Sends none" applies only to a node that transmitted before the
+    command or that the network file expects: a CiA 302 manager in keep-alive mode
+    resets every node-ID 1-127 one by one, and the absent ones are no missing
+    boot-ups (N001 reports expected nodes that never appear). The master's own
+    broadcasts are never a finding for it. (b) N's first frame in
     the trace is a heartbeat that arrives more than `late_start_ms` after the
     trace's first frame: N came up during the recording without a boot-up.
 
@@ -46,11 +56,13 @@ def missing_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]
     **Example.** `000#8103` (reset node 3) followed by `703#05` with no `703#00`
     in between.
     """
-    yield from _no_bootup_after_reset(m, ctx, p["bootup_timeout_ms"] / 1000.0)
+    yield from _no_bootup_after_reset(m, ctx, p["bootup_timeout_ms"] / 1000.0,
+                                      p["grace_ms"] / 1000.0)
     yield from _late_start(m, ctx, p["late_start_ms"])
 
 
-def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float) -> Iterator[Found]:
+def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float, grace: float
+                           ) -> Iterator[Found]:
     """B001 (a): per reset command, a sign of life before the boot-up or no boot-up.
 
     Vectorised over the resets (a log may reset a node a million times): one batch, in
@@ -68,16 +80,24 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float) -> It
     boot_idx, boot_ts = boot.idx, np.where(boot.idx < never, boot.ts, np.inf)
     limit = np.minimum(boot_idx, next_idx)  # the wait ends at the boot-up or the next reset
     life = ec.where(HEARTBEAT, GUARD, MALFORMED)  # signs of life but the boot-up
-    sign = _following(ec, life[~ec.stale[life]], r_idx)  # a report queued before is none
+    # a report queued before the command (stale, or within the grace) is none
+    sign = _following(ec, life[~ec.stale[life]], r_idx, r_ts + grace + EPS)
     has_sign = sign.idx < limit
-    other = ctx.model.first_tx_after_resets(m)  # TPDO, SDO response, EMCY
+    other = ctx.model.first_tx_after_resets(m)  # TPDO, SDO response, EMCY (after the grace)
     has_other = (other.idx >= 0) & (other.idx < limit) & (~has_sign | (other.idx < sign.idx))
     has_sign &= ~has_other
     restarted = ((next_idx < never) & (next_idx < boot_idx)
                  & (next_ts - r_ts <= timeout + EPS))  # a newer reset restarts the wait
+    # only a node that transmitted before the command, or one the network file expects,
+    # is awaited: a keep-alive manager resets every node-ID, present or not
+    awaited = np.full(len(rpos), bool(m.config.expected))
+    if m.first_tx is not None:
+        awaited |= r_idx > m.first_tx.idx
     no_boot = (~has_other & ~has_sign & ~restarted & (boot_ts - r_ts > timeout + EPS)
-               & (ctx.end > r_ts + timeout + EPS))
-    found = np.flatnonzero(has_other | has_sign | no_boot)
+               & (ctx.end > r_ts + timeout + EPS) & awaited)
+    found = has_other | has_sign | no_boot
+    found &= ~np.isin(r_idx, m.own_command_idx)  # the master's own: never a finding for it
+    found = np.flatnonzero(found)
     if not found.size:
         return
     at_other, at_sign = has_other[found], has_sign[found]
@@ -101,14 +121,18 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float) -> It
     yield batch(time, message, frame, line)
 
 
-def _following(ec: EcTable, pos: np.ndarray, after_idx: np.ndarray) -> NodeFrames:
-    """Per frame index, the first of the node's frames at `pos` later in the file, as
-    columns (idx: int64 max if there is none)."""
+def _following(ec: EcTable, pos: np.ndarray, after_idx: np.ndarray,
+               not_before: np.ndarray | None = None) -> NodeFrames:
+    """Per frame index, the first of the node's frames at `pos` later in the file (and,
+    with `not_before`, at or after that time), as columns (idx: int64 max if none)."""
     n = len(after_idx)
     if not len(pos):
         return NodeFrames(np.full(n, np.inf), np.full(n, _NEVER), np.zeros(n, np.int64),
                           np.zeros(n, np.int8))
     k = np.searchsorted(ec.idx[pos], after_idx, side="right")
+    if not_before is not None:  # times that go back in the file: their running maximum
+        k = np.maximum(k, np.searchsorted(np.maximum.accumulate(ec.ts[pos]), not_before,
+                                          side="left"))
     ok = k < len(pos)
     rows = pos[np.where(ok, k, 0)]
     return NodeFrames(np.where(ok, ec.ts[rows], np.inf), np.where(ok, ec.idx[rows], _NEVER),
@@ -129,14 +153,28 @@ def _late_start(m: NodeModel, ctx: NodeContext, late_start_ms: float) -> Iterato
                f"trace with a heartbeat and no boot-up (limit {late:.3f} s)", first)
 
 
-def _repeats(m: NodeModel, window: float) -> list[list[EcFrame]]:
-    """Runs of 00h frames that follow each other within the window with no reset between."""
+def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFrame]]:
+    """Runs of 00h frames that follow each other within the window with no reset between.
+
+    Each reset command (within B002's `reset_window_ms`) explains one boot-up, as for
+    B002: two resets sent back to back (Lely's `000#8100` then `000#8200`) are answered
+    by two boot-ups, no repeat."""
     runs: list[list[EcFrame]] = []
     prev: EcFrame | None = None
     resets = m.commands.reset_idx.tolist()
+    reset_ts = m.commands.reset_ts.tolist()
+    ri = 0
+    unanswered: deque[float] = deque()
     for b in m.bootups:
-        if prev is not None and b.ts - prev.ts <= window + EPS and not any_between(
-                resets, prev.idx, b.idx):
+        while ri < len(resets) and resets[ri] < b.idx:
+            unanswered.append(reset_ts[ri])
+            ri += 1
+        while unanswered and b.ts - unanswered[0] > reset_window + EPS:
+            unanswered.popleft()
+        explained = bool(unanswered)
+        if unanswered:
+            unanswered.popleft()
+        if prev is not None and b.ts - prev.ts <= window + EPS and not explained:
             if runs and runs[-1][-1] is prev:
                 runs[-1].append(b)
             else:
@@ -153,7 +191,9 @@ def bootup_repeated(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found
     """A node keeps sending state 00h instead of announcing its boot-up once.
 
     **What it checks.** A second 00h frame from N follows the previous one within
-    `repeat_window_ms` with no reset command to N in between. One finding per run.
+    `repeat_window_ms` with no reset command to N in between. Each reset command
+    explains one boot-up (as for B002): two resets sent back to back, answered by two
+    boot-ups, are no repeat. One finding per run.
 
     **Why it matters.** 00h is the boot-up message, sent once per Initialisation;
     it is never a periodic heartbeat state. A node that heartbeats 00h is stuck in
@@ -163,7 +203,8 @@ def bootup_repeated(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found
 
     **Example.** `000#8102`, then `702#00` every 100 ms for the rest of the trace.
     """
-    for run in _repeats(m, _auto_window_s(m, p["repeat_window_ms"])):
+    for run in _repeats(m, _auto_window_s(m, p["repeat_window_ms"]),
+                        ctx.timeline.reset_window_s):
         yield (run[1].ts, f"node {m.node} sent boot-up (00h) {len(run)} times in a row over "
                f"{run[-1].ts - run[0].ts:.3f} s without a reset command", run[1])
 
@@ -186,7 +227,8 @@ def unexpected_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
     """
     window = p["reset_window_ms"] / 1000.0
     repeat_ms = ctx.timeline.repeat_window_ms  # B003's: its repeats are left to it
-    repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms)) for b in run[1:]}
+    repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms), window)
+                for b in run[1:]}
     r_ts, r_idx = m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist()
     unanswered: list[float] = []
     ri = 0

@@ -148,7 +148,8 @@ def guarding_with_heartbeat(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
     """A node uses node guarding and heartbeat at the same time.
 
     **What it checks.** Since its last boot-up, N both answers node-guarding
-    requests and produces heartbeats.
+    requests and produces heartbeats, with no confirmed SDO write of 1017h between
+    them (a master that switches N from heartbeat to guarding writes 1017h = 0).
 
     **Why it matters.** CiA 301 does not allow both error-control methods at once:
     with 1017h non-zero the heartbeat protocol is used and guarding is off. Stacks
@@ -160,10 +161,13 @@ def guarding_with_heartbeat(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
     hb, guard = ec.where(HEARTBEAT), ec.where(GUARD)
     if not hb.size or not guard.size:
         return
-    # per stretch between boot-ups: the first frame by which N did both
-    boots = ec.where(BOOTUP)
-    seg_hb, first_hb = np.unique(np.searchsorted(boots, hb), return_index=True)
-    seg_guard, first_guard = np.unique(np.searchsorted(boots, guard), return_index=True)
+    # per stretch between boot-ups and confirmed 1017h writes (a master switching N from
+    # heartbeat to guarding writes 1017h = 0 first): the first frame by which N did both
+    cuts = np.sort(np.concatenate([ec.idx[ec.where(BOOTUP)],
+                                   m.writes.idx[m.writes.index == 0x1017]]))
+    seg_hb, first_hb = np.unique(np.searchsorted(cuts, ec.idx[hb]), return_index=True)
+    seg_guard, first_guard = np.unique(np.searchsorted(cuts, ec.idx[guard]),
+                                       return_index=True)
     _both, i_hb, i_guard = np.intersect1d(seg_hb, seg_guard, return_indices=True)
     for p_ in np.maximum(hb[first_hb[i_hb]], guard[first_guard[i_guard]]).tolist():
         f = ec[p_]

@@ -8,7 +8,16 @@ import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
 from nmtcheck.model import NodeModel
-from nmtcheck.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
+from nmtcheck.nmt import (
+    BOOTUP,
+    EPS,
+    HEARTBEAT,
+    OPERATIONAL,
+    PRE_OPERATIONAL,
+    STATE_INDEX,
+    between,
+    state_name,
+)
 
 
 @rule("H001", "heartbeat-timeout", "error",
@@ -165,3 +174,98 @@ def _longest_off_run(gaps: np.ndarray, configured: float, tolerance: float
             if hi - lo >= 5 and (best is None or hi - lo > best[1] - best[0]):
                 best = (lo, hi)
     return best
+
+
+@rule("H004", "consumer-without-producer", "warning")
+def consumer_without_producer(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
+    """A node is configured to watch a heartbeat that never comes.
+
+    **What it checks.** A heartbeat consumer time for producer P is in force on node
+    C (C's 1016h entry naming P, from C's device file or written to C by SDO in the
+    trace; the network file's `consumer_timeout_ms` names no consumer and does not
+    count), and P sends no heartbeat at all while that entry is in force (from the
+    moment it took effect or C's boot-up, the later, until a new write of that
+    entry, C's reset or boot-up, or the end of the trace), although C is
+    PRE-OPERATIONAL or OPERATIONAL for longer than the consumer time in that span.
+    One finding per (C, P, entry), at the moment the consumer time expired. A
+    producer that starts late is not this rule's business.
+
+    **Why it matters.** CiA 301 consumers start monitoring at the first heartbeat
+    they receive, so a compliant C raises no event, but the supervision its
+    configuration asks for never runs: P is absent, misnumbered, or producing with
+    1017h = 0. Some stacks do time out: in a field log a slave configured to watch a
+    master that never produced a heartbeat raised the timeout.
+
+    **Example.** Node 5 is written `1016h:01 = 000107D0h` (watch node 1 at 2000 ms) and
+    stays PRE-OPERATIONAL for 10 s; node 1 never sends a heartbeat.
+    """
+    for start, end, producer, time_ms, how in _consumer_entries(m, ctx):
+        pm = ctx.channel.nodes.get(producer)
+        if pm is not None:
+            hb = pm.ec.ts[pm.ec.kind == HEARTBEAT]
+            if bool(((hb >= start - EPS) & (hb < end)).any()):
+                continue
+        moment = _watched_for(m, start, end, time_ms / 1000.0)
+        if moment is not None:
+            yield (moment, f"node {m.node} waits for heartbeats of node {producer} (consumer "
+                   f"time {time_ms / 1000.0:.3f} s, {how}) but node {producer} sends none")
+
+
+def _consumer_entries(m: NodeModel, ctx: NodeContext
+                      ) -> Iterator[tuple[float, float, int, float, str]]:
+    """C's 1016h entries, each with the span it is in force: (from, until, producer,
+    consumer time in ms, where it comes from). A device file's entries hold from the
+    start and again after each boot-up or reset, unless SDO writes 1016h to C in the
+    trace: then the file holds what the master writes, not the power-on value (SPEC §6)."""
+    ends = np.unique(np.concatenate([m.ec.ts[m.ec.kind == BOOTUP], m.commands.reset_ts]))
+    w = m.writes
+    entry = np.flatnonzero(w.index == 0x1016)
+    starts = [ctx.start, *ends.tolist()]
+    for k, seg_start in enumerate(starts):
+        seg_end = ends[k] if k < len(ends) else ctx.end
+        in_seg = entry[(w.ts[entry] >= seg_start) & (w.ts[entry] < seg_end)]
+        begin = _after_boot(m, seg_start)
+        for producer, time_ms in m.config.consumes.items():
+            if time_ms and producer != m.node and begin < seg_end and not entry.size:
+                yield begin, seg_end, producer, time_ms, "from its device file"
+        for j, pos in enumerate(in_seg.tolist()):
+            value = int(w.value[pos])
+            producer, time_ms = (value >> 16) & 0xFF, float(value & 0xFFFF)
+            if not time_ms or not 1 <= producer <= 127 or producer == m.node:
+                continue
+            later = in_seg[j + 1:]
+            same = later[w.sub[later] == w.sub[pos]]
+            until = float(w.ts[same[0]]) if same.size else seg_end
+            yield max(float(w.ts[pos]), begin), until, producer, time_ms, "written by SDO"
+
+
+def _after_boot(m: NodeModel, at: float) -> float:
+    """`at`, or C's first boot-up at or after it if its state is unknown until then."""
+    boots = m.ec.ts[m.ec.kind == BOOTUP]
+    later = boots[boots >= at - EPS]
+    if m.state_at(at) == "UNKNOWN" and later.size:
+        return float(later[0])
+    return at
+
+
+_WATCHING = (STATE_INDEX[PRE_OPERATIONAL], STATE_INDEX[OPERATIONAL])
+
+
+def _watched_for(m: NodeModel, start: float, end: float, limit: float) -> float | None:
+    """The moment C has been PRE-OPERATIONAL or OPERATIONAL for `limit` without a break
+    within [start, end), or None."""
+    iv = m.intervals
+    run_from: float | None = None
+    for a, b, st in zip(iv.start.tolist(), iv.end.tolist(), iv.state.tolist(), strict=True):
+        a, b = max(a, start), min(b, end)
+        if b <= a:
+            if a >= end:
+                break
+            continue
+        if st in _WATCHING:
+            run_from = a if run_from is None else run_from
+            if b - run_from > limit + EPS:
+                return run_from + limit
+        else:
+            run_from = None
+    return None

@@ -13,7 +13,7 @@ from typing import Any
 
 from nmtcheck.checks.base import Param, Problem, input_rule
 from nmtcheck.model import InputModel
-from nmtcheck.readers import TEXT_FORMATS
+from nmtcheck.readers import TEXT_FORMATS, InputStats
 
 LINES_SHOWN = 5
 
@@ -58,8 +58,11 @@ def nothing_to_check(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     **What it checks.** The input's format is known (detected, or given with
     `--input-format`) but it holds no 11-bit data or remote frame: only extended
     or error frames, only records that are no frames, or every record was skipped
-    as unparseable. One finding per input, at its first record. An empty file is
-    not this rule: it stays an input error (exit 2).
+    as unparseable. One finding per input, at its first record. The message says
+    what the input held instead: how many of its records (lines, for text formats)
+    were frames (extended, error), skipped (the first one's line and why), notes or
+    comments, other non-frame records. An empty file is not this rule: it stays an
+    input error (exit 2).
 
     **Why it matters.** A CI gate must not take "no finding" for a pass when no
     CANopen frame was looked at: a log of another protocol, the wrong
@@ -75,18 +78,40 @@ def nothing_to_check(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     ts, idx, line = _first_frame(model)
     if idx is None and stats.skipped_lines and stats.format in TEXT_FORMATS:
         line = stats.skipped_lines[0]
-    parts = [_plural(stats.frames, "frame")]
-    if stats.extended:
-        parts.append(f"{stats.extended} extended")
-    if stats.error_frames:
-        parts.append(f"{_plural(stats.error_frames, 'error frame')}")
-    if stats.skipped:
-        parts.append(f"{_plural(stats.skipped, 'skipped record')}")
-    if stats.ignored:
-        parts.append(f"{_plural(stats.ignored, 'non-frame record')}")
-    hint = (" (is --input-format right?)" if stats.skipped and not stats.frames else "")
     yield Problem(None, None, ts, f"no 11-bit CAN data or remote frame to check in this "
-                  f"{stats.format} input ({', '.join(parts)}){hint}", idx, line)
+                  f"{stats.format} input: {_what_was_read(stats)}", idx, line)
+
+
+def _what_was_read(stats: InputStats) -> str:
+    """Why nothing was checked: which kinds of records (lines, for text formats) the input
+    held, e.g. `12 lines: no frame, 10 skipped (first at line 3: <why>), 2 notes or
+    comments` — never only a guess at the format (SPEC §1)."""
+    text = stats.format in TEXT_FORMATS
+    unit = "line" if text else "record"
+    total = stats.frames + stats.skipped + stats.ignored
+    if stats.frames:
+        kinds = [f"{stats.extended} extended"] if stats.extended else []
+        if stats.error_frames:
+            kinds.append(_plural(stats.error_frames, "error frame"))
+        parts = [_plural(stats.frames, "frame") + (f" ({', '.join(kinds)})" if kinds else "")]
+    else:
+        parts = ["no frame"]
+    if stats.skipped:
+        numbers = [n for n in stats.skipped_lines if n > 0]
+        where = [f"first at {unit} {numbers[0]}"] if numbers else []
+        first = ", ".join(where) + (": " if where and stats.skip_reason else "") + (
+            stats.skip_reason or "")
+        parts.append(f"{stats.skipped} skipped" + (f" ({first})" if first else ""))
+    if stats.notes:
+        parts.append(f"{stats.notes} "
+                     + ("note or comment" if stats.notes == 1 else "notes or comments"))
+    if stats.ignored > stats.notes:
+        parts.append(_plural(stats.ignored - stats.notes, "other non-frame record"))
+    out = f"{_plural(total, unit)}: {', '.join(parts)}"
+    if stats.skipped and stats.skipped == total:
+        out += (f"; not one is a {stats.format} record: if the log is of another format, "
+                "name it with --input-format")
+    return out
 
 
 @input_rule("I002", "truncated-input", "warning", exempt_from_unknown=True, scope="input")
@@ -204,3 +229,32 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     yield Problem(None, None, ts, f"timestamps go backwards "
                   f"{_plural(stats.backwards_timestamps, 'time')}{where}: frames are kept in "
                   "file order, timing findings may be unreliable", idx, line or None)
+
+
+@input_rule("I006", "no-timestamps", "warning", exempt_from_unknown=True, scope="input")
+def no_timestamps(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """The input has no usable timestamps: only the order of its frames was checked.
+
+    **What it checks.** The log has no timestamps written (`candump can0` screen
+    output without `-t`, bare `ID#DATA` lines pasted from a terminal) or every
+    timestamp is equal. Frames are kept in file order and the timeline is ordered
+    by frame index (its times are frame numbers). Rules that need only order (B001's
+    sign of life before the boot-up, B002, B003, G001, S001, S002, S003, S005, C,
+    N001, N002's state pattern) are evaluated; rules that need time (H001-H004,
+    G002, G003, S004, B001's timeout and late start, N002's intervals, the grace and
+    stale-report windows) are not. One finding per input, at its first frame.
+
+    **Why it matters.** Without time, a silent node and a healthy one look the
+    same: a gate that passed such a log has not checked any timing. Record with
+    `candump -L` or `candump -ta`.
+
+    **Example.** `candump can0 > log.txt` pasted into an issue.
+    """
+    stats = model.stats
+    if stats is None or not stats.order_only:
+        return
+    why = "none written" if not stats.timestamped else "every timestamp is equal"
+    ts, idx, line = _first_frame(model)
+    yield Problem(None, None, ts, f"no timestamps ({why}): frames checked in file order "
+                  "only; heartbeat, guarding and other timing rules were not evaluated "
+                  "(record with candump -L or -ta)", idx, line or None)

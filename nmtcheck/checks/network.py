@@ -80,11 +80,16 @@ def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:
     code = ec.code[hb]
     ts = ec.ts[hb]
     found: list[tuple[int, int, str]] = []  # (frame position, preference, why)
-    a, b, c, d = code[:-3], code[1:-2], code[2:-1], code[3:]
-    alt = np.flatnonzero((a != b) & (c == a) & (d == b) & (seg[:-3] == seg[3:]))
+    # the state pattern: consecutive repeats of one state count once (A, A, B, A, B, B)
+    first = np.ones(len(hb), bool)
+    first[1:] = (code[1:] != code[:-1]) | (seg[1:] != seg[:-1])
+    runs = np.flatnonzero(first)
+    rc, rs = code[runs], seg[runs]
+    a, b, c, d = rc[:-3], rc[1:-2], rc[2:-1], rc[3:]
+    alt = np.flatnonzero((a != b) & (c == a) & (d == b) & (rs[:-3] == rs[3:]))
     if alt.size:
         i = int(alt[0])
-        found.append((int(hb[i + 3]), 0, f"its heartbeat alternates between "
+        found.append((int(hb[runs[i + 3]]), 0, f"its heartbeat alternates between "
                       f"{state_name(int(a[i]))} and {state_name(int(b[i]))}"))
     if len(hb) >= 5:
         g = np.diff(ts)

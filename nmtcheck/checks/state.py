@@ -103,6 +103,9 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
         iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
         bad = np.isin(codes[iv], wanted)
         bad &= ~((ts - since[iv]) <= grace_s + EPS)
+        if kinds == (KIND_TPDO,):  # after a boot-up, nothing may show N did not start itself
+            for lo, hi in m.unproven_spans:
+                bad &= ~((ts >= lo) & (ts <= hi + EPS))
         for j in np.flatnonzero(bad).tolist():
             row = rows[j]
             k = (key, int(iv[j]))
@@ -124,7 +127,10 @@ def pdo_while_not_operational(model: InputModel, p: Params) -> Iterator[Problem]
 
     **What it checks.** N transmits a TPDO (default COB-IDs 180h/280h/380h/480h + N)
     while its state is PRE-OPERATIONAL or STOPPED, unless N left OPERATIONAL at most
-    `grace_ms` before (frames already queued). Consecutive offending PDOs within
+    `grace_ms` before (frames already queued), or N started itself (SPEC §2
+    Self-start: its first error-control message after the boot-up reports
+    OPERATIONAL with no command between; when a reset or a boot-up comes before
+    any such message, nothing shows it did not). Consecutive offending PDOs within
     one timeline interval give one finding with their count.
 
     **Why it matters.** CiA 301 Table 37: PDOs exist only in OPERATIONAL. Process
@@ -205,8 +211,9 @@ def command_not_obeyed(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fo
     """
     obey = p["obey_ms"] / 1000.0
     cmds = m.commands
-    todo = np.flatnonzero(~cmds.is_reset)  # positions, not objects: there may be
-    if not todo.size:  # a million commands
+    # the master's own broadcasts are applied only where it obeyed them: never a finding
+    todo = np.flatnonzero(~cmds.is_reset & ~np.isin(cmds.idx, m.own_command_idx))
+    if not todo.size:  # positions, not objects: there may be a million commands
         return
     ec = m.ec
     reports = ec.where(BOOTUP, HEARTBEAT, GUARD)  # frames that report a state

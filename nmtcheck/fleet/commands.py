@@ -13,6 +13,7 @@ from typing import Any
 import click
 
 from nmtcheck.errors import UsageError
+from nmtcheck.safe_text import escape_controls
 
 FLEET_OPTION_NAMES = ("results", "executor", "manifest", "storage_options", "path_pattern",
                       "force", "on_input_error")
@@ -105,7 +106,7 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
         # versions found"); Dask's other chatter (a dashboard port in use) is left out
         if issubclass(w.category, UserWarning) and (
                 "nmtcheck" in str(w.filename) or "ismatched versions" in str(w.message)):
-            click.echo(f"nmtcheck: warning: {w.message}", err=True)
+            click.echo(escape_controls(f"nmtcheck: warning: {w.message}"), err=True)
     click.echo(render_outcome(out, opts.results, quiet))
     failed = [(u, e) for u, e in out.errors]
     bad = sum(out.status.get(s, 0) + out.skipped_status.get(s, 0)
@@ -113,8 +114,8 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
     if options.get("on_input_error") != "continue" and bad:
         url, err = failed[0] if failed else ("", "")
         more = f" (and {bad - 1} more)" if bad > 1 else ""
-        click.echo(f"nmtcheck: {err if err.startswith(url) else f'{url}: {err}'}{more}",
-                   err=True)
+        click.echo(escape_controls(
+            f"nmtcheck: {err if err.startswith(url) else f'{url}: {err}'}{more}"), err=True)
         return 2
     from nmtcheck.checks.base import fails
 

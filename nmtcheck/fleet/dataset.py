@@ -10,12 +10,22 @@ Plain Parquet with fixed schemas, so pandas, pyarrow, DuckDB and Spark read it w
 nmtcheck. A batch's files have names derived from what it checked (the inputs' identities,
 nmtcheck's version and the profile): writing them again replaces them, never duplicates.
 `inputs` is written last and is the commit record the next run's skip list reads.
+
+One run at a time (issue 24): a run holds an exclusive lock on a local dataset
+(`_nmtcheck_run.lock`, flock: released however the run ends, `kill -9` too); a second run
+into the same `--results` meanwhile is a usage error naming the first. Two runs could
+otherwise both check every log (each with an empty skip list, each with its own batching),
+and the raw tables would hold each log's rows twice. Under the lock a run first removes
+findings and node_stats files whose batch never wrote its `inputs` file (a run killed or
+stopped by a full disk between them): rows without their commit record. An object store
+(s3://, gs://, ...) has no such lock: the docs say to run one fleet run per dataset there.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import time
 import uuid
@@ -26,8 +36,9 @@ from nmtcheck.fleet.storage import filesystem, is_local
 
 SCHEMA_VERSION = 1
 MARKER = "_nmtcheck_dataset.json"
+LOCK = "_nmtcheck_run.lock"
 TABLES = ("runs", "inputs", "findings", "node_stats")
-DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER)  # what a dataset's folder holds
+DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER, LOCK)  # what a dataset's folder holds
 SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
 
 # (name, arrow type) per table; the partition column `date` is in the path, not the files.
@@ -91,6 +102,8 @@ def to_table(table: str, rows: list[dict[str, Any]]) -> Any:
     cols = {}
     for name, kind in COLUMNS[table]:
         values = [r.get(name) for r in rows]
+        if kind in ("float64", "timestamp"):  # never a non-finite number in the dataset
+            values = [v if v is None or math.isfinite(v) else None for v in values]
         if kind == "timestamp":
             # int(): round() of a numpy float is a numpy float with numpy < 2
             values = [None if v is None else int(round(v * 1e6))  # noqa: RUF046
@@ -152,6 +165,44 @@ class Dataset:
             "schema_version": SCHEMA_VERSION, "tables": list(TABLES),
             "partitioning": "hive: date=YYYY-MM-DD (the log's start date, UTC)",
         }, indent=2).encode() + b"\n")
+
+    def lock(self) -> Any:
+        """Take the dataset's run lock (local datasets; None elsewhere): an open file whose
+        flock the OS releases when this process ends, however it ends. A dataset another
+        run holds is a usage error."""
+        from nmtcheck.errors import UsageError
+
+        if not self.local:
+            return None
+        import fcntl
+
+        handle = open(self.path(LOCK), "a+")  # noqa: SIM115 - held for the run's lifetime
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another run"
+            handle.close()
+            raise UsageError(f"--results {self.url}: {holder} is writing this dataset; one "
+                             "run at a time (wait for it, or give another --results)") from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"run of pid {os.getpid()} on {os.uname().nodename}, started "
+                     f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}\n")
+        handle.flush()
+        return handle
+
+    def remove_uncommitted(self) -> int:
+        """Remove findings and node_stats files of batches without an `inputs` file (their
+        commit record): what a run stopped between the two left. The number removed."""
+        committed = {p.rsplit("/", 1)[-1] for p in self.files("inputs")}
+        removed = 0
+        for table in ("findings", "node_stats"):
+            for path in self.files(table):
+                if path.rsplit("/", 1)[-1] not in committed:
+                    self.fs.rm(path)
+                    removed += 1
+        return removed
 
     def write(self, table: str, name: str, rows: list[dict[str, Any]]) -> list[str]:
         """The rows as Parquet files `TABLE/date=D/NAME.parquet`, one per date; returns the

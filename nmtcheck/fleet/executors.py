@@ -12,7 +12,10 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import select
 import signal
+import threading
+import time
 import warnings
 from collections.abc import Callable, Hashable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -23,6 +26,8 @@ from typing import Any, Protocol
 from nmtcheck.errors import UsageError
 
 ALLOWED_FAILURES = 2  # a task on a worker that died is retried this many times
+DRIVER_GONE_EXIT = 75  # a worker's exit status when it ends because its driver died
+WATCH_POLL_S = 0.5  # where no pidfd can watch the driver, how often it is looked for
 
 
 @dataclass
@@ -49,9 +54,50 @@ class Executor(Protocol):
 _started: Any = None  # in a pool worker: where it says which task it starts
 
 
-def _init_worker(queue: Any, environ: dict[str, str] | None) -> None:
+def watch_driver(pid: int) -> threading.Thread:
+    """End this process at once (os._exit) when process `pid`, the run's driver, has ended,
+    however it ended: `kill -9`, the OOM killer, a crash. A worker is a child of the fork
+    server, not of the driver, and the pool's pipes may stay open in other processes of
+    the run, so neither a parent-death signal nor an EOF would tell it reliably: a pidfd
+    (Linux 5.3+) becomes readable when the driver ends; elsewhere the driver is looked
+    for every WATCH_POLL_S. Without this a killed run's workers went on checking the
+    tasks already queued to them, then held their memory for minutes (issue 24)."""
+
+    def gone() -> None:
+        os._exit(DRIVER_GONE_EXIT)
+
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(pid)  # type: ignore[attr-defined,unused-ignore]
+        except ProcessLookupError:
+            gone()
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            while True:
+                ready, _w, _x = select.select([fd], [], [])
+                if ready:
+                    gone()
+        while True:
+            time.sleep(WATCH_POLL_S)
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                gone()
+            except PermissionError:  # there, but another user's: a reused PID, never ours
+                gone()
+
+    thread = threading.Thread(target=watch, name="nmtcheck-driver-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None = None
+                 ) -> None:
     global _started
     _started = queue
+    if driver is not None:
+        watch_driver(driver)
     # A forked worker inherits the CLI's handlers, which turn a signal into an exception
     # with a traceback: a worker the pool (or Ctrl-C) stops just ends; the parent reports.
     for name in ("SIGTERM", "SIGHUP", "SIGINT"):
@@ -93,7 +139,7 @@ class ResilientPool:
             environ = None if self._ctx.get_start_method() == "fork" else dict(os.environ)
             self._pool = ProcessPoolExecutor(self.workers, mp_context=self._ctx,
                                              initializer=_init_worker,
-                                             initargs=(self._queue, environ))
+                                             initargs=(self._queue, environ, os.getpid()))
         return self._pool
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:

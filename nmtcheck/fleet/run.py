@@ -144,10 +144,8 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
               channel: str | None = None, reader_options: dict[str, Any] | None = None,
               max_findings: int = 10000) -> FleetOutcome:
     """Check every log `opts` names into the results dataset; the counts over the fleet."""
-    from nmtcheck import __version__
     from nmtcheck.fleet.dataset import Dataset
-    from nmtcheck.fleet.storage import PathPattern, absolute, check_exists, expand, filesystem
-    from nmtcheck.fleet.tasks import TaskConfig
+    from nmtcheck.fleet.storage import PathPattern, absolute, check_exists, filesystem
 
     started = time.time()
     PathPattern(opts.path_pattern)  # a bad pattern is a usage error before any work
@@ -161,6 +159,25 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     opts.results = absolute(opts.results)  # the workers' working directory is another
     ds = Dataset(opts.results, opts.storage_options)
     ds.ensure()
+    lock = ds.lock()  # one run at a time: held until this process ends
+    try:
+        return _locked_run(ds, opts, cfg_args=(profile, rule_codes, network, input_format,
+                                              strict, channel, reader_options, max_findings),
+                           digest=digest, started=started)
+    finally:
+        if lock is not None:
+            lock.close()
+
+
+def _locked_run(ds: Any, opts: FleetOptions, cfg_args: tuple[Any, ...], digest: str,
+                started: float) -> FleetOutcome:
+    from nmtcheck import __version__
+    from nmtcheck.fleet.storage import expand
+    from nmtcheck.fleet.tasks import TaskConfig
+
+    (profile, rule_codes, network, input_format, strict, channel, reader_options,
+     max_findings) = cfg_args
+    ds.remove_uncommitted()  # rows of batches an earlier run never committed
     done = {} if opts.force else ds.done(__version__, digest)
     run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(started)) + "-" + uuid.uuid4().hex[:8]
     cfg = TaskConfig(opts.results, opts.storage_options, profile, rule_codes, network,

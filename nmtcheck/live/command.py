@@ -22,6 +22,7 @@ from nmtcheck.live.display import Display, finding_line
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding
 from nmtcheck.reporters import FORMATS, auto_format, format_for_path, streamer
+from nmtcheck.safe_text import escape_controls, escape_lines
 
 REFRESH_S = 0.25  # node table redraws
 HUMAN_FORMATS = ("text", "concise", "markdown")
@@ -132,9 +133,10 @@ def _run(session: Session, buses: list[tuple[str, Any]], display: Display,
     with ending_on_signals(stop) as signals:
         for r in readers:
             r.start()
-        click.echo(f"nmtcheck: monitoring {', '.join(name for name, _b in buses)}; "
-                   f"{'--duration ' + format(duration, 'g') + ' s or ' if duration else ''}"
-                   f"Ctrl-C ends the session", err=True)
+        click.echo(escape_controls(
+            f"nmtcheck: monitoring {', '.join(name for name, _b in buses)}; "
+            f"{'--duration ' + format(duration, 'g') + ' s or ' if duration else ''}"
+            f"Ctrl-C ends the session"), err=True)
         began = time.monotonic()
         timed_out = False
         while not stop.wait(REFRESH_S):
@@ -160,7 +162,7 @@ def finish(outcome: Outcome, files: list[tuple[str, Any]], stdout_render: Any,
     from nmtcheck.cli import EXIT_ERROR, EXIT_FINDINGS, EXIT_OK, write_reports, write_stdout
 
     if outcome.result is None:
-        click.echo(f"nmtcheck: {nothing} ({ended})", err=True)
+        click.echo(escape_controls(f"nmtcheck: {nothing} ({ended})"), err=True)
         return EXIT_ERROR
     results = [outcome.result]
     # stdout first: a report that cannot be written must not cost the session's verdict
@@ -196,4 +198,4 @@ def live_summary(outcome: Outcome, ended: str) -> str:
                     "withdrawn": "withdrawn (a frame stamped before it came late)"}.get(
                 lf.confirmed, "not confirmed by the offline check")
             lines.append(f"  {what}: {finding_line(lf, start)}")
-    return "\n".join(lines)
+    return escape_lines(lines)  # a channel's newline or ESC is shown, never sent

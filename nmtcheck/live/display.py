@@ -13,6 +13,7 @@ import threading
 from typing import TextIO
 
 from nmtcheck.live.tracker import LiveFinding, NodeState
+from nmtcheck.safe_text import escape_controls
 
 _UP_CLEAR = "\x1b[{n}F\x1b[J"  # cursor up n lines to column 0, clear to the end
 
@@ -29,7 +30,8 @@ def node_table(nodes: list[NodeState], now: float | None) -> list[str]:
     for st in nodes:
         age = ("-" if st.last_heartbeat is None or now is None
                else f"{max(now - st.last_heartbeat, 0.0):.3f} s")
-        rows.append(f"{st.channel:<10} {st.node:>4}  {st.state:<16} {age:>13}  {st.findings}")
+        rows.append(f"{escape_controls(st.channel):<10} {st.node:>4}  {st.state:<16} "
+                    f"{age:>13}  {st.findings}")
     return rows
 
 
@@ -47,7 +49,7 @@ class Display:
     def finding(self, lf: LiveFinding) -> None:
         with self.lock:
             self._clear()
-            self.out.write(finding_line(lf, self.start) + "\n")
+            self.out.write(escape_controls(finding_line(lf, self.start)) + "\n")
             self._draw()
             self.out.flush()
 
@@ -58,7 +60,7 @@ class Display:
     def note(self, text: str) -> None:
         with self.lock:
             self._clear()
-            self.out.write(text + "\n")
+            self.out.write(escape_controls(text) + "\n")  # a name's ESC is shown, not sent
             self._draw()
             self.out.flush()
 

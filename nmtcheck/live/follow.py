@@ -22,7 +22,7 @@ from nmtcheck.live.frames import LiveFrame
 from nmtcheck.live.session import Session
 from nmtcheck.live.tracker import LiveFinding
 from nmtcheck.profiles import Profile
-from nmtcheck.readers import InputStats
+from nmtcheck.readers import READ_PIECE, InputStats, split_lines
 from nmtcheck.readers.candump import _parse_line, sniff
 
 
@@ -89,7 +89,8 @@ def _input_lines(stream: IO[bytes] | None) -> Iterator[bytes]:
         if sys.stdin is None:
             raise InputError("<stdin>", "no standard input to read")
         return _fd_lines(sys.stdin.fileno())
-    return iter(stream.readline, b"")
+    read = getattr(stream, "read1", stream.read)  # what has arrived, not a full buffer
+    return split_lines(iter(lambda: read(READ_PIECE), b""))
 
 
 def _live_frame(raw: bytes, lineno: int, stats: InputStats, live: list[bool | None],
@@ -109,23 +110,22 @@ def _live_frame(raw: bytes, lineno: int, stats: InputStats, live: list[bool | No
 
 
 def _fd_lines(fd: int) -> Iterator[bytes]:
-    """Lines of a file descriptor as they arrive. os.read, not sys.stdin.buffer: the
-    reading thread may still wait in it when the process exits, and a buffered reader's
-    lock held then is a fatal error at interpreter shutdown."""
-    pending = b""
-    while True:
-        try:
-            chunk = os.read(fd, 65536)
-        except OSError as exc:
-            raise InputError("<stdin>", f"cannot read: {exc.strerror or exc}") from None
-        if not chunk:
-            if pending:
-                yield pending
-            return
-        pending += chunk
-        *complete, pending = pending.split(b"\n")
-        for line in complete:
-            yield line + b"\n"
+    """Lines of a file descriptor as they arrive (readers.split_lines: linear in a line's
+    length, a line of MAX_LINE_BYTES or more one skipped record, never held whole).
+    os.read, not sys.stdin.buffer: the reading thread may still wait in it when the
+    process exits, and a buffered reader's lock held then is a fatal error at interpreter
+    shutdown."""
+    def pieces() -> Iterator[bytes]:
+        while True:
+            try:
+                chunk = os.read(fd, READ_PIECE)
+            except OSError as exc:
+                raise InputError("<stdin>", f"cannot read: {exc.strerror or exc}") from None
+            if not chunk:
+                return
+            yield chunk
+
+    return split_lines(pieces())
 
 
 def follow_logs(logs: tuple[str, ...], profile: Profile, rules: list[Any], **options: Any

@@ -109,6 +109,10 @@ class NodeState:
     # reset ts, its name, whether it surely applies to N (a broadcast does not apply to
     # the channel's master, which the offline check may infer)
     awaiting_boot: tuple[float, str, bool] | None = None
+    # after a boot-up, until N's next report or a command to it: N may have started
+    # itself (SPEC §2 Self-start), so its PDOs are left to the offline check
+    self_start_open: bool = False
+    boot_awaited: bool = True  # whether B001 waits out its timeout (the node sent before)
     last_cmd: tuple[float, str] | None = None  # the latest command: ts, the state before it
     observed_at: float | None = None  # the state was reported (not commanded) at this time
     left_operational: float | None = None
@@ -139,10 +143,12 @@ class NodeState:
         return bool(self.config.heartbeat_ms) or bool(self.written_hb_ms) or self.heartbeats >= 2
 
     def timeout_configured(self) -> bool:
-        """Whether the H001 timeout rests on configured times, not a measured period."""
+        """Whether the H001 timeout rests on configured times, not a measured period. A
+        file's producer time is in force only until SDO writes 1017h in the trace (SPEC
+        §6), which a live view cannot foresee: a timeout resting on it is provisional."""
         return not self.config_doubt and bool(
             self.config.consumer_timeout_ms or any(self.consumer_ms.values())
-            or self.written_hb_ms or self.config.heartbeat_ms)
+            or self.written_hb_ms)
 
     def timeout(self, factor: float) -> float | None:
         """SPEC H001: the smallest non-zero consumer time, else factor x the period."""
@@ -174,6 +180,9 @@ class Tracker:
         self.repeat_ms = float(p["B003"]["repeat_window_ms"])
         self.allow = {int(x) for x in p["C001"]["allow"]}
         self.bootup_timeout_s = float(p["B001"]["bootup_timeout_ms"]) / 1000.0
+        self.bootup_grace_s = float(p["B001"]["grace_ms"]) / 1000.0
+        # per channel: the latest broadcast reset, which the master may obey itself
+        self.broadcast_reset_on: dict[str, float] = {}
         self.obey_s = float(p["S004"]["obey_ms"]) / 1000.0
         self.grace_s = float(p["S001"]["grace_ms"]) / 1000.0
         self.master_window_s = float(profile.timeline["master_window_ms"]) / 1000.0
@@ -271,7 +280,7 @@ class Tracker:
         if (st.request is not None and not st.request_closed
                 and now > st.request + self.response_s + EPS):
             self._close_request(st, st.request + self.response_s)
-        if st.awaiting_boot is not None and now > (
+        if st.awaiting_boot is not None and st.boot_awaited and now > (
                 st.awaiting_boot[0] + self.bootup_timeout_s + EPS):
             reset_ts, name, sure = st.awaiting_boot
             st.awaiting_boot = None
@@ -383,7 +392,8 @@ class Tracker:
                       what: str = "frame") -> None:
         """Any frame N sends; after a reset before its boot-up it is B001 (a), unless it is
         a state report queued before the reset (SPEC §2 stale reports)."""
-        if st.awaiting_boot is not None and what != "boot-up":
+        if st.awaiting_boot is not None and what != "boot-up" and (
+                ts - st.awaiting_boot[0] > self.bootup_grace_s + EPS):  # else queued before
             reset_ts, name, sure = st.awaiting_boot
             cmd = st.last_cmd  # the latest command to N, the reset or a newer one
             in_window = (reported is not None and cmd is not None
@@ -415,12 +425,21 @@ class Tracker:
         if not target:
             like.update(self._booted_before(f))
         self.last_command_on[f.channel] = f.ts
+        if not target and cs in RESETS:
+            self.broadcast_reset_on[f.channel] = f.ts
+        if not target and master is not None:
+            # whether the master obeyed its own broadcast only its next report shows
+            # (SPEC §2): its PDOs until then are left to the offline check
+            own = self.nodes.get((f.channel, master))
+            if own is not None:
+                own.observed_at = None
         if target:
             targets = [self.node(f.channel, target)]
         else:
             targets = [st for (ch, n), st in self.nodes.items()
                        if ch == f.channel and n != master and (st.seen or st.state != UNKNOWN)]
         for st in targets:
+            st.self_start_open = False
             if cs in RESETS:
                 self._reset(st, f.ts, cs, target, master, like)
             new = COMMAND_STATE[cs]
@@ -451,6 +470,9 @@ class Tracker:
             name = ("reset node" if cs == 0x81 else "reset communication") + (
                 "" if target else " (broadcast)")
             st.awaiting_boot = (ts, name, bool(target) or master is not None)
+            # a keep-alive manager resets every node-ID: only a node that sent before, or
+            # one the network file expects, is awaited (SPEC §3 B001)
+            st.boot_awaited = st.seen or st.config.expected
         self._end_gap(st, ts)
         st.reset_since_boot = True
         st.unanswered_resets.append(ts)
@@ -471,6 +493,7 @@ class Tracker:
         if f.dlc == 1 and value == 0:
             self._sign_of_life(st, f.ts, what="boot-up")
         else:
+            st.self_start_open = False
             self._sign_of_life(st, f.ts, STATE_OF_CODE.get(value & 0x7F) if f.dlc == 1 else None,
                                "heartbeat" if f.dlc == 1 else "malformed")
         st.last_heartbeat = f.ts
@@ -484,7 +507,7 @@ class Tracker:
         code = value & 0x7F
         guard = False
         if st.request is not None and f.ts - st.request <= self.response_s + EPS:
-            if st.hb_since_boot >= 2:
+            if st.hb_since_boot >= 2 and st.written_hb_ms != 0:  # 0: heartbeat disabled
                 guard = bool(value & 0x80) or (
                     st.class_early is not None and st.class_last_hb is not None
                     and f.ts - st.class_last_hb < st.class_early)
@@ -537,7 +560,7 @@ class Tracker:
         """S001, when it is certain: the node itself reported PRE-OPERATIONAL or STOPPED
         (no command since, which the offline timeline might apply otherwise), left
         OPERATIONAL more than `grace_ms` ago, and uses the default TPDO COB-IDs."""
-        if (st.custom_pdo or st.config.tpdo_cob_ids or st.s001_reported
+        if (st.custom_pdo or st.config.tpdo_cob_ids or st.s001_reported or st.self_start_open
                 or st.state not in (PRE_OPERATIONAL, STOPPED) or st.observed_at is None):
             return
         if st.left_operational is not None and (
@@ -583,6 +606,7 @@ class Tracker:
         # PRE-OPERATIONAL starts no new interval
         self._set(st, PRE_OPERATIONAL, ts, observed=True)
         st.last_cmd = None  # nothing after a boot-up was queued before a command
+        st.self_start_open = True  # until a report or a command shows it did not start itself
         st.toggle_expected, st.g001_run = 0, False
         # B003's window: 3 x the configured period, else x the whole trace's median
         # (the recent one here: then a verdict on a gap over 1 s is provisional)
@@ -596,8 +620,15 @@ class Tracker:
         repeat = (since is not None and since <= window + EPS and not st.reset_since_boot)
         while st.unanswered_resets and ts - st.unanswered_resets[0] > self.reset_window_s + EPS:
             st.unanswered_resets.popleft()
+        own = self.broadcast_reset_on.get(st.channel)
+        if own is not None and ts - own <= self.bootup_timeout_s + EPS:
+            # it obeyed a broadcast reset: it did not send it (SPEC §2 inference (2))
+            self.master_like.get(st.channel, set()).discard(st.node)
         if st.unanswered_resets:
             st.unanswered_resets.popleft()  # each reset explains one boot-up
+        elif st.node == self.master(st.channel) and (
+                own is not None and ts - own <= self.bootup_timeout_s + EPS):
+            self.broadcast_reset_on.pop(st.channel, None)  # the master obeyed its own reset
         elif repeat:
             if not st.last_boot_repeat:
                 self._find("B003", st.channel, st, ts,

@@ -13,6 +13,7 @@ import importlib
 import io
 import lzma
 import os
+import re
 import sys
 import zlib
 from collections.abc import Callable, Generator, Iterable, Iterator
@@ -44,7 +45,9 @@ class InputStats:
     frames: int = 0
     skipped: int = 0  # records that could not be parsed
     skipped_lines: list[int] = field(default_factory=list)
+    skip_reason: str = ""  # why the first skipped record could not be parsed
     ignored: int = 0  # well-formed records that are not bus frames (status, statistics, TxRq…)
+    notes: int = 0  # of `ignored`: lines that are only a note or a comment (`# …`, a prompt)
     extended: int = 0
     error_frames: int = 0
     remote_frames: int = 0
@@ -56,6 +59,11 @@ class InputStats:
     start: float | None = None
     end: float | None = None
     channels: list[str] = field(default_factory=list)
+    # False when the input has no timestamps written (candump screen output without `-t`,
+    # bare `ID#DATA` lines): every frame is at 0 s and only their order counts (SPEC §1)
+    timestamped: bool = True
+    # the frame index stands for the time: no usable timestamps (set by the engine, SPEC §1)
+    order_only: bool = False
     strict: bool = False
     _chan_codes: dict[str, int] = field(default_factory=dict, repr=False)
 
@@ -71,14 +79,88 @@ class InputStats:
         """Count an unparseable record; fatal under --strict."""
         if self.strict:
             raise InputError(self.path, f"cannot parse {self.format} record: {why}", line)
+        if not self.skipped:
+            self.skip_reason = why
         self.skipped += 1
         if len(self.skipped_lines) < MAX_SKIPPED_LINES_KEPT:
             self.skipped_lines.append(line)
 
+    def note(self, count: int = 1) -> None:
+        """Count lines that are only a note or a comment: non-frame records, not skips."""
+        self.ignored += count
+        self.notes += count
+
 
 _DECIMAL_DIGITS = b"0123456789"
 _HEX_DIGITS = b"0123456789abcdefABCDEF"
+
+
+# Lines that are only a note or a comment, as people paste logs (SPEC §1, "Logs as people
+# paste them"): non-frame records, never skipped records. Matched against the line without
+# its leading and trailing white space. No log format's record starts like one of these.
+_NOTE_LINE = re.compile(
+    rb"(?:"
+    rb"\#|//"  # a comment (also a root shell's prompt: `# candump can0`)
+    rb"|\$(?:\s|$)"  # a shell prompt: `$ candump can0`
+    rb"|(?:\([^()\s]*\)\s*)?[\w.-]+@[\w.-]+(?::\S*)?\s*[$#%>](?:\s|$)"  # user@host:~$ cmd
+    rb"|\[[^\]]*@[^\]]*\]\s*[$#%](?:\s|$)"  # [user@host dir]$ cmd
+    rb"|PS [A-Za-z]:\\[^>]*>"  # PowerShell: PS C:\> cmd
+    rb"|```|~~~"  # a markdown code fence
+    rb"|\^C$"  # the terminal's echo of the Ctrl-C that ended `candump`
+    rb"|[\[(<{]?\s*(?:(?:\.\s*){2,}|(?:\xe2\x80\xa6\s*)+)[\])>}]?$"  # `...`, `....`, `[...]`, `…`
+    rb"|[\[(<{-]*\s*(?:\.{2,}|\xe2\x80\xa6)?\s*(?:snip(?:ped)?|cut|omitted|truncated)\b"
+    rb"[^\w]*(?:\.{2,}|\xe2\x80\xa6)?[\])>}-]*$"  # [snip], --- cut ---, ... snipped ...
+    rb")", re.IGNORECASE)
+
+
+def is_note_line(line: bytes) -> bool:
+    """A line that is only a note or a comment: `# …`, `// …`, a shell prompt (`$ candump
+    can0`, `user@host:~$ candump -L can0`), `...`, `[snip]`, a markdown code fence, `^C`.
+    Leading white space (tabs included) is no part of it."""
+    return _NOTE_LINE.match(line.strip()) is not None
+
+
+_TOKEN = re.compile(rb"\S+")  # what bytes.split() returns, with its place in the line
+NOTE_MARKS = b"#/<>-([;=*"  # how a note may start right after a record (`701#05 # boot-up`)
+
+
+def note_follows(text: bytes, k: int) -> bool:
+    """Whether the text after the first k white-space separated tokens of `text` (text
+    there is) is a note (SPEC §1): `701#05   # boot-up`, `... [1]  00  <-- here`.
+
+    A note is set apart from the record by two or more spaces or a tab, or starts with one
+    of NOTE_MARKS. Text that starts like more data does not count: a token of hex digits
+    with a decimal digit in it (`05`, `3344`) or of two hex digits (`FF`) means a damaged
+    record (data cut by a space, a wrong length). Neither does one word one space after
+    the record (`181#0102 X`): a damaged field, not a note."""
+    tokens = _TOKEN.finditer(text)
+    end = 0
+    for _ in range(k):
+        end = next(tokens).end()
+    first = next(tokens)
+    gap = text[end:first.start()]
+    word = first[0]
+    if not (len(gap) >= 2 or b"\t" in gap or word[:1] in NOTE_MARKS):
+        return False
+    if word.translate(None, _HEX_DIGITS):
+        return True  # not hex digits only
+    return len(word) != 2 and word.translate(None, _DECIMAL_DIGITS) == word
+
+
 MAX_NUMBER_DIGITS = 40  # no field of any log format is longer; int() of 5000 digits is an error
+# A frame's time in seconds is below this (the year 33658 as an epoch time; 31,700 years
+# of uptime): no recorder writes more, and a larger stamp (`1e308`) would make periods and
+# gaps overflow to infinity. candump's vectorised path reads at most 12 integer digits.
+MAX_TIMESTAMP_S = 1e12
+
+
+def plausible_time(ts: float, negative: bool = False) -> bool:
+    """A frame time a report can hold: finite, below MAX_TIMESTAMP_S in magnitude, and
+    (unless `negative`: a format whose times are offsets that may precede its start)
+    not below zero. A stamp that is not is a skipped record (SPEC §1)."""
+    if negative:
+        return -MAX_TIMESTAMP_S < ts < MAX_TIMESTAMP_S  # False for nan
+    return 0.0 <= ts < MAX_TIMESTAMP_S
 
 
 def unsigned(tok: bytes, base: int = 10) -> int | None:
@@ -144,7 +226,8 @@ def batches_of(stats: InputStats, rows: Iterable[tuple[int, Row]]) -> Iterator[F
 
 # Format name -> module, in the order sniffing tries them (binary magic bytes first, then
 # text). A format module has `sniff(head: bytes) -> bool` (light, no heavy imports) and
-# `read(source: Source, stats: InputStats) -> Iterator[FrameBatch]`. Adding a format = a
+# `read(source: Source, stats: InputStats) -> Iterator[FrameBatch]`, a text format maybe
+# `sniff_loose(head: bytes) -> bool` too (tried after every `sniff`). Adding a format = a
 # module + a line here.
 FORMAT_MODULES: dict[str, str] = {
     "mcap": "nmtcheck.readers.mcaplog",
@@ -177,9 +260,22 @@ def is_text(head: bytes) -> bool:
 
 
 def detect_format(head: bytes) -> str | None:
-    """Name the format of a log from its first bytes (after decompression)."""
+    """Name the format of a log from its first bytes (after decompression).
+
+    Every format's `sniff` first; then, for the text formats that have one, `sniff_loose`:
+    lines as people paste them that no recorder writes in a file, such as candump's
+    `ID#DATA` without `(timestamp) interface` (SPEC §1). They never win over a format that
+    recognises the lines as its own."""
     for name in FORMAT_MODULES:
         if format_module(name).sniff(head):
+            return name
+    return _sniff_loose(head)
+
+
+def _sniff_loose(head: bytes) -> str | None:
+    for name in TEXT_FORMATS:
+        loose = getattr(format_module(name), "sniff_loose", None)
+        if loose is not None and loose(head):
             return name
     return None
 
@@ -214,6 +310,8 @@ def detect(head: bytes) -> tuple[str, int] | None:
         for name in TEXT_FORMATS:
             if format_module(name).sniff(rest):
                 return name, start
+        if (loose := _sniff_loose(rest)) is not None:
+            return loose, start
     return None
 
 
@@ -331,16 +429,54 @@ def _stream_errors(compression: str) -> tuple[type[Exception], ...]:
     return errors
 
 
+READ_PIECE = 1 << 16  # what the line splitter reads at a time
+
+
+def split_lines(chunks: Iterable[bytes], cap: int = MAX_LINE_BYTES) -> Iterator[bytes]:
+    """The lines (LF or CRLF endings kept) of a byte stream given in pieces of any size:
+    the one line splitter of every text input path (`Source.lines()`, `check --follow -`).
+
+    Linear in the input whatever its lines: a line's pieces are joined once, and a line of
+    `cap` bytes or more (without its newline) is never held: it becomes OVERLONG_LINE, one
+    skipped record, and the rest of it is only scanned for its end. A last line without a
+    newline is yielded as it is."""
+    held: list[bytes] = []  # the current line's pieces so far (fewer than `cap` bytes)
+    size = 0
+    overlong = False  # the current line passed `cap`: dropped up to its newline
+    for chunk in chunks:
+        if not chunk:
+            continue
+        parts = chunk.split(b"\n")
+        tail = parts.pop()
+        for k, part in enumerate(parts):
+            if k == 0:  # the end of the line the earlier pieces began
+                if overlong:
+                    overlong = False
+                    yield OVERLONG_LINE
+                    continue
+                if held:
+                    held.append(part)
+                    part = b"".join(held)
+                    held, size = [], 0
+            yield OVERLONG_LINE if len(part) >= cap else part + b"\n"
+        if overlong or not tail:
+            continue
+        held.append(tail)
+        size += len(tail)
+        if size >= cap:
+            held, size, overlong = [], 0, True
+    if overlong:
+        yield OVERLONG_LINE
+    elif held:
+        yield b"".join(held)
+
+
 def _lines(stream: IO[bytes], path: str, errors: tuple[type[Exception], ...]) -> Iterator[bytes]:
     """Raw lines (LF or CRLF endings), each at most MAX_LINE_BYTES (a longer one becomes
     OVERLONG_LINE); read errors of damaged files become InputError."""
+    read = getattr(stream, "read1", stream.read)
     try:
-        while line := stream.readline(MAX_LINE_BYTES):
-            if len(line) == MAX_LINE_BYTES and not line.endswith(b"\n"):
-                while (rest := stream.readline(MAX_LINE_BYTES)) and not rest.endswith(b"\n"):
-                    pass  # the rest of the overlong line, read and dropped piece by piece
-                line = OVERLONG_LINE
-            yield line
+        yield from split_lines(iter(lambda: read(READ_PIECE), b""))
     except errors as exc:
         raise InputError(path, f"read error (truncated or corrupt file?): {exc}") from None
 
@@ -398,6 +534,18 @@ class Source:
     def lines(self) -> Iterator[bytes]:
         """Raw lines (LF or CRLF endings); read errors become InputError."""
         return _lines(self.stream, self.path, self.errors)
+
+
+def peek(source: Source, size: int = HEAD_BYTES) -> bytes:
+    """The first `size` bytes (fewer at the end of the input) of what `source` has left to
+    read; `source` still starts with them afterwards. For a reader that must look ahead
+    before it decides how to read (candump: whether the log has timestamps)."""
+    try:
+        head = _read_up_to(source.stream, size)
+    except source.errors as exc:
+        raise InputError(source.path, f"read error (truncated or corrupt file?): {exc}") from None
+    source.stream = io.BufferedReader(_Prefixed(head, source.stream), buffer_size=HEAD_BYTES)
+    return head
 
 
 def printable_path(path: str) -> str:
@@ -508,7 +656,9 @@ def _batches(reader: Callable[[Source, InputStats], Iterator[FrameBatch]], raw: 
         if start:  # leading lines that are no record: skipped records, in order
             leading = _read_up_to(source.stream, start).split(b"\n")[:-1]
             for lineno, line in enumerate(leading, 1):
-                if line.strip():
+                if is_note_line(line):
+                    stats.note()  # a comment or a shell prompt pasted above the log
+                elif line.strip():
                     stats.skip(lineno, "a line before the first record "
                                        "(a note or a banner?)")
             source.first_line = len(leading) + 1

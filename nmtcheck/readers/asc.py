@@ -27,7 +27,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import InputStats, Row, Source, account, batches_of, is_text
+from nmtcheck.readers import (
+    InputStats,
+    Row,
+    Source,
+    account,
+    batches_of,
+    is_text,
+    plausible_time,
+)
 from nmtcheck.readers.blocks import (
     HIGH,
     MAX_EXACT,
@@ -140,8 +148,8 @@ def _parse_line(raw: bytes, lineno: int, stats: InputStats, state: _State) -> Ro
     except ValueError:
         stats.skip(lineno, "line does not start with a timestamp")
         return None
-    if stamp != stamp or stamp in (float("inf"), float("-inf")):
-        stats.skip(lineno, "timestamp is not a finite number")
+    if not plausible_time(stamp, negative=True):
+        stats.skip(lineno, "timestamp is not a finite number within range")
         return None
     if state.relative:
         state.clock += stamp

@@ -286,10 +286,13 @@ def merged_batches(builder: BatchBuilder, block: Block, fast_rows: np.ndarray,
                    fast_cols: tuple[np.ndarray, ...], slow_rows: list[int],
                    slow: list[SlowRow]) -> Iterator[FrameBatch]:
     """The block's frames in file order, the vectorised rows (`fast_cols`: ts, channel code,
-    id, dlc, data) merged with the per-line parsed ones, handed to `builder`; yields the
+    id, dlc, data and maybe flags: bit 0 ext, 1 rtr, 2 err, 3 fd) merged with the per-line
+    parsed ones, handed to `builder`; yields the
     batches it completes."""
-    ts, chan, can_id, dlc, data = fast_cols
+    ts, chan, can_id, dlc, data, *fast_flags = fast_cols  # flags: all 0 when not given
     flags = np.zeros(fast_rows.shape[0] + len(slow), np.uint8)
+    if fast_flags:
+        flags[:fast_rows.shape[0]] = fast_flags[0]
     if not slow:
         yield from builder.add_columns(ts, chan, can_id, flags, dlc, data,
                                        fast_rows + block.first_line)

@@ -7,6 +7,16 @@ the optional direction flag, nanosecond timestamps and `DROPCOUNT:` lines. CAN X
 lines (`ID###…` of older can-utils, `<vcid><prio>#<flags>:<sdt>:<af>#<data>` of
 newer ones) are well-formed records that are not CAN CC/FD frames: ignored.
 
+Logs as people paste them (SPEC §1) are read too: leading white space (tabs
+included) is no part of a record; text after a complete record (`701#05  # boot-up`)
+is a note, ignored (`note_follows` says what counts as one); a line that is
+only a note or a comment (`# …`, a shell prompt, `...`) is a non-frame record
+(`InputStats.notes`). Lines without `(timestamp)` — `can0 701#05`, or cansend's
+bare `701#05` (channel `1`) — make a log without timestamps when the first lines
+hold no frame with one (`InputStats.timestamped` False, every frame at 0 s, in
+file order); in a log with timestamps such a line is a skipped record, and the
+other way round.
+
 Speed: the common line, `(<digits>.<digits>) <iface> <3 hex>#<0..8 hex bytes>`
 with an optional ` R`/` T`, is parsed vectorised a block of lines at a time
 (readers/blocks.py); every other line goes through `_parse_line`, the per-line
@@ -24,13 +34,17 @@ import numpy as np
 
 from nmtcheck.frames import BatchBuilder, FrameBatch
 from nmtcheck.readers import (
-    MAX_SKIPPED_LINES_KEPT,
+    MAX_TIMESTAMP_S,
     InputStats,
     Row,
     Source,
     account,
     batches_of,
+    is_note_line,
     is_text,
+    note_follows,
+    peek,
+    plausible_time,
 )
 from nmtcheck.readers.blocks import (
     MAX_EXACT,
@@ -56,6 +70,7 @@ _HEX_DIGITS = b"0123456789abcdefABCDEF"
 _FAST = re.compile(  # a classic 11-bit data frame; everything else takes the general path
     rb"\(([0-9]{1,12}\.[0-9]{1,9})\) (\S+) ([0-9A-Fa-f]{3})#((?:[0-9A-Fa-f]{2}){0,8})"
     rb"(?: [RT])?\r?\n?")
+_STAMP = re.compile(rb"[0-9]{1,40}(?:\.[0-9]{1,40})?")  # what `(…)` of a candump line holds
 _DROP = re.compile(rb"DROPCOUNT:\s*dropped\s+(\d{1,18})\b")  # more digits: not a count
 _CANXL = re.compile(rb"[0-9A-Fa-f]{5}#[0-9A-Fa-f]{2}:[0-9A-Fa-f]{2}:[0-9A-Fa-f]{8}#[0-9A-Fa-f.]*$")
 
@@ -70,17 +85,38 @@ def _bad_raw_dlc(sep: bytes, raw_dlc: bytes) -> bool:
 
 
 _SNIFF = re.compile(rb"^\s*\(\s*-?\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]+##?")
+# `ID#DATA` as pasted without `(timestamp)`: after an interface name, or bare (cansend's syntax)
+_SNIFF_LOOSE = re.compile(rb"^(?:[A-Za-z][^\s()#]{0,15}\s+)?(?:[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#"
+                          rb"(?:#[0-9A-Fa-f]|[Rr]|[0-9A-Fa-f]{2}|\s|$)")
+_IFACE = re.compile(rb"[A-Za-z][^\s()#]{0,15}")  # an interface name where no timestamp precedes it
+BARE_CHANNEL = b"1"  # the channel of `ID#DATA` lines that name no interface
+DETECT_LINES = 2000  # lines looked at (within HEAD_BYTES) to tell whether the log has timestamps
+QUICK_BYTES = 8192  # where most lines start with `(`, the log has timestamps: no line parsed
+
+
+def _first_line(head: bytes) -> bytes | None:
+    """The first non-blank line of the first 50 (without its white space), if any."""
+    for raw in head.splitlines()[:50]:
+        line = raw.strip()
+        if line:
+            return line
+    return None
 
 
 def sniff(head: bytes) -> bool:
     """A candump log starts (within its first 50 lines) with a `(ts) iface ID#` line."""
     if not is_text(head):
         return False
-    for raw in head.splitlines()[:50]:
-        line = raw.strip()
-        if line:
-            return _SNIFF.match(line) is not None
-    return False
+    line = _first_line(head)
+    return line is not None and _SNIFF.match(line) is not None
+
+
+def sniff_loose(head: bytes) -> bool:
+    """Lines as people paste them: `can0 701#05` or `701#05`, without `(timestamp)`."""
+    if not is_text(head):
+        return False
+    line = _first_line(head)
+    return line is not None and _SNIFF_LOOSE.match(line) is not None
 
 
 # One frame parsed by `_parse_line`: ts, interface name (the line's bytes), CAN-ID, ext, rtr,
@@ -93,22 +129,25 @@ class _Skip(Exception):
     """A line that is no well-formed record; the message is the skip's reason."""
 
 
-def _parse_line(raw: bytes, lineno: int, stats: InputStats) -> _Row | None:
+def _parse_line(raw: bytes, lineno: int, stats: InputStats, stamped: bool = True
+                ) -> _Row | None:
     """One line: (ts, iface, id, ext, rtr, err, fd, dlc, data), or None for a non-frame line
-    (counted into stats: skipped, ignored, dropped)."""
-    fast = _FAST.fullmatch(raw)
-    if fast is not None:  # the common case: a classic 11-bit data frame
-        data = unhexlify(fast[4])
-        return (float(fast[1]), fast[2], int(fast[3], 16), False, False, False, False,
-                len(data), data)
+    (counted into stats: skipped, ignored, dropped). `stamped`: the log has timestamps (a
+    frame line without one is a skipped record), else it has none (and one with is)."""
+    if stamped:
+        fast = _FAST.fullmatch(raw)
+        if fast is not None:  # the common case: a classic 11-bit data frame
+            data = unhexlify(fast[4])
+            return (float(fast[1]), fast[2], int(fast[3], 16), False, False, False, False,
+                    len(data), data)
     try:
-        return _parse_general(raw, stats)
+        return _parse_general(raw, stats, stamped)
     except _Skip as bad:
         stats.skip(lineno, str(bad))
         return None
 
 
-def _parse_general(raw: bytes, stats: InputStats) -> _Row | None:
+def _parse_general(raw: bytes, stats: InputStats, stamped: bool = True) -> _Row | None:
     """Any line `_FAST` does not take; raises _Skip for an unparseable record."""
     parts = raw.split()
     if not parts:
@@ -116,12 +155,10 @@ def _parse_general(raw: bytes, stats: InputStats) -> _Row | None:
     if parts[0].startswith(b"DROPCOUNT"):
         _count_drops(raw, stats)
         return None
-    if len(parts) < 3 or len(parts) > 4:
-        raise _Skip("expected '(timestamp) interface ID#DATA'")
-    tok_ts, iface, frame = parts[0], parts[1], parts[2]
-    if len(parts) == 4 and parts[3] not in (b"R", b"T"):
-        raise _Skip("unexpected text after the frame")
-    ts = _timestamp(tok_ts)
+    if is_note_line(raw):
+        stats.note()  # a comment, a shell prompt, `...`: no record
+        return None
+    ts, iface, frame = _fields(raw, parts, stamped)
     hash_pos = frame.find(b"#")
     if hash_pos == 5 and _CANXL.match(frame):
         stats.ignored += 1  # CAN XL frame: not CAN CC/FD traffic
@@ -146,6 +183,62 @@ def _parse_general(raw: bytes, stats: InputStats) -> _Row | None:
     return ts, iface, can_id, ext, rtr, err, fd, dlc, data
 
 
+def _fields(raw: bytes, parts: list[bytes], stamped: bool) -> tuple[float, bytes, bytes]:
+    """(timestamp, interface, `ID#…` field) of a line's tokens: `(ts) iface ID#DATA`, or
+    (a log without timestamps) `iface ID#DATA` or `ID#DATA`, each maybe followed by the
+    direction flag (`R`/`T`) and a note."""
+    if parts[0][:1] == b"(":
+        if len(parts) < 3:
+            raise _Skip("expected '(timestamp) interface ID#DATA'")
+        ts = _timestamp(parts[0])
+        if not stamped:
+            raise _Skip("a frame with a timestamp in a log without timestamps")
+        iface, frame, tail = parts[1], parts[2], parts[3:]
+    else:
+        if b"#" in parts[0]:
+            iface, frame, tail = BARE_CHANNEL, parts[0], parts[1:]
+        elif len(parts) > 1 and b"#" in parts[1] and _IFACE.fullmatch(parts[0]):
+            iface, frame, tail = parts[0], parts[1], parts[2:]
+        else:
+            raise _Skip("expected '(timestamp) interface ID#DATA'" if stamped
+                        else "expected 'interface ID#DATA' or 'ID#DATA'")
+        if stamped:
+            raise _Skip("a frame without a timestamp in a log with timestamps")
+        ts = 0.0
+    if tail[:1] in ([b"R"], [b"T"]):  # the direction flag of `candump -x`
+        tail = tail[1:]
+    if tail and not note_follows(raw, len(parts) - len(tail)):
+        raise _Skip("unexpected text after the frame")
+    return ts, iface, frame
+
+
+def _timestamped(head: bytes) -> bool:
+    """Whether a log has timestamps, by its first lines (DETECT_LINES within `head`): no
+    more of their frames lack a timestamp than have one. One damaged line either way does
+    not decide it: it is a skipped record."""
+    first = head[:QUICK_BYTES]
+    if 2 * (first.count(b"\n(") + first.startswith(b"(")) > first.count(b"\n") + 1:
+        return True  # the usual log: most lines start like `(timestamp)`, no bare frame can
+    lines = head.split(b"\n")[:DETECT_LINES]
+    scratch = InputStats("")
+    stamped = bare = 0
+    for raw in lines:
+        if _FAST.fullmatch(raw):
+            stamped += 1
+        else:
+            for with_ts in (True, False):
+                try:
+                    if _parse_general(raw, scratch, with_ts) is not None:
+                        stamped += with_ts
+                        bare += not with_ts
+                        break
+                except _Skip:
+                    pass
+        if 2 * stamped > len(lines):
+            break
+    return stamped >= bare
+
+
 def _count_drops(raw: bytes, stats: InputStats) -> None:
     """A `DROPCOUNT: dropped N` line: frames the logger lost."""
     m = _DROP.search(raw)
@@ -159,12 +252,17 @@ def _timestamp(tok_ts: bytes) -> float:
     """The `(seconds)` field."""
     if not (tok_ts.startswith(b"(") and tok_ts.endswith(b")")):
         raise _Skip("timestamp is not in parentheses")
-    try:
-        ts = float(tok_ts[1:-1])
-    except ValueError:
-        raise _Skip("timestamp is not a number") from None
-    if ts != ts or ts in (float("inf"), float("-inf")):
-        raise _Skip("timestamp is not a finite number")
+    text = tok_ts[1:-1]
+    if _STAMP.fullmatch(text) is None:  # candump writes `seconds.micro/nanoseconds` only
+        try:
+            float(text)
+        except ValueError:
+            raise _Skip("timestamp is not a number") from None
+        raise _Skip("timestamp is not seconds as candump writes them (digits, a dot, "
+                    "digits: no sign, no exponent)")
+    ts = float(text)
+    if not plausible_time(ts):
+        raise _Skip(f"timestamp out of range (0 to {MAX_TIMESTAMP_S:.0e} s)")
     return ts
 
 
@@ -196,19 +294,23 @@ def _payload(rest: bytes) -> tuple[bool, bool, int, bytes]:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
+    if not _timestamped(peek(source)):  # pasted lines without `(timestamp)`: few, line by line
+        stats.timestamped = False
+        return read_lines(source, stats, stamped=False)
     if reference_path():
         return read_lines(source, stats)
     return read_blocks(source, stats)
 
 
-def read_lines(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
+def read_lines(source: Source, stats: InputStats, stamped: bool = True
+               ) -> Iterator[FrameBatch]:
     """The reference path: every line through `_parse_line`."""
-    return batches_of(stats, _rows(source, stats))
+    return batches_of(stats, _rows(source, stats, stamped))
 
 
-def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
+def _rows(source: Source, stats: InputStats, stamped: bool) -> Iterator[tuple[int, Row]]:
     for lineno, raw in enumerate(source.lines(), source.first_line):
-        row = _parse_line(raw, lineno, stats)
+        row = _parse_line(raw, lineno, stats, stamped)
         if row is not None:
             ts, iface, can_id, ext, rtr, err, fd, dlc, data = row
             yield lineno, Row(ts, iface.decode("latin-1"), can_id, ext, rtr, err, fd, dlc, data)
@@ -244,12 +346,16 @@ class _Parsed:
     data: np.ndarray  # uint8 [n, 8]
     iface: np.ndarray  # uint64 [n, 2]: the interface name's bytes, zero padded
     iface_len: np.ndarray
+    flags: np.ndarray  # uint8: bit 0 extended (29-bit), bit 2 error frame (BatchBuilder's)
 
 
 _U64 = np.uint64
 _U8 = _U64(8)
 _Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                 np.ndarray]  # ok, ts, can_id, dlc, data (one word), name (two words), name length
+                 np.ndarray, np.ndarray]  # ok, ts, can_id, dlc, data (one word), name (two
+# words), name length, flags
+FLAG_EXT, FLAG_ERR = 1, 4  # BatchBuilder's flag bits
+_ID_WIDE = 1 << 15  # in a block's shape key: the lines' CAN-IDs have 8 hex digits
 
 
 def _parse_block(block: Block, layout: _Layout) -> _Parsed:
@@ -268,36 +374,42 @@ def _parse_block(block: Block, layout: _Layout) -> _Parsed:
     m, ok_sp = find_byte(buf, s + k + 2, 0x20, layout.iface_len, 1, 17)
     ok &= ok_sp
     e = block.ends[rows]
-    if isinstance(k, int) and isinstance(j, int) and isinstance(m, int):
-        cols = _parse_shape(block, s, e, ok, k, j, m)
+    # `ID#`: 3 hex digits (11-bit), else 8 (29-bit, error frames): the `#` after 3 or not
+    wide = buf[s + k + m + 6] != 0x23
+    if isinstance(k, int) and isinstance(j, int) and isinstance(m, int) and not wide.any():
+        cols = _parse_shape(block, s, e, ok, k, j, m, 3)
     else:  # several layouts in one block: each decoded apart, the results in row order
         shape = np.broadcast_to(np.asarray(k) << 10 | np.asarray(j) << 5 | m, rows.shape)
+        shape = shape | np.where(wide, _ID_WIDE, 0)
         cols = (np.zeros(rows.size, bool), np.zeros(rows.size), np.zeros(rows.size, np.uint32),
                 np.zeros(rows.size, np.int16), np.zeros(rows.size, np.uint64),
-                np.zeros((rows.size, 2), np.uint64), np.zeros(rows.size, np.int64))
+                np.zeros((rows.size, 2), np.uint64), np.zeros(rows.size, np.int64),
+                np.zeros(rows.size, np.uint8))
         for value in np.unique(shape).tolist():
             sel = np.flatnonzero(shape == value)
-            parts = _parse_shape(block, s[sel], e[sel], ok[sel], value >> 10, (value >> 5) & 31,
-                                 value & 31)
+            parts = _parse_shape(block, s[sel], e[sel], ok[sel], (value >> 10) & 31,
+                                 (value >> 5) & 31, value & 31, 8 if value & _ID_WIDE else 3)
             for col, part in zip(cols, parts, strict=True):
                 col[sel] = part
-    ok, ts, can_id, dlc, data, name, name_len = cols
+    ok, ts, can_id, dlc, data, name, name_len, flags = cols
     data8 = data.view(np.uint8).reshape(-1, 8)
     if rows.size == n and bool(ok.all()):  # the usual block: every line has the common shape
-        return _Parsed(rows, np.empty(0, np.int64), ts, can_id, dlc, data8, name, name_len)
+        return _Parsed(rows, np.empty(0, np.int64), ts, can_id, dlc, data8, name, name_len,
+                       flags)
     good = np.flatnonzero(ok)
     fast = rows[good]
     is_fast = np.zeros(n, bool)
     is_fast[fast] = True
     return _Parsed(fast, np.flatnonzero(~is_fast), ts[good], can_id[good], dlc[good],
-                   data8[good], name[good], name_len[good])
+                   data8[good], name[good], name_len[good], flags[good])
 
 
 def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, close: int,
-                 dot: int, name_len: int) -> _Columns:
+                 dot: int, name_len: int, id_len: int) -> _Columns:
     """The lines starting at `s` and ending (newline) at `e` whose `)`, `.` and the space
-    after the interface are at offsets `close`, `dot` and `close + 2 + name_len`; `ok`:
-    where those were found."""
+    after the interface are at offsets `close`, `dot` and `close + 2 + name_len`, with a
+    CAN-ID of `id_len` hex digits (3, or 8: 29-bit and error frames); `ok`: where those
+    were found."""
     buf = block.buf
     line = LineWords(block, s)
     int_w, frac_w = dot - 1, close - dot - 1
@@ -334,13 +446,23 @@ def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, clo
     names[:, 0] = fill_low(line.word(name), name_len, _U64(0))
     if name_len > 8:
         names[:, 1] = fill_low(line.word(name + 8), name_len - 8, _U64(0))
-    head = line.word(name + name_len + 1)  # 3 ID digits, "#", 4 data digits
-    ok &= (head & _U64(0xFF000000)) == _U64(0x23000000)
-    ident, ok_id = hex_nibbles(fill_low(head, 3))
-    ok &= ok_id
-    mask4 = _U64(0xF)
-    can_id = ((ident & mask4) << _U8) | (((ident >> _U8) & mask4) << _U64(4)) | (
-        (ident >> _U64(16)) & mask4)
+    id_at = name + name_len + 1
+    if id_len == 3:
+        head = line.word(id_at)  # 3 ID digits, "#", 4 data digits
+        ok &= (head & _U64(0xFF000000)) == _U64(0x23000000)
+        ident, ok_id = hex_nibbles(fill_low(head, 3))
+        ok &= ok_id
+        mask4 = _U64(0xF)
+        can_id = ((ident & mask4) << _U8) | (((ident >> _U8) & mask4) << _U64(4)) | (
+            (ident >> _U64(16)) & mask4)
+        flags = np.zeros(s.size, np.uint8)
+    else:  # 8 ID digits, "#": as `_parse_general`, the error flag makes an error frame
+        ident, ok_id = hex_nibbles(line.word(id_at))
+        ok &= ok_id & (line.byte(id_at + 8) == _U64(0x23))
+        raw = pack_nibbles(ident).astype(np.uint32).byteswap()  # first digit most significant
+        err = (raw & np.uint32(CAN_ERR_FLAG)) != 0
+        can_id = raw & np.uint32(CAN_EFF_MASK)
+        flags = np.where(err, FLAG_ERR, FLAG_EXT).astype(np.uint8)
 
     # Data: after the `#` up to the end of the line, less a `\r` and a ` R`/` T` flag.
     last = buf[e - 1]
@@ -349,7 +471,7 @@ def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, clo
         last = buf[e - 1]
     if (flag := (last == 0x52) | (last == 0x54)).any():
         e = e - 2 * (flag & (buf[e - 2] == 0x20))
-    data_at = name + name_len + 5
+    data_at = id_at + id_len + 1
     hex_len = e - (s + data_at)
     ok &= (hex_len >= 0) & (hex_len <= 16) & (hex_len % 2 == 0)
     nib1, ok1 = hex_nibbles(fill_low(line.word(data_at), hex_len))
@@ -360,7 +482,7 @@ def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, clo
         ok &= ok2
         data |= pack_nibbles(nib2) << _U64(32)
     return (ok, ts, can_id.astype(np.uint32), (hex_len // 2).astype(np.int16), data, names,
-            np.full(s.size, name_len, np.int64))
+            np.full(s.size, name_len, np.int64), flags)
 
 
 _WHITESPACE = frozenset(b" \t\n\r\x0b\x0c")
@@ -370,41 +492,47 @@ _NameKey = tuple[int, int, int]  # an interface name as two zero-padded words an
 
 
 class _Channels:
-    """Interface names of fast lines (as zero-padded words) -> channel codes."""
+    """Interface names of fast lines (as zero-padded words) -> channel codes.
+
+    Per block the distinct names are found once (np.unique) and looked up in a dict: linear
+    in the lines and the names, however many channels a log has (40,000 interfaces of two
+    frames each cost what 80,000 frames on one do)."""
 
     def __init__(self) -> None:
         self.codes: dict[_NameKey, int] = {}
 
-    def resolve(self, p: _Parsed
-                ) -> tuple[np.ndarray, list[tuple[int, bytes, _NameKey, np.ndarray]], np.ndarray]:
-        """(code per fast row, -1 where the name is new; the new names, each with its first
-        row, key and rows; rows whose "name" has whitespace in it: not fast lines after all)."""
-        code = np.full(p.fast.shape[0], -1, np.int32)
-        pending = np.ones(p.fast.shape[0], bool)
-
-        def rows_of(key: _NameKey) -> np.ndarray:
-            lo, hi, length = key
-            rows: np.ndarray = ((p.iface[:, 0] == np.uint64(lo))
-                                & (p.iface[:, 1] == np.uint64(hi)) & (p.iface_len == length))
-            return rows
-
-        for key, c in self.codes.items():
-            hit = rows_of(key)
-            code[hit] = c
-            pending &= ~hit
-        new: list[tuple[int, bytes, _NameKey, np.ndarray]] = []
-        bad = np.zeros(p.fast.shape[0], bool)
-        while pending.any():
-            i = int(np.argmax(pending))
-            key = (int(p.iface[i, 0]), int(p.iface[i, 1]), int(p.iface_len[i]))
-            hit = pending & rows_of(key)
-            pending &= ~hit
-            name = (key[0].to_bytes(8, "little") + key[1].to_bytes(8, "little"))[:key[2]]
+    def resolve(self, p: _Parsed) -> tuple[np.ndarray, np.ndarray, list[tuple[int, bytes, int]],
+                                           np.ndarray]:
+        """(code per distinct name, -1 where the name is new; which distinct name each fast
+        row has; the new names, each with its first row (in the block) and its place among
+        the distinct ones; per distinct name, whether it has whitespace in it: its rows
+        are no fast lines after all)."""
+        keys = np.empty((p.fast.shape[0], 3), np.uint64)
+        keys[:, :2] = p.iface
+        keys[:, 2] = p.iface_len
+        if keys.shape[0] and bool((keys == keys[0]).all()):  # the usual block: one interface
+            uniq, first = keys[:1], np.zeros(1, np.int64)
+            inverse = np.zeros(keys.shape[0], np.int64)
+        else:
+            uniq, first, inverse = np.unique(keys, axis=0, return_index=True,
+                                             return_inverse=True)
+            inverse = inverse.reshape(-1)
+        ucode = np.full(uniq.shape[0], -1, np.int32)
+        bad = np.zeros(uniq.shape[0], bool)
+        new: list[tuple[int, bytes, int]] = []
+        for u, (lo, hi, length) in enumerate(uniq.tolist()):
+            key = (lo, hi, length)
+            code = self.codes.get(key)
+            if code is not None:
+                ucode[u] = code
+                continue
+            name = (lo.to_bytes(8, "little") + hi.to_bytes(8, "little"))[:length]
             if _WHITESPACE.intersection(name):
-                bad |= hit
+                bad[u] = True
             else:
-                new.append((int(p.fast[i]), name, key, hit))
-        return code, new, bad
+                new.append((int(p.fast[first[u]]), name, u))
+        return ucode, inverse, new, bad
+
 
 
 def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
@@ -414,12 +542,11 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     chan_of: dict[bytes, int] = {}
     builder = BatchBuilder()
     for block, p in parsed_blocks(source, lambda b: _parse_block(b, layout), layout.learn):
-        code, new, bad = channels.resolve(p)
-        if bad.any():  # an interface name with odd whitespace: let the reference decide
-            keep = ~bad
+        ucode, inverse, new, bad_names = channels.resolve(p)
+        if bad_names.any():  # an interface name with odd whitespace: let the reference decide
+            bad = bad_names[inverse]
             p = _demote(p, bad)
-            code = code[keep]
-            new = [(row, name, key, hit[keep]) for row, name, key, hit in new]
+            inverse = inverse[~bad]
         # The other lines, in file order (they count skips and may name channels too).
         slow_rows: list[int] = []
         slow_vals: list[_Row] = []
@@ -429,7 +556,7 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
                 slow_rows.append(row)
                 slow_vals.append(parsed)
         # Register new channel names in order of first appearance, as the reference does.
-        firsts: dict[bytes, int] = {name: row for row, name, _key, _hit in new}
+        firsts: dict[bytes, int] = {name: row for row, name, _u in new}
         for row, vals in zip(slow_rows, slow_vals, strict=True):
             iface = vals[1]
             if iface not in chan_of and row < firsts.get(iface, row + 1):
@@ -437,11 +564,20 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         for name, _row in sorted(firsts.items(), key=lambda kv: kv[1]):
             if name not in chan_of:
                 chan_of[name] = stats.channel_code(name.decode("latin-1"))
-        for _row, name, key, hit in new:
-            code[hit] = channels.codes[key] = chan_of[name]
+        for _row, name, u in new:
+            ucode[u] = chan_of[name]
+        if new:  # each new name's key, from its first row (one pass over the rows)
+            at = np.full(ucode.shape[0], -1, np.int64)
+            at[inverse[::-1]] = np.arange(inverse.shape[0] - 1, -1, -1)
+            for _row, _name, u in new:
+                r = int(at[u])
+                channels.codes[(int(p.iface[r, 0]), int(p.iface[r, 1]),
+                                int(p.iface_len[r]))] = int(ucode[u])
+        code = ucode[inverse]
         slow = [SlowRow(ts, chan_of[iface], can_id, ext, rtr, err, fd, dlc, data)
                 for ts, iface, can_id, ext, rtr, err, fd, dlc, data in slow_vals]
-        for batch in merged_batches(builder, block, p.fast, (p.ts, code, p.can_id, p.dlc, p.data),
+        for batch in merged_batches(builder, block, p.fast,
+                                    (p.ts, code, p.can_id, p.dlc, p.data, p.flags),
                                     slow_rows, slow):
             account(stats, batch)
             yield batch
@@ -456,27 +592,17 @@ MANY_SLOW_LINES = 64  # below this, the slow path is cheaper than the vectorised
 
 def _lines_to_parse(block: Block, rows: np.ndarray, stats: InputStats) -> np.ndarray:
     """The slow rows that need `_parse_line`: blank lines are nothing (dropped here), and
-    lines that begin with `#` are unparseable records (counted here in bulk, but for the
-    first few, whose line numbers are kept). A file of blank or comment lines then costs what
-    counting its lines costs, not a Python call per line. Under --strict a comment line
-    goes to `_parse_line` (the first skip is fatal, with its reason)."""
+    lines that begin with `#` are comments, non-frame records (counted here in bulk, as
+    `_parse_line` counts them: `InputStats.note`). A file of blank or comment lines then
+    costs what counting its lines costs, not a Python call per line."""
     if rows.size < MANY_SLOW_LINES:
         return rows
     nonblank = np.cumsum(~_WHITESPACE_BYTE[block.buf], dtype=np.int64)
     starts, ends = block.starts[rows], block.ends[rows]
     blank = nonblank[ends - 1] - nonblank[starts - 1] == 0
     comment = ~blank & (block.buf[starts] == ord("#"))
-    if stats.strict or not comment.any():
-        out: np.ndarray = rows[~blank]
-        return out
-    # Only the first few skipped line numbers are kept: the first comment lines go to
-    # `_parse_line` among the others, in file order; the rest can only be counted.
-    parse = ~blank & ~comment
-    commented = np.flatnonzero(comment)
-    room = max(MAX_SKIPPED_LINES_KEPT - len(stats.skipped_lines), 0)
-    parse[commented[:room]] = True
-    stats.skipped += len(commented) - min(room, len(commented))
-    out = rows[parse]
+    stats.note(int(np.count_nonzero(comment)))
+    out: np.ndarray = rows[~blank & ~comment]
     return out
 
 
@@ -484,4 +610,4 @@ def _demote(p: _Parsed, bad: np.ndarray) -> _Parsed:
     keep = ~bad
     slow = np.union1d(p.slow, p.fast[bad])
     return _Parsed(p.fast[keep], slow, p.ts[keep], p.can_id[keep], p.dlc[keep], p.data[keep],
-                   p.iface[keep], p.iface_len[keep])
+                   p.iface[keep], p.iface_len[keep], p.flags[keep])

@@ -15,9 +15,20 @@ colour escapes of `-c`. `DROPCOUNT:` lines add to the dropped frames.
 
 `-td` and `-tz` print the same `(000.123456)` form: a file whose relative stamps
 ever decrease within its first DETECT_LINES frames is read as deltas (summed),
-otherwise as offsets from the first frame. Output without timestamps has no
-time: every frame is at 0 s, so only rules that need no time can be trusted
-(record with `-ta` or `candump -L`). python-can has no reader for this format.
+otherwise as offsets from the first frame. In a delta log a line whose delta can
+be read keeps it even when the rest of the line cannot be parsed (a skipped
+record), so the frames after it do not shift. Output without timestamps has no
+time (`InputStats.timestamped` False, when the first DETECT_LINES lines hold no
+frame with one): every frame is at 0 s, in file order, so only rules that need
+no time can be trusted (record with `-ta` or `candump -L`); a frame line of the
+other kind than the log's (with a timestamp or without) is a skipped record.
+
+Logs as people paste them (SPEC §1): leading white space (tabs included) is no
+part of a record — a tab-indented line is `-e`'s explanation only right after an
+error frame, and only when it is no frame itself; text after a complete record
+is a note, ignored (readers.note_follows); a line that is only a note or a
+comment (`# …`, a shell prompt such as `$ candump can0`, `...`) is a non-frame
+record. python-can has no reader for this format.
 """
 
 from __future__ import annotations
@@ -28,7 +39,18 @@ from datetime import datetime, timezone
 from itertools import chain, islice
 
 from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
+from nmtcheck.readers import (
+    MAX_TIMESTAMP_S,
+    InputStats,
+    Row,
+    Source,
+    batches_of,
+    is_note_line,
+    is_text,
+    note_follows,
+    plausible_time,
+    unsigned,
+)
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -36,6 +58,8 @@ DETECT_LINES = 2000  # frames looked at to tell -td from -tz
 
 _ANSI = re.compile(rb"\x1b\[[0-9;]*[A-Za-z]")
 _STAMP = re.compile(rb"^\s*\(([^)]*)\)\s*")
+# A delta that can still be read where the line's `)` is lost: `(000.100000  can0 …`
+_OPEN_STAMP = re.compile(rb"^\s*\((\d+\.\d+)(?:\s|$)")
 _ABS_DATE = re.compile(rb"^(\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2})\.(\d{1,9})$")
 _NUMBER = re.compile(rb"^(\d+)\.(\d+)$")
 _LENGTH = re.compile(rb"^(\[(\d{1,2})\]|\{([0-9A-Fa-f])\})$")
@@ -79,8 +103,9 @@ def _data(tokens: list[bytes], n: int) -> bytes:
 Frame = tuple[str, int, bool, bool, bool, bool, int, bytes]  # iface id ext rtr err fd dlc data
 
 
-def _frame(tokens: list[bytes]) -> Frame:
-    """`iface [RX|TX flags] ID [len] data… [ERRORFRAME | remote request]`."""
+def _frame(tokens: list[bytes], text: bytes = b"") -> Frame:
+    """`iface [RX|TX flags] ID [len] data… [ERRORFRAME | remote request]`; `text`: the line
+    the tokens were split from (after the timestamp), for telling a note after the data."""
     if len(tokens) < 3:
         raise _Bad("expected 'interface ID [length]'")
     iface = tokens[0].decode("latin-1")
@@ -123,7 +148,9 @@ def _frame(tokens: list[bytes]) -> Frame:
         body = body[0].split(b"`")[::-1] + body[1:]
     data = _data(body, n)
     extra = body[n:]
-    if extra and not extra[0].startswith((b"'", b"`")):  # -a: the ASCII column may follow
+    if extra and not extra[0].startswith((b"'", b"`")) and not (  # -a: the ASCII column
+            tokens[len(tokens) - len(extra):] == extra
+            and note_follows(text, len(tokens) - len(extra))):  # a note: `05   # boot-up`
         raise _Bad("unexpected text after the data")
     return iface, can_id, ext, False, err, fd, dlc, data[:8]
 
@@ -151,8 +178,8 @@ class _Clock:
         if number is None:
             raise _Bad("timestamp is not a number")
         value = float(stamp)
-        if value == float("inf"):
-            raise _Bad("timestamp is not a finite number")
+        if not plausible_time(value):
+            raise _Bad(f"timestamp out of range (0 to {MAX_TIMESTAMP_S:.0e} s)")
         if self.deltas and _is_relative(number[1]):
             self.total += value
             return self.total
@@ -164,19 +191,20 @@ def _is_relative(seconds: bytes) -> bool:
     return len(seconds) < 10
 
 
-def _split(raw: bytes) -> tuple[bytes | None, list[bytes]]:
+def _split(raw: bytes) -> tuple[bytes | None, bytes]:
+    """(the stamp in parentheses or None, the rest of the line), colour escapes removed."""
     line = _ANSI.sub(b"", raw)
     m = _STAMP.match(line)
     if m is None:
-        return None, line.split()
-    return m[1].strip(), line[m.end():].split()
+        return None, line
+    return m[1].strip(), line[m.end():]
 
 
 def _looks_like_deltas(lines: list[bytes]) -> bool:
     """True when relative stamps go down somewhere: deltas (-td), not offsets (-tz)."""
     previous = None
     for raw in lines:
-        stamp, _tokens = _split(raw)
+        stamp, _rest = _split(raw)
         if stamp is None:
             continue
         number = _NUMBER.match(stamp)
@@ -193,15 +221,38 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     return batches_of(stats, _rows(source, stats))
 
 
+def _timestamped(lines: list[bytes]) -> bool:
+    """Whether the log has timestamps, by its first lines: no more of their frames lack a
+    timestamp than have one that can be read. One damaged line either way does not decide
+    it: it is a skipped record."""
+    stamped = bare = 0
+    for raw in lines:
+        stamp, rest = _split(raw)
+        try:
+            if stamp is not None:
+                _Clock(deltas=False)(stamp)
+            _frame(rest.split(), rest)
+        except _Bad:
+            continue
+        stamped += stamp is not None
+        bare += stamp is None
+    return stamped >= bare
+
+
 def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     lines = source.lines()
     head = list(islice(lines, DETECT_LINES))
-    clock = _Clock(deltas=_looks_like_deltas(head))
+    stamped = _timestamped(head)
+    stats.timestamped = stamped
+    clock = _Clock(deltas=stamped and _looks_like_deltas(head))
+    explaining = False  # after an error frame: `-e` prints its explanation on `\t` lines
     for lineno, raw in enumerate(chain(head, lines), source.first_line):
-        if raw[:1] == b"\t" or not raw.strip():
-            continue  # -e: the explanation of the error frame above
-        stamp, tokens = _split(raw)
+        if not raw.strip():
+            continue
+        stamp, rest = _split(raw)
+        tokens = rest.split()
         if tokens and tokens[0].startswith(b"DROPCOUNT"):
+            explaining = False
             m = _DROP.search(raw)
             count = None if m is None else unsigned(m[1])
             if count is None:
@@ -210,10 +261,33 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
                 stats.dropped += count
                 stats.ignored += 1
             continue
+        if is_note_line(raw):
+            explaining = False
+            stats.note()  # a comment, a shell prompt, `...`: no record
+            continue
         try:
-            ts = clock(stamp)
-            iface, can_id, ext, rtr, err, fd, dlc, data = _frame(tokens)
+            if (stamp is not None) != stamped:
+                _damaged_delta(raw, clock)
+                raise _Bad("a frame without a timestamp in a log with timestamps" if stamped
+                           else "a frame with a timestamp in a log without timestamps")
+            try:
+                ts = clock(stamp)  # a delta counts even when the rest of the line is damaged
+            except _Bad:
+                _damaged_delta(raw, clock)
+                raise
+            iface, can_id, ext, rtr, err, fd, dlc, data = _frame(tokens, rest)
         except _Bad as exc:
+            if explaining and raw[:1] == b"\t":
+                continue  # part of the error frame's record: its `-e` explanation
+            explaining = b"ERRORFRAME" in raw  # a damaged error frame keeps its explanation
             stats.skip(lineno, str(exc))
             continue
+        explaining = err
         yield lineno, Row(ts, iface, can_id, ext, rtr, err, fd, dlc, data)
+
+
+def _damaged_delta(raw: bytes, clock: _Clock) -> None:
+    """A line of a delta log whose stamp in parentheses is damaged (its `)` lost): its delta
+    still counts if the line starts with one (`(000.100000  can0  701 …`)."""
+    if clock.deltas and (m := _OPEN_STAMP.match(_ANSI.sub(b"", raw))):
+        clock(m[1])

@@ -23,7 +23,15 @@ from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
+from nmtcheck.readers import (
+    InputStats,
+    Row,
+    Source,
+    batches_of,
+    is_text,
+    plausible_time,
+    unsigned,
+)
 
 PYTHON_CAN_HEADER = b"timestamp,arbitration_id,extended,remote,error,dlc,data"
 DEFAULT_CHANNEL = "1"  # python-can's CSV has no channel column
@@ -85,8 +93,8 @@ def _python_can_row(fields: list[bytes]) -> tuple[float, int, bool, bool, bool, 
         ts = float(stamp)
     except ValueError:
         raise _Bad("timestamp is not a number") from None
-    if ts != ts or ts in (float("inf"), float("-inf")):
-        raise _Bad("timestamp is not a finite number")
+    if not plausible_time(ts, negative=True):
+        raise _Bad("timestamp is not a finite number within range")
     ext = _flag(extended, b"1", b"0")
     rtr = _flag(remote, b"1", b"0")
     err = _flag(error, b"1", b"0")

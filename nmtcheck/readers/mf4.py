@@ -25,7 +25,7 @@ import numpy as np
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import BATCH_SIZE, FrameBatch
-from nmtcheck.readers import InputStats, Source
+from nmtcheck.readers import MAX_TIMESTAMP_S, InputStats, Source
 from nmtcheck.readers.binary import BatchCollector, ChannelNames, Frames, zero_beyond
 
 INSTALL_HINT = "pip install 'nmtcheck[mf4]'"
@@ -192,6 +192,15 @@ def _read_groups(mdf: Any, source: Source, stats: InputStats) -> Iterator[FrameB
     if not parts:
         return
     merged = Frames.concatenate(parts)
+    # a time no report can hold (inf, nan, beyond MAX_TIMESTAMP_S): a skipped record
+    plausible = np.abs(merged.ts) < MAX_TIMESTAMP_S
+    if not bool(plausible.all()):
+        why = f"timestamp not finite or out of range (±{MAX_TIMESTAMP_S:.0e} s)"
+        if stats.strict:
+            raise InputError(source.path, f"cannot parse {stats.format} record: {why}")
+        stats.skip_reason = stats.skip_reason or why
+        stats.skipped += int(np.count_nonzero(~plausible))
+        merged = merged.subset(np.flatnonzero(plausible))
     order = np.argsort(merged.ts, kind="stable")  # groups merged by time, as python-can does
     names = ChannelNames(stats)
     numbers = np.unique(merged.chan)

@@ -34,7 +34,15 @@ from datetime import datetime, timedelta, timezone
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import FrameBatch
-from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
+from nmtcheck.readers import (
+    InputStats,
+    Row,
+    Source,
+    batches_of,
+    is_text,
+    plausible_time,
+    unsigned,
+)
 
 DEFAULT_CHANNEL = "1"  # versions without a bus column log one bus
 STATUS_ID = b"FFFFFFFF"  # version 1.x bus-status lines use this ID
@@ -94,8 +102,8 @@ def _offset(tok: bytes) -> float:
         value = float(tok.replace(b",", b"."))
     except ValueError:
         raise _Bad(f"time offset {tok.decode('latin-1')!r} is not a number") from None
-    if value != value or value in (float("inf"), float("-inf")):
-        raise _Bad("time offset is not a finite number")
+    if not plausible_time(value / 1000.0, negative=True):
+        raise _Bad("time offset is not a finite number within range")
     return value / 1000.0
 
 

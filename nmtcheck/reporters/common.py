@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 
 import numpy as np
 
@@ -13,6 +14,7 @@ from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import SEVERITIES, Rule, fails
 from nmtcheck.engine import Finding, InputResult, summary
 from nmtcheck.model import ChannelModel, NodeModel
+from nmtcheck.safe_text import escape_controls
 
 SEVERITY_ORDER = SEVERITIES  # most severe first (one order, in checks.base)
 # Rules whose findings may name no node (a CAN-ID or a frame on 000h belongs to the network):
@@ -47,8 +49,9 @@ _XML_INVALID = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff\ud800-\udfff]
 
 def spreadsheet_safe(cell: object) -> str:
     """A text cell a spreadsheet will not run as a formula (OWASP CSV injection): one that
-    starts with = + - @ tab or CR gets a leading apostrophe. Numbers are not text cells."""
-    text = "" if cell is None else str(cell)
+    starts with = + - @ tab or CR gets a leading apostrophe. Numbers are not text cells.
+    Control characters are written as `\\xNN`, as in the text report."""
+    text = "" if cell is None else escape_controls(cell)  # NUL, ESC, BEL: shown, not sent
     return "'" + text if text.startswith(_FORMULA_START) else text
 
 
@@ -66,14 +69,85 @@ def omitted_lines(results: list[InputResult], options: dict[str, object]) -> lis
             for res in results for o in res.omitted]
 
 
+# SPEC §4: what the gate decided, as JSON `summary.verdict` says it and as people read it
+VERDICT_WORDS = {"pass": "PASS", "fail": "FAIL", "not-gated": "NOT GATED"}
+
+
+def verdict(results: list[InputResult], threshold: str) -> str:
+    """`pass` (nothing at or above `--fail-on`), `fail`, or `not-gated` (`--fail-on
+    never`): never a pass above errors. An input that could not be read fails the run
+    (exit 2) whatever the threshold."""
+    if unreadable(results):
+        return "fail"
+    if threshold == "never":
+        return "not-gated"
+    return "fail" if is_failing(results, threshold) else "pass"
+
+
+def verdict_word(results: list[InputResult], options: dict[str, object]) -> str:
+    """PASS, FAIL or NOT GATED."""
+    return VERDICT_WORDS[verdict(results, fail_on(options))]
+
+
+def unreadable(results: list[InputResult]) -> list[InputResult]:
+    """The inputs that could not be read (SPEC §4: named in every report)."""
+    return [res for res in results if res.error is not None]
+
+
 def verdict_line(results: list[InputResult], options: dict[str, object]) -> str:
     """`FAIL: 1 error, 0 warnings, 0 info in 2 inputs (--fail-on error)`: what the exit code
-    says, the same words in every line-based format."""
+    says, the same words in every format."""
     threshold = fail_on(options)
-    verdict = "FAIL" if is_failing(results, threshold) else "PASS"
     inputs = len(results)
-    return (f"{verdict}: {counts_phrase(summary(results))} in {inputs} "
-            f"input{'s' if inputs != 1 else ''} (--fail-on {threshold})")
+    bad = len(unreadable(results))
+    return (f"{verdict_word(results, options)}: {counts_phrase(summary(results))} in {inputs} "
+            f"input{'s' if inputs != 1 else ''}"
+            + (f", {bad} of them could not be read" if bad else "")
+            + f" (--fail-on {threshold})")
+
+
+def measured_mark(f: Finding) -> str:
+    """What the text reports add to a finding whose limit was measured from the trace
+    (`basis` measured: a factor x the median period, as `nmtcheck monitor` marks a
+    provisional finding), naming what would give the configured one."""
+    if f.basis != "measured":
+        return ""
+    return "  [limit measured from the trace: --network or --dcf gives the configured one]"
+
+
+def error_line(res: InputResult) -> str:
+    """The line every report gives an input that could not be read."""
+    return f"{res.stats.path}: cannot be checked: {res.error}"
+
+
+def not_logs_line(options: dict[str, object]) -> str | None:
+    """Files below a directory argument whose content is no log format: counted."""
+    skipped = options.get("not_logs") or []
+    assert isinstance(skipped, list)
+    if not skipped:
+        return None
+    shown = ", ".join(map(str, skipped[:5])) + (", …" if len(skipped) > 5 else "")
+    return (f"{plural(len(skipped), 'file')} below the directories given are no log "
+            f"(skipped): {shown}")
+
+
+def utc_start(res: InputResult) -> str | None:
+    """When the recording started, as ISO 8601 UTC, when its timestamps are absolute
+    (SPEC §7 `start_utc`): epoch stamps of candump, BLF, MCAP, MF4, pcap, TRC with
+    `$STARTTIME`. Stamps relative to the recording's start (ASC, candump -tz, TRC without
+    `$STARTTIME`) are small numbers: nothing before 1980 is taken for a date."""
+    s = res.stats
+    if res.error is not None or s.order_only or not s.frames or s.start is None:
+        return None
+    if s.format in RELATIVE_FORMATS or not ABSOLUTE_FROM <= s.start < ABSOLUTE_UNTIL:
+        return None
+    stamp = datetime.fromtimestamp(s.start, tz=timezone.utc)
+    return stamp.isoformat(timespec="microseconds").replace("+00:00", "Z")
+
+
+RELATIVE_FORMATS = ("asc",)  # stamps are seconds from the start of the measurement
+ABSOLUTE_FROM = 315532800.0  # 1980-01-01: smaller stamps are relative ones
+ABSOLUTE_UNTIL = 4102444800.0  # 2100-01-01
 
 
 def network_notes(options: dict[str, object] | None) -> list[str]:
@@ -192,6 +266,8 @@ class HeartbeatStats:
 
 def heartbeat_stats(m: NodeModel) -> HeartbeatStats:
     """The same intervals the timeline measures the period from (SPEC §2)."""
+    if m.order_only:  # no timestamps: no period or gap was measured (SPEC §1)
+        return HeartbeatStats(np.zeros(0))
     return HeartbeatStats(m.heartbeat_intervals())
 
 

@@ -13,11 +13,14 @@ from __future__ import annotations
 
 from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
+    measured_mark,
     node_label,
     offset,
     omitted_lines,
+    unreadable,
     verdict_line,
 )
+from nmtcheck.safe_text import escape_lines
 
 
 def finding_line(res: InputResult, f: Finding) -> str:
@@ -31,7 +34,9 @@ def finding_line(res: InputResult, f: Finding) -> str:
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
-    lines = [finding_line(res, f) for res in results for f in res.findings]
+    lines = [f"{res.stats.path}:: cannot be checked: {res.error}"
+             for res in unreadable(results)]
+    lines += [finding_line(res, f) + measured_mark(f) for res in results for f in res.findings]
     lines += omitted_lines(results, options)
     lines.append("nmtcheck " + verdict_line(results, options))
-    return "\n".join(lines) + "\n"
+    return escape_lines(lines) + "\n"  # a name's newline or ESC is shown, never sent

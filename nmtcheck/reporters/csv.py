@@ -17,6 +17,10 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     w = csv.writer(out, lineterminator="\n")
     w.writerow(COLUMNS)
     for res in results:
+        if res.error is not None:  # named, never dropped (SPEC §4)
+            w.writerow([res.index, safe(res.stats.path), "", "", "error", "", "", "", "", "",
+                        "", safe(f"cannot be checked: {res.error}")])
+            continue
         start = res.stats.start or 0.0
         for f in res.findings:
             w.writerow([f.input, safe(res.stats.path), f.rule, f.name, f.severity,

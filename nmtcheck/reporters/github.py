@@ -8,8 +8,10 @@ from __future__ import annotations
 
 from nmtcheck.engine import InputResult
 from nmtcheck.reporters.common import (
+    measured_mark,
     offset,
     omitted_lines,
+    unreadable,
     verdict_line,
     where_label,
 )
@@ -28,7 +30,8 @@ def escape_property(text: str) -> str:
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
-    lines = []
+    lines = [f"::error file={escape_property(res.stats.path)},title=cannot be checked::"
+             f"{escape_data(str(res.error))}" for res in unreadable(results)]
     for res in results:
         for f in res.findings:
             props = [f"file={escape_property(res.stats.path)}"]
@@ -36,7 +39,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
                 props.append(f"line={f.line}")
             title = f"{f.rule} {f.name} ({where_label(f.channel, f.node)})"
             props.append(f"title={escape_property(title)}")
-            message = f"{f.message} [at {offset(res, f.time):.3f} s]"
+            message = f"{f.message} [at {offset(res, f.time):.3f} s]{measured_mark(f)}"
             lines.append(f"::{COMMANDS[f.severity]} {','.join(props)}::{escape_data(message)}")
     lines += [f"::notice::{escape_data(line)}" for line in omitted_lines(results, options)]
     lines.append("nmtcheck " + verdict_line(results, options))

@@ -11,7 +11,6 @@ Rendered from the Jinja2 template `templates/report.html.j2` (package data).
 from __future__ import annotations
 
 import html
-import json
 import re
 from datetime import datetime, timezone
 from functools import cache
@@ -33,20 +32,27 @@ from nmtcheck.reporters.common import (
     checked_rules,
     config_line,
     duration,
+    error_line,
     fail_on,
     group_findings,
     heartbeat_stats,
     is_failing,
     master_line,
+    measured_mark,
     network_notes,
     node_label,
     nodes_by_channel,
+    not_logs_line,
     offset,
     omitted_lines,
     resets,
+    unreadable,
+    verdict,
+    verdict_word,
     where_label,
 )
 from nmtcheck.reporters.json import report_sections
+from nmtcheck.safe_text import dumps_finite
 
 # Colours of the NMT states on the timeline and in the legend (colour-blind safe-ish:
 # the fault states are the dark/saturated ones, and wide intervals carry their name).
@@ -59,7 +65,7 @@ STATE_COLORS = {
     "OFFLINE": "#cc4125",
 }
 SEVERITY_COLORS = {"error": "#b3261e", "warning": "#e69138", "info": "#3d85c6"}
-SOURCES = ("start", "bootup", "heartbeat", "guarding", "command", "timeout")
+SOURCES = ("start", "bootup", "heartbeat", "guarding", "command", "timeout", "self-start")
 _SOURCE_OF = [SOURCES.index(s) for s in TIMELINE_SOURCES]  # timeline's index -> the page's
 # A browser cannot draw millions of intervals; a page holds at most this many, shared
 # among the nodes (each gets at least MIN_DRAWN_PER_NODE): a node that changes state on
@@ -88,7 +94,7 @@ def _asset(name: str) -> str:
 
 def script_json(data: object) -> Markup:
     """JSON safe inside <script>: no `</script>`, `<!--` or `&` can end or confuse it."""
-    text = json.dumps(data, separators=(",", ":"), ensure_ascii=False)
+    text = dumps_finite(data, separators=(",", ":"), ensure_ascii=False)
     return Markup(text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
 
 
@@ -142,6 +148,8 @@ def _group_view(res: InputResult, g: FindingGroup, gid: str) -> dict[str, Any]:
         "count": g.count, "time": _r(offset(res, f.time)), "line": f.line or None,
         # I-rule findings belong to no channel: no timeline to jump to
         "message": f.message,
+        # a limit measured from the trace, not configured: said beside the message
+        "measured": measured_mark(f).strip(" []"),
         "timeline": None if g.channel is None else timeline_id(res, g.channel),
         "occurrences": [{"time": _r(offset(res, o.time)), "line": o.line or None,
                          "message": o.message} for o in shown],
@@ -196,7 +204,8 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     """
     threshold = fail_on(options)
     report = report_sections(results, options)
-    inputs = [{**entry, "index": i, "duration": duration(res), "findings": len(res.findings)}
+    inputs = [{**entry, "index": i, "duration": duration(res), "findings": len(res.findings),
+               "order_only": res.stats.order_only}
               for i, (entry, res) in enumerate(zip(report["inputs"], results, strict=True))]
     intervals: dict[tuple[int, str, int], list[list[float | int]]] = {}
     left_out: dict[tuple[int, str], int] = {}  # intervals not drawn, by input and channel
@@ -246,7 +255,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                                              f"{per_node} per node; the JSON report has all)")
     rules = [{"code": r.code, "name": r.name, "severity": sev, "summary": r.summary,
               "doc": doc_html(r.doc), "findings": sum(1 for res in results
-                                                      for f in res.findings if f.rule == r.code)}
+                                                      for f in res.findings if f.rule == r.code),
+              "not_evaluated": _not_evaluated_on(results, r.code),
+              "skipped": _skipped_everywhere(results, r.code)}
              for r, sev in checked_rules(options)]
     page_data = {
         "states": list(STATES), "sources": list(SOURCES), "stateColors": STATE_COLORS,
@@ -259,6 +270,10 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "version": __version__,
         "generated": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
         "fail_on": threshold, "failing": is_failing(results, threshold),
+        "verdict": verdict_word(results, options),
+        "verdict_class": verdict(results, threshold),
+        "unreadable": [error_line(res) for res in unreadable(results)],
+        "not_logs": not_logs_line(options),
         "counts": report["summary"],
         "inputs": inputs, "timelines": timelines, "groups": groups, "nodes": nodes,
         "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
@@ -273,6 +288,24 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "page_data": script_json(page_data),
         "css": Markup(_asset("report.css")), "js": Markup(_asset("report.js")),
     }
+
+
+def _not_evaluated_on(results: list[InputResult], code: str) -> list[str]:
+    """Why a rule could not be evaluated, per readable input where it could not be (with
+    the input's path when there are several); empty when it ran on every one."""
+    readable = [res for res in results if res.error is None]
+    reasons = [(res.stats.path, res.not_evaluated[code]) for res in readable
+               if code in res.not_evaluated]
+    if len(readable) <= 1 or len({why for _p, why in reasons}) == 1 == len(readable):
+        return [why for _p, why in reasons[:1]]
+    return [f"{path}: {why}" for path, why in reasons]
+
+
+def _skipped_everywhere(results: list[InputResult], code: str) -> bool:
+    """Whether a rule could not be evaluated on any readable input: it is listed apart
+    from the rules that were checked, never as one that passed."""
+    readable = [res for res in results if res.error is None]
+    return bool(readable) and all(code in res.not_evaluated for res in readable)
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:

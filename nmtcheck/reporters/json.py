@@ -3,20 +3,33 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 from typing import Any
 
-from nmtcheck import __version__
+from nmtcheck import __version__, boot_report
 from nmtcheck.engine import InputResult, summary
 from nmtcheck.model import NodeModel
 from nmtcheck.nmt import SOURCES, STATES
-from nmtcheck.reporters.common import configured_vs_measured, network_notes
+from nmtcheck.reporters.common import (
+    configured_vs_measured,
+    fail_on,
+    network_notes,
+    utc_start,
+    verdict,
+)
+from nmtcheck.safe_text import dumps_finite
 
 REPORT_VERSION = 1
 
 
 def _r(x: float | None) -> float | None:
-    return None if x is None else round(float(x), 6)
+    return None if x is None or not math.isfinite(x) else round(float(x), 6)
+
+
+def _num(x: float) -> str:
+    """A JSON number of `x` as `json.dumps` writes it, `null` where it is not finite."""
+    return repr(round(x, 6)) if math.isfinite(x) else "null"
 
 
 def _configured_vs_measured(m: NodeModel, end: float) -> dict[str, Any]:
@@ -49,7 +62,8 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             channels.append({"input": res.index, "name": cm.name, "master": None if master is None
                              else {"node": master.node, "source": master.source,
                                    "detail": master.detail},
-                             "master_note": None if master is not None else cm.master_note})
+                             "master_note": None if master is not None else cm.master_note,
+                             "boot": boot_report.channel_boot(res, cm.name)})
         s = res.stats
         inputs.append({
             "path": s.path, "format": s.format, "frames": s.frames, "skipped": s.skipped,
@@ -60,6 +74,9 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "dropped": s.dropped, "backwards": s.backwards_timestamps,
             "backwards_timestamps": s.backwards_timestamps, "truncated": s.truncated,
             "skipped_lines": s.skipped_lines, "channels": s.channels,
+            "error": res.error, "start_utc": utc_start(res),
+            "not_evaluated": [{"rule": code, "reason": why}
+                              for code, why in res.not_evaluated.items()],
         })
         nodes.extend({
             "input": res.index, "channel": m.channel, "node": m.node,
@@ -68,11 +85,14 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "bootups": m.bootup_count, "error_control": m.error_control,
             "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
             **_configured_vs_measured(m, res.model.end),
+            "boot": boot_report.node_boot(res, m.channel, m.node),
         } for m in res.nodes())
         findings.extend({"input": f.input, "rule": f.rule, "name": f.name,
                          "severity": f.severity, "channel": f.channel, "node": f.node,
                          "time": _r(f.time), "frame_index": f.frame_index,
-                         "line": f.line or None, "message": f.message} for f in res.findings)
+                         "line": f.line or None, "message": f.message, "basis": f.basis,
+                         **boot_report.finding_fields(f)}
+                        for f in res.findings)
     return {"tool": {"name": "nmtcheck", "version": __version__},
             "report_version": REPORT_VERSION, "inputs": inputs, "nodes": nodes,
             "timeline": _timeline(results), "findings": findings,
@@ -83,7 +103,9 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "omitted": [{"input": res.index, "rule": o.rule, "name": o.name,
                          "severity": o.severity, "count": o.count}
                         for res in results for o in res.omitted],
-            "summary": summary(results)}
+            "not_logs": list(_not_logs(options)),
+            "summary": {**summary(results),
+                        "verdict": verdict(results, fail_on(options or {}))}}
 
 
 def _timeline(results: list[InputResult]) -> Iterator[dict[str, Any]]:
@@ -104,8 +126,8 @@ def _timeline_lines(results: list[InputResult]) -> Iterator[str]:
             head = json.dumps({"input": res.index, "channel": m.channel, "node": m.node})[:-1]
             for a, b, st, so in zip(ivs.start.tolist(), ivs.end.tolist(), ivs.state.tolist(),
                                     ivs.source.tolist(), strict=True):
-                yield (f'{head}, "state": "{STATES[st]}", "start": {round(a, 6)!r}, '
-                       f'"end": {round(b, 6)!r}, "source": "{SOURCES[so]}"}}')
+                yield (f'{head}, "state": "{STATES[st]}", "start": {_num(a)}, '
+                       f'"end": {_num(b)}, "source": "{SOURCES[so]}"}}')
 
 
 def _events(results: list[InputResult]) -> Iterator[dict[str, Any]]:
@@ -114,6 +136,13 @@ def _events(results: list[InputResult]) -> Iterator[dict[str, Any]]:
             yield {"input": res.index, "channel": m.channel, "node": m.node,
                    "kind": e.kind, "time": _r(e.ts), "frame_index": e.idx,
                    "line": e.line or None, "code": e.code, "message": e.text}
+
+
+def _not_logs(options: dict[str, object] | None) -> list[str]:
+    """Files below a directory argument whose content is no log format (skipped)."""
+    skipped = (options or {}).get("not_logs") or []
+    assert isinstance(skipped, list)
+    return [str(p) for p in skipped]
 
 
 def _config(options: dict[str, object] | None) -> dict[str, Any]:
@@ -139,9 +168,9 @@ def stream(results: list[InputResult], options: dict[str, object]) -> Iterator[s
             value = _timeline_lines(results)
         elif isinstance(value, Iterator) or (
                 isinstance(value, list) and value and all(isinstance(v, dict) for v in value)):
-            value = (json.dumps(v) for v in value)
+            value = (dumps_finite(v) for v in value)
         else:
-            yield f"  {json.dumps(key)}: " + json.dumps(value, indent=2).replace("\n", "\n  ")
+            yield f"  {json.dumps(key)}: " + dumps_finite(value, indent=2).replace("\n", "\n  ")
             continue
         yield f"  {json.dumps(key)}: ["
         empty = True

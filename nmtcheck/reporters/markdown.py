@@ -10,23 +10,29 @@ from nmtcheck.engine import InputResult, summary
 from nmtcheck.reporters.common import (
     counts_phrase,
     duration,
+    error_line,
     fail_on,
     final_state,
     group_findings,
     heartbeat_stats,
-    is_failing,
+    measured_mark,
     offset,
     omitted_lines,
     resets,
+    unreadable,
+    verdict_word,
     where_label,
 )
+from nmtcheck.safe_text import escape_controls
 
+BADGES = {"PASS": "✅", "FAIL": "❌", "NOT GATED": "⚪"}
 MAX_GROUPS = 50  # a comment people read, not the full report: the rest is counted
 
 
 def cell(text: object) -> str:
-    """Table cell text: a pipe or a newline would break the row, `<` could start HTML."""
-    return (str(text).replace("\\", "\\\\").replace("|", "\\|").replace("<", "&lt;")
+    """Table cell text: a pipe or a newline would break the row, `<` could start HTML;
+    control characters are shown as in the text report (`\\xNN`)."""
+    return (escape_controls(text).replace("\\", "\\\\").replace("|", "\\|").replace("<", "&lt;")
             .replace("\r", " ").replace("\n", " "))
 
 
@@ -36,14 +42,19 @@ def _ms(seconds: float | None) -> str:
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
     threshold = fail_on(options)
-    failing = is_failing(results, threshold)
+    word = verdict_word(results, options)
     counts = summary(results)
-    out = [f"## nmtcheck: {'❌ FAIL' if failing else '✅ PASS'}", "",
+    out = [f"## nmtcheck: {BADGES[word]} {word}", "",
            f"**{counts_phrase(counts)}** (`--fail-on {threshold}`)", "",
+           *[f"**{cell(error_line(res))}**\n" for res in unreadable(results)],
            "| input | format | frames | duration | skipped records | error frames | findings |",
            "|---|---|---:|---:|---:|---:|---:|"]
     for res in results:
         s = res.stats
+        if res.error is not None:
+            out.append(f"| `{cell(s.path)}` | – | – | – | – | – | cannot be checked: "
+                       f"{cell(res.error)} |")
+            continue
         out.append(f"| `{cell(s.path)}` | {s.format} | {s.frames} | {duration(res):.3f} s | "
                    f"{s.skipped} | {s.error_frames} | {len(res.findings)} |")
     groups = [g for res in results for g in group_findings(res.findings)]
@@ -62,7 +73,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
                        + (f"`{cell(res.stats.path)}` | " if several else "")
                        + f"{cell(where_label(g.channel, g.node))} | "
                        f"{offset(res, f.time):.3f} s | {f.line or '–'} | {g.count} | "
-                       f"{cell(f.message)} |")
+                       f"{cell(f.message + measured_mark(f))} |")
         if len(groups) > MAX_GROUPS:
             rest = sum(g.count for g in groups[MAX_GROUPS:])
             out += ["", f"… and {rest} more finding(s) in {len(groups) - MAX_GROUPS} more "

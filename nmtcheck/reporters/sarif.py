@@ -7,7 +7,6 @@ documentation as help text.
 
 from __future__ import annotations
 
-import json
 from pathlib import PurePath
 from typing import Any
 
@@ -15,6 +14,7 @@ from nmtcheck import __version__
 from nmtcheck.checks.base import Rule
 from nmtcheck.engine import InputResult
 from nmtcheck.reporters.common import checked_rules, offset
+from nmtcheck.safe_text import dumps_finite
 
 SCHEMA_URI = "https://json.schemastore.org/sarif-2.1.0.json"
 LEVELS = {"error": "error", "warning": "warning", "info": "note"}
@@ -94,10 +94,19 @@ def sarif_log(results: list[InputResult], options: dict[str, object]) -> dict[st
                 "text": "The directory nmtcheck was run from."}}},
             "artifacts": artifacts,
             "results": out_results,
+            # inputs that could not be read: the run did not analyse them (SPEC §4)
+            "invocations": [{
+                "executionSuccessful": not any(res.error for res in results),
+                "toolExecutionNotifications": [
+                    {"level": "error", "message": {"text": f"cannot be checked: {res.error}"},
+                     "locations": [{"physicalLocation": {
+                         "artifactLocation": {**artifact_location(res.stats.path),
+                                              "index": res.index}}}]}
+                    for res in results if res.error is not None]}],
             "columnKind": "unicodeCodePoints",
         }],
     }
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
-    return json.dumps(sarif_log(results, options), indent=2) + "\n"
+    return dumps_finite(sarif_log(results, options), indent=2) + "\n"

@@ -4,17 +4,23 @@ from __future__ import annotations
 
 from itertools import groupby, islice
 
-from nmtcheck.engine import Finding, InputResult, summary
+from nmtcheck import boot_report
+from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
     config_line,
     configured_vs_measured,
+    error_line,
     final_state,
-    is_failing,
     master_line,
+    measured_mark,
     network_notes,
+    not_logs_line,
     omitted_lines,
+    utc_start,
+    verdict_line,
     where_label,
 )
+from nmtcheck.safe_text import escape_lines
 
 MAX_EVENTS_SHOWN = 50
 REPEATS_SHOWN = 3  # findings of one rule on one node listed before the rest is rolled up
@@ -23,8 +29,12 @@ REPEATS_SHOWN = 3  # findings of one rule on one node listed before the rest is 
 def _input_line(res: InputResult) -> list[str]:
     s = res.stats
     dur = (s.end or 0.0) - (s.start or 0.0)
-    lines = [f"{s.path} ({s.format}): {s.frames} frames over {dur:.3f} s on "
-             f"{len(s.channels)} channel(s) {', '.join(s.channels)}"]
+    span = ("(no timestamps: order only, times below are frame numbers)" if s.order_only
+            else f"over {dur:.3f} s")
+    started = utc_start(res)
+    lines = [f"{s.path} ({s.format}): {s.frames} frames {span} on "
+             f"{len(s.channels)} channel(s) {', '.join(s.channels)}"
+             + (f", recording started {started}" if started else "")]
     counts = [f"skipped records: {s.skipped}"
               + (f" (first at line {', '.join(map(str, s.skipped_lines[:5]))})"
                  if s.skipped_lines else ""),
@@ -76,7 +86,7 @@ def _node_events(res: InputResult) -> list[str]:
 def _finding_line(f: Finding, start: float) -> str:
     where = f"line {f.line}" if f.line else f"frame {f.frame_index}"
     return (f"    {f.time - start:10.6f} s  {where:<12} {f.severity:<7} "
-            f"{f.rule} {f.name}: {f.message}")
+            f"{f.rule} {f.name}: {f.message}{measured_mark(f)}")
 
 
 def _findings(res: InputResult) -> list[str]:
@@ -102,6 +112,7 @@ def _findings(res: InputResult) -> list[str]:
             same = by_rule[f.rule]
             if k < REPEATS_SHOWN or len(same) == REPEATS_SHOWN + 1:
                 out.append(_finding_line(f, start))
+                out += boot_report.cause_lines(f)
             elif k == REPEATS_SHOWN:
                 last = same[-1]
                 where = f"line {last.line}" if last.line else f"frame {last.frame_index}"
@@ -112,7 +123,6 @@ def _findings(res: InputResult) -> list[str]:
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
-    fail_on = str(options.get("fail_on", "error"))
     quiet = bool(options.get("quiet", False))
     out: list[str] = []
     config = config_line(options)
@@ -122,19 +132,25 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     if notes:
         out.append("network description: values that could not be read:")
         out += [f"  {n}" for n in notes]
+    skipped_files = not_logs_line(options)
+    if skipped_files:
+        out.append(skipped_files)
     for res in results:
+        if res.error is not None:  # named, and the others are still checked (SPEC §4)
+            out += [error_line(res), ""]
+            continue
         out += _input_line(res)
+        if res.not_evaluated and not quiet:
+            out.append("  not evaluated: " + "; ".join(
+                f"{code} ({why})" for code, why in res.not_evaluated.items()))
         if not quiet:
             out += [f"  {master_line(cm)}" for cm in res.model.channels]
             out += _node_table(res)
             out += _node_events(res)
         out += _findings(res)
         out += [f"  … {line}" for line in omitted_lines([res], options)]
+        if not quiet:
+            out += boot_report.text_lines(res)
         out.append("")
-    counts = summary(results)
-    total = sum(counts.values())
-    failing = is_failing(results, fail_on)
-    verdict = "FAIL" if failing else "PASS"
-    out.append(f"{verdict}: {counts['error']} error(s), {counts['warning']} warning(s), "
-               f"{counts['info']} info in {total} finding(s) (--fail-on {fail_on})")
-    return "\n".join(out) + "\n"
+    out.append(verdict_line(results, options))
+    return escape_lines(out) + "\n"  # a name's newline or ESC is shown, never sent

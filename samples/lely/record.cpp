@@ -28,7 +28,9 @@
 // is put on the bus), shifted so that the program start is at 1700000000 s.
 //
 // Usage: record SCENARIO OUT.log   (run in the directory holding master.dcf,
-//        master.bin, slave2.bin ... slave4.bin and slave.eds)
+//        master.bin, slave2.bin ... slave4.bin and slave.eds; the scenarios
+//        keepalive and mandatory_lost load their master's files from the
+//        subfolders keepalive/ and mandatory/ instead, see kScenarios)
 // Events seen by the master and the slaves (boot, heartbeat/guarding events,
 // NMT commands) are printed on stderr as "# t=SECONDS ..." lines, t relative
 // to the program start.
@@ -394,6 +396,20 @@ const Scenario kScenarios[] = {
     {"self_1017",
      "node 2's application writes its own 1017h = 250 ms at 4 s (right "
      "after one of its heartbeats), run to 10 s"},
+    {"keepalive",
+     "as healthy, but with keepalive/master.dcf: node 2 has the keep-alive "
+     "bit (1F81h bit 4) and produces heartbeats from power-on "
+     "(keepalive/slave_hb.eds), so the master resets node by node; run 10 s"},
+    {"reset_all",
+     "master sends NMT reset node, all nodes, at 4.37 s, in the same instant "
+     "as the slaves' application queues a TPDO; run to 10 s"},
+    {"mandatory_lost",
+     "with mandatory/master.dcf: node 3 is a mandatory slave and 1F80h bit 4 "
+     "is set; node 3 is unplugged at 5 s (the master resets all nodes, "
+     "itself included) and plugged back at 7 s; run to 12 s"},
+    {"mandatory_reboot",
+     "as mandatory_lost, but node 3 powers on again (boot-up) at 7 s instead "
+     "of being plugged back; run to 12 s"},
 };
 
 void
@@ -418,6 +434,18 @@ main(int argc, char* argv[]) {
     usage(argv[0]);
     return 2;
   }
+  // Where the master's DCF and concise DCFs are (dcfgen output) and which EDS
+  // each slave powers on with.
+  std::string dir;
+  std::map<int, std::string> slave_eds;
+  for (int id : {2, 3, 4}) slave_eds[id] = "slave.eds";
+  if (scenario == "keepalive") {
+    dir = "keepalive/";
+    slave_eds[2] = "keepalive/slave_hb.eds";
+  } else if (scenario == "mandatory_lost" || scenario == "mandatory_reboot") {
+    dir = "mandatory/";
+  }
+
   FILE* out = std::fopen(argv[2], "w");
   if (!out) {
     std::perror(argv[2]);
@@ -461,14 +489,15 @@ main(int argc, char* argv[]) {
     event("node %d: power on", id);
     dev_timer[id] = std::make_unique<io::Timer>(poll, exec, CLOCK_MONOTONIC);
     slaves[id] = std::make_unique<Slave>(exec, *dev_timer[id], conn[id]->dev,
-                                         "slave.eds", id);
+                                         slave_eds[id], id);
     slaves[id]->Reset();
   };
   auto power_on_master = [&]() {
     event("master: power on");
     dev_timer[1] = std::make_unique<io::Timer>(poll, exec, CLOCK_MONOTONIC);
     master = std::make_unique<Master>(exec, *dev_timer[1], conn[1]->dev,
-                                      "master.dcf", "master.bin", 1);
+                                      dir + "master.dcf", dir + "master.bin",
+                                      1);
     master->Reset();
   };
   auto unplug = [&](int id) {
@@ -483,8 +512,16 @@ main(int argc, char* argv[]) {
   // The slaves' application: every 500 ms bump the counter (TPDO1).
   io::Timer app_timer(poll, exec, CLOCK_MONOTONIC);
   std::function<void(int, std::error_code)> app_tick;
+  // Called at the start of the next application tick, before the slaves
+  // queue their TPDOs (scenario reset_all).
+  std::function<void()> before_tick;
   app_tick = [&](int, std::error_code ec) {
     if (ec) return;
+    if (before_tick) {
+      auto f = std::move(before_tick);
+      before_tick = nullptr;
+      f();
+    }
     for (auto& kv : slaves) kv.second->Tick();
     app_timer.submit_wait(exec, app_tick);
   };
@@ -558,6 +595,32 @@ main(int argc, char* argv[]) {
       event("master: NMT start, all nodes");
       master->Command(NmtCommand::START, 0);
     });
+  } else if (scenario == "reset_all") {
+    // At the application tick of 4.37 s: first the master's application sends
+    // NMT reset node to all nodes, then (same callback) the slaves'
+    // application triggers TPDO1. The TPDOs reach the bus after the command
+    // but before the slaves have processed it.
+    at(4.2, [&] {
+      before_tick = [&] {
+        event("master: NMT reset node, all nodes");
+        master->Command(NmtCommand::RESET_NODE, 0);
+      };
+    });
+  } else if (scenario == "mandatory_lost") {
+    at(5.0, [&] { unplug(3); });
+    at(7.0, [&] { plug(3); });
+    end = 12.0;
+  } else if (scenario == "mandatory_reboot") {
+    at(5.0, [&] {
+      event("node 3: power off");
+      unplug(3);
+    });
+    at(7.0, [&] {
+      plug(3);
+      event("node 3: power on again (application reset)");
+      slaves[3]->Reset();
+    });
+    end = 12.0;
   } else if (scenario == "self_1017") {
     // At 4 s, right after node 2's next heartbeat is on the bus, its
     // application writes 1017h = 250 ms (so the gap after the change is the

@@ -1,0 +1,1123 @@
+"""The CiA 302-2 boot-slave process, reconstructed per node from the log (SPEC §8.3).
+
+Per channel the group runs when configured, or when the log shows a boot signature
+(§8.2.4). Per node N: the SDO transfers on 600h/580h+N (`sdo_transfers`), N's anchors
+(its boot-ups, reset commands to N or to all, the master's boot-ups), probes (uploads of
+1000h:00), processes and attempts, the steps of each, the end and status, the
+Lely-compatible letter A-O with its `co_nmt_es2str` text, and the proving frame. The
+P rules (`checks/boot.py`) report what `analyse` found; the reports show the boot status.
+
+Nothing here is per frame: SDO frames are columns per server, a node's processes are a
+few Python objects (a node boots a few times in a log); a log that floods one node with
+probes keeps only the processes that have a finding, the last one and counts.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from nmtcheck import sdo
+from nmtcheck import sdo_transfers as st
+from nmtcheck.boot_config import BootConfig, Expected, NodeBoot
+from nmtcheck.model import ChannelModel, InputModel, NodeModel
+from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST
+
+# Lely's co_nmt_es2str (src/co/nmt.c)
+LETTERS = {
+    "A": "The CANopen device is not listed in object 1F81.",
+    "B": "No response received for upload request of object 1000.",
+    "C": "Value of object 1000 from CANopen device is different to value in object 1F84 "
+         "(Device type).",
+    "D": "Value of object 1018 sub-index 01 from CANopen device is different to value in "
+         "object 1F85 (Vendor-ID).",
+    "E": "Heartbeat event. No heartbeat message received from CANopen device.",
+    "F": "Node guarding event. No confirmation for guarding request received from CANopen "
+         "device.",
+    "G": "Objects for program download are not configured or inconsistent.",
+    "H": "Software update is required, but not allowed.",
+    "I": "Software update is required, but program download failed.",
+    "J": "Configuration download failed.",
+    "K": "Heartbeat event during start error control service. No heartbeat message received "
+         "from CANopen device during start error control service.",
+    "L": "CANopen device is initially in NMT state OPERATIONAL.",
+    "M": "Value of object 1018 sub-index 02 from CANopen device is different to value in "
+         "object 1F86 (Product code).",
+    "N": "Value of object 1018 sub-index 03 from CANopen device is different to value in "
+         "object 1F87 (Revision number).",
+    "O": "Value of object 1018 sub-index 04 from CANopen device is different to value in "
+         "object 1F88 (Serial number).",
+}
+
+IDENTITY_STEPS = {1: ("vendor_id", "D", 0x1F85), 2: ("product_code", "M", 0x1F86),
+                  3: ("revision_number", "N", 0x1F87), 4: ("serial_number", "O", 0x1F88)}
+RESTORE_VALUE = 0x64616F6C  # "load"
+CS_START, CS_RESET_NODE, CS_RESET_COMM = 0x01, 0x81, 0x82
+MAX_STEPS = 64
+KEEP_PROCESSES = 64  # per node, besides those with a finding and the last one
+
+
+@dataclass
+class BootParams:
+    probe_window_s: float = 1.0
+    sdo_timeout_s: float = 1.0
+    restore_timeout_s: float = 1.0
+    rtr_timeout_s: float = 0.1
+    reset_timeout_s: float = 1.0
+    stall_s: float = 10.0
+
+
+@dataclass
+class Where:
+    time: float
+    frame_index: int
+    line: int
+
+
+@dataclass
+class Step:
+    step: str
+    time: float
+    frame_index: int
+    line: int
+    attempt: int = 0
+    row: int = -1  # the transfer's row, for transfer steps
+    index: int | None = None
+    sub: int | None = None
+    result: str | None = None
+    value: int | None = None
+    expected: int | None = None
+    expected_source: str | None = None
+    abort_code: int | None = None
+    end: Where | None = None
+    direction: int = -1
+
+    def as_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"step": self.step, "time": round(self.time, 6),
+                             "frame_index": self.frame_index, "line": self.line or None}
+        if self.row >= 0:
+            d.update({"index": f"{self.index:04X}h", "sub": self.sub,
+                      "end_time": None if self.end is None else round(self.end.time, 6),
+                      "end_frame_index": None if self.end is None else self.end.frame_index,
+                      "end_line": None if self.end is None else (self.end.line or None),
+                      "result": self.result, "value": _hex(self.value),
+                      "expected": _hex(self.expected), "expected_source": self.expected_source,
+                      "abort_code": None if self.abort_code is None
+                      else f"{self.abort_code:08X}h"})
+        return d
+
+
+def _hex(v: int | None) -> str | None:
+    return None if v is None else f"0x{v:08X}"
+
+
+@dataclass
+class Failure:
+    code: str  # P001 ... P004
+    letter: str
+    at: Where  # the proving frame (for K/E/F: the wait's expiry moment, frame -1)
+    message: str
+    evidence: Where | None = None
+    moment: bool = False  # the finding is a moment (P004): its frame is found later
+
+
+@dataclass
+class Process:
+    node: int
+    start: float
+    start_idx: int
+    start_line: int
+    anchor: str  # bootup | reset | master-bootup
+    probes: list[int] = field(default_factory=list)  # transfer rows
+    answered: bool = False
+    end: float | None = None
+    end_idx: int | None = None
+    end_how: str = "trace-end"  # start | operational | superseded | trace-end
+    started_at: Where | None = None
+    operational_at: Where | None = None
+    keep_alive: bool = False
+    probed_before_bootup: bool = False
+    steps: list[Step] = field(default_factory=list)
+    attempts: int = 1
+    failure: Failure | None = None  # the first failure of the last attempt
+    failures: int = 0
+    status: str = "incomplete"
+    letter: str | None = None
+    letter_source: str | None = None
+    reason: str | None = None
+    evidence: Where | None = None
+    findings: list[str] = field(default_factory=list)
+    last_frame: Where | None = None
+    transfers: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        steps = [s.as_dict() for s in self.steps]
+        if len(steps) > MAX_STEPS:
+            cfg = [s for s in self.steps if s.step == "config"]
+            rest = [s.as_dict() for s in self.steps if s.step != "config"]
+            summary = {"step": "config", "count": len(cfg),
+                       "failed": sum(1 for s in cfg if s.result not in ("ok", "open")),
+                       "time": round(cfg[0].time, 6) if cfg else None,
+                       "end_time": round(max((s.end.time if s.end else s.time) for s in cfg), 6)
+                       if cfg else None}
+            steps = sorted([*rest, summary], key=lambda d: d["time"] or 0.0)[:MAX_STEPS]
+        return {"start": round(self.start, 6),
+                "end": None if self.end is None else round(self.end, 6),
+                "anchor": self.anchor, "attempts": self.attempts, "keep_alive": self.keep_alive,
+                "probed_before_bootup": self.probed_before_bootup,
+                "started_at": None if self.started_at is None else round(self.started_at.time, 6),
+                "steps": steps,
+                "evidence": None if self.evidence is None else {
+                    "time": round(self.evidence.time, 6),
+                    "frame_index": self.evidence.frame_index,
+                    "line": self.evidence.line or None},
+                "findings": list(self.findings)}
+
+
+@dataclass
+class BootFinding:
+    code: str
+    channel: str
+    node: int
+    time: float
+    frame_index: int | None
+    line: int | None
+    message: str
+    letter: str | None
+    evidence: Where | None
+
+
+@dataclass
+class NodeBootReport:
+    channel: str
+    node: int
+    status: str  # ok | failed | incomplete | not-managed
+    letter: str | None = None
+    letter_source: str | None = None
+    reason: str | None = None
+    assignment: dict[str, Any] | None = None
+    processes: int = 0
+    process: Process | None = None
+    candidates: str = ""
+    spans: list[tuple[float, float, str, Process]] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "letter": self.letter,
+                "letter_source": self.letter_source, "reason": self.reason,
+                "assignment": self.assignment, "processes": self.processes,
+                "process": None if self.process is None else self.process.as_dict()}
+
+
+@dataclass
+class ChannelBoot:
+    name: str
+    manager: str  # network | master-dcf | inferred | none | off
+    starts_slaves: tuple[bool, str] = (False, "inferred")
+    start_all: tuple[bool, str] = (False, "inferred")
+    sdo_timeout_inferred_ms: float | None = None
+    manager_sdo_timeout_ms: float | None = None
+    network_boots: list[dict[str, Any]] = field(default_factory=list)
+    note: str = ""
+
+    @property
+    def ran(self) -> bool:
+        return self.manager in ("network", "master-dcf", "inferred")
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"manager": self.manager,
+                "starts_slaves": {"value": self.starts_slaves[0], "source": self.starts_slaves[1]},
+                "start_all": {"value": self.start_all[0], "source": self.start_all[1]},
+                "sdo_timeout_inferred_ms": self.sdo_timeout_inferred_ms,
+                "network_boots": self.network_boots}
+
+    def heading(self) -> str:
+        if not self.ran:
+            return (f"manager {self.manager}: no CiA 302 boot-slave process seen"
+                    if self.manager == "none" else "manager off: the P group is turned off")
+        how = "all at once" if self.start_all[0] else "individually"
+        starts = (f"starts slaves {how} ({self.starts_slaves[1]})" if self.starts_slaves[0]
+                  else f"starts no slave ({self.starts_slaves[1]})")
+        return f"manager {self.manager}; {starts}"
+
+
+@dataclass
+class BootAnalysis:
+    channels: dict[str, ChannelBoot] = field(default_factory=dict)
+    nodes: dict[tuple[str, int], NodeBootReport] = field(default_factory=dict)
+    findings: list[BootFinding] = field(default_factory=list)
+
+    def for_rule(self, code: str) -> Iterator[BootFinding]:
+        return (f for f in self.findings if f.code == code)
+
+
+_ATTR = "_nmtcheck_boot"
+
+
+def attach(model: InputModel, analysis: BootAnalysis) -> None:
+    """Keep the analysis with the model, for the P rules (which see only the model)."""
+    setattr(model, _ATTR, analysis)
+
+
+def of(model: InputModel) -> BootAnalysis | None:
+    found: BootAnalysis | None = getattr(model, _ATTR, None)
+    return found
+
+
+# --- per node inputs ---------------------------------------------------------------------
+
+@dataclass
+class _Marks:
+    """Sorted (by frame index) moments of one kind, as columns."""
+
+    ts: np.ndarray
+    idx: np.ndarray
+    line: np.ndarray
+
+    @classmethod
+    def empty(cls) -> _Marks:
+        return cls(np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def at(self, k: int) -> Where:
+        return Where(float(self.ts[k]), int(self.idx[k]), int(self.line[k]))
+
+    def first_after(self, idx: int) -> int:
+        """Position of the first mark later in the file than frame `idx` (len: none)."""
+        return int(np.searchsorted(self.idx, idx, side="right"))
+
+
+def _take(ts: np.ndarray, idx: np.ndarray, line: np.ndarray, sel: np.ndarray) -> _Marks:
+    order = np.argsort(idx[sel], kind="stable")
+    return _Marks(ts[sel][order], idx[sel][order], line[sel][order])
+
+
+@dataclass
+class _Node:
+    """What the reconstruction of one node needs, as columns."""
+
+    node: int
+    t: st.TransferTable
+    anchors: _Marks
+    anchor_kind: np.ndarray  # per anchor: 0 bootup, 1 reset, 2 master-bootup
+    bootups: _Marks
+    resets: _Marks
+    starts: _Marks
+    reports: _Marks  # heartbeats / guarding responses that are evidence (not stale)
+    report_value: np.ndarray
+    rtrs: _Marks
+    first_tx_idx: int | None
+    cfg: NodeBoot | None
+    c_n: float | None  # the manager's consumer time for N (s)
+
+
+def _node_inputs(cm: ChannelModel, n: int, m: NodeModel | None, t: st.TransferTable,
+                 master_bootups: _Marks, cfg: NodeBoot | None) -> _Node:
+    nmt = cm.nmt
+    master = cm.master.node if cm.master is not None else None
+    ok = nmt.valid
+    tgt = nmt.target.astype(np.int64)
+    mine = (tgt == n) | ((tgt == 0) & (n != master))
+    resets = _take(nmt.ts, nmt.idx, nmt.line, np.flatnonzero(
+        ok & mine & ((nmt.cs == CS_RESET_NODE) | (nmt.cs == CS_RESET_COMM))))
+    starts = _take(nmt.ts, nmt.idx, nmt.line, np.flatnonzero(ok & mine & (nmt.cs == CS_START)))
+    if m is not None:
+        ec = m.ec
+        bootups = _take(ec.ts, ec.idx, ec.line, np.flatnonzero(ec.kind == BOOTUP))
+        rep = np.flatnonzero(np.isin(ec.kind, (HEARTBEAT, GUARD)) & ~ec.stale)
+        reports = _take(ec.ts, ec.idx, ec.line, rep)
+        report_value = (ec.value[rep][np.argsort(ec.idx[rep], kind="stable")] & 0x7F)
+        rtrs = _take(ec.ts, ec.idx, ec.line, np.flatnonzero(ec.kind == REQUEST))
+        first_tx = m.first_tx.idx if m.first_tx is not None else None
+        ec_first = int(ec.idx[ec.kind != REQUEST].min()) if np.any(ec.kind != REQUEST) else None
+        cands = [x for x in (first_tx, ec_first) if x is not None]
+        first_tx_idx = min(cands) if cands else None
+    else:
+        bootups = reports = rtrs = _Marks.empty()
+        report_value = np.zeros(0, np.uint8)
+        first_tx_idx = None
+    mb = _Marks.empty() if n == master else master_bootups
+    parts = [(bootups, 0), (resets if n != master else _Marks.empty(), 1), (mb, 2)]
+    ts = np.concatenate([p.ts for p, _ in parts])
+    idx = np.concatenate([p.idx for p, _ in parts])
+    line = np.concatenate([p.line for p, _ in parts])
+    kind = np.concatenate([np.full(len(p), k) for p, k in parts])
+    order = np.argsort(idx, kind="stable")
+    anchors = _Marks(ts[order], idx[order], line[order])
+    c_n = cfg.manager_consumer_ms / 1000.0 if cfg is not None and cfg.manager_consumer_ms else None
+    return _Node(n, t, anchors, kind[order], bootups, resets, starts, reports, report_value,
+                 rtrs, first_tx_idx, cfg, c_n)
+
+
+# --- processes ---------------------------------------------------------------------------
+
+def _processes(nd: _Node, p: BootParams) -> tuple[list[Process], list[int]]:
+    """N's processes (8.3.2) and the probes that belong to none (ad-hoc reads)."""
+    t = nd.t
+    probes = np.flatnonzero(t.is_probe())
+    out: list[Process] = []
+    adhoc: list[int] = []
+    x: Process | None = None
+    prev_probe_idx = -1
+    for r in probes.tolist():
+        pts, pidx = float(t.start_ts[r]), int(t.start_idx[r])
+        if x is not None and x.end_idx is not None and x.end_idx < pidx:
+            out.append(x)
+            x = None
+        k = int(np.searchsorted(nd.anchors.idx, pidx, side="left")) - 1
+        a = k if k >= 0 else None
+        if x is not None:
+            if (a is not None and nd.anchors.idx[a] > x.start_idx
+                    and pts - nd.anchors.ts[a] <= p.probe_window_s + EPS and x.answered
+                    and not _manager_restart(x, nd, int(nd.anchors.idx[a]))):
+                x.end, x.end_idx, x.end_how = (float(nd.anchors.ts[a]), int(nd.anchors.idx[a]),
+                                               "superseded")
+                out.append(x)
+                x = _new(nd, a)
+                x.probes.append(r)
+            else:
+                x.probes.append(r)
+        elif (a is not None and pts - nd.anchors.ts[a] <= p.probe_window_s + EPS
+              and prev_probe_idx < nd.anchors.idx[a]):
+            x = _new(nd, a)
+            x.probes.append(r)
+        else:
+            adhoc.append(r)
+        if x is not None and r in x.probes and t.result[r] == st.OK and t.has_value[r]:
+            x.answered = True
+        prev_probe_idx = pidx
+    if x is not None:
+        out.append(x)
+    return out, adhoc
+
+
+def _new(nd: _Node, a: int) -> Process:
+    kind = int(nd.anchor_kind[a])
+    x = Process(nd.node, float(nd.anchors.ts[a]), int(nd.anchors.idx[a]),
+                int(nd.anchors.line[a]), ("bootup", "reset", "master-bootup")[kind])
+    # the natural end: the first start to N, or N's first OPERATIONAL report
+    s = nd.starts.first_after(x.start_idx)
+    ends: list[tuple[int, float, str]] = []
+    if s < len(nd.starts):
+        ends.append((int(nd.starts.idx[s]), float(nd.starts.ts[s]), "start"))
+    rep = nd.reports.first_after(x.start_idx)
+    op = np.flatnonzero(nd.report_value[rep:] == 0x05)
+    if op.size:
+        k = rep + int(op[0])
+        ends.append((int(nd.reports.idx[k]), float(nd.reports.ts[k]), "operational"))
+    if ends:
+        idx, ts, how = min(ends)
+        x.end_idx, x.end, x.end_how = idx, ts, how
+    # keep-alive (8.3.5): anchored on the manager's boot-up, no reset to N since, N seen before
+    if kind == 2 and nd.first_tx_idx is not None and nd.first_tx_idx < x.start_idx:
+        x.keep_alive = True
+    return x
+
+
+def _manager_restart(x: Process, nd: _Node, anchor_idx: int) -> bool:
+    """Whether X's current attempt has a software update or restore step before the anchor
+    (a restart the manager caused does not supersede X)."""
+    t = nd.t
+    first = x.probes[0]
+    last_probe = x.probes[-1]
+    rows = np.arange(first, len(t))
+    rows = rows[(t.start_idx[rows] < anchor_idx) & (t.start_idx[rows] >= t.start_idx[last_probe])]
+    sw = np.isin(t.index[rows], (0x1F50, 0x1F51, 0x1F57))
+    restore = (t.index[rows] == 0x1011) & (t.direction[rows] == st.DOWNLOAD) & (
+        t.value[rows] == RESTORE_VALUE)
+    return bool(np.any(sw | restore))
+
+
+# --- steps and failures ------------------------------------------------------------------
+
+def _step_name(t: st.TransferTable, r: int) -> str:
+    index, sub, up = int(t.index[r]), int(t.sub[r]), t.direction[r] == st.UPLOAD
+    if index == 0x1000 and sub == 0 and up:
+        return "device_type"
+    if index == 0x1018 and up and sub in IDENTITY_STEPS:
+        return IDENTITY_STEPS[sub][0]
+    if up and (index, sub) in ((0x1F56, 1), (0x1F52, 1), (0x1F52, 2)):
+        return "software_check"
+    if index in (0x1F50, 0x1F51, 0x1F57):
+        return "software_update"
+    if up and index == 0x1020 and sub in (1, 2):
+        return "config_check"
+    if index == 0x1011 and not up and int(t.value[r]) == RESTORE_VALUE:
+        return "restore"
+    return "config"
+
+
+def _expected(cfg: NodeBoot | None, name: str) -> Expected:
+    if cfg is None or name not in cfg.identity:
+        return Expected(None, None)
+    return cfg.identity[name]
+
+
+def _transfer_step(t: st.TransferTable, r: int, attempt: int, cfg: NodeBoot | None) -> Step:
+    name = _step_name(t, r)
+    res = int(t.result[r])
+    ends = res != st.OPEN
+    s = Step(name, float(t.start_ts[r]), int(t.start_idx[r]), int(t.start_line[r]), attempt, r,
+             int(t.index[r]), int(t.sub[r]), st.RESULTS[res],
+             int(t.value[r]) if t.has_value[r] else None,
+             end=Where(float(t.end_ts[r]), int(t.end_idx[r]), int(t.end_line[r])) if ends else None,
+             abort_code=int(t.abort_code[r]) if res in (st.REFUSED, st.ABORTED) else None,
+             direction=int(t.direction[r]))
+    if name == "device_type" or name in ("vendor_id", "product_code", "revision_number",
+                                         "serial_number"):
+        e = _expected(cfg, name)
+        s.expected, s.expected_source = e.value, e.source
+    if res == st.ABORTED and s.abort_code == st.TIMEOUT_ABORT:
+        s.result = "timeout"
+    return s
+
+
+def _abort(code: int | None) -> str:
+    if code is None:
+        return ""
+    return f"abort {code:08X}h ({sdo.abort_text(code)})"
+
+
+def _fail_text(s: Step) -> str:
+    if s.result == "unanswered":
+        return "unanswered"
+    if s.result in ("refused", "aborted", "timeout"):
+        who = "refused by the node" if s.result == "refused" else "aborted by the manager"
+        return f"{who}: {_abort(s.abort_code)}"
+    return str(s.result)
+
+
+def _identity_failures(steps: list[Step], completed_by_start: bool) -> list[Failure]:
+    """P001 conditions among one attempt's steps (recovered transfers are no failure)."""
+    out: list[Failure] = []
+    for i, s in enumerate(steps):
+        if s.row < 0 or s.step not in ("device_type", "vendor_id", "product_code",
+                                        "revision_number", "serial_number"):
+            continue
+        letter = "C" if s.step == "device_type" else IDENTITY_STEPS[int(s.sub or 0)][1]
+        obj = "1000h" if s.step == "device_type" else f"1018:{s.sub:02X}"
+        exp_obj = 0x1F84 if s.step == "device_type" else IDENTITY_STEPS[int(s.sub or 0)][2]
+        later = [u for u in steps[i + 1:] if u.row >= 0 and u.index == s.index
+                 and u.sub == s.sub and u.result == "ok"]
+        if s.result == "ok" and s.value is not None:
+            if s.expected and s.value != s.expected:
+                if any(u.value == s.expected for u in later):
+                    continue
+                if s.expected_source == "node-dcf" and completed_by_start:
+                    continue
+                where = s.end or Where(s.time, s.frame_index, s.line)
+                out.append(Failure("P001", letter, where,
+                                   f"{obj} = 0x{s.value:08X}, expected 0x{s.expected:08X} "
+                                   f"({exp_obj:04X}h:{{node}}, {s.expected_source})"))
+        elif (s.step != "device_type" and s.result not in ("ok", "open")
+              and not completed_by_start and not later):
+            where = s.end or Where(s.time, s.frame_index, s.line)
+            out.append(Failure("P001", letter, where,
+                               f"upload of {obj} {_fail_text(s)} (the manager reads it only "
+                               f"when {exp_obj:04X}h:{{node}} is not 0)"))
+    return out
+
+
+def _download_failures(steps: list[Step]) -> list[Failure]:
+    """P003 (a) among one attempt's steps."""
+    out: list[Failure] = []
+    for i, s in enumerate(steps):
+        if s.row < 0 or s.direction != st.DOWNLOAD or s.result in ("ok", "open"):
+            continue
+        if (s.index == 0x1F51 and s.sub == 1 and s.value in (0, 1)
+                and s.result in ("unanswered", "timeout")):
+            continue  # Lely ignores these (the slave may restart)
+        if any(u.row >= 0 and u.index == s.index and u.sub == s.sub
+               and u.direction == st.DOWNLOAD and u.result == "ok" for u in steps[i + 1:]):
+            continue  # recovered by a retry
+        letter = "I" if s.index in (0x1F50, 0x1F51) else "J"
+        where = s.end or Where(s.time, s.frame_index, s.line)
+        value = f" = 0x{s.value:08X}" if s.value is not None else ""
+        out.append(Failure("P003", letter, where,
+                           f"download of {s.index:04X}h:{s.sub:02X}{value} {_fail_text(s)}"))
+    return out
+
+
+def _first_report_in(nd: _Node, lo_idx: int, lo: float, hi: float) -> int | None:
+    """Position of N's first heartbeat (state != 00h) or guarding response after frame
+    `lo_idx` with time in (lo, hi]; None if none."""
+    k = nd.reports.first_after(lo_idx)
+    sel = np.flatnonzero((nd.reports.ts[k:] > lo + EPS) & (nd.reports.ts[k:] <= hi + EPS)
+                         & (nd.report_value[k:] != 0))
+    return k + int(sel[0]) if sel.size else None
+
+
+def _bootup_in(nd: _Node, lo: float, hi: float) -> bool:
+    b = nd.bootups.ts
+    return bool(np.any((b > lo + EPS) & (b <= hi + EPS)))
+
+
+def _evaluate(x: Process, nd: _Node, p: BootParams, trace_end: float, last_frame_ts: float,
+              t_end_idx: int) -> None:
+    """Steps, attempts, failures, status and letter of one process."""
+    t = nd.t
+    end_idx = x.end_idx if x.end_idx is not None else t_end_idx + 1
+    rows = np.flatnonzero((t.start_idx >= x.start_idx) & (t.start_idx < end_idx)) if len(t) \
+        else np.zeros(0, np.int64)
+    x.transfers = len(rows)
+    completed_by_start = x.end_how == "start"
+    # attempts: a probe starts a new one when the current one had an answered probe or a failure
+    attempt = 0
+    steps: list[Step] = []
+    cur: list[Step] = []
+    answered = False
+    for r in rows.tolist():
+        s = _transfer_step(t, r, attempt, nd.cfg)
+        if s.step == "device_type" and t.probe_byte[r] == 0x40 and cur and (
+                answered or _identity_failures(cur, False) or _download_failures(cur)):
+            attempt += 1
+            s.attempt = attempt
+            cur = []
+            answered = False
+        if s.step == "device_type" and s.result == "ok" and s.value is not None:
+            answered = True
+        cur.append(s)
+        steps.append(s)
+    x.attempts = attempt + 1
+    last = [s for s in steps if s.attempt == attempt]
+    # NMT and error-control steps
+    extra: list[Step] = []
+    lo, hi = x.start_idx, end_idx
+    if x.anchor == "reset":
+        extra.append(Step("reset", x.start, x.start_idx, x.start_line))
+    for k in range(nd.resets.first_after(lo), len(nd.resets)):
+        if nd.resets.idx[k] >= hi:
+            break
+        w = nd.resets.at(k)
+        extra.append(Step("reset", w.time, w.frame_index, w.line, _attempt_at(steps, w)))
+    first_answer = next((s.end.frame_index for s in steps if s.step == "device_type"
+                         and s.result == "ok" and s.end is not None), None)
+    k0 = nd.bootups.first_after(lo - 1)
+    for k in range(k0, len(nd.bootups)):
+        if nd.bootups.idx[k] >= hi:
+            break
+        w = nd.bootups.at(k)
+        name = "reboot" if first_answer is not None and w.frame_index > first_answer else "bootup"
+        extra.append(Step(name, w.time, w.frame_index, w.line, _attempt_at(steps, w)))
+    probes = [s for s in steps if s.step == "device_type"]
+    if probes and x.anchor != "bootup":
+        first_b = next((e for e in extra if e.step == "bootup"), None)
+        x.probed_before_bootup = first_b is not None and probes[0].frame_index < first_b.frame_index
+    if x.end_how == "start" and x.end is not None and x.end_idx is not None:
+        k = nd.starts.first_after(x.start_idx)
+        w = nd.starts.at(k)
+        x.started_at = w
+        extra.append(Step("start", w.time, w.frame_index, w.line, attempt))
+    if x.end_how == "operational" and x.end_idx is not None:
+        k = int(np.searchsorted(nd.reports.idx, x.end_idx))
+        w = nd.reports.at(k)
+        x.operational_at = w
+        extra.append(Step("operational", w.time, w.frame_index, w.line, attempt))
+    last_tr = max((s.end.frame_index if s.end else s.frame_index for s in steps), default=lo)
+    last_tr_ts = max((s.end.time if s.end else s.time for s in steps), default=x.start)
+    # error control: N's first heartbeat / guarding response after the attempt's last transfer
+    ec = _first_report_in(nd, last_tr, last_tr_ts - EPS, np.inf)
+    if ec is not None and nd.reports.idx[ec] < hi and x.end_how != "operational":
+        w = nd.reports.at(ec)
+        name = "state_check" if x.keep_alive else "error_control"
+        extra.append(Step(name, w.time, w.frame_index, w.line, attempt))
+    x.steps = sorted(steps + extra, key=lambda s: (s.frame_index, s.step != "reset"))
+    frames = [(s.end or Where(s.time, s.frame_index, s.line)) for s in x.steps]
+    x.last_frame = max(frames, key=lambda w: w.frame_index) if frames else None
+    _verdict(x, nd, p, steps, last, attempt, last_frame_ts, completed_by_start)
+
+
+def _verdict(x: Process, nd: _Node, p: BootParams, steps: list[Step], last: list[Step],
+             attempt: int, last_frame_ts: float, completed_by_start: bool) -> None:
+    """Failures of the last attempt (first by time), P007, status and letter."""
+    fails = _identity_failures(last, completed_by_start) + _download_failures(last)
+    fails += _k_failure(x, nd, last, attempt, p, last_frame_ts, fails)
+    fails += _b_failure(x, last, last_frame_ts)
+    fails.sort(key=lambda f: (f.at.time, f.at.frame_index))
+    x.failures = len(fails)
+    if fails:
+        x.failure = fails[0]
+    if x.started_at is not None and not any(f.code in ("P003", "P004") for f in fails):
+        early = _early_start(x.started_at, steps, fails)
+        if early is not None:
+            x.failure = early
+            x.status = "failed"
+            x.reason = "started before boot completed"
+            x.letter = None
+            x.evidence = x.started_at
+            return
+    completed = x.end_how in ("start", "operational")
+    if x.failure is not None:
+        x.status = "failed"
+        x.letter = x.failure.letter
+        x.letter_source = "observed"
+        x.reason = LETTERS.get(x.letter)
+        x.evidence = x.failure.evidence or x.failure.at
+    elif completed:
+        x.status = "ok"
+        if x.end_how == "operational":
+            x.letter, x.letter_source, x.reason = "L", "observed", LETTERS["L"]
+            x.evidence = x.operational_at
+        else:
+            x.evidence = x.started_at
+    else:
+        x.status = "incomplete"
+        x.evidence = x.last_frame
+
+
+def _early_start(t0: Where, steps: list[Step], fails: list[Failure]) -> Failure | None:
+    """P007: a start while a transfer is open, no probe answered yet, or a P001 condition."""
+    before = [s for s in steps if s.frame_index < t0.frame_index]
+    open_tr = [s for s in before if s.end is None or s.end.frame_index > t0.frame_index]
+    answered_before = any(s.step == "device_type" and s.result == "ok" and s.end is not None
+                          and s.end.frame_index < t0.frame_index for s in before)
+    p001 = [f for f in fails if f.code == "P001" and f.at.frame_index < t0.frame_index]
+    if not (open_tr or not answered_before or p001):
+        return None
+    why = (f"while the transfer of {open_tr[0].index:04X}h:{open_tr[0].sub:02X} "
+           f"(line {open_tr[0].line}) was open" if open_tr
+           else "before any answer to the probe (1000h)" if not answered_before
+           else f"after {p001[0].message}")
+    return Failure("P007", "", t0, f"start {why}")
+
+
+def _attempt_at(steps: list[Step], w: Where) -> int:
+    a = 0
+    for s in steps:
+        if s.frame_index <= w.frame_index:
+            a = s.attempt
+    return a
+
+
+def _k_failure(x: Process, nd: _Node, last: list[Step], attempt: int, p: BootParams,
+               last_frame_ts: float, others: list[Failure]) -> list[Failure]:
+    """P004: (a) K after the configuration; (b) E/F in a keep-alive process."""
+    if x.end_how == "operational":
+        return []
+    out: list[Failure] = []
+    answered = any(s.step == "device_type" and s.result == "ok" and s.value is not None
+                   for s in last)
+    if not last:
+        return out
+    t_c_step = max(last, key=lambda s: (s.end.time if s.end else s.time))
+    t_c = t_c_step.end or Where(t_c_step.time, t_c_step.frame_index, t_c_step.line)
+    if x.keep_alive:
+        ident = [s for s in last if s.step in ("device_type", "vendor_id", "product_code",
+                                                "revision_number", "serial_number")
+                 and s.end is not None]
+        t_i = max(ident, key=lambda s: s.end.time if s.end else 0.0).end if ident else None
+        if t_i is not None:
+            if nd.c_n is not None:
+                hi = t_i.time + nd.c_n
+                if (_first_report_in(nd, t_i.frame_index, t_i.time, hi) is None
+                        and not _bootup_in(nd, t_i.time, hi) and last_frame_ts >= hi - EPS):
+                    out.append(Failure("P004", "E", Where(hi, -1, 0),
+                                       f"no heartbeat of node {{node}} within "
+                                       f"{nd.c_n * 1000:g} ms after the identity check "
+                                       f"(line {t_i.line})", t_i, moment=True))
+                    return out
+            k = nd.rtrs.first_after(t_i.frame_index)
+            if k < len(nd.rtrs):
+                r = nd.rtrs.at(k)
+                hi = r.time + p.rtr_timeout_s
+                if (_first_report_in(nd, r.frame_index, r.time, hi) is None
+                        and last_frame_ts >= hi - EPS and (x.end_idx is None
+                                                          or r.frame_index < x.end_idx)):
+                    out.append(Failure("P004", "F", Where(hi, -1, 0),
+                                       f"no answer to the guarding request (line {r.line}) "
+                                       f"within {p.rtr_timeout_s * 1000:g} ms", r, moment=True))
+                    return out
+        return out
+    if nd.c_n is None or not answered or others:
+        return out
+    hi = t_c.time + nd.c_n
+    if last_frame_ts < hi - EPS:
+        return out
+    if _first_report_in(nd, t_c.frame_index, t_c.time, hi) is not None:
+        return out
+    if _bootup_in(nd, t_c.time, hi):
+        return out
+    started = (f"; started anyway at {x.started_at.time:.6f} (line {x.started_at.line})"
+               if x.started_at is not None else "")
+    out.append(Failure("P004", "K", Where(hi, -1, 0),
+                       f"no heartbeat of node {{node}} within C_N = {nd.c_n * 1000:g} ms "
+                       f"after the last SDO transfer (line {t_c.line}){started}", t_c,
+                       moment=True))
+    return out
+
+
+def _b_failure(x: Process, last: list[Step], last_frame_ts: float) -> list[Failure]:
+    """P002: no probe answered in the whole process, one failed, and the manager stopped."""
+    probes = [s for s in x.steps if s.step == "device_type" and s.row >= 0]
+    if not probes or any(s.result == "ok" and s.value is not None for s in probes):
+        return []
+    failed = [s for s in probes if s.result not in ("ok", "open")]
+    if not failed:
+        return []
+    times = [s.time for s in probes]
+    longest = max((b - a for a, b in itertools.pairwise(times)), default=0.0)
+    wait = max(2.0, 2 * longest)
+    if last_frame_ts < probes[-1].time + wait - EPS:
+        return []
+    f = failed[-1]
+    where = f.end or Where(f.time, f.frame_index, f.line)
+    code = f" ({_abort(f.abort_code)})" if f.abort_code is not None else ""
+    return [Failure("P002", "B", where,
+                    f"{len(probes)} probe(s) of 1000h unanswered{code}; the manager stopped "
+                    f"probing")]
+
+
+# --- channel ----------------------------------------------------------------------------
+
+def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig],
+            p: BootParams) -> BootAnalysis:
+    """Reconstruct every channel's boot processes; the P findings and the boot report."""
+    out = BootAnalysis()
+    last_frame = model.end
+    for cm in model.channels:
+        cfg = configs.get(cm.name) or BootConfig()
+        out.channels[cm.name] = cb = ChannelBoot(cm.name, "none")
+        if cfg.table.manager is False:
+            cb.manager = "off"
+            _not_managed(out, cm, cfg)
+            continue
+        master = cm.master.node if cm.master is not None else None
+        mb = _Marks.empty()
+        if master is not None and master in cm.nodes:
+            ec = cm.nodes[master].ec
+            mb = _take(ec.ts, ec.idx, ec.line, np.flatnonzero(ec.kind == BOOTUP))
+        keys = [k for k in spool.servers() if k // 128 == cm.chan]
+        nodes = sorted({k % 128 for k in keys} | set(cfg.nodes))
+        per_node: dict[int, tuple[_Node, list[Process]]] = {}
+        aborts: list[float] = []
+        for n in nodes:
+            if n == 0:
+                continue
+            rows = spool.frames(cm.chan * 128 + n) if cm.chan * 128 + n in keys else None
+            t = (st.transfers(rows, model.end, p.sdo_timeout_s) if rows is not None
+                 else st.TransferTable.empty())
+            del rows
+            nd = _node_inputs(cm, n, cm.nodes.get(n), t, mb, cfg.nodes.get(n))
+            procs, _adhoc = _processes(nd, p)
+            per_node[n] = (nd, procs)
+            tm = (t.result == st.ABORTED) & (t.abort_code == st.TIMEOUT_ABORT)
+            aborts += (t.end_ts[tm] - t.last_req_ts[tm]).tolist() if False else (
+                t.end_ts[tm] - t.start_ts[tm]).tolist()
+        signature = any(_signature(nd, procs) for nd, procs in per_node.values())
+        if cfg.table.manager is True:
+            cb.manager = "network"
+        elif cfg.master_dcf_known:
+            cb.manager = "master-dcf"
+        elif signature:
+            cb.manager = "inferred"
+        if not cb.ran:
+            _not_managed(out, cm, cfg)
+            continue
+        if aborts:
+            cb.sdo_timeout_inferred_ms = round(float(np.median(aborts)) * 1000.0, 3)
+        cb.manager_sdo_timeout_ms = cfg.table.manager_sdo_timeout_ms
+        first_start = min((procs[0].start for _nd, procs in per_node.values() if procs),
+                          default=None)
+        _channel_properties(cb, cm, cfg, first_start)
+        last_idx = int(max((np.max(nd.t.start_idx) for nd, _ in per_node.values()
+                            if len(nd.t)), default=0))
+        for n, (nd, procs) in per_node.items():
+            for x in procs:
+                _evaluate(x, nd, p, model.end, last_frame, max(last_idx, 1 << 62))
+            _node_report(out, cm, n, nd, procs, cfg)
+        _findings(out, cm, per_node, cfg, cb, p, last_frame)
+    return out
+
+
+def _signature(nd: _Node, procs: list[Process]) -> bool:
+    """8.2.4: a probe that opens a process, followed before N's next anchor by an upload of
+    1018h:01-04, a second probe or a start to N."""
+    t = nd.t
+    for x in procs:
+        a = nd.anchors.first_after(x.start_idx)
+        nxt = int(nd.anchors.idx[a]) if a < len(nd.anchors) else 1 << 62
+        first = x.probes[0]
+        after = (t.start_idx > t.start_idx[first]) & (t.start_idx < nxt)
+        ident = after & (t.index == 0x1018) & (t.sub >= 1) & (t.sub <= 4) & (
+            t.direction == st.UPLOAD)
+        probe = after & t.is_probe()
+        s = nd.starts.first_after(int(t.start_idx[first]))
+        start = s < len(nd.starts) and nd.starts.idx[s] < nxt
+        if ident.any() or probe.any() or start:
+            return True
+    return False
+
+
+def _channel_properties(cb: ChannelBoot, cm: ChannelModel, cfg: BootConfig,
+                        first_start: float | None) -> None:
+    nmt = cm.nmt
+    after = nmt.valid & (nmt.cs == CS_START) & (
+        nmt.ts >= (first_start if first_start is not None else np.inf))
+    if cfg.startup is not None:
+        cb.starts_slaves = (not bool(cfg.startup >> 3 & 1), "config")
+        cb.start_all = (bool(cfg.startup >> 1 & 1), "config")
+    else:
+        cb.starts_slaves = (bool(after.any()), "inferred")
+        cb.start_all = (bool((after & (nmt.target == 0)).any()), "inferred")
+
+
+def _assignment(cfg: NodeBoot | None) -> dict[str, Any] | None:
+    if cfg is None or cfg.assignment is None:
+        return None
+    return {"value": f"0x{cfg.assignment:08X}", "mandatory": cfg.mandatory,
+            "keep_alive": bool(cfg.keep_alive), "source": cfg.assignment_source}
+
+
+def _not_managed(out: BootAnalysis, cm: ChannelModel, cfg: BootConfig) -> None:
+    for n in cm.nodes:
+        out.nodes[(cm.name, n)] = NodeBootReport(cm.name, n, "not-managed",
+                                                 assignment=_assignment(cfg.nodes.get(n)))
+
+
+def _node_report(out: BootAnalysis, cm: ChannelModel, n: int, nd: _Node, procs: list[Process],
+                 cfg: BootConfig) -> None:
+    nb = cfg.nodes.get(n)
+    rep = NodeBootReport(cm.name, n, "not-managed", assignment=_assignment(nb),
+                         processes=len(procs))
+    for x in procs:
+        rep.spans.append((x.start, x.end if x.end is not None else np.inf, x.status, x))
+    if procs:
+        x = procs[-1]
+        rep.process = x
+        rep.status, rep.letter, rep.letter_source, rep.reason = (x.status, x.letter,
+                                                                 x.letter_source, x.reason)
+        if x.status == "incomplete":
+            rep.candidates = _candidates(x, nd)
+    elif nb is not None and nb.assignment is not None:
+        if not nb.bit(0):
+            rep.letter, rep.letter_source, rep.reason = "A", "config", LETTERS["A"]
+        elif nb.bit(2):
+            rep.status = "incomplete"
+    out.nodes[(cm.name, n)] = rep
+
+
+def _candidates(x: Process, nd: _Node) -> str:
+    """8.4.1: the likely letters of a stalled process, from its last step."""
+    last = next((s for s in reversed(x.steps) if s.row >= 0), None)
+    hb_after = last is not None and any(
+        s.step in ("error_control", "state_check") and s.frame_index > last.frame_index
+        for s in x.steps)
+    if last is None:
+        return "B"
+    if hb_after:
+        return "no start"
+    k = ", K" if True else ""
+    if last.step == "device_type" and last.result == "ok":
+        return f"C{k}, no start"
+    if last.step in ("vendor_id", "product_code", "revision_number", "serial_number"):
+        letter = IDENTITY_STEPS[int(last.sub or 0)][1]
+        return f"{letter}{k}, no start"
+    if last.step == "device_type":
+        return "B"
+    if last.step == "state_check":
+        return "E, F"
+    if last.step == "software_check":
+        return "H, G"
+    if last.step == "software_update":
+        return "I"
+    if nd.c_n is not None:
+        return "K, no start"
+    return "no start (the manager's configuration step did not finish)"
+
+
+def describe_step(s: Step) -> str:
+    if s.row < 0:
+        return f"{s.step} (line {s.line})"
+    value = f" = 0x{s.value:08X}" if s.value is not None else f" {s.result}"
+    return f"{s.step} {s.index:04X}:{s.sub:02X}{value} (line {(s.end or s).line})"
+
+
+def _findings(out: BootAnalysis, cm: ChannelModel, per_node: dict[int, tuple[_Node,
+              list[Process]]], cfg: BootConfig, cb: ChannelBoot, p: BootParams,
+              last_frame: float) -> None:
+    master_boots: list[Where] = []
+    if cm.master is not None and cm.master.node in cm.nodes:
+        ec = cm.nodes[cm.master.node].ec
+        sel = np.flatnonzero(ec.kind == BOOTUP)
+        master_boots = [Where(float(ec.ts[k]), int(ec.idx[k]), int(ec.line[k]))
+                        for k in sel.tolist()]
+    p_fired: dict[int, list[Process]] = {}
+    for n, (_nd, procs) in per_node.items():
+        for x in procs:
+            f = x.failure
+            if f is None:
+                if x.letter == "L" and x.operational_at is not None:
+                    w = x.operational_at
+                    _add(out, "P005", cm, n, w, w,
+                         f"node {n} reports OPERATIONAL (line {w.line}) during its boot "
+                         f"process: Lely-compatible letter L ({LETTERS['L']}); the manager "
+                         f"sends no start", "L", w, x)
+                continue
+            msg = f.message.replace("{node}", str(n))
+            mandatory = cfg.nodes.get(n) is not None and cfg.nodes[n].mandatory
+            if f.code == "P007":
+                _add(out, "P007", cm, n, f.at, f.at,
+                     f"{msg}: node {n}'s boot process (from {x.start:.6f}, line "
+                     f"{x.start_line}) had not completed", None, f.at, x)
+                continue
+            more = f" ({x.failures} failures in the process)" if x.failures > 1 else ""
+            started = ""
+            if f.code == "P003" and x.started_at is not None:
+                started = (f"; node {n} was started anyway at {x.started_at.time:.6f} "
+                           f"(line {x.started_at.line})")
+            halt = "; mandatory: network boot halted" if mandatory else ""
+            text = (f"{msg}{more}{started}{halt}: Lely-compatible letter {f.letter} "
+                    f"({LETTERS[f.letter]})")
+            ev = f.evidence or f.at
+            _add(out, f.code, cm, n, f.at, None if f.moment else f.at, text, f.letter, ev, x)
+            p_fired.setdefault(n, []).append(x)
+    p006 = _p006(out, cm, per_node, cfg, cb, master_boots, p_fired, last_frame)
+    _p008(out, cm, per_node, cb, p, last_frame, p006)
+
+
+def _p006(out: BootAnalysis, cm: ChannelModel,
+          per_node: dict[int, tuple[_Node, list[Process]]], cfg: BootConfig, cb: ChannelBoot,
+          master_boots: list[Where], p_fired: dict[int, list[Process]], last_frame: float
+          ) -> set[int]:
+    """P006: mandatory slaves per network boot; the nodes it fired for."""
+    t_boot = cfg.boot_time_ms / 1000.0
+    nbs: list[dict[str, Any]] = []
+    mandatory_nodes = sorted(n for n, nb in cfg.nodes.items() if nb.mandatory)
+    p006: set[int] = set()
+    for i, w in enumerate(master_boots):
+        deadline = w.time + t_boot if t_boot > 0 else None
+        entry: dict[str, Any] = {"time": round(w.time, 6), "frame_index": w.frame_index,
+                                 "mandatory": mandatory_nodes,
+                                 "deadline": None if deadline is None else round(deadline, 6),
+                                 "complete": None}
+        nbs.append(entry)
+        if deadline is None or not mandatory_nodes:
+            continue
+        nxt = master_boots[i + 1].time if i + 1 < len(master_boots) else np.inf
+        complete = True
+        for n in mandatory_nodes:
+            nd, procs = per_node.get(n, (None, []))
+            done = any(x.status == "ok" and x.end is not None and w.time - EPS <= x.end
+                       <= deadline + EPS for x in procs)
+            if cfg.nodes[n].bit(2) is False and nd is not None:
+                done = bool(np.any((nd.reports.ts >= w.time) & (nd.reports.ts <= deadline))
+                            | np.any((nd.bootups.ts >= w.time) & (nd.bootups.ts <= deadline)))
+            if done:
+                continue
+            complete = False
+            if last_frame < deadline - EPS or nxt < deadline:
+                continue
+            if any(w.time - EPS <= x.start <= deadline + EPS for x in p_fired.get(n, [])):
+                continue
+            cur = [x for x in procs if x.start <= deadline + EPS]
+            answered = any(s.step == "device_type" and s.result == "ok" and s.end is not None
+                           and s.end.time <= deadline for x in cur[-1:] for s in x.steps)
+            letter = None if answered else "B"
+            ev6: Where | None = None
+            if nd is not None:
+                frames = [s for x in cur for s in x.steps if s.time <= deadline]
+                if frames:
+                    s = frames[-1]
+                    ev6 = s.end if s.end is not None and s.end.time <= deadline else Where(
+                        s.time, s.frame_index, s.line)
+            note = f"; Lely-compatible letter B ({LETTERS['B']})" if letter else ""
+            _add(out, "P006", cm, n, Where(deadline, -1, 0), None,
+                 f"mandatory node {n} did not complete its boot within {t_boot * 1000:g} ms "
+                 f"(1F89h) of the manager's boot-up at {w.time:.6f} (line {w.line}): the "
+                 f"manager halts the network boot-up{note}", letter, ev6,
+                 cur[-1] if cur else None)
+            p006.add(n)
+        entry["complete"] = complete
+    cb.network_boots = nbs
+    return p006
+
+
+def _p008(out: BootAnalysis, cm: ChannelModel,
+          per_node: dict[int, tuple[_Node, list[Process]]], cb: ChannelBoot, p: BootParams,
+          last_frame: float, p006: set[int]) -> None:
+    """P008: stalled processes."""
+    if not cb.starts_slaves[0]:
+        return
+    for n, (nd, procs) in per_node.items():
+        if n in p006:
+            continue
+        for x in procs:
+            if x.failure is not None or x.status != "incomplete":
+                continue
+            moment = x.start + p.stall_s
+            if x.end is not None and x.end <= moment + EPS:
+                continue
+            if last_frame < moment - EPS:
+                continue
+            if cb.start_all[0] and _waits_for_broadcast(x):
+                continue
+            last = next((s for s in reversed(x.steps) if s.row >= 0), None)
+            cands = _candidates(x, nd)
+            what = describe_step(last) if last is not None else "its anchor"
+            _add(out, "P008", cm, n, Where(moment, -1, 0), None,
+                 f"node {n}'s boot process (from {x.start:.6f}, line {x.start_line}) "
+                 f"stopped after {what}; candidates {cands}", None, x.last_frame, x,
+                 inferred=cands)
+
+
+def _waits_for_broadcast(x: Process) -> bool:
+    tr = [s for s in x.steps if s.row >= 0]
+    if any(s.end is None for s in tr):
+        return False
+    last = max((s.end.frame_index for s in tr if s.end is not None), default=-1)
+    return any(s.step in ("error_control", "state_check") and s.frame_index > last
+               for s in x.steps)
+
+
+def _add(out: BootAnalysis, code: str, cm: ChannelModel, n: int, at: Where,
+         frame: Where | None, message: str, letter: str | None, evidence: Where | None,
+         x: Process | None, inferred: str | None = None) -> None:
+    out.findings.append(BootFinding(code, cm.name, n, at.time,
+                                    None if frame is None else frame.frame_index,
+                                    None if frame is None else frame.line, message, letter,
+                                    evidence))
+    if x is not None:
+        x.findings.append(code)
+        if code == "P006" and letter and x.letter is None:
+            pass
+    rep = out.nodes.get((cm.name, n))
+    if rep is not None and code == "P006" and rep.letter is None and letter:
+        rep.status, rep.letter, rep.letter_source = "failed", letter, "observed"
+        rep.reason = LETTERS[letter]
+    if rep is not None and inferred is not None:
+        rep.candidates = inferred
+
+
+def params_of(profile: Any) -> BootParams:
+    """The reconstruction's parameters from a rule profile (SPEC §8.4.3)."""
+    tl = profile.timeline
+
+    def rule(code: str, name: str, default: float) -> float:
+        settings = profile.get(code)
+        return float(settings.params.get(name, default)) if settings is not None else default
+
+    return BootParams(
+        probe_window_s=float(tl.get("boot_probe_window_ms", 1000.0)) / 1000.0,
+        sdo_timeout_s=float(tl.get("sdo_timeout_ms", 1000.0)) / 1000.0,
+        restore_timeout_s=rule("P003", "restore_timeout_ms", 1000.0) / 1000.0,
+        rtr_timeout_s=rule("P004", "rtr_timeout_ms", 100.0) / 1000.0,
+        reset_timeout_s=rule("P004", "reset_timeout_ms", 1000.0) / 1000.0,
+        stall_s=rule("P008", "stall_ms", 10000.0) / 1000.0)
+
+
+def run(model: InputModel, spool: st.SdoSpool, network: Any, profile: Any
+        ) -> BootAnalysis | None:
+    """The boot stage of the engine: reconstruct, keep the result with the model for the
+    P rules, and return it for the reports. Not run on an input without timestamps."""
+    if model.timeline.order_only:
+        return None
+    configs = ({cm.name: network.boot_config(cm.name) for cm in model.channels}
+               if network is not None else {})
+    analysis = analyse(model, spool, configs, params_of(profile))
+    attach(model, analysis)
+    return analysis

@@ -1,0 +1,362 @@
+"""Cause chains (SPEC §8.6): the events that may explain a finding.
+
+Called by the engine after the rules: H001, G002, B001 (a), B002 and S004 findings get
+`causes` (possibly empty) and `causes_omitted`. Each finding looks at its node's columns
+(EMCYs, error-control frames, commands), the channel's NMT frames and error frames and the
+boot analysis, within the finding's window (8.6.2); nothing is per frame. Causes are
+listed, never ranked as "the" cause.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from nmtcheck import emcy
+from nmtcheck.decode import key_rows
+from nmtcheck.nmt import BOOTUP, EPS, REQUEST
+
+if TYPE_CHECKING:
+    from nmtcheck.boot import BootFinding
+    from nmtcheck.engine import Finding, InputResult
+    from nmtcheck.sdo_transfers import SdoSpool
+
+
+KINDS = ("reboot", "emcy", "emcy_other", "error_frames", "frames_lost", "silence", "nmt",
+         "sdo_write", "bootup_cluster", "boot_process")
+RULES = ("H001", "G002", "B001", "B002", "S004")
+SDO_WRITES = {"H001": (0x1017, 0x1016), "G002": (0x100C, 0x100D, 0x1017),
+              "B002": (0x1F51, 0x1011, 0x1010), "S004": (0x1029,)}
+NMT_NAMES = {0x01: "start", 0x02: "stop", 0x80: "enter pre-operational", 0x81: "reset node",
+             0x82: "reset communication"}
+
+
+def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
+    """Give P findings their letter and evidence, and the findings of SPEC §8.6 their
+    causes."""
+    boot_fields(result)
+    if result.model.timeline.order_only:
+        return
+    tl = profile.timeline
+    ctx = _Ctx(result, spool, float(tl.get("causes_before_ms", 1000.0)) / 1000.0,
+               float(tl.get("causes_after_ms", 500.0)) / 1000.0,
+               int(tl.get("causes_max", 5)), float(tl.get("silence_min_ms", 100.0)) / 1000.0,
+               float(tl.get("reboot_cluster_ms", 500.0)) / 1000.0,
+               float(profile["B002"].params.get("reset_window_ms", 10000.0)) / 1000.0
+               if "B002" in profile else 10.0)
+    for f in result.findings:
+        if f.rule in RULES and f.channel is not None and f.node is not None:
+            found = ctx.causes(f)
+            if found is None:
+                continue
+            f.causes, f.causes_omitted = _capped(found, ctx.max)
+
+
+def _capped(found: list[dict[str, Any]], cap: int) -> tuple[list[dict[str, Any]], int]:
+    """Sorted by time (ties by kind); past `cap`, the lowest kinds are kept."""
+    rank = {k: i for i, k in enumerate(KINDS)}
+    if len(found) > cap:
+        keep = sorted(found, key=lambda c: (rank[c["kind"]], c["time"]))[:cap]
+        omitted = len(found) - cap
+    else:
+        keep, omitted = found, 0
+    keep.sort(key=lambda c: (c["time"], rank[c["kind"]]))
+    return keep, omitted
+
+
+def _entry(kind: str, time: float, idx: int | None, line: int | None, text: str,
+           node: int | None = None, end: float | None = None, count: int | None = None,
+           code: str | None = None) -> dict[str, Any]:
+    return {"kind": kind, "time": round(float(time), 6),
+            "end": None if end is None else round(float(end), 6),
+            "frame_index": idx, "line": line or None, "node": node, "count": count,
+            "code": code, "text": text}
+
+
+class _Ctx:
+    def __init__(self, result: InputResult, spool: SdoSpool, before: float, after: float,
+                 cap: int, silence_min: float, cluster: float, reset_window: float) -> None:
+        self.res = result
+        self.model = result.model
+        self.spool = spool
+        self.before, self.after, self.max = before, after, cap
+        self.silence_min, self.cluster, self.reset_window = silence_min, cluster, reset_window
+        self.channels = {cm.name: cm for cm in self.model.channels}
+        self._errors: dict[str, np.ndarray] | None = None
+
+    def causes(self, f: Finding) -> list[dict[str, Any]] | None:
+        cm = self.channels.get(str(f.channel))
+        if cm is None:
+            return None
+        m = cm.nodes.get(int(f.node or 0))
+        if m is None:
+            return None
+        n = m.node
+        t = f.time
+        a0, a1 = self._interval(f, m, cm)
+        if a0 is None:
+            return None
+        windows = [(a0 - self.before, a1 + self.after)]
+        out: list[dict[str, Any]] = []
+        if f.rule in ("H001", "G002"):
+            r = self._next_frame(m, a1, f)
+            if r is not None:
+                windows.append((r[0], r[0] + self.after))
+                if r[3] == "bootup":
+                    out.append(_entry("reboot", r[0], r[1], r[2],
+                                      f"node {n} rebooted: its next frame is a boot-up", n))
+        if f.rule == "B002":
+            windows = [(a0 - self.before, a0 + self.after)]
+        out += self._emcy(m, n, windows)
+        if f.rule in ("H001", "G002", "B002"):
+            out += self._emcy_other(cm, n, windows)
+        out += self._error_frames(cm, windows)
+        out += self._silence(cm, m, windows)
+        cmd_win = [(a0 - self.reset_window, a0)] if f.rule == "B002" else windows
+        out += self._nmt(cm, m, n, f, cmd_win, a0)
+        out += self._sdo_writes(m, f.rule, cmd_win)
+        if f.rule == "B002":
+            out += self._cluster(cm, n, a0)
+        out += self._boot(f, n, a0)
+        del t
+        return out
+
+    # -- the finding's interval ------------------------------------------------------------
+    def _interval(self, f: Finding, m: Any, cm: Any) -> tuple[float | None, float]:
+        t = f.time
+        if f.rule in ("H001", "G002"):
+            best = None
+            for to in m.timeouts:
+                if to.rule == f.rule and abs(to.moment - t) < 1e-6:
+                    best = to
+                    break
+            return (best.after_ts if best is not None else None), t
+        if f.rule == "B002":
+            return t, t
+        cmds = m.commands
+        if not len(cmds):
+            return None, t
+        ts = cmds.ts
+        if f.rule == "B001":
+            resets = cmds.reset_ts
+            k = int(np.searchsorted(resets, t + EPS)) - 1
+            return (float(resets[k]) if k >= 0 else None), t
+        k = int(np.searchsorted(ts, t + EPS)) - 1
+        return (float(ts[k]) if k >= 0 else None), t
+
+    def _next_frame(self, m: Any, a1: float, f: Finding) -> tuple[float, int, int, str] | None:
+        """N's first frame after a1: (time, index, line, what)."""
+        best: tuple[float, int, int, str] | None = None
+        ec = m.ec
+        k = np.flatnonzero((ec.ts > a1 + EPS) & (ec.kind != REQUEST))
+        if k.size:
+            j = int(k[0])
+            best = (float(ec.ts[j]), int(ec.idx[j]), int(ec.line[j]),
+                    "bootup" if ec.kind[j] == BOOTUP else "ec")
+        nf = self.model.decoded.first_node_frame_after(
+            np.asarray([m.key]), np.asarray([a1 + EPS]), np.asarray([-1]))
+        if nf.idx[0] >= 0 and (best is None or nf.ts[0] < best[0]):
+            best = (float(nf.ts[0]), int(nf.idx[0]), int(nf.line[0]), "frame")
+        return best
+
+    # -- kinds ----------------------------------------------------------------------------
+    def _emcy_rows(self, key: int) -> tuple[np.ndarray, ...]:
+        e = self.model.decoded.emcy
+        rows = key_rows(e["key"], key, key)
+        return e["ts"][rows], e["idx"][rows], e["line"][rows], e["dlc"][rows], e["data"][rows]
+
+    def _emcy(self, m: Any, n: int, windows: list[tuple[float, float]]
+              ) -> list[dict[str, Any]]:
+        ts, idx, line, dlc, data = self._emcy_rows(m.key)
+        sel = _in(ts, windows) & (dlc >= 3) & ((data & 0xFFFF) != 0)
+        out: list[dict[str, Any]] = []
+        prev = None
+        for k in np.flatnonzero(sel).tolist():
+            code = int(data[k]) & 0xFFFF
+            if prev is not None and prev["code"] == f"{code:04X}h":
+                prev["count"] += 1
+                continue
+            _c, text = emcy.describe(list(int(data[k]).to_bytes(8, sys.byteorder)),
+                                     int(dlc[k]))
+            prev = _entry("emcy", ts[k], int(idx[k]), int(line[k]), text, n, count=1,
+                          code=f"{code:04X}h")
+            out.append(prev)
+        return out
+
+    def _emcy_other(self, cm: Any, n: int, windows: list[tuple[float, float]]
+                    ) -> list[dict[str, Any]]:
+        out: list[dict[str, Any]] = []
+        for o in cm.nodes.values():
+            if o.node == n:
+                continue
+            ts, idx, line, dlc, data = self._emcy_rows(o.key)
+            code = (data & 0xFFFF).astype(np.int64)
+            sel = np.flatnonzero(_in(ts, windows) & (dlc >= 2) & ((code >> 8) == 0x81))
+            seen: set[int] = set()
+            for k in sel.tolist():
+                c = int(code[k])
+                if c in seen:
+                    continue
+                seen.add(c)
+                _c, text = emcy.describe(list(int(data[k]).to_bytes(8, sys.byteorder)),
+                                         int(dlc[k]))
+                out.append(_entry("emcy_other", ts[k], int(idx[k]), int(line[k]), text,
+                                  o.node, count=int(np.count_nonzero(code[sel] == c)),
+                                  code=f"{c:04X}h"))
+        return out
+
+    def _error_frames(self, cm: Any, windows: list[tuple[float, float]]
+                      ) -> list[dict[str, Any]]:
+        if self._errors is None:
+            self._errors = self.spool.error_frames()
+        e = self._errors
+        sel = np.flatnonzero((e["chan"] == cm.chan) & _in(e["ts"], windows))
+        if not sel.size:
+            return []
+        a, b = int(sel[0]), int(sel[-1])
+        return [_entry("error_frames", e["ts"][a], int(e["idx"][a]), int(e["line"][a]),
+                       f"{sel.size} error frame(s) on the channel", end=float(e["ts"][b]),
+                       count=int(sel.size))]
+
+    def _silence(self, cm: Any, m: Any, windows: list[tuple[float, float]]
+                 ) -> list[dict[str, Any]]:
+        """A stretch with no frame on the channel of at least max(silence_min, 2 x P_min)."""
+        periods = [o.period_s for o in cm.nodes.values() if o is not m and o.period_s]
+        if not periods:
+            return []
+        need = max(self.silence_min, 2 * min(periods))
+        lo = min(w[0] for w in windows)
+        hi = max(w[1] for w in windows)
+        ts = self._channel_times(cm, lo, hi)
+        if len(ts) < 2:
+            return []
+        gaps = np.diff(ts)
+        k = np.flatnonzero(gaps >= need - EPS)
+        return [_entry("silence", ts[j], None, None,
+                       f"no frame on the channel for {gaps[j] * 1000:.0f} ms",
+                       end=float(ts[j + 1])) for j in k[:3].tolist()]
+
+    def _channel_times(self, cm: Any, lo: float, hi: float) -> np.ndarray:
+        """Times of the channel's frames in [lo, hi] from the NMT, error-control and node
+        columns (no per-frame store is read in full)."""
+        parts = [cm.nmt.ts[(cm.nmt.ts >= lo) & (cm.nmt.ts <= hi)]]
+        parts += [o.ec.ts[(o.ec.ts >= lo) & (o.ec.ts <= hi)] for o in cm.nodes.values()]
+        for chunk in self.model.decoded.node_frames.reaching(lo):
+            sel = ((chunk["key"] // 128) == cm.chan) & (chunk["ts"] >= lo) & (chunk["ts"] <= hi)
+            parts.append(chunk["ts"][sel])
+        return np.sort(np.concatenate(parts)) if parts else np.zeros(0)
+
+    def _nmt(self, cm: Any, m: Any, n: int, f: Finding, windows: list[tuple[float, float]],
+             a0: float) -> list[dict[str, Any]]:
+        nmt = cm.nmt
+        master = cm.master.node if cm.master is not None else None
+        tgt = nmt.target.astype(np.int64)
+        mine = nmt.valid & ((tgt == n) | ((tgt == 0) & (n != master)))
+        sel = mine & _in(nmt.ts, windows)
+        if f.rule in ("S004", "B001"):
+            sel &= ~(np.abs(nmt.ts - a0) < 1e-9)
+        if f.rule == "B001":
+            sel &= (nmt.cs != 0x81) & (nmt.cs != 0x82) & (nmt.ts > a0)
+        out = []
+        for k in np.flatnonzero(sel).tolist():
+            name = NMT_NAMES.get(int(nmt.cs[k]), f"{int(nmt.cs[k]):02X}h")
+            to = "all nodes" if tgt[k] == 0 else f"node {int(tgt[k])}"
+            text = f"NMT {name} to {to}"
+            if f.rule == "B002":
+                text += f": reset at {nmt.ts[k]:.3f} already answered before the boot-up"
+            elif f.rule == "B001":
+                text += ": likely lost while the node initialises"
+            out.append(_entry("nmt", nmt.ts[k], int(nmt.idx[k]), int(nmt.line[k]), text, n))
+        return out
+
+    def _sdo_writes(self, m: Any, rule: str, windows: list[tuple[float, float]]
+                    ) -> list[dict[str, Any]]:
+        wanted = SDO_WRITES.get(rule)
+        if not wanted:
+            return []
+        w = m.writes
+        sel = np.flatnonzero(np.isin(w.index, wanted) & _in(w.request_ts, windows))
+        out = [_entry("sdo_write", w.request_ts[k], int(w.request_idx[k]), None,
+                      f"SDO write {int(w.index[k]):04X}h:{int(w.sub[k]):02X} = "
+                      f"0x{int(w.value[k]):08X} confirmed", m.node) for k in sel.tolist()]
+        if rule == "H001":
+            cw = m.consumer_writes
+            sel = np.flatnonzero(_in(cw.request_ts, windows))
+            out += [_entry("sdo_write", cw.request_ts[k], int(cw.request_idx[k]), None,
+                           f"SDO write 1016h:{int(cw.sub[k]):02X} = 0x{int(cw.value[k]):08X} "
+                           f"to node {int(cw.node[k])} confirmed", int(cw.node[k]))
+                    for k in sel.tolist()]
+        return out
+
+    def _cluster(self, cm: Any, n: int, a0: float) -> list[dict[str, Any]]:
+        hits: list[tuple[float, int, int, int]] = []
+        for o in cm.nodes.values():
+            if o.node == n:
+                continue
+            ec = o.ec
+            k = np.flatnonzero((ec.kind == BOOTUP) & (np.abs(ec.ts - a0) <= self.cluster + EPS))
+            if k.size:
+                j = int(k[0])
+                hits.append((float(ec.ts[j]), o.node, int(ec.idx[j]), int(ec.line[j])))
+        if not hits:
+            return []
+        hits.sort()
+        nodes = ", ".join(str(h[1]) for h in sorted(hits, key=lambda h: h[1]))
+        return [_entry("bootup_cluster", hits[0][0], hits[0][2], hits[0][3],
+                       f"boot-ups of node(s) {nodes} within {self.cluster * 1000:g} ms: "
+                       f"several nodes rebooted together", None, end=hits[-1][0])]
+
+    def _boot(self, f: Finding, n: int, a0: float) -> list[dict[str, Any]]:
+        b = self.res.boot
+        if b is None:
+            return []
+        rep = b.nodes.get((str(f.channel), n))
+        if rep is None:
+            return []
+        chosen = None
+        for start, end, status, x in rep.spans:
+            if start <= a0 <= end or (end < a0 and status in ("failed", "incomplete")):
+                chosen = x
+        if chosen is None:
+            return []
+        x = chosen
+        w = x.evidence or x.last_frame
+        last = next((s.step for s in reversed(x.steps)), "none")
+        letter = f", letter {x.letter}" if x.letter else ""
+        return [_entry("boot_process", w.time if w else x.start, w.frame_index if w else None,
+                       w.line if w else None,
+                       f"boot process {x.status}{letter}, last step {last}", n)]
+
+
+def _in(ts: np.ndarray, windows: list[tuple[float, float]]) -> np.ndarray:
+    sel = np.zeros(len(ts), bool)
+    for lo, hi in windows:
+        sel |= (ts >= lo - EPS) & (ts <= hi + EPS)
+    return sel
+
+
+def boot_fields(result: InputResult) -> None:
+    analysis = result.boot
+    if analysis is None:
+        return
+    by_key: dict[tuple[str, str | None, int | None, float], BootFinding] = {
+        (f.code, f.channel, f.node, round(f.time, 9)): f for f in analysis.findings}
+    for f in result.findings:
+        if not f.rule.startswith("P"):
+            continue
+        bf = by_key.get((f.rule, f.channel, f.node, round(f.time, 9)))
+        if bf is None:
+            continue
+        f.boot_letter = bf.letter
+        ev = bf.evidence
+        if bf.frame_index is not None and f.frame_index is not None:  # a frame finding
+            ev_d: dict[str, Any] | None = {"time": round(f.time, 6),
+                                           "frame_index": f.frame_index, "line": f.line or None}
+        elif ev is not None:
+            ev_d = {"time": round(ev.time, 6), "frame_index": ev.frame_index,
+                    "line": ev.line or None}
+        else:
+            ev_d = None
+        f.evidence = ev_d

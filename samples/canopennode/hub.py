@@ -1,0 +1,322 @@
+#!/usr/bin/env python3
+"""Userspace CAN bus ("hub") and scenario driver for the CANopenNode recordings.
+
+usage: hub.py SCENARIO OUT.log [--bin DIR] [--events FILE]
+       hub.py                    (lists the scenarios)
+
+The hub owns a UNIX datagram socket DIR/hub.sock (DIR: a fresh temporary
+directory). Every device is one process of `dev` (CANopenNode v4, see dev.c)
+with its own datagram socket DIR/dev-NAME.sock. A device sends each CAN frame
+to the hub as soon as CANopenNode calls CO_CANsend(). The hub is the bus: it
+takes frames in the order they arrive, timestamps each one (CLOCK_REALTIME,
+microseconds), writes it to the log as one candump -L line and delivers it to
+every other plugged device - never back to its sender, as a CAN controller does
+not receive its own frames.
+
+Scenario actions (relative to the hub's start): spawn a device (power on),
+kill it (power off), unplug/plug it (the process keeps running; its frames do
+not reach the bus and bus frames do not reach it), or send it a control
+command (dev.c: nmt, sdo_read, emcy_set, ...) - the master application then
+sends the NMT command or SDO request itself through CANopenNode.
+
+Device stderr (what the devices did: SDO results, NMT commands, control
+commands) goes to --events (default: OUT.log with suffix .events).
+"""
+import os
+import select
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, NamedTuple, TextIO, TypedDict
+
+# type, rtr, dlc, pad, id, data (hub_frame_t in CO_driver_target.h)
+FRAME = struct.Struct("<BBBBI8s")
+
+MASTER = ["--node", "1", "--hb", "200", "--master", "--slaves", "2h,3h,4g", "--reset-all"]
+
+ActionKind = Literal["spawn", "kill", "unplug", "plug", "ctl"]
+
+
+@dataclass(frozen=True)
+class Action:
+    """One scenario step, `t` seconds after the hub's start."""
+
+    t: float
+    kind: ActionKind
+    dev: str
+    args: tuple[str, ...] = ()  # spawn: the device's command-line options
+    binary: str = "dev"  # spawn: the program in --bin to run
+    cmd: str = ""  # ctl: the control command (dev.c)
+
+
+class Scenario(NamedTuple):
+    duration: float
+    actions: list[Action]
+
+
+class Stats(TypedDict):
+    logged: int
+    dropped_unplugged: int
+    delivered: int
+
+
+@dataclass
+class Device:
+    proc: subprocess.Popen[bytes]
+    addr: str
+    plugged: bool = True
+
+
+def spawn(t: float, dev: str, args: Sequence[str], binary: str = "dev") -> Action:
+    return Action(t, "spawn", dev, args=tuple(args), binary=binary)
+
+
+def ctl(t: float, dev: str, cmd: str) -> Action:
+    return Action(t, "ctl", dev, cmd=cmd)
+
+
+def unplug(t: float, dev: str) -> Action:
+    return Action(t, "unplug", dev)
+
+
+def plug(t: float, dev: str) -> Action:
+    return Action(t, "plug", dev)
+
+
+def slave(n: int, *extra: str) -> list[str]:
+    return ["--node", str(n), "--hb", "1000", *extra]
+
+
+def boot(toggle: bool = False) -> list[Action]:
+    """Common start: slaves 2, 3 (heartbeat) and 4 (node guarding) and the master power on
+    together."""
+    return [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4), "dev_toggle" if toggle else "dev"),
+        spawn(0.0, "master", MASTER),
+    ]
+
+
+SCENARIOS: dict[str, Scenario] = {
+    "healthy": Scenario(10.0, boot()),
+    "late_master": Scenario(12.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(2.0, "master", MASTER),
+    ]),
+    "write_1017": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(1.7, "master", [a for a in MASTER if a != "--reset-all"]),
+    ]),
+    "self_start": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3, "--self-start")),
+        spawn(0.0, "s4", slave(4)),
+        spawn(1.5, "master", MASTER),
+    ]),
+    "master_obeys": Scenario(12.0, [
+        *boot(),
+        ctl(4.0, "master", "nmt 82 0"),
+        ctl(7.0, "master", "nmt 02 0"),
+        ctl(9.0, "master", "nmt 01 0"),
+    ]),
+    "broadcast": Scenario(10.0, [
+        *boot(),
+        ctl(4.0, "master", "nmt 80 0"),
+        ctl(6.0, "master", "nmt 01 0"),
+    ]),
+    "guard_toggle": Scenario(8.0, boot(toggle=True)),
+    "duplicate_id": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3a", slave(3, "--self-start", "--no-tpdo")),
+        spawn(3.52, "s3b", slave(3, "--no-tpdo")),
+    ]),
+    "unplugged_heartbeat": Scenario(12.0, [
+        *boot(),
+        unplug(5.0, "s3"),
+        plug(7.0, "s3"),
+    ]),
+    "unplugged_guarded": Scenario(12.0, [
+        *boot(),
+        unplug(5.0, "s4"),
+        plug(7.0, "s4"),
+    ]),
+    "stopped_sdo": Scenario(10.0, [
+        *boot(),
+        ctl(4.0, "master", "nmt 02 3"),
+        ctl(4.5, "master", "sdo_read 3 1018 1"),
+        ctl(5.2, "s3", "emcy_set"),
+        ctl(6.0, "master", "nmt 01 3"),
+        ctl(7.0, "s3", "emcy_clear"),
+        ctl(7.5, "master", "sdo_read 3 1018 1"),
+    ]),
+}
+
+
+def fmt_frame(ts_us: int, can_id: int, rtr: int, dlc: int, data: bytes) -> str:
+    sec, usec = divmod(ts_us, 1000000)
+    payload = "R" + (f"{dlc:X}" if dlc else "") if rtr else data[:dlc].hex().upper()
+    return f"({sec}.{usec:06d}) can0 {can_id:03X}#{payload}\n"
+
+
+class Hub:
+    """The bus: the hub socket, the devices and the log of one scenario run."""
+
+    def __init__(self, tmp: str, bindir: str, sock: socket.socket, events: TextIO,
+                 log: TextIO) -> None:
+        self.tmp = tmp
+        self.bindir = bindir
+        self.sock = sock
+        self.events = events
+        self.log = log
+        self.devs: dict[str, Device] = {}
+        self.addr2name: dict[str, str] = {}
+        self.stats: Stats = {"logged": 0, "dropped_unplugged": 0, "delivered": 0}
+        self.t0 = time.monotonic()
+
+    def t_rel(self) -> float:
+        return time.monotonic() - self.t0
+
+    def note(self, msg: str) -> None:
+        self.events.write(f"# hub t={self.t_rel():.6f} {msg}\n")
+        self.events.flush()
+
+    def do(self, action: Action) -> None:
+        kind, dev = action.kind, action.dev
+        if kind == "spawn":
+            binary = os.path.join(self.bindir, action.binary)
+            addr = os.path.join(self.tmp, f"dev-{dev}.sock")
+            proc = subprocess.Popen([binary, "--hub", self.tmp, "--name", dev, *action.args],
+                                    stderr=self.events, stdout=subprocess.DEVNULL)
+            self.devs[dev] = Device(proc, addr)
+            self.addr2name[addr] = dev
+            self.note(f"spawn {dev}: {os.path.basename(binary)} {' '.join(action.args)}")
+        elif kind == "kill":
+            self.devs[dev].proc.kill()
+            self.devs[dev].proc.wait()
+            self.devs[dev].plugged = False
+            self.note(f"power off {dev}")
+        elif kind == "unplug":
+            self.devs[dev].plugged = False
+            self.note(f"unplug {dev}")
+        elif kind == "plug":
+            self.devs[dev].plugged = True
+            self.note(f"plug {dev}")
+        elif kind == "ctl":
+            self.note(f"control {dev}: {action.cmd}")
+            try:
+                self.sock.sendto(b"C" + action.cmd.encode(), self.devs[dev].addr)
+            except OSError as e:
+                self.note(f"control to {dev} failed: {e}")
+
+    def play(self, duration: float, actions: list[Action]) -> None:
+        """Run the actions (sorted by time) and carry the bus until `duration`."""
+        self.t0 = time.monotonic()
+        i = 0
+        while True:
+            now = self.t_rel()
+            while i < len(actions) and actions[i].t <= now:
+                self.do(actions[i])
+                i += 1
+            if now >= duration:
+                break
+            nxt = actions[i].t if i < len(actions) else duration
+            r, _, _ = select.select([self.sock], [], [], max(0.0, min(nxt, duration) - now))
+            if r:
+                self.drain()
+
+    def drain(self) -> None:
+        """Take every datagram waiting on the hub socket."""
+        while True:
+            try:
+                data, addr = self.sock.recvfrom(256, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                break
+            self.receive(data, addr, time.time_ns() // 1000)
+
+    def receive(self, data: bytes, addr: str, ts_us: int) -> None:
+        """Log one datagram as a bus frame and deliver it to the other plugged devices."""
+        sender = self.addr2name.get(addr)
+        if sender is None or len(data) != FRAME.size:
+            self.note(f"datagram from unknown sender {addr!r}")
+            return
+        typ, rtr, dlc, _, can_id, payload = FRAME.unpack(data)
+        if typ != ord("F"):
+            return  # hello
+        if not self.devs[sender].plugged:
+            self.stats["dropped_unplugged"] += 1
+            return
+        self.log.write(fmt_frame(ts_us, can_id, rtr, dlc, payload))
+        self.stats["logged"] += 1
+        for other, d in self.devs.items():
+            if other == sender or not d.plugged:
+                continue
+            try:
+                self.sock.sendto(data, d.addr)
+                self.stats["delivered"] += 1
+            except OSError as e:
+                self.note(f"delivery to {other} failed: {e}")
+
+    def power_off(self) -> None:
+        for d in self.devs.values():
+            d.proc.kill()
+        for d in self.devs.values():
+            d.proc.wait()
+
+
+def run(name: str, out_path: str, bindir: str, events_path: str) -> Stats:
+    duration, actions = SCENARIOS[name]
+    actions = sorted(actions, key=lambda a: a.t)  # stable: same-time actions keep their order
+    tmp = tempfile.mkdtemp(prefix="cohub-")
+    hub_path = os.path.join(tmp, "hub.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(hub_path)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+    with open(events_path, "w") as events:
+        with open(out_path, "w") as log:
+            hub = Hub(tmp, bindir, sock, events, log)
+            hub.play(duration, actions)
+            hub.power_off()
+        stats = hub.stats
+        hub.note(f"end: logged {stats['logged']} frames, {stats['dropped_unplugged']} frames "
+                 f"of unplugged devices not put on the bus, {stats['delivered']} deliveries")
+    sock.close()
+    for f in os.listdir(tmp):
+        os.unlink(os.path.join(tmp, f))
+    os.rmdir(tmp)
+    return stats
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) < 3 or argv[1] not in SCENARIOS:
+        print((__doc__ or "").split("\n\n")[0])
+        print("scenarios: " + " ".join(SCENARIOS))
+        return 2
+    bindir = "/work/build/canopennode/bin"
+    events = os.path.splitext(argv[2])[0] + ".events"
+    rest = argv[3:]
+    while rest:
+        if rest[0] == "--bin":
+            bindir = rest[1]
+        elif rest[0] == "--events":
+            events = rest[1]
+        else:
+            print(f"unknown option {rest[0]}")
+            return 2
+        rest = rest[2:]
+    stats = run(argv[1], argv[2], bindir, events)
+    print(f"{argv[1]}: {stats['logged']} frames -> {argv[2]}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

@@ -1,0 +1,270 @@
+"""SPEC revision of 2026-11-26 (issue 21): what real stacks and pasted logs showed.
+
+Each behaviour has a trace that makes the rule fire and one, shaped like the real
+traffic that raised a false alarm, where it must stay silent. The recorded samples
+(tests/test_samples_real_stacks.py) check the same on CANopenNode and Lely traffic.
+"""
+
+from __future__ import annotations
+
+from conftest import Checker, candump
+
+# -- the heartbeat period per producer-time segment (SPEC §2) ---------------------------
+
+
+def _power_on_then_written(period_after: float) -> str:
+    """Node 2 heartbeats every 1 s from its power-on, the master writes 1017h = 100 ms at
+    2.0 s (confirmed), then node 2 heartbeats every `period_after` s."""
+    fr = [(0.0, "702#00")] + [(0.1 + i, "702#7F") for i in range(2)]
+    fr += [(2.0, "602#2B17100064000000"), (2.0005, "582#6017100000000000")]
+    fr += [(2.001 + period_after * i, "702#7F") for i in range(1, 40)]
+    return candump(fr)
+
+
+def test_power_on_period_is_not_judged_by_the_written_one(checker: Checker) -> None:
+    """CANopenNode slaves power on at 1000 ms and are set to 100 ms: the power-on
+    heartbeats are no H001 (they were six false errors on a healthy start-up)."""
+    assert checker.findings(_power_on_then_written(0.1), select="H") == []
+
+
+def test_period_segments_still_find_a_silence(checker: Checker) -> None:
+    """After the write the node heartbeats at 100 ms, then falls silent for 1 s."""
+    fr = [(0.0, "702#00")] + [(0.1 * i, "702#7F") for i in range(1, 30)]
+    fr += [(3.0 + 0.1 * i, "702#7F") for i in range(1, 30)]
+    got = checker.findings(candump(fr), select="H001")
+    assert got == [("H001", 2, 3.05)]  # 2.9 + 1.5 x 0.1 (the segment's own median)
+
+
+def test_measured_period_per_segment_after_a_boot_up(checker: Checker) -> None:
+    """No producer time known: each segment between boot-ups is measured on its own. A
+    node at 1 s before its reboot and 100 ms after it gets no H001 from the 1 s part."""
+    fr = [(0.0, "703#00")] + [(1.0 * i, "703#7F") for i in range(1, 5)]
+    fr += [(4.5, "703#00")] + [(4.5 + 0.1 * i, "703#7F") for i in range(1, 60)]
+    assert checker.findings(candump(fr), select="H001") == []
+
+
+# -- self-start (SPEC §2) ----------------------------------------------------------------
+
+
+def test_self_starting_node_sends_its_tpdo_before_any_heartbeat(checker: Checker) -> None:
+    """CANopenNode's CO_NMT_STARTUP_TO_OPERATIONAL: TPDO 40 us after the boot-up, then
+    heartbeats reporting OPERATIONAL: no S001, no S005, the timeline says self-start."""
+    fr = [(0.0, "705#00"), (0.00004, "185#01"), (0.1, "705#05"), (0.5, "185#02"),
+          (0.2, "705#05")]
+    fr = sorted(fr)
+    res = checker.run(candump(fr), select="S001,S005")
+    assert res.findings == []
+    (node,) = res.model.channels[0].nodes.values()
+    assert [(iv.state, iv.source) for iv in node.intervals][-1] == ("OPERATIONAL", "self-start")
+
+
+def test_a_node_that_reports_pre_operational_did_not_start_itself(checker: Checker) -> None:
+    fr = [(0.0, "705#00"), (0.00004, "185#01"), (0.1, "705#7F"), (0.2, "705#7F")]
+    assert checker.findings(candump(fr), select="S001") == [("S001", 5, 0.0)]
+
+
+def test_nothing_shows_whether_a_node_started_itself_before_a_reset(checker: Checker) -> None:
+    """A reset command to N before N's first report after its boot-up: its PDOs since the
+    boot-up are not S001 (nothing shows it did not start itself)."""
+    fr = [(0.0, "705#00"), (0.01, "185#01"), (0.02, "185#02"), (0.5, "000#8105"),
+          (0.501, "705#00"), (0.6, "705#7F")]
+    assert checker.findings(candump(fr), select="S001") == []
+
+
+# -- the NMT master obeying its own broadcasts, or not (SPEC §2) -------------------------
+
+_CANOPENNODE_START = [
+    (0.0, "701#00"), (0.0001, "702#00"), (0.002, "000#8200"),  # the master's reset
+    (0.0021, "701#00"), (0.0022, "702#00"),  # both obey it, the master too
+    (0.1, "701#7F"), (0.1001, "702#7F"), (0.15, "000#0102"),
+    (0.2, "701#7F"), (0.2001, "702#05"), (0.3, "701#7F"), (0.3001, "702#05"),
+    (1.0, "000#8000"),  # pre-operational to all: the master's heartbeat stays 7Fh
+    (1.1, "701#7F"), (1.1001, "702#7F"), (1.2, "701#7F"), (1.2001, "702#7F"),
+]
+
+
+def test_master_that_obeys_its_own_broadcasts(checker: Checker) -> None:
+    """CANopenNode's master boots again after its own 000#8200: with `master = 1` that is
+    no B002/B003, and its timeline shows the reset."""
+    res = checker.run(candump(_CANOPENNODE_START), select="B,S", network="master = 1\n")
+    assert [(f.rule, f.node) for f in res.findings] == []
+    master = res.model.channels[0].nodes[1]
+    assert "INITIALISING" in [iv.state for iv in master.intervals]
+
+
+def test_master_that_ignores_its_own_broadcast_reset(checker: Checker) -> None:
+    """Lely's master ignores its own 000#8200 and goes on heartbeating: not applied, no
+    B001 for it; its own 000#8100 that it obeys (boot-up at once) is applied, no B002."""
+    fr = [(0.0, "701#00"), (0.0001, "000#8200"), (0.0002, "702#00")]
+    fr += [(0.1 * i + d, f"70{n}#{s}") for i in range(1, 10)
+           for d, n, s in ((0.0, 1, "05"), (0.0001, 2, "7F"))]
+    fr += [(1.0, "000#8100"), (1.00001, "701#00"), (1.0002, "702#00"),
+           (1.1, "701#7F"), (1.1001, "702#7F")]
+    res = checker.run(candump(fr), select="B,S", network="master = 1\n")
+    assert [(f.rule, f.node) for f in res.findings] == []
+    master = res.model.channels[0].nodes[1]
+    assert [iv.state for iv in master.intervals].count("INITIALISING") == 1
+
+
+def test_a_slave_that_ignores_a_broadcast_reset_is_still_b001(checker: Checker) -> None:
+    fr = [(0.0, "701#00"), (0.0001, "702#00"), (0.1, "701#05"), (0.1001, "702#05"),
+          (1.0, "000#8100"), (1.00001, "701#00"), (1.2, "702#05"), (1.3, "701#05")]
+    got = checker.findings(candump(fr), select="B", network="master = 1\n")
+    assert got == [("B001", 2, 1.2)]  # (a report within obey_ms would be stale)
+
+
+def test_master_that_starts_as_the_log_ends_is_not_reset(checker: Checker) -> None:
+    """A pasted start-up: `77F#00`, `000#8100`, then nothing from node 127: it is the
+    master, the reset does not apply to it (no INITIALISING to the end)."""
+    fr = [(0.0, "77F#00"), (0.0001, "000#8100"), (0.0003, "705#00"), (0.1, "705#7F")]
+    res = checker.run(candump(fr))
+    cm = res.model.channels[0]
+    assert cm.master is not None and cm.master.node == 127
+    assert [iv.state for iv in cm.nodes[127].intervals] == ["PRE-OPERATIONAL"]
+
+
+# -- B001's grace and absent nodes (SPEC §3) ---------------------------------------------
+
+
+def test_keep_alive_manager_resets_absent_node_ids(checker: Checker) -> None:
+    """A CiA 302 manager in keep-alive mode sends 000#82NN to every node-ID but its own:
+    the absent ones are no missing boot-ups, with or without a network file."""
+    fr = [(0.0, "701#00"), (0.00001, "702#00")]
+    fr += [(0.0001 + i * 1e-6, f"000#82{n:02X}") for i, n in enumerate(range(2, 128))]
+    fr += [(0.0002, "702#00")] + [(0.1 * i, "702#7F") for i in range(1, 80)]
+    fr = sorted(fr)
+    assert checker.findings(candump(fr), select="B") == []
+    assert checker.findings(candump(fr), select="B,N", network="[nodes.2]\n") == []
+
+
+def test_absent_node_that_the_network_file_expects_is_awaited(checker: Checker) -> None:
+    fr = [(0.0, "701#00"), (0.0001, "000#8203"), (0.1, "701#05")] + [
+        (0.1 * i, "701#05") for i in range(2, 80)]
+    got = checker.findings(candump(fr), select="B001", network="[nodes.3]\n")
+    assert got == [("B001", 3, 5.0)]
+
+
+def test_frames_queued_before_a_reset_are_no_sign_of_life(checker: Checker) -> None:
+    """Lely: after 000#8100 two slaves' TPDOs leave their controllers 1 us later."""
+    fr = [(0.0, "702#00"), (0.1, "702#05"), (1.0, "000#8100"), (1.000001, "182#01"),
+          (1.0003, "702#00"), (1.1, "702#7F")]
+    assert checker.findings(candump(fr), select="B") == []
+    late = fr[:3] + [(1.01, "182#01")] + fr[4:]
+    assert checker.findings(candump(late), select="B") == [("B001", 2, 1.01)]
+
+
+def test_two_resets_answered_by_two_boot_ups_are_no_repeat(checker: Checker) -> None:
+    """Lely's manager after a lost mandatory slave: 000#8100 then 000#8200, each slave
+    boots twice. Each reset explains one boot-up: no B003, no B002."""
+    fr = [(0.0, "702#00"), (0.1, "702#05"), (1.0, "000#8100"), (1.0001, "000#8200"),
+          (1.0002, "702#00"), (1.0003, "702#00"), (1.1, "702#7F")]
+    assert checker.findings(candump(fr), select="B") == []
+    one_reset = fr[:3] + fr[4:]  # a real repeat is still one: two boot-ups, one reset
+    assert checker.findings(candump(one_reset), select="B003") == [("B003", 2, 1.0)]
+
+
+# -- G001: the toggle against the previous response (SPEC §3) ---------------------------
+
+
+def test_one_repeated_toggle_is_one_g001(checker: Checker) -> None:
+    """Responses 05, 05 (the real repeat), 85: the 85 differs from the previous response
+    and is right."""
+    fr = [(0.0, "704#00")]
+    t = 0.1
+    for v in ["05", "85", "05", "05", "85", "05"]:
+        fr += [(t, "704#R"), (t + 0.0001, f"704#{v}")]
+        t += 0.1
+    assert checker.findings(candump(fr), select="G001") == [("G001", 4, 0.4)]
+
+
+# -- N002's state pattern with repeats (SPEC §3) -----------------------------------------
+
+
+def test_two_devices_with_one_node_id_by_their_states(checker: Checker) -> None:
+    """Two producers of node 3 at 1 s, one OPERATIONAL, one PRE-OPERATIONAL, with equal
+    states repeated: 05, 05, 7F, 05, 05, 7F."""
+    fr = [(0.0, "703#05"), (0.5, "703#05"), (1.0, "703#7F"), (1.5, "703#05"),
+          (2.0, "703#05"), (2.5, "703#7F"), (3.0, "703#05")]
+    assert checker.findings(candump(fr), select="N002") == [("N002", 3, 2.5)]
+
+
+def test_one_state_change_is_no_duplicate(checker: Checker) -> None:
+    fr = [(0.1 * i, "703#05") for i in range(10)] + [(1.0 + 0.1 * i, "703#7F")
+                                                      for i in range(10)]
+    assert checker.findings(candump(fr), select="N002") == []
+
+
+# -- what a reset does to SDO-written values (SPEC §6) -----------------------------------
+
+
+def test_written_producer_time_is_unknown_after_a_reset(checker: Checker) -> None:
+    """1017h = 100 ms written, then a reset: the node comes back at its power-on 500 ms
+    (CANopenNode keeps RAM values, Lely restores; neither is known). No H001/H003 from
+    the old written value, nor from the network file's 100 ms."""
+    fr = [(0.0, "702#00"), (0.01, "602#2B17100064000000"), (0.0101, "582#6017100000000000")]
+    fr += [(0.0101 + 0.1 * i, "702#7F") for i in range(1, 20)]
+    fr += [(2.0, "000#8102"), (2.001, "702#00")] + [(2.001 + 0.5 * i, "702#7F")
+                                                    for i in range(1, 12)]
+    network = "[nodes.2]\nheartbeat_ms = 100\n"
+    assert checker.findings(candump(fr), select="H", network=network) == []
+
+
+def test_file_value_of_an_object_never_written_holds_across_resets(checker: Checker) -> None:
+    fr = [(0.0, "702#00")] + [(0.1 * i, "702#7F") for i in range(1, 20)]
+    fr += [(2.0, "000#8102"), (2.001, "702#00")] + [(2.001 + 0.5 * i, "702#7F")
+                                                    for i in range(1, 12)]
+    got = checker.findings(candump(fr), select="H001", network="[nodes.2]\nheartbeat_ms = 100\n")
+    assert got[0] == ("H001", 2, 2.651) and len(got) == 10  # each 0.5 s gap, 1.5 x 100 ms
+
+
+# -- H004 (SPEC §3) ----------------------------------------------------------------------
+
+_WATCH_NODE_1 = [(0.0, "705#00"), (0.01, "605#23161001D0070100"),  # 1016h:01 = 1, 2000 ms
+                 (0.011, "585#6016100100000000")]
+
+
+def test_h004_consumer_whose_producer_never_sends(checker: Checker) -> None:
+    fr = _WATCH_NODE_1 + [(0.1 + i, "705#7F") for i in range(6)]
+    assert checker.findings(candump(fr), select="H004") == [("H004", 5, 2.011)]
+
+
+def test_h004_silent_when_the_producer_heartbeats(checker: Checker) -> None:
+    fr = _WATCH_NODE_1 + [(0.1 + i, "705#7F") for i in range(6)] + [
+        (4.0 + 0.5 * i, "701#05") for i in range(4)]  # late, but it does produce
+    assert checker.findings(candump(sorted(fr)), select="H004") == []
+
+
+def test_h004_silent_when_the_consumer_is_not_up_long_enough(checker: Checker) -> None:
+    fr = _WATCH_NODE_1 + [(0.1 + 0.5 * i, "705#7F") for i in range(3)]
+    assert checker.findings(candump(fr), select="H004") == []
+
+
+# -- logs without timestamps (SPEC §1, I006) ---------------------------------------------
+
+
+def test_no_timestamps_order_rules_only(checker: Checker) -> None:
+    """`candump can0` screen output: frames in file order, I006 once, the PDO before the
+    boot-up's first heartbeat is S001 by order, and no timing finding at all."""
+    text = "".join(f"  can0  {cid}   [{len(data) // 2}]  "
+                   f"{' '.join(data[i:i + 2] for i in range(0, len(data), 2))}\n"
+                   for cid, data in [("702", "00"), ("182", "0102"), ("702", "7F"),
+                                     ("702", "7F"), ("000", "0102"), ("702", "05"),
+                                     ("704", "05"), ("702", "05")])
+    res = checker.run(text, suffix=".txt")
+    assert res.stats.order_only
+    assert [(f.rule, f.node, f.line) for f in res.findings] == [("I006", None, 1),
+                                                                ("S001", 2, 2)]
+    node2 = res.model.channels[0].nodes[2]
+    assert [iv.state for iv in node2.intervals][-1] == "OPERATIONAL"
+    assert node2.period_s is None  # no period of 0 (or of one frame) is shown
+
+
+def test_equal_timestamps_are_no_timestamps(checker: Checker) -> None:
+    fr = [(0.0, "702#00"), (0.0, "182#01"), (0.0, "702#7F")]
+    got = checker.findings(candump(fr))
+    assert [(r, n) for r, n, _t in got] == [("I006", None), ("S001", 2)]
+
+
+def test_timestamped_log_gives_no_i006(checker: Checker) -> None:
+    fr = [(0.0, "702#00"), (0.1, "702#7F")]
+    assert checker.findings(candump(fr), select="I006") == []

@@ -1,0 +1,78 @@
+"""SDO transfer reconstruction on the default channels (SPEC §8.3.1)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nmtcheck import sdo_transfers as st
+
+
+def frames(*rows: tuple[float, str, str]) -> np.ndarray:
+    """(time, 'req'|'resp', hex data) -> one server's SDO rows."""
+    out = np.zeros(len(rows), st.SDO_DTYPE)
+    for i, (t, who, data) in enumerate(rows):
+        b = bytes.fromhex(data)
+        out[i]["ts"], out[i]["idx"], out[i]["line"] = t, i, i + 1
+        out[i]["req"], out[i]["dlc"] = who == "req", len(b)
+        out[i]["data"][:len(b)] = list(b)
+    return out
+
+
+def results(t: st.TransferTable) -> list[tuple[str, int, int, str]]:
+    return [(("dl", "up")[int(t.direction[k])], int(t.index[k]), int(t.sub[k]),
+             st.RESULTS[int(t.result[k])]) for k in range(len(t))]
+
+
+def test_expedited_upload_download_refused_aborted() -> None:
+    t = st.transfers(frames(
+        (0.0, "req", "4000100000000000"), (0.001, "resp", "4300100092010200"),
+        (0.002, "req", "2F60600001000000"), (0.003, "resp", "6060600000000000"),
+        (0.004, "req", "2300140102020080"), (0.005, "resp", "8000140111000906"),
+        (0.006, "req", "4018100100000000"), (0.106, "req", "8000000000000405"),
+    ), 10.0, 1.0)
+    assert results(t) == [("up", 0x1000, 0, "ok"), ("dl", 0x6060, 0, "ok"),
+                          ("dl", 0x1400, 1, "refused"), ("up", 0x1018, 1, "aborted")]
+    assert int(t.value[0]) == 0x00020192 and int(t.value[1]) == 1
+    assert int(t.abort_code[2]) == 0x06090011 and int(t.abort_code[3]) == st.TIMEOUT_ABORT
+    assert t.is_probe().tolist() == [True, False, False, False]
+
+
+def test_unanswered_and_open() -> None:
+    rows = frames((0.0, "req", "4000100000000000"), (0.5, "req", "4000100000000000"))
+    assert results(st.transfers(rows, 0.6, 1.0))[:] == [("up", 0x1000, 0, "unanswered"),
+                                                      ("up", 0x1000, 0, "open")]
+    assert results(st.transfers(rows, 2.0, 1.0))[1][3] == "unanswered"
+
+
+def test_segmented_upload_and_download() -> None:
+    t = st.transfers(frames(
+        # upload 1008h: 9 bytes "ABCDEFGHI"
+        (0.0, "req", "4008100000000000"), (0.001, "resp", "4108100009000000"),
+        (0.002, "req", "6000000000000000"), (0.003, "resp", "00414243444546 47".replace(" ", "")),
+        (0.004, "req", "7000000000000000"), (0.005, "resp", "1B48490000000000"),
+        # segmented download of 1F50h:01, two segments
+        (0.006, "req", "21501F010A000000"), (0.007, "resp", "60501F0100000000"),
+        (0.008, "req", "0001020304050607"), (0.009, "resp", "2000000000000000"),
+        (0.010, "req", "17080910000000 00".replace(" ", "")),
+        (0.011, "resp", "3000000000000000"),
+    ), 10.0, 1.0)
+    assert results(t) == [("up", 0x1008, 0, "ok"), ("dl", 0x1F50, 1, "ok")]
+    assert int(t.value[0]) == int.from_bytes(b"ABCDEFGH", "little")
+    assert t.end_idx.tolist() == [5, 11]
+
+
+def test_block_download_segment_40h_is_no_upload_request() -> None:
+    t = st.transfers(frames(
+        (0.0, "req", "C6501F0114000000"),  # block download initiate, 1F50h:01
+        (0.001, "resp", "A0501F0140000000"),  # blksize 64
+        *((0.002 + k / 1000, "req", f"{k:02X}00000000000000") for k in range(1, 64)),
+        (0.07, "req", "4000000000000000"),  # segment 64: looks like an upload initiate
+        (0.071, "resp", "A240400000000000"),  # ack 64
+        (0.072, "req", "8100000000000000"),  # last segment (c = 1, seq 1)
+        (0.073, "resp", "A201400000000000"),
+        (0.074, "req", "C900000000000000"),  # end request
+        (0.075, "resp", "A100000000000000"),  # end response
+        (0.1, "req", "4000100000000000"), (0.101, "resp", "4300100092010200"),
+    ), 10.0, 1.0)
+    assert results(t) == [("dl", 0x1F50, 1, "ok"), ("up", 0x1000, 0, "ok")]
+    assert int(t.mode[0]) == st.BLOCK
