@@ -9,6 +9,10 @@ Each log is a real sample (samples/*.log) laid out as DEVICE/SESSION/SPLIT.log f
 devices, its timestamps moved by a day per session, so that the dataset is partitioned over
 many dates as a fleet's is. Prints logs/s and MB/s
 per executor, and the ratio to the local pool.
+
+Scaling over the cores (local:1 ... local:N against `check -j N`, `xargs -PN`, the
+machine's ceiling and dask-local:N, with the driver's CPU and bytes per log) is
+bench/fleet_scaling.py.
 """
 
 from __future__ import annotations

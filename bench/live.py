@@ -96,10 +96,60 @@ def memory() -> tuple[int, int, int]:
     return n, at10, at60
 
 
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return 0.0
+
+
+def overload(rate: int = 64_000, seconds: float = 30.0) -> None:
+    """Issue 24 item 8: a Monitor on a python-can Notifier, a sender thread flooding the
+    virtual bus at `rate` frames/s (heartbeats of 16 nodes) for `seconds`: frames sent,
+    checked and dropped, and the RSS before and after (sampled every second)."""
+    tx = can.Bus(interface="virtual", channel="flood")
+    rx = can.Bus(interface="virtual", channel="flood")
+    monitor = nmtcheck.Monitor()
+    notifier = can.Notifier(rx, [monitor], timeout=0.05)
+    start_rss = _rss_mb()
+    peak = start_rss
+    sent = 0
+    began = time.perf_counter()
+    next_sample = began + 1
+    while (now := time.perf_counter()) - began < seconds:
+        due = int((now - began) * rate)
+        while sent < due:
+            tx.send(can.Message(arbitration_id=0x701 + sent % 16, data=[5],
+                                is_extended_id=False, timestamp=time.time()))
+            sent += 1
+        if now >= next_sample:
+            peak = max(peak, _rss_mb())
+            next_sample += 1
+        time.sleep(0.001)
+    notifier.stop()
+    monitor.stop()
+    res = monitor.result()
+    checked = res.stats.frames if res is not None else 0
+    i004 = [f.message for f in (res.findings if res else []) if f.rule == "I004"]
+    print(f"overload at {rate:,} frames/s for {seconds:g} s: {sent:,} sent, {checked:,} "
+          f"checked, {getattr(monitor, 'dropped', 0):,} dropped (counted), "
+          f"{sent - checked - getattr(monitor, 'dropped', 0):,} unaccounted; RSS "
+          f"{start_rss:.0f} MB -> peak {peak:.0f} MB; I004: {i004[:1]}")
+    tx.shutdown()
+    rx.shutdown()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--trials", type=int, default=20)
+    ap.add_argument("--overload", type=float, default=0,
+                    help="only the overload case, for this many seconds (issue 24 item 8)")
+    ap.add_argument("--rate", type=int, default=64_000)
     args = ap.parse_args()
+    if args.overload:
+        overload(args.rate, args.overload)
+        return
     lat = sorted(latency_trial(k) * 1000 for k in range(args.trials))
     print(f"H001 latency after expiry, {len(lat)} trials: median {statistics.median(lat):.1f} ms,"
           f" max {lat[-1]:.1f} ms, min {lat[0]:.1f} ms")

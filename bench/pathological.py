@@ -64,7 +64,7 @@ from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
 KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts",
-         "channels", "canids", "extended", "errorframes")
+         "channels", "canids", "extended", "errorframes", "boots")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -163,9 +163,34 @@ def aborts(i: np.ndarray) -> Frames:
     return _frames(i, i * 100, can_id, np.where(hb, 1, 8), data)
 
 
+def boots(i: np.ndarray) -> Frames:
+    """A flood of CiA 302-2 boot processes (SPEC §8): 16 nodes in turn, each a boot-up, the
+    manager's probe (upload 1000h) and its answer, an identity upload (1018h:01) and its
+    answer, a configuration download (1017h) and its confirmation, and a direct start,
+    100 us apart: a boot process per 8 frames."""
+    k = i % 8
+    node = (i // 8) % 16 + 1
+    rows = np.asarray([
+        [0x00, 0, 0, 0, 0, 0, 0, 0],  # boot-up
+        [0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0],  # probe
+        [0x43, 0x00, 0x10, 0x00, 0x92, 0x01, 0x02, 0x00],
+        [0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0],  # vendor-ID
+        [0x43, 0x18, 0x10, 0x01, 0x00, 0x03, 0x00, 0x00],
+        [0x2B, 0x17, 0x10, 0x00, 0x64, 0x00, 0, 0],  # 1017h = 100 ms
+        [0x60, 0x17, 0x10, 0x00, 0, 0, 0, 0],
+        [0x01, 0, 0, 0, 0, 0, 0, 0],  # start (node-ID below)
+    ], np.uint8)
+    data = rows[k].copy()
+    data[k == 7, 1] = node[k == 7]
+    base = np.asarray([0x700, 0x600, 0x580, 0x600, 0x580, 0x600, 0x580, 0x000])[k]
+    can_id = base + np.where(k == 7, 0, node)
+    dlc = np.where(k == 0, 1, np.where(k == 7, 2, 8))
+    return _frames(i, i * 100, can_id, dlc, data)
+
+
 MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
     "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127,
-    "emcy": emcy, "sdo": sdo, "aborts": aborts}
+    "emcy": emcy, "sdo": sdo, "aborts": aborts, "boots": boots}
 
 
 def chunks(kind: str, n: int) -> Iterator[Frames]:

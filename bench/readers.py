@@ -41,7 +41,8 @@ print(json.dumps({"frames": frames, "skipped": s.skipped, "extended": s.extended
 
 def read_one(log: Path, pythonpath: str) -> dict[str, float]:
     env = {**os.environ, "PYTHONPATH": pythonpath}
-    out = subprocess.run([sys.executable, "-c", READ, str(log)], env=env, check=True,
+    # -P: not the working directory's nmtcheck (a checkout) but PYTHONPATH's
+    out = subprocess.run([sys.executable, "-P", "-c", READ, str(log)], env=env, check=True,
                          capture_output=True, text=True, timeout=900)
     result: dict[str, float] = json.loads(out.stdout)
     return result

@@ -71,14 +71,14 @@ class BootParams:
     stall_s: float = 10.0
 
 
-@dataclass
+@dataclass(slots=True)
 class Where:
     time: float
     frame_index: int
     line: int
 
 
-@dataclass
+@dataclass(slots=True)
 class Step:
     step: str
     time: float
@@ -115,7 +115,7 @@ def _hex(v: int | None) -> str | None:
     return None if v is None else f"0x{v:08X}"
 
 
-@dataclass
+@dataclass(slots=True)
 class Failure:
     code: str  # P001 ... P004
     letter: str
@@ -125,7 +125,7 @@ class Failure:
     moment: bool = False  # the finding is a moment (P004): its frame is found later
 
 
-@dataclass
+@dataclass(slots=True)
 class Process:
     node: int
     start: float
@@ -153,6 +153,7 @@ class Process:
     findings: list[str] = field(default_factory=list)
     last_frame: Where | None = None
     transfers: int = 0
+    last_step: str = "none"  # kept when the steps of an old, healthy process are dropped
 
     def as_dict(self) -> dict[str, Any]:
         steps = [s.as_dict() for s in self.steps]
@@ -191,6 +192,45 @@ class BootFinding:
     evidence: Where | None
 
 
+STATUSES = ("ok", "failed", "incomplete")
+
+
+@dataclass
+class Spans:
+    """Every process of a node in brief, as columns (whole processes are kept only where a
+    finding or the report needs them: a log may boot a node a million times)."""
+
+    start: np.ndarray
+    end: np.ndarray  # inf: open at the trace end
+    status: np.ndarray  # index into STATUSES
+    letter: np.ndarray  # "" when none
+    last_step: list[str]  # distinct names, for `step`
+    step: np.ndarray  # index into last_step
+    ev_time: np.ndarray  # the evidence frame (NaN: none)
+    ev_idx: np.ndarray
+    ev_line: np.ndarray
+
+    @classmethod
+    def of(cls, procs: list[Process]) -> Spans:
+        names = sorted({x.last_step for x in procs})
+        ev = [x.evidence for x in procs]
+        return cls(np.asarray([x.start for x in procs], np.float64),
+                   np.asarray([np.inf if x.end is None else x.end for x in procs], np.float64),
+                   np.asarray([STATUSES.index(x.status) for x in procs], np.int8),
+                   np.asarray([x.letter or "" for x in procs], "U1"), names,
+                   np.asarray([names.index(x.last_step) for x in procs], np.int16),
+                   np.asarray([np.nan if w is None else w.time for w in ev], np.float64),
+                   np.asarray([-1 if w is None else w.frame_index for w in ev], np.int64),
+                   np.asarray([0 if w is None else w.line for w in ev], np.int64))
+
+    @classmethod
+    def empty(cls) -> Spans:
+        return cls.of([])
+
+    def __len__(self) -> int:
+        return len(self.start)
+
+
 @dataclass
 class NodeBootReport:
     channel: str
@@ -203,7 +243,7 @@ class NodeBootReport:
     processes: int = 0
     process: Process | None = None
     candidates: str = ""
-    spans: list[tuple[float, float, str, Process]] = field(default_factory=list)
+    spans: Spans = field(default_factory=lambda: Spans.empty())  # every process, compact
 
     def as_dict(self) -> dict[str, Any]:
         return {"status": self.status, "letter": self.letter,
@@ -311,6 +351,7 @@ class _Node:
     reports: _Marks  # heartbeats / guarding responses that are evidence (not stale)
     report_value: np.ndarray
     rtrs: _Marks
+    op_pos: np.ndarray  # positions of the OPERATIONAL reports among `reports`
     first_tx_idx: int | None
     cfg: NodeBoot | None
     c_n: float | None  # the manager's consumer time for N (s)
@@ -351,7 +392,7 @@ def _node_inputs(cm: ChannelModel, n: int, m: NodeModel | None, t: st.TransferTa
     anchors = _Marks(ts[order], idx[order], line[order])
     c_n = cfg.manager_consumer_ms / 1000.0 if cfg is not None and cfg.manager_consumer_ms else None
     return _Node(n, t, anchors, kind[order], bootups, resets, starts, reports, report_value,
-                 rtrs, first_tx_idx, cfg, c_n)
+                 rtrs, np.flatnonzero(report_value == 0x05), first_tx_idx, cfg, c_n)
 
 
 # --- processes ---------------------------------------------------------------------------
@@ -406,9 +447,9 @@ def _new(nd: _Node, a: int) -> Process:
     if s < len(nd.starts):
         ends.append((int(nd.starts.idx[s]), float(nd.starts.ts[s]), "start"))
     rep = nd.reports.first_after(x.start_idx)
-    op = np.flatnonzero(nd.report_value[rep:] == 0x05)
-    if op.size:
-        k = rep + int(op[0])
+    op = int(np.searchsorted(nd.op_pos, rep))
+    if op < len(nd.op_pos):
+        k = int(nd.op_pos[op])
         ends.append((int(nd.reports.idx[k]), float(nd.reports.ts[k]), "operational"))
     if ends:
         idx, ts, how = min(ends)
@@ -423,10 +464,9 @@ def _manager_restart(x: Process, nd: _Node, anchor_idx: int) -> bool:
     """Whether X's current attempt has a software update or restore step before the anchor
     (a restart the manager caused does not supersede X)."""
     t = nd.t
-    first = x.probes[0]
     last_probe = x.probes[-1]
-    rows = np.arange(first, len(t))
-    rows = rows[(t.start_idx[rows] < anchor_idx) & (t.start_idx[rows] >= t.start_idx[last_probe])]
+    stop = int(np.searchsorted(t.start_idx, anchor_idx))
+    rows = np.arange(last_probe, max(stop, last_probe))
     sw = np.isin(t.index[rows], (0x1F50, 0x1F51, 0x1F57))
     restore = (t.index[rows] == 0x1011) & (t.direction[rows] == st.DOWNLOAD) & (
         t.value[rows] == RESTORE_VALUE)
@@ -547,14 +587,17 @@ def _first_report_in(nd: _Node, lo_idx: int, lo: float, hi: float) -> int | None
     """Position of N's first heartbeat (state != 00h) or guarding response after frame
     `lo_idx` with time in (lo, hi]; None if none."""
     k = nd.reports.first_after(lo_idx)
-    sel = np.flatnonzero((nd.reports.ts[k:] > lo + EPS) & (nd.reports.ts[k:] <= hi + EPS)
-                         & (nd.report_value[k:] != 0))
+    z = k + int(np.searchsorted(nd.reports.ts[k:], hi + EPS, side="right")) if np.isfinite(
+        hi) else len(nd.reports)
+    sel = np.flatnonzero((nd.reports.ts[k:z] > lo + EPS) & (nd.reports.ts[k:z] <= hi + EPS)
+                         & (nd.report_value[k:z] != 0))
     return k + int(sel[0]) if sel.size else None
 
 
 def _bootup_in(nd: _Node, lo: float, hi: float) -> bool:
     b = nd.bootups.ts
-    return bool(np.any((b > lo + EPS) & (b <= hi + EPS)))
+    a = int(np.searchsorted(b, lo + EPS, side="right"))
+    return a < len(b) and bool(b[a] <= hi + EPS)
 
 
 def _evaluate(x: Process, nd: _Node, p: BootParams, trace_end: float, last_frame_ts: float,
@@ -562,8 +605,8 @@ def _evaluate(x: Process, nd: _Node, p: BootParams, trace_end: float, last_frame
     """Steps, attempts, failures, status and letter of one process."""
     t = nd.t
     end_idx = x.end_idx if x.end_idx is not None else t_end_idx + 1
-    rows = np.flatnonzero((t.start_idx >= x.start_idx) & (t.start_idx < end_idx)) if len(t) \
-        else np.zeros(0, np.int64)
+    rows = np.arange(int(np.searchsorted(t.start_idx, x.start_idx)),
+                     int(np.searchsorted(t.start_idx, end_idx)))
     x.transfers = len(rows)
     completed_by_start = x.end_how == "start"
     # attempts: a probe starts a new one when the current one had an answered probe or a failure
@@ -794,21 +837,23 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         keys = [k for k in spool.servers() if k // 128 == cm.chan]
         nodes = sorted({k % 128 for k in keys} | set(cfg.nodes))
         per_node: dict[int, tuple[_Node, list[Process]]] = {}
+        spans: dict[int, Spans] = {}
+        counts: dict[int, int] = {}
         aborts: list[float] = []
+        first_starts: list[float] = []
+        signature = False
         for n in nodes:
             if n == 0:
                 continue
-            rows = spool.frames(cm.chan * 128 + n) if cm.chan * 128 + n in keys else None
-            t = (st.transfers(rows, model.end, p.sdo_timeout_s) if rows is not None
-                 else st.TransferTable.empty())
-            del rows
-            nd = _node_inputs(cm, n, cm.nodes.get(n), t, mb, cfg.nodes.get(n))
-            procs, _adhoc = _processes(nd, p)
-            per_node[n] = (nd, procs)
-            tm = (t.result == st.ABORTED) & (t.abort_code == st.TIMEOUT_ABORT)
-            aborts += (t.end_ts[tm] - t.last_req_ts[tm]).tolist() if False else (
-                t.end_ts[tm] - t.start_ts[tm]).tolist()
-        signature = any(_signature(nd, procs) for nd, procs in per_node.values())
+            found = _node_pass(model, spool, cm, n, cm.chan * 128 + n in keys, mb, cfg, p)
+            if found is None:
+                continue
+            nd, kept, spans[n], counts[n], sig, node_aborts = found
+            per_node[n] = (nd, kept)
+            signature = signature or sig
+            aborts += node_aborts
+            if len(spans[n]):
+                first_starts.append(float(spans[n].start[0]))
         if cfg.table.manager is True:
             cb.manager = "network"
         elif cfg.master_dcf_known:
@@ -821,17 +866,48 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         if aborts:
             cb.sdo_timeout_inferred_ms = round(float(np.median(aborts)) * 1000.0, 3)
         cb.manager_sdo_timeout_ms = cfg.table.manager_sdo_timeout_ms
-        first_start = min((procs[0].start for _nd, procs in per_node.values() if procs),
-                          default=None)
-        _channel_properties(cb, cm, cfg, first_start)
-        last_idx = int(max((np.max(nd.t.start_idx) for nd, _ in per_node.values()
-                            if len(nd.t)), default=0))
-        for n, (nd, procs) in per_node.items():
-            for x in procs:
-                _evaluate(x, nd, p, model.end, last_frame, max(last_idx, 1 << 62))
-            _node_report(out, cm, n, nd, procs, cfg)
+        _channel_properties(cb, cm, cfg, min(first_starts, default=None))
+        for n, (nd, kept) in per_node.items():
+            _node_report(out, cm, n, nd, kept, cfg, spans[n], counts[n])
         _findings(out, cm, per_node, cfg, cb, p, last_frame)
     return out
+
+
+def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, has_sdo: bool,
+               mb: _Marks, cfg: BootConfig, p: BootParams
+               ) -> tuple[_Node, list[Process], Spans, int, bool, list[float]] | None:
+    """One node: its transfers, processes (judged at once), the signature test and the
+    client's timeout aborts; the transfers are released once judged."""
+    rows = spool.frames(cm.chan * 128 + n) if has_sdo else None
+    if rows is not None and n not in cfg.nodes and not _probed(rows):
+        rows = None  # no probe: no process (and no columns for a flood of SDO)
+    t = (st.transfers(rows, model.end, p.sdo_timeout_s) if rows is not None
+         else st.TransferTable.empty())
+    del rows
+    nd = _node_inputs(cm, n, cm.nodes.get(n), t, mb, cfg.nodes.get(n))
+    procs, _adhoc = _processes(nd, p)
+    sig = _signature(nd, procs)
+    tm = (t.result == st.ABORTED) & (t.abort_code == st.TIMEOUT_ABORT)
+    aborts = (t.end_ts[tm] - t.start_ts[tm]).tolist()
+    for k, x in enumerate(procs):
+        _evaluate(x, nd, p, model.end, model.end, 1 << 62)
+        x.last_step = x.steps[-1].step if x.steps else "none"
+        if x.status == "ok" and x.letter != "L" and k < len(procs) - 1:
+            x.steps = []  # not kept (below): its steps go at once
+    spans = Spans.of(procs)
+    # a log may boot a node a million times: whole processes are kept only where a finding
+    # or the report needs them
+    kept = [x for k, x in enumerate(procs)
+            if x.status != "ok" or x.letter == "L" or k == len(procs) - 1]
+    nd.t = st.TransferTable.empty()
+    return nd, kept, spans, len(procs), sig, aborts
+
+
+def _probed(rows: np.ndarray) -> bool:
+    """Whether a server's SDO frames hold a probe (upload request of 1000h:00)."""
+    d = rows["data"]
+    return bool(np.any(rows["req"] & (d[:, 0] == 0x40) & (d[:, 1] == 0x00) & (d[:, 2] == 0x10)
+                       & (d[:, 3] == 0x00)))
 
 
 def _signature(nd: _Node, procs: list[Process]) -> bool:
@@ -880,12 +956,10 @@ def _not_managed(out: BootAnalysis, cm: ChannelModel, cfg: BootConfig) -> None:
 
 
 def _node_report(out: BootAnalysis, cm: ChannelModel, n: int, nd: _Node, procs: list[Process],
-                 cfg: BootConfig) -> None:
+                 cfg: BootConfig, spans: Spans, count: int) -> None:
     nb = cfg.nodes.get(n)
     rep = NodeBootReport(cm.name, n, "not-managed", assignment=_assignment(nb),
-                         processes=len(procs))
-    for x in procs:
-        rep.spans.append((x.start, x.end if x.end is not None else np.inf, x.status, x))
+                         processes=count, spans=spans)
     if procs:
         x = procs[-1]
         rep.process = x
@@ -1002,8 +1076,10 @@ def _p006(out: BootAnalysis, cm: ChannelModel,
         complete = True
         for n in mandatory_nodes:
             nd, procs = per_node.get(n, (None, []))
-            done = any(x.status == "ok" and x.end is not None and w.time - EPS <= x.end
-                       <= deadline + EPS for x in procs)
+            rep = out.nodes.get((cm.name, n))
+            done = rep is not None and bool(np.any(
+                (rep.spans.status == 0) & (rep.spans.end >= w.time - EPS)
+                & (rep.spans.end <= deadline + EPS)))
             if cfg.nodes[n].bit(2) is False and nd is not None:
                 done = bool(np.any((nd.reports.ts >= w.time) & (nd.reports.ts <= deadline))
                             | np.any((nd.bootups.ts >= w.time) & (nd.bootups.ts <= deadline)))

@@ -315,19 +315,23 @@ class _Ctx:
         rep = b.nodes.get((str(f.channel), n))
         if rep is None:
             return []
-        chosen = None
-        for start, end, status, x in rep.spans:
-            if start <= a0 <= end or (end < a0 and status in ("failed", "incomplete")):
-                chosen = x
-        if chosen is None:
+        sp = rep.spans
+        at = np.flatnonzero((sp.start <= a0) & (a0 <= sp.end))
+        before = np.flatnonzero(sp.end < a0)
+        if at.size:
+            k = int(at[-1])
+        elif before.size and sp.status[int(before[-1])] != 0:
+            k = int(before[-1])
+        else:
             return []
-        x = chosen
-        w = x.evidence or x.last_frame
-        last = next((s.step for s in reversed(x.steps)), "none")
-        letter = f", letter {x.letter}" if x.letter else ""
-        return [_entry("boot_process", w.time if w else x.start, w.frame_index if w else None,
-                       w.line if w else None,
-                       f"boot process {x.status}{letter}, last step {last}", n)]
+        status = ("ok", "failed", "incomplete")[int(sp.status[k])]
+        letter = f", letter {sp.letter[k]}" if sp.letter[k] else ""
+        has_ev = int(sp.ev_idx[k]) >= 0
+        return [_entry("boot_process", float(sp.ev_time[k]) if has_ev else float(sp.start[k]),
+                       int(sp.ev_idx[k]) if has_ev else None,
+                       int(sp.ev_line[k]) if has_ev else None,
+                       f"boot process {status}{letter}, last step "
+                       f"{sp.last_step[int(sp.step[k])]}", n)]
 
 
 def _in(ts: np.ndarray, windows: list[tuple[float, float]]) -> np.ndarray:

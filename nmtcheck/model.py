@@ -376,7 +376,16 @@ class WriteTable:
         for ts, idx, line, index, sub, value in plain_rows(
                 self.ts, self.idx, self.line, self.index, self.sub, self.value):
             yield NodeEvent(ts, idx, line, "sdo-write", f"{sdo.object_name(index, sub)} = "
-                            f"{value} ({value:X}h) written by SDO")
+                            f"{value} ({value:X}h{_meaning(index, value)}) written by SDO")
+
+
+def _meaning(index: int, value: int) -> str:
+    """What a written value says, where it packs several fields: a 1016h consumer entry
+    is the producer's node-ID and the consumer time."""
+    if index == 0x1016:
+        producer, time_ms = (value >> 16) & 0xFF, value & 0xFFFF
+        return f": node {producer}, {time_ms} ms" if time_ms else ": disabled"
+    return ""
 
 
 @dataclass

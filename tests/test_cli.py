@@ -106,7 +106,7 @@ def test_timeline_formats(tmp_path: Path) -> None:
 def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
     res = run("rules", cwd=tmp_path)
     assert res.returncode == 0
-    assert len(res.stdout.strip().splitlines()) == 28  # the SPEC §3 catalogue
+    assert len(res.stdout.strip().splitlines()) == 36  # SPEC §3 and group P (§8.4)
     doc = run("rules", "H001", cwd=tmp_path)
     assert "heartbeat-timeout" in doc.stdout and "timeout_factor" in doc.stdout
     assert "Why it matters" in doc.stdout and "Example" in doc.stdout

@@ -188,12 +188,16 @@ def test_jobs_give_the_same_report_in_the_same_order() -> None:
     assert parallel.stderr == ""  # no progress bar when stderr is not a terminal
 
 
-def test_jobs_report_the_first_failing_input_in_order(tmp_path: Path) -> None:
+def test_jobs_report_every_failing_input_in_order(tmp_path: Path) -> None:
+    # each unreadable input is named, in order, and the good one is still reported (SPEC §4)
     bad = tmp_path / "empty.log"
     bad.write_bytes(b"")
     res = _cli("check", "-j", "2", str(SAMPLES / "healthy.log"), str(bad), str(tmp_path / "x"))
     assert res.returncode == 2
-    assert res.stderr.strip() == f"nmtcheck: {bad}: empty file: no records to check"
+    assert res.stderr.strip().splitlines() == [
+        f"nmtcheck: {bad}: empty file: no records to check",
+        f"nmtcheck: {tmp_path / 'x'}: no such file"]
+    assert "healthy.log (candump): 351 frames" in res.stdout
 
 
 @pytest.mark.parametrize("block_bytes", [7, 64, 1000])

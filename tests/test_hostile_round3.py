@@ -357,3 +357,56 @@ def test_a_second_run_into_a_locked_dataset_is_refused_and_orphans_go(tmp_path: 
     raw = pads.dataset(str(tmp_path / "results" / "findings"), format="parquet").to_table()
     data = api.read_results(tmp_path / "results")
     assert raw.num_rows == len(data.findings) > 0  # the raw table: no row the API hides
+
+
+# -- item 8: the live monitor under overload ---------------------------------------------------
+
+def test_an_overloaded_session_drops_counts_says_so_and_stays_bounded(tmp_path: Path) -> None:
+    from nmtcheck.engine import select_rules
+    from nmtcheck.live.frames import LiveFrame
+    from nmtcheck.live.session import Session
+    from nmtcheck.profiles import load_profile
+
+    profile = load_profile("default")
+    notes: list[int] = []
+    session = Session(profile, select_rules(profile, [], []), None, str(tmp_path / "rec.log"),
+                      timer=False, on_overload=notes.append, queue_frames=500)
+    slow = session.tracker.feed
+
+    def slow_feed(frame: LiveFrame) -> None:
+        time.sleep(0.00002)
+        slow(frame)
+
+    session.tracker.feed = slow_feed  # type: ignore[method-assign,assignment]
+    sent = 60_000
+    deepest = 0
+    for i in range(sent):
+        session.submit(LiveFrame(1_700_000_000 + i * 0.0001, "can0", 0x705, data=b"\x05",
+                                 dlc=1))
+        deepest = max(deepest, len(session._queue))
+    outcome = session.close()
+    assert deepest <= 500
+    assert outcome.dropped > 0 and notes and notes[0] <= outcome.dropped
+    res = outcome.result
+    assert res is not None
+    assert res.stats.frames + outcome.dropped == sent  # every frame checked or counted
+    assert res.stats.dropped == outcome.dropped
+    i004 = [f for f in res.findings if f.rule == "I004"]
+    assert len(i004) == 1 and f"{outcome.dropped} frames" in i004[0].message
+    recording = (tmp_path / "rec.log").read_text()
+    assert "DROPCOUNT: dropped" in recording
+
+
+def test_a_monitor_that_keeps_up_drops_nothing_and_answers_at_once() -> None:
+    import can
+
+    import nmtcheck
+
+    monitor = nmtcheck.Monitor()
+    for i in range(2000):
+        monitor.on_message_received(can.Message(timestamp=1_700_000_000 + i * 0.01,
+                                                arbitration_id=0x705, data=[5],
+                                                is_extended_id=False))
+    res = monitor.result()  # everything handed over before the call is in it
+    assert res is not None and res.stats.frames == 2000 and monitor.dropped == 0
+    monitor.stop()

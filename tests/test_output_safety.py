@@ -18,7 +18,11 @@ from pathlib import Path
 import pytest
 from conftest import REPO, SAMPLES
 
-from nmtcheck.cli import write_atomically
+from nmtcheck.cli import write_atomically, write_reports
+from nmtcheck.engine import check_inputs
+from nmtcheck.errors import UsageError
+from nmtcheck.profiles import load_profile
+from nmtcheck.reporters import format_for_path, streamer
 
 
 def run(*args: str, cwd: Path, env: dict[str, str] | None = None
@@ -84,12 +88,21 @@ def test_a_failed_write_keeps_the_previous_report(tmp_path: Path,
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]
 
 
-def test_which_outputs_were_written_when_one_fails(tmp_path: Path) -> None:
-    (tmp_path / "out.csv").mkdir()  # a directory where a file should go: the rename fails
+def test_which_outputs_were_written_when_one_fails(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "out.csv").mkdir()  # a directory where a file should go
     res = run("check", str(SAMPLES / "healthy.log"), "-o", "a.json", "-o", "out.csv",
               cwd=tmp_path)
-    assert res.returncode == 2
-    assert "out.csv" in res.stderr and "written: a.json" in res.stderr
+    assert res.returncode == 2  # found before any log is read (SPEC §4): nothing written
+    assert "--output out.csv: is a directory" in res.stderr
+    assert not (tmp_path / "a.json").exists()
+    # a write that fails later (the directory appeared meanwhile): the message says which
+    # reports were written before it
+    monkeypatch.chdir(tmp_path)
+    results = check_inputs([str(SAMPLES / "healthy.log")], 1, load_profile("default"), [])
+    files = [(p, streamer(format_for_path(p))) for p in ("a.json", "out.csv")]
+    with pytest.raises(UsageError, match=r"--output out.csv: cannot write: .*written: a.json"):
+        write_reports(results, files, {})
     assert (tmp_path / "a.json").is_file()
 
 

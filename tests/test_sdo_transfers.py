@@ -76,3 +76,30 @@ def test_block_download_segment_40h_is_no_upload_request() -> None:
     ), 10.0, 1.0)
     assert results(t) == [("dl", 0x1F50, 1, "ok"), ("up", 0x1000, 0, "ok")]
     assert int(t.mode[0]) == st.BLOCK
+
+
+def test_spool_spills_per_server_and_reads_back_in_file_order() -> None:
+    from nmtcheck.frames import FrameBatch
+
+    n = 1000
+    can_id = np.where(np.arange(n) % 2 == 0, 0x602, 0x582).astype(np.uint32)
+    can_id[::10] = 0x603
+    data = np.zeros((n, 8), np.uint8)
+    data[:, 0] = np.where(can_id == 0x582, 0x43, 0x40)
+    data[:, 2] = 0x10
+    batch = FrameBatch(np.arange(n) / 1000.0, np.zeros(n, np.int32), can_id,
+                       np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool),
+                       np.full(n, 8, np.int16), data, np.arange(n, dtype=np.int64),
+                       np.arange(1, n + 1, dtype=np.int64))
+    spool = st.SdoSpool(budget=1000)
+    try:
+        for part in range(0, n, 100):
+            sel = slice(part, part + 100)
+            spool.add(FrameBatch(*(getattr(batch, f)[sel] for f in
+                                   FrameBatch.__dataclass_fields__)))
+        assert spool.servers() == [2, 3]
+        rows = spool.frames(2)
+        assert len(rows) == int(np.count_nonzero((can_id & 0x7F) == 2))
+        assert (np.diff(rows["idx"]) > 0).all()
+    finally:
+        spool.close()

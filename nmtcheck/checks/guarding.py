@@ -96,7 +96,7 @@ def guard_no_response(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
         if t.rule == "G002":
             n = f" ({t.requests} requests in a row)" if t.requests > 1 else ""
             yield (t.moment, f"no guarding response from node {m.node} to the remote request "
-                   f"at {t.after_ts:.6f}{n}")
+                   f"at {t.after_ts - ctx.start:.6f} s{n}")
 
 
 @rule("G003", "guard-interval-exceeded", "warning")

@@ -66,6 +66,7 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
                     reader_options: dict[str, Any], max_findings: int, quiet: bool,
                     outputs: tuple[str, ...], statistics: bool) -> int:
     """`nmtcheck check --results ...`: the run, a summary on stdout, the exit code."""
+    from nmtcheck.fleet.dataset import arrow_without_pandas
     from nmtcheck.fleet.run import FleetOptions, run_fleet
     from nmtcheck.fleet.storage import parse_storage_options
 
@@ -97,6 +98,7 @@ def run_fleet_check(logs: tuple[str, ...], options: dict[str, Any], profile: Any
 
     # Dask's client logs each worker it loses; the run's own summary names the logs concerned.
     logging.getLogger("distributed").setLevel(logging.ERROR)
+    arrow_without_pandas()  # this process hands pyarrow no DataFrame: 0.3-0.5 s less start-up
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         out = run_fleet(opts, profile, [r.code for r in rules], network, input_format,

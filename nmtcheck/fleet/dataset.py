@@ -5,11 +5,15 @@
     RESULTS/findings/date=2026-11-23/part-<batch>.parquet
     RESULTS/node_stats/date=2026-11-23/part-<batch>.parquet
     RESULTS/runs/date=2026-11-24/run-<run_id>.parquet
+    RESULTS/<table>/date=1970-01-01/part-schema.parquet   zero rows: the table's schema
 
 Plain Parquet with fixed schemas, so pandas, pyarrow, DuckDB and Spark read it without
 nmtcheck. A batch's files have names derived from what it checked (the inputs' identities,
 nmtcheck's version and the profile): writing them again replaces them, never duplicates.
 `inputs` is written last and is the commit record the next run's skip list reads.
+Every table holds a zero-row file of its schema from the dataset's creation on (issue 25):
+a query of `findings/` on a fleet whose logs are all clean returns zero rows, not "no such
+path", and a reader that infers the schema from the files gets the whole one.
 
 One run at a time (issue 24): a run holds an exclusive lock on a local dataset
 (`_nmtcheck_run.lock`, flock: released however the run ends, `kill -9` too); a second run
@@ -37,6 +41,10 @@ from nmtcheck.fleet.storage import filesystem, is_local
 SCHEMA_VERSION = 1
 MARKER = "_nmtcheck_dataset.json"
 LOCK = "_nmtcheck_run.lock"
+# each table's zero-row file: `part-` as the batches' files (readers that skip `_`/`.` names
+# read it), a name no batch has (theirs are `part-<24 hex>`), under a date (`unknown` would
+# make DuckDB's hive partitioning read every `date` as text, not as DATE)
+SCHEMA_PART = ("date=1970-01-01", "part-schema.parquet")
 TABLES = ("runs", "inputs", "findings", "node_stats")
 DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER, LOCK)  # what a dataset's folder holds
 SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
@@ -82,6 +90,37 @@ COLUMNS: dict[str, list[tuple[str, str]]] = {
 STATE_COLUMNS = {"UNKNOWN": "s_unknown", "INITIALISING": "s_initialising",
                  "PRE-OPERATIONAL": "s_pre_operational", "OPERATIONAL": "s_operational",
                  "STOPPED": "s_stopped", "OFFLINE": "s_offline"}
+
+
+def arrow_without_pandas() -> None:
+    """Keep pyarrow from importing pandas in this process (0.3-0.5 s of start-up per
+    process, per worker of a fleet run, for nothing: nmtcheck writes Arrow tables from
+    Python lists). pyarrow looks for pandas once per process, at its first conversion of
+    Python objects; made then with `import pandas` failing, pyarrow takes it as absent for
+    its optional checks and still imports it for an explicit `to_pandas()`. Only for
+    processes nmtcheck owns (the CLI's fleet run, its local and dask-local workers): there a
+    DataFrame is never handed to pyarrow. Does nothing where pandas is already imported."""
+    import sys
+
+    if "pandas" in sys.modules:
+        return
+    try:
+        import pyarrow as pa
+    except ImportError:  # said where a table is written
+        return
+
+    class NoPandas:
+        @staticmethod
+        def find_spec(name: str, *_args: Any) -> None:
+            if name == "pandas":
+                raise ModuleNotFoundError("No module named 'pandas'", name=name)
+
+    blocker = NoPandas()
+    sys.meta_path.insert(0, blocker)
+    try:
+        pa.array([0])
+    finally:
+        sys.meta_path.remove(blocker)
 
 
 def schema(table: str) -> Any:
@@ -158,13 +197,23 @@ class Dataset:
                 raise UsageError(f"--results {self.url}: dataset schema version "
                                  f"{meta.get('schema_version')}, this nmtcheck writes "
                                  f"{SCHEMA_VERSION}: use a new results location")
-            return
-        if self.local:
-            self.fs.makedirs(self.root, exist_ok=True)
-        self._put_bytes(marker, json.dumps({
-            "schema_version": SCHEMA_VERSION, "tables": list(TABLES),
-            "partitioning": "hive: date=YYYY-MM-DD (the log's start date, UTC)",
-        }, indent=2).encode() + b"\n")
+        else:
+            if self.local:
+                self.fs.makedirs(self.root, exist_ok=True)
+            self._put_bytes(marker, json.dumps({
+                "schema_version": SCHEMA_VERSION, "tables": list(TABLES),
+                "partitioning": "hive: date=YYYY-MM-DD (the log's start date, UTC)",
+            }, indent=2).encode() + b"\n")
+        self._schema_files()
+
+    def _schema_files(self) -> None:
+        """Each table's zero-row file, where missing (a dataset of an earlier nmtcheck, a
+        file removed by hand): written once, so that a run with nothing to do writes
+        nothing."""
+        for table in TABLES:
+            path = self.path(table, *SCHEMA_PART)
+            if not self.fs.exists(path):
+                self._put_table(path, schema(table).empty_table())
 
     def lock(self) -> Any:
         """Take the dataset's run lock (local datasets; None elsewhere): an open file whose
@@ -176,26 +225,21 @@ class Dataset:
             return None
         import fcntl
 
-        handle = open(self.path(LOCK), "a+")  # noqa: SIM115 - held for the run's lifetime
+        # opened, never written: a run that finds nothing to do changes no file
+        handle = open(self.path(LOCK), "ab")  # noqa: SIM115 - held for the run's lifetime
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            handle.seek(0)
-            holder = handle.read().strip() or "another run"
             handle.close()
-            raise UsageError(f"--results {self.url}: {holder} is writing this dataset; one "
-                             "run at a time (wait for it, or give another --results)") from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"run of pid {os.getpid()} on {os.uname().nodename}, started "
-                     f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}\n")
-        handle.flush()
+            raise UsageError(f"--results {self.url}: another run is writing this dataset; "
+                             "one run at a time (wait for it, or give another --results)"
+                             ) from None
         return handle
 
     def remove_uncommitted(self) -> int:
         """Remove findings and node_stats files of batches without an `inputs` file (their
         commit record): what a run stopped between the two left. The number removed."""
-        committed = {p.rsplit("/", 1)[-1] for p in self.files("inputs")}
+        committed = {p.rsplit("/", 1)[-1] for p in self.files("inputs")} | {SCHEMA_PART[1]}
         removed = 0
         for table in ("findings", "node_stats"):
             for path in self.files(table):

@@ -231,6 +231,28 @@ class ResilientPool:
             self._pool = None
 
 
+def _local_context(start: bool = False) -> Any:
+    """The local pool's start method: a fork server that has imported what a task needs
+    (nmtcheck.fleet.preload), so that each worker is forked from it ready to check; `start`
+    starts that server now, in the background (its imports overlap the driver's work)."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():  # Windows
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["nmtcheck.fleet.preload"])
+    if start:
+        from multiprocessing import forkserver
+
+        forkserver.ensure_running()  # returns once spawned; the server imports meanwhile
+    return ctx
+
+
+def warm_up(spec: str) -> None:
+    """Called as a run begins: start what the executor `spec` will need and can start
+    without a worker (the local pool's fork server, 0.3 s of imports)."""
+    if spec.partition(":")[0] == "local":
+        _local_context(start=True)
+
+
 class LocalExecutor:
     """`local[:N]` (the default): N worker processes of this machine, nothing to install.
     The workers are started by a fork server, not forked from this process, whose fsspec
@@ -239,13 +261,7 @@ class LocalExecutor:
     def __init__(self, workers: int | None = None) -> None:
         self.slots = workers or os.cpu_count() or 1
         self.name = f"local:{self.slots}"
-        ctx: Any
-        if "forkserver" in multiprocessing.get_all_start_methods():
-            ctx = multiprocessing.get_context("forkserver")
-            ctx.set_forkserver_preload(["nmtcheck.fleet.tasks", "nmtcheck.engine"])
-        else:  # Windows
-            ctx = multiprocessing.get_context("spawn")
-        self._pool = ResilientPool(self.slots, mp_context=ctx)
+        self._pool = ResilientPool(self.slots, mp_context=_local_context())
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
         self._pool.submit(key, fn, *args)
@@ -274,6 +290,9 @@ DASK_CONFIG: dict[str, Any] = {
     # None unsets a variable of Dask's defaults (dask.config.set merges dictionaries)
     "distributed.nanny.pre-spawn-environ": {"MALLOC_TRIM_THRESHOLD_": None},
     "distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
+    # each worker imports the checker, the readers and pyarrow as it starts (part of the
+    # cluster's start-up), not at its first task
+    "distributed.worker.preload": ["nmtcheck.fleet.preload"],
 }
 
 

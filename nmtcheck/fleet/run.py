@@ -8,6 +8,7 @@ fsspec while it is walked).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -56,6 +57,8 @@ class FleetOutcome:
     run_id: str = ""
     executor: str = ""
     seconds: float = 0.0
+    start_seconds: float = 0.0  # of `seconds`: starting the executor (a Dask cluster's start-up)
+    driver_cpu: float = 0.0  # CPU seconds of this process (the driver) in the run
 
     @property
     def checked(self) -> int:
@@ -148,7 +151,11 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     from nmtcheck.fleet.storage import PathPattern, absolute, check_exists, filesystem
 
     started = time.time()
+    cpu = time.process_time()
     PathPattern(opts.path_pattern)  # a bad pattern is a usage error before any work
+    from nmtcheck.fleet.executors import warm_up
+
+    warm_up(opts.executor)  # the local pool's fork server imports while the driver lists
     reader_options = reader_options or {}
     digest = profile_digest(profile, rule_codes, network, input_format, strict, channel,
                             reader_options, max_findings)
@@ -161,12 +168,14 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     ds.ensure()
     lock = ds.lock()  # one run at a time: held until this process ends
     try:
-        return _locked_run(ds, opts, cfg_args=(profile, rule_codes, network, input_format,
-                                              strict, channel, reader_options, max_findings),
-                           digest=digest, started=started)
+        out = _locked_run(ds, opts, cfg_args=(profile, rule_codes, network, input_format,
+                                             strict, channel, reader_options, max_findings),
+                          digest=digest, started=started)
     finally:
         if lock is not None:
             lock.close()
+    out.driver_cpu = time.process_time() - cpu
+    return out
 
 
 def _locked_run(ds: Any, opts: FleetOptions, cfg_args: tuple[Any, ...], digest: str,
@@ -284,9 +293,13 @@ class _Dispatch:
         from nmtcheck.fleet.executors import make_executor
 
         if self.executor is None:
+            started = time.perf_counter()
             self.executor = make_executor(self.opts.executor)
+            self.out.start_seconds = time.perf_counter() - started
             self.out.executor = self.executor.name
-            self.shared_cfg = self.executor.shared(self.cfg)
+            own = self.opts.executor.partition(":")[0] in ("local", "dask-local")
+            self.shared_cfg = self.executor.shared(dataclasses.replace(self.cfg,
+                                                                       own_workers=own))
         return self.executor
 
     def collect(self) -> None:

@@ -44,6 +44,8 @@ class TaskConfig:
     version: str
     digest: str
     run_id: str
+    # the workers are nmtcheck's own (local, dask-local): pyarrow may be kept from pandas
+    own_workers: bool = False
 
 
 @dataclass
@@ -83,7 +85,10 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
     (findings, node_stats, then inputs: the commit record), return the counts."""
     os.environ["NMTCHECK_THREADS"] = "1"
     from nmtcheck.checks import BY_CODE
-    from nmtcheck.fleet.dataset import Dataset
+    from nmtcheck.fleet.dataset import Dataset, arrow_without_pandas
+
+    if cfg.own_workers:
+        arrow_without_pandas()
 
     rules = [BY_CODE[c] for c in cfg.rule_codes]
     pattern = PathPattern(cfg.path_pattern)

@@ -99,7 +99,11 @@ def monitor(interface: str | None, channels: tuple[str, ...], bitrate: int | Non
     try:
         session = Session(profile, rules, network, record, _shown(display, lambda: session),
                           on_withdraw=display.withdrawn,
-                          name=f"<live: {', '.join(name for name, _b in buses)}>")
+                          name=f"<live: {', '.join(name for name, _b in buses)}>",
+                          on_overload=lambda n: display.note(
+                              f"nmtcheck: falling behind: {n} frame(s) dropped so far (the "
+                              "bus delivers faster than the checks run); every report "
+                              "counts them (I004)"))
         outcome, error, ended = _run(session, buses, display, duration, BusReader)
     finally:
         close_buses(buses)
@@ -129,7 +133,7 @@ def _run(session: Session, buses: list[tuple[str, Any]], display: Display,
     from nmtcheck.live.signals import ended_by, ending_on_signals
 
     stop = threading.Event()
-    readers = [reader_class(name, bus, session.feed, stop) for name, bus in buses]
+    readers = [reader_class(name, bus, session.submit, stop) for name, bus in buses]
     with ending_on_signals(stop) as signals:
         for r in readers:
             r.start()
@@ -192,6 +196,10 @@ def live_summary(outcome: Outcome, ended: str) -> str:
                 f"so far)" if c["provisional"] else "")]
     if outcome.live_dropped:
         lines.append(f"nmtcheck: {outcome.live_dropped} more live findings were not kept")
+    if outcome.dropped:
+        lines.append(f"nmtcheck: {outcome.dropped} frame(s) dropped: received faster than the "
+                     "checks ran (I004 in every report; the findings around them may be the "
+                     "monitor's loss, not the network's)")
     for lf in outcome.live:
         if lf.confirmed != "confirmed":
             what = {"clock-only": "after the last recorded frame",

@@ -61,7 +61,9 @@ class Monitor(can.Listener):
     # -- can.Listener ----------------------------------------------------------------------
 
     def on_message_received(self, msg: can.Message) -> None:
-        self.session.feed(from_message(msg, self.channel))
+        # queued for the session's checker thread: the Notifier's thread never waits for
+        # the checks; under overload frames are dropped, counted, and reported (I004)
+        self.session.submit(from_message(msg, self.channel))
 
     def on_error(self, exc: Exception) -> None:
         """A bus error in the Notifier's thread: kept (`errors`: the first ones,
@@ -110,6 +112,7 @@ class Monitor(can.Listener):
 
     def live_findings(self) -> list[LiveFinding]:
         """What the tracker reported as it happened (reconciled once `stop()` ran)."""
+        self.session.drain()
         with self.session.lock:
             return list(self.session.live)
 
@@ -137,6 +140,12 @@ class Monitor(can.Listener):
             with open(path, "w", encoding="utf-8") as f:
                 f.write(text)
         return text
+
+    @property
+    def dropped(self) -> int:
+        """Frames received faster than the checks ran and dropped (counted, never silently:
+        each report's I004 finding says how many)."""
+        return self.session.dropped
 
     @property
     def recording(self) -> str:

@@ -33,6 +33,8 @@ CONFIRM_TOLERANCE_S = 0.1  # live and offline times of one finding differ by at 
 MAX_LIVE_FINDINGS = 10000  # kept in memory; more are counted (the recording has them all)
 FLUSH_S = 0.5  # the recording reaches the disk at least this often
 CLOCK_WINDOW_S = 10  # the bus clock's offset is learnt from this many recent seconds
+QUEUE_FRAMES = 50_000  # frames received and not yet checked; more are dropped and counted
+OVERLOAD_NOTE_S = 1.0  # the live note about dropped frames, at most this often
 
 
 class BusClock:
@@ -73,6 +75,7 @@ class Outcome:
     live: list[LiveFinding]
     live_dropped: int = 0
     notes: list[str] = field(default_factory=list)
+    dropped: int = 0  # frames received that the session could not keep up with (I004)
 
     def counts(self) -> dict[str, int]:
         out = {"confirmed": 0, "clock-only": 0, "not-confirmed": 0, "withdrawn": 0,
@@ -93,7 +96,9 @@ class Session:
                  max_findings: int = MAX_FINDINGS_PER_RULE,
                  clock: BusClock | None = None,
                  on_withdraw: Callable[[LiveFinding], Any] | None = None,
-                 name: str | None = None) -> None:
+                 name: str | None = None,
+                 on_overload: Callable[[int], Any] | None = None,
+                 queue_frames: int = QUEUE_FRAMES) -> None:
         self.profile, self.rules, self.network = profile, rules, network
         self.input_format, self.channel, self.strict = input_format, channel, strict
         self.max_findings = max_findings
@@ -116,6 +121,18 @@ class Session:
         self._file: IO[bytes] | None = open(record, "wb")  # noqa: SIM115 - closed in close()
         self._last_flush = time.monotonic()
         self._stop = threading.Event()
+        # the bounded intake of `submit` (bus threads): frames wait here for the checker
+        self.queue_frames = queue_frames
+        self.on_overload = on_overload
+        self.dropped = 0  # frames `submit` had no room for, in all
+        self._unrecorded_drops = 0  # of those, not yet written as a DROPCOUNT line
+        self._queue: deque[LiveFrame] = deque()
+        self._intake = threading.Condition(threading.Lock())
+        self._submitted = 0
+        self._taken = 0  # frames the checker took from the queue (fed or counted)
+        self._worker: threading.Thread | None = None
+        self._closing = False
+        self._last_note = 0.0
         self._timer: threading.Thread | None = None
         if timer:
             self._timer = threading.Thread(target=self._run_timer, name="nmtcheck-live-timer",
@@ -139,6 +156,76 @@ class Session:
             self.last_ts = frame.ts
             self.clock.observe(frame.ts)
             self.tracker.feed(frame)
+
+    def submit(self, frame: LiveFrame) -> None:
+        """A frame from a bus thread, queued for the checker thread: the bus thread never
+        waits for the checks, and the queue never holds more than `queue_frames` frames.
+        A frame that finds it full is dropped and counted: the recording gets a candump
+        `DROPCOUNT` line at that point, so every report has an I004 (frames lost) finding,
+        and `on_overload` hears of it (at most every OVERLOAD_NOTE_S)."""
+        note = 0
+        with self._intake:
+            if self._closing:
+                return
+            self._submitted += 1
+            if len(self._queue) >= self.queue_frames:
+                self.dropped += 1
+                self._unrecorded_drops += 1
+                self._taken += 1
+                now = time.monotonic()
+                if now - self._last_note >= OVERLOAD_NOTE_S:
+                    self._last_note = now
+                    note = self.dropped
+            else:
+                self._queue.append(frame)
+                self._intake.notify()
+            if self._worker is None:
+                self._worker = threading.Thread(target=self._check_queued,
+                                                name="nmtcheck-live-checker", daemon=True)
+                self._worker.start()
+        if note and self.on_overload is not None:
+            self.on_overload(note)
+
+    def _check_queued(self) -> None:
+        while True:
+            with self._intake:
+                while not self._queue and not self._unrecorded_drops and not self._closing:
+                    self._intake.wait()
+                if not self._queue and not self._unrecorded_drops and self._closing:
+                    return
+                frames = list(self._queue)
+                self._queue.clear()
+                drops, self._unrecorded_drops = self._unrecorded_drops, 0
+            with self.lock:
+                self._record_drops(drops)
+                for frame in frames:
+                    self.feed(frame)
+            with self._intake:
+                self._taken += len(frames)
+                self._intake.notify_all()
+
+    def _record_drops(self, count: int) -> None:
+        """`count` frames dropped here: a DROPCOUNT line as candump writes one (I004)."""
+        if count and self._file is not None:
+            self._file.write(f"DROPCOUNT: dropped {count} CAN frame(s) on 'nmtcheck' queue "
+                             f"(total drops {self.dropped})\n".encode())
+
+    def drain(self) -> None:
+        """Wait until every frame `submit` took before this call has been checked (or
+        counted as dropped): what the session reports then covers them."""
+        with self._intake:
+            target = self._submitted
+            while self._taken < target and self._worker is not None and (
+                    self._worker.is_alive()):
+                self._intake.wait(0.1)
+
+    def _stop_intake(self) -> None:
+        self.drain()
+        with self._intake:
+            self._closing = True
+            self._intake.notify_all()
+        if self._worker is not None and self._worker is not threading.current_thread():
+            self._worker.join()
 
     def tick(self) -> None:
         """Fire the timeouts that have certainly expired by now (and flush the recording)."""
@@ -165,6 +252,7 @@ class Session:
     # -- views -----------------------------------------------------------------------------
 
     def nodes(self) -> list[NodeState]:
+        self.drain()
         with self.lock:
             return self.tracker.table()
 
@@ -174,6 +262,7 @@ class Session:
 
     def check(self) -> InputResult | None:
         """`nmtcheck check` over the recording so far (None before the first frame)."""
+        self.drain()
         with self.lock:
             if self._file is not None:
                 self._file.flush()
@@ -188,10 +277,13 @@ class Session:
     def close(self) -> Outcome:
         """Stop the timer, close the recording, check it, reconcile; a temporary recording
         is removed."""
+        self._stop_intake()
         self._stop.set()
         if self._timer is not None and self._timer is not threading.current_thread():
             self._timer.join()
         with self.lock:
+            self._record_drops(self._unrecorded_drops)
+            self._unrecorded_drops = 0
             self.tick()
             self.tracker.finish()
             try:
@@ -204,7 +296,7 @@ class Session:
                     with contextlib.suppress(OSError):
                         os.unlink(self.path)
             reconcile(self.live, result)
-            return Outcome(result, list(self.live), self.live_dropped)
+            return Outcome(result, list(self.live), self.live_dropped, dropped=self.dropped)
 
     def extra_findings(self, result: InputResult | None) -> list[Finding]:
         """Live findings no offline check can see (after the last recorded frame), as

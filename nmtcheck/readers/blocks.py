@@ -19,16 +19,18 @@ from __future__ import annotations
 import os
 from collections import deque
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from functools import partial
-from typing import Any, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import numpy as np
 
 from nmtcheck.errors import InputError
 from nmtcheck.frames import BatchBuilder, FrameBatch
 from nmtcheck.readers import MAX_LINE_BYTES, OVERLONG_LINE, Source, forked
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 REFERENCE_ENV = "NMTCHECK_REFERENCE"
 THREADS_ENV = "NMTCHECK_THREADS"
@@ -240,6 +242,8 @@ def _parallel(job: Callable[[Chunk], tuple[Block, T]], it: Iterator[Chunk],
         yield from forked.ForkedParser(job, _arrays, rebuilt,
                                        BLOCK_BYTES + 2 * PAD + CARRY_ROOM).map(it)
         return
+    from concurrent.futures import ThreadPoolExecutor
+
     with ThreadPoolExecutor(threads, thread_name_prefix="nmtcheck-parse") as pool:
         pending: deque[Future[tuple[Block, T]]] = deque()
         for chunk in it:

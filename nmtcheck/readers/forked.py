@@ -25,11 +25,12 @@ import warnings
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from multiprocessing import Pipe, current_process
-from multiprocessing.connection import Connection
-from typing import Generic, TypeVar
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
+
+if TYPE_CHECKING:  # multiprocessing is imported where a log is large enough to fork for
+    from multiprocessing.connection import Connection
 
 T = TypeVar("T")
 Chunk = tuple[np.ndarray, int]  # a padded buffer and how many bytes of lines it holds
@@ -42,8 +43,9 @@ OUT_BYTES = 16 << 20  # room for one block's parsed columns; a block with more i
 def available() -> bool:
     """Forking is safe: Linux, no other thread (that could hold a lock across the fork),
     and not inside a daemonic multiprocessing worker."""
+    mp = sys.modules.get("multiprocessing")  # a multiprocessing worker has imported it
     return (sys.platform == "linux" and threading.active_count() == 1
-            and not current_process().daemon)
+            and not (mp is not None and mp.current_process().daemon))
 
 
 def _put(arrays: list[np.ndarray], box: mmap.mmap) -> Layout | None:
@@ -92,6 +94,8 @@ class ForkedParser(Generic[T]):
         self._outbox = [mmap.mmap(-1, OUT_BYTES) for _ in range(SLOTS)]
         self._free = list(range(SLOTS))
         self._alive = True
+        from multiprocessing import Pipe
+
         jobs_reader, self._jobs = Pipe(duplex=False)
         self._done, done_writer = Pipe(duplex=False)
         # Python 3.12+ warns of any OS thread, numpy's BLAS pool too (which handles fork);

@@ -1,0 +1,379 @@
+"""Fleet scaling on one machine, in one run (issue 25): does a fleet run use the cores?
+
+    python bench/fleet_scaling.py --out scaling.json             # sized for 16 cores
+    python bench/fleet_scaling.py --quick --out scaling.json     # 2 cores: 8 logs, N=2
+
+Writes LOGS candump logs of FRAMES frames each (one generated vectorised with
+bench/traffic.py and bench/generate.py, then copied: many equal logs), then times whole
+commands, each as its own process, interleaved over --repeat rounds (best of them):
+
+- `check LOGS --results DS --executor local:1 --force` and `local:N` (and local:2, 4, ...
+  between them: the scaling ladder);
+- `check LOGS -j N` (no dataset) and `xargs -P N` of independent `nmtcheck check` runs
+  (NMTCHECK_THREADS=1: one core each, as a fleet worker uses);
+- the machine's ceiling: N copies of a fixed CPU-bound Python loop at once against one;
+- `--executor dask-local:N --force`, its cluster start-up reported apart;
+- start-up: `nmtcheck check` on a small log, and one log alone.
+
+Prints a table (wall time, speed-up over local:1, fraction of the ceiling) and the ratios
+issue 25 asks for, the driver's own CPU and the bytes it pickles per log, and writes it all
+as JSON to --out. Needs only the project's virtual environment (numpy, pyarrow, and Dask
+for the last row: --no-dask without it); no network.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+PY = sys.executable
+LOOP = "s = 0\nfor i in range({n}):\n    s += i * i\n"
+
+# Run inside the measured process: the CLI as `nmtcheck check` runs it, plus what the
+# fleet run's outcome says about its driver (CPU, executor start) and the bytes the driver
+# pickles per batch (sizes measured after the run's own timing, so not counted in it).
+FLEET_WRAPPER = r"""
+import json, os, pickle, sys, time
+from nmtcheck.fleet import run as fleet_run
+from nmtcheck.fleet import tasks as fleet_tasks
+stats = {"sent": 0, "received": 0, "batches": 0}
+sizes = []
+submit = fleet_run._Dispatch.submit
+def counting_submit(self, files):
+    submit(self, files)
+    sizes.append((files, self.shared_cfg))
+fleet_run._Dispatch.submit = counting_submit
+add = fleet_tasks.BatchCounts.add
+received = []
+def counting_add(self, other):
+    received.append(other)
+    add(self, other)
+fleet_tasks.BatchCounts.add = counting_add
+run_fleet = fleet_run.run_fleet
+def recording_run_fleet(*args, **kwargs):
+    out = run_fleet(*args, **kwargs)
+    stats.update(seconds=out.seconds, start_seconds=out.start_seconds,
+                 driver_cpu=out.driver_cpu, files=out.files, checked=out.checked,
+                 executor=out.executor)
+    return out
+fleet_run.run_fleet = recording_run_fleet
+from nmtcheck.cli import main
+sys.argv = ["nmtcheck", *sys.argv[1:]]
+try:
+    main()
+finally:
+    stats["batches"] = len(sizes)
+    stats["sent"] = sum(len(pickle.dumps((fleet_tasks.check_batch, f, c))) for f, c in sizes)
+    stats["received"] = sum(len(pickle.dumps(r)) for r in received)
+    with open(os.environ["NMTCHECK_BENCH_STATS"], "w") as f:
+        json.dump(stats, f)
+"""
+
+
+def env(**extra: str) -> dict[str, str]:
+    """The environment of every measured command: this checkout first on the path."""
+    e = dict(os.environ)
+    e["PYTHONPATH"] = os.pathsep.join([str(REPO), *filter(None, [e.get("PYTHONPATH")])])
+    e.update(extra)
+    return e
+
+
+def children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def timed(cmd: list[str], ok: tuple[int, ...] = (0, 1), **kw: Any) -> tuple[float, float]:
+    """Wall and CPU seconds (the process and every descendant it waited for)."""
+    cpu = children_cpu()
+    started = time.perf_counter()
+    res = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         **kw)
+    wall = time.perf_counter() - started
+    if res.returncode not in ok:
+        raise SystemExit(f"{' '.join(cmd[:6])} ...: exit {res.returncode}\n{res.stderr[-2000:]}")
+    return wall, children_cpu() - cpu
+
+
+def make_logs(root: Path, n_logs: int, frames: int) -> tuple[list[str], int]:
+    """n_logs equal candump logs of `frames` frames; their paths and one's size."""
+    sys.path.insert(0, str(HERE))
+    from generate import candump_lines
+    from traffic import traffic
+
+    root.mkdir(parents=True, exist_ok=True)
+    first = root / "log000.log"
+    with open(first, "wb") as out:
+        for chunk in traffic(frames):
+            out.write(candump_lines(chunk))
+    paths = [first]
+    for i in range(1, n_logs):
+        dest = root / f"log{i:03d}.log"
+        shutil.copyfile(first, dest)
+        paths.append(dest)
+    return [str(p) for p in paths], first.stat().st_size
+
+
+def calibrate_loop(target_s: float) -> int:
+    """Iterations of LOOP that take about target_s in one process."""
+    n = 200_000
+    while True:
+        started = time.perf_counter()
+        exec(LOOP.format(n=n), {})
+        took = time.perf_counter() - started
+        if took > 0.05:
+            return max(1, int(n * target_s / took))
+        n *= 4
+
+
+def ceiling(workers: int, iterations: int) -> dict[str, float]:
+    """The speed-up N independent CPU-bound processes get here: N copies of the loop at
+    once against one copy (each a fresh interpreter, so start-up is in both)."""
+    code = LOOP.format(n=iterations)
+    one, _ = timed([PY, "-S", "-c", code])
+    started = time.perf_counter()
+    procs = [subprocess.Popen([PY, "-S", "-c", code]) for _ in range(workers)]
+    for p in procs:
+        p.wait()
+    many = time.perf_counter() - started
+    return {"one_s": one, "n_s": many, "speedup": workers * one / many}
+
+
+def fleet_cmd(logs_glob: str, results: Path, executor: str) -> list[str]:
+    return [PY, "-c", FLEET_WRAPPER, "check", logs_glob, "--results", str(results),
+            "--executor", executor, "--force", "-q", "--isolated"]
+
+
+def run_fleet(cmd: list[str], stats_file: Path) -> tuple[float, float, dict[str, Any]]:
+    wall, cpu = timed(cmd, env=env(NMTCHECK_BENCH_STATS=str(stats_file)))
+    return wall, cpu, json.loads(stats_file.read_text())
+
+
+def check_seconds(results: Path) -> list[float]:
+    """Per log, the seconds its check took inside its worker (the inputs table)."""
+    import pyarrow.dataset as pads
+
+    t = pads.dataset(str(results / "inputs"), format="parquet", partitioning="hive")
+    rows = t.to_table(columns=["seconds", "frames"]).to_pylist()
+    return [r["seconds"] for r in rows if r["frames"]]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--workers", "-N", type=int, default=None,
+                    help="N (default: the usable CPUs; 2 with --quick)")
+    ap.add_argument("--logs", type=int, default=None, help="logs (default 32; 8 with --quick)")
+    ap.add_argument("--frames", type=int, default=1_000_000, help="frames per log")
+    ap.add_argument("--repeat", type=int, default=None,
+                    help="rounds, best of them (default 3; 2 with --quick)")
+    ap.add_argument("--quick", action="store_true", help="a 2-core machine: 8 logs, N=2")
+    ap.add_argument("--no-dask", action="store_true", help="leave out dask-local:N")
+    ap.add_argument("--no-ladder", action="store_true",
+                    help="only local:1 and local:N (not local:2, 4, ... between them)")
+    ap.add_argument("--dir", type=Path, default=None,
+                    help="where the logs and datasets go (default: a temporary directory)")
+    ap.add_argument("--out", type=Path, required=True, help="write the results as JSON here")
+    args = ap.parse_args()
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+        os.cpu_count() or 1)
+    n = args.workers or (2 if args.quick else usable)
+    n_logs = args.logs or (8 if args.quick else 32)
+    repeat = args.repeat or (2 if args.quick else 3)
+    with_dask = not args.no_dask
+    if with_dask:
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            print("Dask is not installed: dask-local left out", file=sys.stderr)
+            with_dask = False
+
+    tmp = Path(tempfile.mkdtemp(prefix="nmtcheck-scaling-", dir=args.dir))
+    try:
+        report = measure(tmp, n, n_logs, args.frames, repeat, with_dask,
+                         ladder=not args.no_ladder, usable=usable)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"\nJSON: {args.out}")
+
+
+def measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask: bool,
+            ladder: bool, usable: int) -> dict[str, Any]:
+    began = time.time()
+    load_before = os.getloadavg()
+    started = time.perf_counter()
+    paths, size = make_logs(tmp / "logs", n_logs, frames)
+    generate_s = time.perf_counter() - started
+    glob = str(tmp / "logs" / "*.log")
+    print(f"{n_logs} candump logs of {frames:,} frames ({size / 1e6:.0f} MB each, written in "
+          f"{generate_s:.1f} s); N={n} of {usable} usable CPUs; {platform.machine()}, "
+          f"Python {platform.python_version()}, load {load_before[0]:.2f}; best of {repeat}")
+
+    small = tmp / "small.log"
+    shutil.copyfile(REPO / "samples" / "healthy.log", small)
+    nmt = [PY, "-m", "nmtcheck"]
+    one_thread = env(NMTCHECK_THREADS="1")
+    iterations = calibrate_loop(1.0)
+    steps = sorted({1, n, *([k for k in (2, 4, 8, 16, 32, 64) if k < n] if ladder else [])})
+
+    commands: dict[str, Any] = {}
+    for k in steps:
+        commands[f"local:{k}"] = ("fleet", fleet_cmd(glob, tmp / f"ds-local{k}", f"local:{k}"))
+    commands[f"check -j {n}"] = ("plain", [*nmt, "check", *paths, "-j", str(n), "-q",
+                                           "--isolated"])
+    xargs = shutil.which("xargs")
+    xargs_cmd = ([xargs, "-P", str(n), "-n", "1", *nmt, "check", "-q", "--isolated"]
+                 if xargs else None)
+    commands[f"xargs -P{n}"] = ("xargs", xargs_cmd)
+    if with_dask:
+        commands[f"dask-local:{n}"] = ("fleet", fleet_cmd(glob, tmp / "ds-dask",
+                                                          f"dask-local:{n}"))
+
+    walls: dict[str, list[float]] = {name: [] for name in commands}
+    cpus: dict[str, list[float]] = {name: [] for name in commands}
+    fleet_stats: dict[str, list[dict[str, Any]]] = {}
+    ceilings: list[dict[str, float]] = []
+    startup: list[float] = []
+    one_log: list[float] = []
+    for rnd in range(repeat):
+        ceilings.append(ceiling(n, iterations))
+        startup.extend(timed([*nmt, "check", str(small), "-q", "--isolated"])[0]
+                       for _ in range(5))
+        one_log.append(timed([*nmt, "check", paths[0], "-q", "--isolated"], env=one_thread)[0])
+        for name, (kind, cmd) in commands.items():
+            if kind == "fleet":
+                wall, cpu, st = run_fleet(cmd, tmp / "stats.json")
+                fleet_stats.setdefault(name, []).append(st)
+            elif kind == "xargs":
+                if cmd is None:
+                    wall, cpu = _xargs_python(nmt, paths, n, one_thread)
+                else:
+                    cpu0, t0 = children_cpu(), time.perf_counter()
+                    subprocess.run(cmd, input="\n".join(paths), text=True, env=one_thread,
+                                   stdout=subprocess.DEVNULL, check=False)
+                    wall, cpu = time.perf_counter() - t0, children_cpu() - cpu0
+            else:
+                wall, cpu = timed(cmd, env=env())
+            walls[name].append(wall)
+            cpus[name].append(cpu)
+        print(f"  round {rnd + 1}: " + ", ".join(f"{k} {v[-1]:.2f} s" for k, v in walls.items())
+              + f"; ceiling x{ceilings[-1]['speedup']:.2f}", flush=True)
+
+    per_log = check_seconds(tmp / "ds-local1")
+    return summarise(locals())
+
+
+def _xargs_python(nmt: list[str], paths: list[str], n: int, environ: dict[str, str]
+                  ) -> tuple[float, float]:
+    """`xargs -P n -n 1` where there is no xargs: n processes at a time."""
+    cpu0, t0 = children_cpu(), time.perf_counter()
+    running: list[subprocess.Popen[bytes]] = []
+    for p in paths:
+        while len(running) >= n:
+            running = [r for r in running if r.poll() is None]
+            time.sleep(0.005)
+        running.append(subprocess.Popen([*nmt, "check", p, "-q", "--isolated"], env=environ,
+                                        stdout=subprocess.DEVNULL))
+    for r in running:
+        r.wait()
+    return time.perf_counter() - t0, children_cpu() - cpu0
+
+
+def summarise(m: dict[str, Any]) -> dict[str, Any]:
+    n, walls, cpus = m["n"], m["walls"], m["cpus"]
+    best = {k: min(v) for k, v in walls.items()}
+    ceil = max(c["speedup"] for c in m["ceilings"])
+    base = best["local:1"]
+    local_n = best[f"local:{n}"]
+    plain = [best[k] for k in (f"check -j {n}", f"xargs -P{n}")]
+    print(f"\n| command | wall (best of {m['repeat']}) | all runs | speed-up vs local:1 "
+          "| fraction of ceiling |")
+    print("|---|---:|---|---:|---:|")
+    rows = []
+    for name, w in best.items():
+        label = {f"check -j {n}": f"`check -j {n}` (no dataset)",
+                 f"xargs -P{n}": f"`xargs -P{n}` of `nmtcheck check` (NMTCHECK_THREADS=1)"}.get(
+            name, f"`--results DS --executor {name} --force`")
+        speed = base / w
+        rows.append({"command": name, "best_s": w, "runs_s": walls[name],
+                     "cpu_s": cpus[name], "speedup": speed, "of_ceiling": speed / ceil})
+        print(f"| {label} | {w:.2f} s | {', '.join(f'{x:.2f}' for x in walls[name])} | "
+              f"{speed:.2f}x | {speed / ceil:.2f} |")
+    ceiling_runs = ", ".join(f"x{c['speedup']:.2f}" for c in m["ceilings"])
+    print(f"| the machine's ceiling: {n} copies of a CPU-bound loop vs one | | "
+          f"{ceiling_runs} | {ceil:.2f}x | 1.00 |")
+
+    ratios: dict[str, Any] = {
+        "local_n_over_local_1": base / local_n,
+        "local_n_over_best_plain": local_n / min(plain),
+        "local_n_of_ceiling": base / local_n / ceil,
+    }
+    dask_name = f"dask-local:{n}"
+    if dask_name in best:
+        starts = [s["start_seconds"] for s in m["fleet_stats"][dask_name]]
+        net = [w - s for w, s in zip(walls[dask_name], starts, strict=True)]
+        ratios.update(dask_start_s=starts, dask_without_start_s=min(net),
+                      dask_over_local_n=min(net) / local_n,
+                      dask_whole_over_local_n=best[dask_name] / local_n)
+    per_log = statistics.median(m["per_log"]) if m["per_log"] else float("nan")
+    drivers = {}
+    for name, runs in m["fleet_stats"].items():
+        st = min(runs, key=lambda s: s["driver_cpu"])
+        files = max(1, st["checked"])
+        drivers[name] = {
+            "driver_cpu_s": st["driver_cpu"], "driver_cpu_per_log_s": st["driver_cpu"] / files,
+            "driver_cpu_per_log_of_check": st["driver_cpu"] / files / per_log,
+            "sent_bytes_per_log": st["sent"] / files, "received_bytes_per_log":
+                st["received"] / files, "batches": st["batches"],
+            "start_seconds": st["start_seconds"]}
+    startup = m["startup"]
+    print(f"\nratios: local:{n} {ratios['local_n_over_local_1']:.2f}x local:1 (goal >= "
+          f"{0.9 * n:.1f}x where the ceiling allows), {ratios['local_n_of_ceiling']:.2f} of the "
+          f"ceiling (goal >= 0.9); local:{n} / best of check -j and xargs = "
+          f"{ratios['local_n_over_best_plain']:.3f} (goal <= 1.10)")
+    if "dask_over_local_n" in ratios:
+        print(f"dask-local:{n}: {best[dask_name]:.2f} s whole, cluster start-up "
+              f"{min(ratios['dask_start_s']):.2f}-{max(ratios['dask_start_s']):.2f} s, without it "
+              f"{ratios['dask_without_start_s']:.2f} s = {ratios['dask_over_local_n']:.2f}x "
+              f"local:{n} (goal <= 1.2)")
+    print(f"a log's check in a worker: median {per_log:.3f} s (local:1's inputs.seconds); one "
+          f"log alone as a whole process: {min(m['one_log']):.2f} s")
+    print(f"start-up, `nmtcheck check` on a small log: min {min(startup):.3f} s, median "
+          f"{statistics.median(startup):.3f} s over {len(startup)} runs (goal < 0.25 s)")
+    for name, d in drivers.items():
+        print(f"driver of {name}: {d['driver_cpu_s']:.3f} s CPU in the run = "
+              f"{1e3 * d['driver_cpu_per_log_s']:.1f} ms per log "
+              f"({100 * d['driver_cpu_per_log_of_check']:.1f} % of a log's check); pickles "
+              f"{d['sent_bytes_per_log'] / 1e3:.1f} kB out, {d['received_bytes_per_log']:.0f} B "
+              f"back per log; {d['batches']} batches")
+    return {
+        "when": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(m["began"])),
+        "machine": {"usable_cpus": m["usable"], "cpu_count": os.cpu_count(),
+                    "platform": platform.platform(), "machine": platform.machine(),
+                    "processor": platform.processor(), "python": platform.python_version(),
+                    "load_before": m["load_before"], "load_after": os.getloadavg()},
+        "params": {"workers": n, "logs": m["n_logs"], "frames": m["frames"],
+                   "log_bytes": m["size"], "repeat": m["repeat"],
+                   "generate_s": m["generate_s"], "loop_iterations": m["iterations"]},
+        "rows": rows, "ceiling": {"best": ceil, "runs": m["ceilings"]}, "ratios": ratios,
+        "check_seconds_per_log_median": per_log, "one_log_s": m["one_log"],
+        "startup_small_log_s": startup, "drivers": drivers, "fleet_stats": m["fleet_stats"],
+        "seconds": time.time() - m["began"],
+    }
+
+
+if __name__ == "__main__":
+    main()
