@@ -33,6 +33,9 @@ NMT_NAMES = {0x01: "start", 0x02: "stop", 0x80: "enter pre-operational", 0x81: "
              0x82: "reset communication"}
 
 
+MAX_CAUSED_PER_RULE = 1000  # findings of one rule per input that get their causes
+
+
 def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
     """Give P findings their letter and evidence, and the findings of SPEC §8.6 their
     causes."""
@@ -46,8 +49,14 @@ def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
                float(tl.get("reboot_cluster_ms", 500.0)) / 1000.0,
                float(profile["B002"].params.get("reset_window_ms", 10000.0)) / 1000.0
                if "B002" in profile else 10.0)
+    caused: dict[str, int] = {}
     for f in result.findings:
         if f.rule in RULES and f.channel is not None and f.node is not None:
+            # causes are objects: a bounded number per rule keeps memory bounded on a log
+            # with a million timeouts (the first ones are where a diagnosis starts)
+            caused[f.rule] = caused.get(f.rule, 0) + 1
+            if caused[f.rule] > MAX_CAUSED_PER_RULE:
+                continue
             found = ctx.causes(f)
             if found is None:
                 continue
