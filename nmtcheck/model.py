@@ -343,7 +343,8 @@ class WriteTable:
 
     @classmethod
     def empty(cls) -> WriteTable:
-        return cls.of([])
+        z = np.zeros(0)  # every node starts with one: no per-column list comprehension
+        return cls(z, z, z, z, z, z, z, z, z, z)
 
     @classmethod
     def of(cls, writes: Iterable[ConfigWrite]) -> WriteTable:

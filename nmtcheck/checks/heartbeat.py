@@ -217,9 +217,11 @@ def _consumer_entries(m: NodeModel, ctx: NodeContext
     consumer time in ms, where it comes from). A device file's entries hold from the
     start and again after each boot-up or reset, unless SDO writes 1016h to C in the
     trace: then the file holds what the master writes, not the power-on value (SPEC §6)."""
-    ends = np.unique(np.concatenate([m.ec.ts[m.ec.kind == BOOTUP], m.commands.reset_ts]))
     w = m.writes
     entry = np.flatnonzero(w.index == 0x1016)
+    if not entry.size and not m.config.consumes:
+        return  # no consumer entry at all (most nodes): no walk over the resets
+    ends = np.unique(np.concatenate([m.ec.ts[m.ec.kind == BOOTUP], m.commands.reset_ts]))
     starts = [ctx.start, *ends.tolist()]
     for k, seg_start in enumerate(starts):
         seg_end = ends[k] if k < len(ends) else ctx.end
