@@ -25,7 +25,7 @@ import click
 
 from nmtcheck import __version__
 from nmtcheck.checks import BY_CODE, RULES
-from nmtcheck.checks.base import fails
+from nmtcheck.checks.base import Rule, fails
 from nmtcheck.config import Config, discover
 from nmtcheck.engine import (
     MAX_FINDINGS_PER_RULE,
@@ -37,7 +37,12 @@ from nmtcheck.engine import (
     summary,
 )
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
-from nmtcheck.fleet.commands import fleet, fleet_options, fleet_requested
+from nmtcheck.fleet.commands import (
+    FLEET_OPTION_NAMES,
+    fleet,
+    fleet_options,
+    fleet_requested,
+)
 from nmtcheck.live.command import monitor as live_monitor
 from nmtcheck.network import Network, load_network
 from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
@@ -46,6 +51,8 @@ from nmtcheck.readers import open_input
 from nmtcheck.reporters import (
     FORMATS,
     Streamer,
+    auto_format,
+    colour,
     format_for_path,
     statistics_renderer,
     streamer,
@@ -125,7 +132,27 @@ def cli(ctx: click.Context, debug: bool) -> None:
     ctx.obj = {"debug": debug}
 
 
-@cli.command()
+class FleetGroupedCommand(click.Command):
+    """`check --help`: the fleet options (nmtcheck/fleet/) in a section of their own, after
+    the options of an ordinary check."""
+
+    def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows: list[tuple[str, str]] = []
+        fleet_rows: list[tuple[str, str]] = []
+        for param in self.get_params(ctx):
+            record = param.get_help_record(ctx)
+            if record is not None:
+                (fleet_rows if param.name in FLEET_OPTION_NAMES else rows).append(record)
+        if rows:
+            with formatter.section("Options"):
+                formatter.write_dl(rows)
+        if fleet_rows:
+            with formatter.section("Fleet options (with --results: many logs into a Parquet "
+                                   "dataset; then nmtcheck fleet summary DIR)"):
+                formatter.write_dl(fleet_rows)
+
+
+@cli.command(cls=FleetGroupedCommand)
 @click.argument("logs", nargs=-1, required=False)
 @_common
 @fleet_options
@@ -148,8 +175,14 @@ def cli(ctx: click.Context, debug: bool) -> None:
 @click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
               help="Check this many logs at once, in separate processes (0: one per core).")
 @click.option("--follow", is_flag=True,
-              help="With `-`: read standard input as it arrives (candump -L can0 | nmtcheck "
-                   "check --follow -), live findings on stderr, the full check at its end.")
+              help="Read LOG as it arrives: `-` is standard input to its end (candump -L "
+                   "can0 | nmtcheck check --follow -), a file is followed as it grows, as "
+                   "tail -F does, until Ctrl-C; live findings on stderr, the full check at "
+                   "the end.")
+@click.option("--color", "color", type=click.Choice(["auto", "always", "never"]),
+              default="auto", show_default=True,
+              help="Colour the text and concise reports: auto on a terminal, unless the "
+                   "NO_COLOR environment variable is set.")
 @click.option("--max-findings", type=click.IntRange(min=0), default=MAX_FINDINGS_PER_RULE,
               show_default=True,
               help="Keep at most this many findings per rule and input (0: all); every report "
@@ -159,7 +192,8 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
           dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
           fmt: str | None, outputs: tuple[str, ...], select: tuple[str, ...],
           ignore: tuple[str, ...], fail_on: str | None, statistics: bool, quiet: bool,
-          jobs: int, max_findings: int, follow: bool = False, **fleet_args: Any) -> None:
+          jobs: int, max_findings: int, follow: bool = False, color: str = "auto",
+          **fleet_args: Any) -> None:
     """Analyse each LOG (`-`: standard input; quoted globs are expanded), print the findings
     and set the exit code."""
     config, fmt, fail_on, selected, ignored = resolve_settings(
@@ -209,7 +243,11 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
                                   "max_findings": max_findings,
                                   "config": config_info, "not_logs": not_logs}
     write_reports(results, files, options)
-    write_stdout(stdout_render(results, options))
+    report = stdout_render(results, options)
+    painting = not statistics and colour.wanted(color, sys.stdout)
+    if painting:
+        report = colour.painted(report, auto_format() if fmt == "auto" else fmt)
+    write_stdout(report, color=True if painting else None)
     unreadable = [res for res in results if res.error is not None]
     for res in unreadable:  # named in every report, and here, one line each
         click.echo(escape_controls(f"nmtcheck: {res.stats.path}: {res.error}"), err=True)
@@ -220,20 +258,42 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
 
 
 @cli.command()
-@click.argument("log")
+@click.argument("logs", nargs=-1, required=True)
 @_common
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text",
               show_default=True)
-def timeline(log: str, input_format: str | None, rules_profile: str | None,
+def timeline(logs: tuple[str, ...], input_format: str | None, rules_profile: str | None,
              network_file: str | None, config_file: str | None, isolated: bool,
              dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
              fmt: str) -> None:
-    """Print the per-node NMT state timeline of LOG."""
+    """Print the per-node NMT state timeline of each LOG (quoted globs and directories are
+    expanded as by `check`): the states and the node events in time order."""
     profile, network, _info = _load(rules_profile, network_file, dcf,
                                     discover(config_file, isolated))
-    res = check_input(log, 0, profile, [], network, input_format, strict, channel,
-                      {"topics": list(topics)} if topics else {})
-    write_stdout([render_timeline(res, fmt)])
+    paths, _not_logs = expand_inputs(logs)
+    results = [check_input(log, k, profile, [], network, input_format, strict, channel,
+                           {"topics": list(topics)} if topics else {})
+               for k, log in enumerate(paths)]
+    write_stdout([render_timelines(results, fmt)])
+
+
+def render_timelines(results: list[InputResult], fmt: str) -> str:
+    """The timelines of several logs: one after the other in text; in JSON and CSV one log
+    alone as before, several with each row's `input` named."""
+    if len(results) == 1:
+        return render_timeline(results[0], fmt)
+    if fmt == "json":
+        return json.dumps([{"input": res.stats.path, **row} for res in results
+                           for row in json.loads(render_timeline(res, fmt))], indent=2) + "\n"
+    if fmt == "csv":
+        out = io.StringIO()
+        w = csv.writer(out, lineterminator="\n")
+        for k, res in enumerate(results):
+            rows = list(csv.reader(io.StringIO(render_timeline(res, fmt))))
+            w.writerows([["input", *row] for row in rows[:1]] if k == 0 else [])
+            w.writerows([spreadsheet_safe(res.stats.path), *row] for row in rows[1:])
+        return out.getvalue()
+    return "\n".join(render_timeline(res, fmt) for res in results)
 
 
 class Settings(NamedTuple):
@@ -392,12 +452,13 @@ def write_reports(results: list[InputResult], files: list[tuple[str, Streamer]],
         written.append(path)
 
 
-def write_stdout(chunks: Iterable[str]) -> None:
+def write_stdout(chunks: Iterable[str], color: bool | None = None) -> None:
     """The report on standard output; a full disk or a closed device is an ordinary write
-    error (one line, exit 2), not an internal one."""
+    error (one line, exit 2), not an internal one. `color`: keep the colour codes also
+    when standard output is no terminal (`--color always`)."""
     try:
         for chunk in chunks:
-            click.echo(chunk, nl=False)
+            click.echo(chunk, nl=False, color=color)
     except BrokenPipeError:
         raise
     except OSError as exc:
@@ -445,10 +506,12 @@ def render_timeline(res: InputResult, fmt: str) -> str:
              f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
     for m in res.nodes():
         lines.append(f"{m.channel} node {m.node}:")
-        lines.extend(f"  {iv.start - start:12.6f} .. {iv.end - start:12.6f}  {iv.state:<16} "
-                     f"({iv.source})" for iv in m.intervals)
-        # EMCY, SDO aborts, configuration written: next to the states
-        lines.extend(f"  {e.ts - start:12.6f}     event: {e.text}" for e in m.events)
+        # EMCY, SDO aborts, configuration written: among the states, in time order (an
+        # event at a state's start after that state's line)
+        timed = [(iv.start, 0, f"  {iv.start - start:12.6f} .. {iv.end - start:12.6f}  "
+                               f"{iv.state:<16} ({iv.source})") for iv in m.intervals]
+        timed += [(e.ts, 1, f"  {e.ts - start:12.6f}     event: {e.text}") for e in m.events]
+        lines.extend(text for _t, _k, text in sorted(timed, key=lambda x: (x[0], x[1])))
     return "\n".join(lines) + "\n"
 
 
@@ -466,18 +529,25 @@ def rules_cmd(code: str | None, fmt: str) -> None:
     r = BY_CODE.get(code.upper()) or next((x for x in RULES if x.name == code.lower()), None)
     if r is None:
         raise UsageError(f"rules: unknown rule code {code!r} (known: {', '.join(BY_CODE)})")
-    lines = [f"{r.code} {r.name} (default severity: {defaults[r.code].severity})", "", r.doc]
+    click.echo(f"{r.code} {r.name} (default severity: {defaults[r.code].severity})\n\n"
+               + rule_doc(r, defaults))
+
+
+def rule_doc(r: Rule, defaults: Profile) -> str:
+    """A rule's documentation as `nmtcheck rules CODE` prints it after its title line (and
+    the docs site's rule page shows it): the docstring, the parameters with their defaults."""
+    lines = [r.doc]
     if r.params:
         lines += ["", "**Parameters** (rule profile `[rules." + r.code + "]`):"]
         for p in r.params:
             lines.append(f"- `{p.name}` = {defaults[r.code].params[p.name]!r}: {p.doc}")
     lines += ["", "Also: `enabled = false` turns it off; "
               "`severity = \"warning\"` changes its level."]
-    click.echo("\n".join(lines))
+    return "\n".join(lines)
 
 
 def rule_table(defaults: Profile) -> str:
-    """The README rule table, generated from the registry."""
+    """The rule table of docs/reference/rules/index.md, generated from the registry."""
     rows = ["| code | name | severity | what it flags |", "|---|---|---|---|"]
     rows += [f"| {r.code} | {r.name} | {defaults[r.code].severity} | {r.summary} |"
              for r in RULES]

@@ -51,7 +51,7 @@ def test_concise_one_line_per_finding(tmp_path: Path) -> None:
     assert m is not None, first
     assert (m["path"], m["line"], m["code"], m["severity"]) == (str(HB_LOSS), "77", "H001",
                                                                 "error")
-    assert m["time"] == "1.560400" and m["rest"].startswith("node 3: no heartbeat")
+    assert m["time"] == "1.560400" and m["rest"].startswith("no heartbeat from node 3")
     assert verdict.startswith("nmtcheck FAIL: 1 error")
 
 
@@ -76,7 +76,7 @@ def test_concise_names_the_channel_when_there_are_several(tmp_path: Path) -> Non
     log.write_text(frames)
     out = run("check", str(log), "--format", "concise", "--select", "H001",
               cwd=tmp_path).stdout
-    assert "H001 [error] node 2 on can1: " in out
+    assert "H001 [error] can1: no heartbeat from node 2 " in out  # the node said once
 
 
 def test_concise_line_is_empty_for_binary_formats() -> None:
@@ -196,3 +196,81 @@ def test_rules_command_takes_a_name(tmp_path: Path) -> None:
     res = run("rules", "skipped-records", cwd=tmp_path)
     assert res.returncode == 0 and res.stdout.startswith("I003 skipped-records")
     assert "max_skipped" in res.stdout
+
+
+# -q, concise without the node twice, colour, several timelines, grouped help (issue 23, 13) --
+
+def test_quiet_prints_only_the_findings_and_the_verdict(tmp_path: Path) -> None:
+    out = run("check", str(HB_LOSS), "-q", cwd=tmp_path).stdout.splitlines()
+    assert out[0] == f"  {HB_LOSS} can0 node 3:"  # no input line, counts, node table, events
+    assert [x for x in out if x.strip()][-1].startswith("FAIL: 1 error")
+    assert all("frames" not in x and "node events" not in x for x in out)
+    assert len([x for x in out if " H001 " in x]) == 1
+
+
+def test_concise_does_not_repeat_the_node(tmp_path: Path) -> None:
+    line = run("check", str(HB_LOSS), "--format", "concise", cwd=tmp_path).stdout.splitlines()[0]
+    m = CONCISE.match(line)
+    assert m is not None and m["rest"].startswith("no heartbeat from node 3 for"), line
+    assert line.count("node 3") == 1
+
+
+@pytest.mark.parametrize("fmt", ["text", "concise"])
+def test_colour_always_never_and_no_color(fmt: str, tmp_path: Path) -> None:
+    """Colour on a terminal (auto), `--color always` also into a pipe; `NO_COLOR` and
+    `--color never` none; the severities and verdict are coloured, never a message."""
+    def out(*extra: str, env: dict[str, str] | None = None) -> str:
+        import os
+
+        return subprocess.run([sys.executable, "-m", "nmtcheck", "check", str(HB_LOSS),
+                               "--format", fmt, *extra], cwd=tmp_path, capture_output=True,
+                              text=True, timeout=120, env={**os.environ, **(env or {})}).stdout
+
+    coloured = out("--color", "always")
+    assert "\x1b[31merror\x1b[0m" in coloured and "\x1b[1;31mFAIL\x1b[0m" in coloured
+    assert "\x1b" not in out()  # auto, into a pipe
+    assert "\x1b" not in out("--color", "never")
+    plain = coloured.replace("\x1b[31m", "").replace("\x1b[1;31m", "").replace("\x1b[0m", "")
+    assert plain == out()
+
+
+def test_colour_auto_on_a_terminal_respects_no_color(monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+
+    from nmtcheck.reporters import colour
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.delenv("NO_COLOR", raising=False)
+    monkeypatch.setenv("TERM", "xterm")
+    assert colour.wanted("auto", Tty()) and not colour.wanted("auto", io.StringIO())
+    monkeypatch.setenv("NO_COLOR", "1")
+    assert not colour.wanted("auto", Tty()) and colour.wanted("always", Tty())
+
+
+def test_timeline_takes_several_logs_and_orders_events_among_states(tmp_path: Path) -> None:
+    log = tmp_path / "emcy.log"
+    log.write_text(candump([(0.0, "705#00"), (0.1, "705#7F"), (0.35, "085#1000010000000000"),
+                            (0.5, "000#0105"), (0.6, "705#05")]))
+    res = run("timeline", str(HEALTHY), str(log), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    text = res.stdout
+    assert text.index(f"{HEALTHY}: times") < text.index(f"{log}: times")
+    mine = text[text.index(f"{log}: times"):].splitlines()
+    states = [k for k, x in enumerate(mine) if ".." in x]
+    event = next(k for k, x in enumerate(mine) if "event:" in x)
+    assert states[0] < event < states[-1], mine  # between PRE-OPERATIONAL and OPERATIONAL
+    rows = json.loads(run("timeline", str(HEALTHY), str(log), "--format", "json",
+                          cwd=tmp_path).stdout)
+    assert {r["input"] for r in rows} == {str(HEALTHY), str(log)}
+
+
+def test_check_help_groups_the_fleet_options(tmp_path: Path) -> None:
+    text = run("check", "--help", cwd=tmp_path).stdout
+    head, _sep, fleet = text.partition("\nFleet options")
+    assert fleet, text
+    for flag in ("--results", "--executor", "--manifest", "--path-pattern", "--on-input-error"):
+        assert flag in fleet and flag not in head
+    assert "--select" in head and "--select" not in fleet

@@ -108,3 +108,17 @@ def test_schema_files_are_written_once_and_kept(tmp_path: Path) -> None:
     mtimes = {p.stat().st_mtime_ns for p in results.rglob("*") if p.is_file()}
     assert run(tmp_path, "logs/*.log").returncode == 0  # nothing new: nothing written
     assert {p.stat().st_mtime_ns for p in results.rglob("*") if p.is_file()} == mtimes
+
+
+def test_check_results_names_the_next_step(tmp_path: Path) -> None:
+    """After `check --results DIR`, the run's summary says that `nmtcheck fleet summary
+    DIR` is the next step (issue 23, 12); -q leaves it out."""
+    out = tmp_path / "my results"
+    cmd = [sys.executable, "-m", "nmtcheck", "check", "--isolated",
+           str(SAMPLES / "healthy.log"), "--results", str(out)]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[-1] == f"next: nmtcheck fleet summary '{out}'"
+    quiet = subprocess.run([*cmd, "-q"], capture_output=True, text=True, timeout=300,
+                           cwd=tmp_path)
+    assert "next:" not in quiet.stdout

@@ -350,7 +350,7 @@ def test_display_plain_lines_and_terminal_table() -> None:
     assert "no heartbeat from node 5" in out
 
 
-# -- the README's pytest fixture recipe, as written there ----------------------------------
+# -- the pytest fixture recipe of docs/guides/benches.md, as written there ------------------
 
 
 @pytest.fixture
@@ -421,3 +421,33 @@ def test_monitor_keeps_a_bus_error_and_what_came_before(tmp_path: Path) -> None:
     assert len(monitor.errors) <= 10 and monitor.error_count >= len(monitor.errors)
     res = monitor.result()
     assert res is not None and res.stats.frames == 5
+
+
+@pytest.mark.parametrize(("suffix", "writer"), [
+    (".blf", can.BLFReader), (".asc", can.ASCReader), (".trc", can.TRCReader),
+    (".log", can.CanutilsLogReader), (".asc.gz", None)])
+def test_record_writer_follows_the_suffix(suffix: str, writer: type | None,
+                                          tmp_path: Path) -> None:
+    """`monitor --record rec.blf` writes a BLF file (python-can's writer for the suffix, as
+    `can.Logger` chooses), which `nmtcheck check` reads to the same findings; the report
+    names the recording kept."""
+    record = tmp_path / f"rec{suffix}"
+    s = Session(PROFILE, RULES, None, str(record), timer=False)
+    source = SAMPLES / "healthy.log"
+    for frame in frames_of(source):
+        s.feed(frame)
+    outcome = s.close()
+    assert outcome.result is not None and outcome.result.stats.path == str(record)
+    assert not Path(s.path).exists() or s.path == str(record)  # no candump left beside it
+    if writer is None:
+        import gzip
+
+        with gzip.open(record) as f:
+            assert f.read(4) == b"date"
+        return
+    got = list(writer(str(record)))
+    assert len(got) == outcome.result.stats.frames
+    if suffix in (".blf", ".asc", ".log"):  # formats nmtcheck reads
+        again = check_input(str(record), 0, PROFILE, RULES)
+        assert [(f.rule, f.node, round(f.time, 3)) for f in again.findings] == [
+            (f.rule, f.node, round(f.time, 3)) for f in outcome.result.findings]

@@ -132,13 +132,71 @@ def test_follow_sigint_writes_complete_reports(tmp_path: Path) -> None:
     assert [f["time"] for f in data["findings"]] == [round(f.time, 6) for f in offline.findings]
 
 
-def test_follow_needs_standard_input() -> None:
-    proc = _nmtcheck("check", "--follow", "samples/healthy.log",
+def test_follow_takes_one_log() -> None:
+    proc = _nmtcheck("check", "--follow", "samples/healthy.log", "-",
                      cwd=Path(__file__).resolve().parent.parent)
     _out, err = proc.communicate(timeout=30)
     assert proc.returncode == 2
     assert err.decode().strip().splitlines() == [
-        "nmtcheck: --follow reads standard input as it arrives: nmtcheck check --follow -"]
+        "nmtcheck: --follow reads one log as it grows: a file (as tail -F follows it) "
+        "or - (standard input)"]
+
+
+def test_follow_a_growing_file_as_tail_f(tmp_path: Path) -> None:
+    """`check --follow FILE`: the file is read from its start and followed as it grows
+    (the live timeout on stderr while it is still written), through a rotation (the name
+    now another file); Ctrl-C ends it with check's report over every byte read."""
+    log = tmp_path / "bus.log"
+    report = tmp_path / "r.json"
+    sent: list[bytes] = [b"(%.6f) can0 705#00\n" % time.time()]
+    log.write_bytes(sent[0])
+    proc = _nmtcheck("check", "--follow", str(log), "-o", str(report), "--fail-on", "never",
+                     stdin=subprocess.DEVNULL)
+    err = Lines(proc.stderr)
+
+    def append(seconds: float, path: Path = log) -> None:
+        ts = time.time()
+        end = ts + seconds
+        with path.open("ab") as f:
+            while ts < end:
+                ts = time.time()
+                line = f"({ts:.6f}) can0 705#05\n".encode()
+                sent.append(line)
+                f.write(line)
+                f.flush()
+                time.sleep(0.05)
+
+    append(1.5)
+    time.sleep(0.4)  # node 5 silent: a heartbeat timeout while the file is still open
+    deadline = time.time() + 20
+    while not any("H001" in t for _w, t in err.lines) and time.time() < deadline:
+        time.sleep(0.05)
+    assert any("H001" in t for _w, t in err.lines), err.text()
+    log.rename(tmp_path / "bus.log.1")  # rotated: a new file under the name
+    append(0.3)
+    time.sleep(0.5)
+    assert proc.poll() is None  # a file does not end: it is followed until Ctrl-C
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=30)
+    err.join(5)
+    assert proc.returncode == 0, err.text()
+    assert "Traceback" not in err.text() and "interrupted (SIGINT)" in err.text()
+    data = json.loads(report.read_text())
+    assert data["inputs"][0]["path"] == str(log)
+    whole = tmp_path / "whole.log"
+    whole.write_bytes(b"".join(sent))
+    offline = check_input(str(whole), 0, PROFILE, RULES)
+    assert data["inputs"][0]["frames"] == offline.stats.frames == len(sent)
+    assert [(f["rule"], f["time"]) for f in data["findings"]] == [
+        (f.rule, round(f.time, 6)) for f in offline.findings]
+    assert [f["rule"] for f in data["findings"]] == ["H001"]
+
+
+def test_follow_a_missing_file_is_an_input_error(tmp_path: Path) -> None:
+    proc = _nmtcheck("check", "--follow", str(tmp_path / "none.log"), stdin=subprocess.DEVNULL)
+    _out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2
+    assert "none.log: cannot read: No such file or directory" in err.decode()
 
 
 def test_monitor_process_sigint(tmp_path: Path) -> None:
@@ -309,6 +367,9 @@ def test_monitor_two_channels_duration(tmp_path: Path, monkeypatch: pytest.Monke
      "--output /nonexistent-dir/r.json: the directory does not exist"),
     (["-i", "virtual", "--record", "/nonexistent-dir/s.log"],
      "--record /nonexistent-dir/s.log: the directory does not exist"),
+    (["-i", "virtual", "--record", "s.rec"],
+     "--record s.rec: no log writer for this suffix (known: .asc, .blf, .csv, .db, .log, "
+     ".mf4, .trc, .txt, each also .gz)"),
     (["-i", "virtual", "-c", "quiet", "--duration", "0.3"],
      "no frame received on quiet (duration)"),
 ])

@@ -1,4 +1,5 @@
-"""The README's rule table is generated from the registry, never kept by hand."""
+"""The rule table of the docs (docs/reference/rules/index.md, linked from the README) is
+generated from the registry, never kept by hand."""
 
 from __future__ import annotations
 
@@ -7,12 +8,16 @@ from conftest import REPO
 from nmtcheck.cli import rule_table
 from nmtcheck.profiles import load_profile
 
+RULE_INDEX = REPO / "docs" / "reference" / "rules" / "index.md"
+
 
 def test_readme_rule_table_is_generated() -> None:
-    text = (REPO / "README.md").read_text(encoding="utf-8")
+    text = RULE_INDEX.read_text(encoding="utf-8")
     table = text.split("<!-- rules:start -->\n")[1].split("<!-- rules:end -->")[0].strip()
     assert table == rule_table(load_profile("default")).strip(), (
-        "regenerate with: nmtcheck rules --format markdown")
+        f"regenerate the table in {RULE_INDEX.relative_to(REPO)} with: "
+        "nmtcheck rules --format markdown")
+    assert "docs/reference/rules/index.md" in (REPO / "README.md").read_text(encoding="utf-8")
 
 
 def test_the_default_profile_is_what_the_rules_declare() -> None:

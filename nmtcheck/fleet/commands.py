@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import shlex
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -140,6 +141,8 @@ def render_outcome(out: Any, results: str, quiet: bool) -> str:
             lines.append(f"results: {results} (nothing new to check: no run recorded)")
     sev = out.severity
     lines.append(f"fleet: {sev['error']} errors, {sev['warning']} warnings, {sev['info']} info")
+    if not quiet:  # what to run next: the report over the whole dataset
+        lines.append(f"next: nmtcheck fleet summary {shlex.quote(results)}")
     return "\n".join(lines)
 
 

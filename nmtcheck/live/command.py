@@ -19,7 +19,7 @@ import click
 from nmtcheck.engine import MAX_FINDINGS_PER_RULE, select_rules, summary
 from nmtcheck.errors import NmtcheckError, UsageError
 from nmtcheck.live.display import Display, finding_line
-from nmtcheck.live.session import Outcome, Session
+from nmtcheck.live.session import Outcome, Session, check_record
 from nmtcheck.live.tracker import LiveFinding
 from nmtcheck.reporters import FORMATS, auto_format, format_for_path, streamer
 from nmtcheck.safe_text import escape_controls, escape_lines
@@ -42,8 +42,10 @@ HUMAN_FORMATS = ("text", "concise", "markdown")
               help="Any other python-can bus argument (e.g. receive_own_messages=true, "
                    "serial=12345). Repeatable.")
 @click.option("--record", default=None, metavar="FILE",
-              help="Keep the session's frames as a candump log (`nmtcheck check FILE` gives "
-                   "the same findings).")
+              help="Keep the session's frames in FILE, written as python-can's can.Logger "
+                   "writes its suffix (.blf, .asc, .trc, .csv, .mf4, .db, .txt, any .gz); "
+                   ".log or no suffix: a candump -L log (`nmtcheck check FILE` gives the "
+                   "same findings).")
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
               help="End the session after this many seconds [default: until Ctrl-C].")
 @click.option("--rules", "rules_profile", default=None,
@@ -89,6 +91,8 @@ def monitor(interface: str | None, channels: tuple[str, ...], bitrate: int | Non
                          *([("--record", record)] if record else [])]:
         if not Path(path).parent.is_dir():  # fail before the session, not after an hour
             raise UsageError(f"{option} {path}: the directory does not exist")
+    if record:
+        check_record(record)  # a suffix no writer knows: before the session too
     options = dict(parse_option(item) for item in bus_options)
     buses = open_buses(interface, list(channels), bitrate, fd, data_bitrate, options)
     # the live lines share stdout with a report meant for people; next to a machine

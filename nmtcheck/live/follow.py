@@ -2,6 +2,11 @@
 nmtcheck check --follow -`), live findings on stderr the moment they happen, and at the
 end of the stream (or Ctrl-C) exactly `nmtcheck check` over the bytes received.
 
+`nmtcheck check --follow FILE` follows a growing file as `tail -F` does: from its first
+byte, then what is appended, until Ctrl-C (or SIGTERM); a file truncated is read again
+from its start, a file replaced (log rotation) is reopened by its name, and one removed
+is waited for.
+
 stdout stays `check`'s report (so `--format json` stays JSON); the live lines and the
 node table go to stderr. Every byte read is recorded to a temporary file, which the final
 check reads with the same format detection as `check -`.
@@ -9,6 +14,7 @@ check reads with the same format detection as `check -`.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -25,16 +31,22 @@ from nmtcheck.profiles import Profile
 from nmtcheck.readers import READ_PIECE, InputStats, split_lines
 from nmtcheck.readers.candump import _parse_line, sniff
 
+FOLLOW_POLL_S = 0.1  # a followed file is looked at this often once its end is reached
+
 
 def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network: Any = None,
            input_format: str | None = None, strict: bool = False, channel: str | None = None,
-           max_findings: int = 0, display: Display | None = None) -> list[InputResult]:
-    """Follow `stream` (standard input when None) to its end or Ctrl-C; the results of
-    `check` over everything read, as `check_inputs` returns them."""
+           max_findings: int = 0, display: Display | None = None,
+           path: str | None = None) -> list[InputResult]:
+    """Follow `stream` (standard input when None) to its end or Ctrl-C, or the file `path`
+    as it grows (`tail -F`) until Ctrl-C; the results of `check` over everything read, as
+    `check_inputs` returns them."""
     from nmtcheck.live.command import live_summary
     from nmtcheck.live.signals import ended_by, ending_on_signals
 
-    lines = _input_lines(stream)
+    name = path if path is not None else "<stdin>"
+    done = threading.Event()
+    lines = _input_lines(stream) if path is None else split_lines(_file_pieces(path, done))
     display = display or Display(sys.stderr)
     session: Session | None = None
 
@@ -44,14 +56,14 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
 
     session = Session(profile, rules, network, None, shown, input_format=input_format,
                       channel=channel, strict=strict, max_findings=max_findings,
-                      on_withdraw=display.withdrawn, name="<stdin>")
-    stats = InputStats("<stdin>")
+                      on_withdraw=display.withdrawn, name=name)
+    stats = InputStats(name)
     live: list[bool | None] = [None if input_format in (None, "candump") else False]
-    done = threading.Event()
     failure: list[BaseException] = []
 
     def read() -> None:
-        """Standard input, line by line as it arrives, into the session."""
+        """Standard input (or the followed file), line by line as it arrives, into the
+        session."""
         try:
             for lineno, raw in enumerate(lines, 1):
                 if done.is_set():
@@ -71,14 +83,14 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
     if failure:
         if isinstance(failure[0], InputError):
             raise failure[0]
-        raise InputError("<stdin>", f"cannot read: {failure[0]}")
+        raise InputError(name, f"cannot read: {failure[0]}")
     display.close()
     try:
         outcome = session.close()
     except InputError as exc:  # the same message as `check -` on these bytes
-        raise InputError("<stdin>", exc.message, exc.line) from None
+        raise InputError(name, exc.message, exc.line) from None
     if outcome.result is None:
-        raise InputError("<stdin>", f"no frame received ({ended})")
+        raise InputError(name, f"no frame received ({ended})")
     display.note(live_summary(outcome, ended))
     return [outcome.result]
 
@@ -128,12 +140,65 @@ def _fd_lines(fd: int) -> Iterator[bytes]:
     return split_lines(pieces())
 
 
+def _file_pieces(path: str, done: threading.Event, poll: float = FOLLOW_POLL_S
+                 ) -> Iterator[bytes]:
+    """The bytes of the file `path` as it grows, until `done` is set, as `tail -F` follows
+    a file: by its name. At its end it waits `poll` seconds and looks again: a file
+    shorter than what was read (truncated) is read again from its start, another file
+    under the name (rotated) is opened, a missing one is waited for. A line cut short by
+    that is ended there, never joined with the next file's first line."""
+    try:
+        f: IO[bytes] | None = open(path, "rb")  # noqa: SIM115 - closed below
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    last = b"\n"
+    try:
+        while not done.is_set():
+            if f is not None:
+                chunk = f.read(READ_PIECE)
+                if chunk:
+                    last = chunk[-1:]
+                    yield chunk
+                    continue
+            try:
+                now = os.stat(path)
+            except OSError:
+                now = None
+            if f is not None and now is not None and not os.path.samestat(
+                    now, os.fstat(f.fileno())):
+                f.close()  # rotated: everything the old file held has been read
+                f = None
+            if f is None and now is not None:
+                with contextlib.suppress(OSError):
+                    f = open(path, "rb")  # noqa: SIM115 - closed below
+                if f is not None:
+                    if last != b"\n":
+                        last = b"\n"
+                        yield b"\n"
+                    continue
+            elif f is not None and now is not None and now.st_size < f.tell():
+                f.seek(0)  # truncated in place (`> file`, copytruncate)
+                if last != b"\n":
+                    last = b"\n"
+                    yield b"\n"
+                continue
+            done.wait(poll)
+    finally:
+        if f is not None:
+            f.close()
+
+
 def follow_logs(logs: tuple[str, ...], profile: Profile, rules: list[Any], **options: Any
                 ) -> list[InputResult]:
-    """`check --follow LOGS`: LOGS must be `-` alone (a file does not grow here)."""
+    """`check --follow LOG`: LOG is `-` (standard input to its end) or one file, followed
+    as it grows (`tail -F`) until Ctrl-C."""
     from nmtcheck.errors import UsageError
 
-    if tuple(logs) != ("-",):
-        raise UsageError("--follow reads standard input as it arrives: "
-                         "nmtcheck check --follow -")
-    return follow(None, profile, rules, **options)
+    if len(logs) != 1:
+        raise UsageError("--follow reads one log as it grows: a file (as tail -F follows "
+                         "it) or - (standard input)")
+    if logs[0] == "-":
+        return follow(None, profile, rules, **options)
+    if os.path.isdir(logs[0]):
+        raise UsageError(f"--follow {logs[0]}: is a directory")
+    return follow(None, profile, rules, path=logs[0], **options)

@@ -6,7 +6,7 @@ The live session records every frame as a candump log so that its final verdict 
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 CAN_ERR_FLAG = 0x20000000
 
@@ -53,3 +53,12 @@ def from_message(msg: object, default_channel: str) -> LiveFrame:
                      bool(getattr(msg, "is_error_frame", False)),
                      bool(getattr(msg, "is_fd", False)),
                      int(getattr(msg, "dlc", len(data))), data)
+
+
+def to_message(f: LiveFrame) -> Any:
+    """A LiveFrame as a python-can `Message` (for python-can's log writers)."""
+    import can
+
+    return can.Message(timestamp=f.ts, arbitration_id=f.can_id, is_extended_id=f.ext,
+                       is_remote_frame=f.rtr, is_error_frame=f.err, is_fd=f.fd,
+                       dlc=f.dlc, data=f.data, channel=f.channel, check=False)

@@ -18,11 +18,13 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import IO, Any
 
 from nmtcheck.checks.base import Rule
 from nmtcheck.engine import MAX_FINDINGS_PER_RULE, Finding, InputResult, check_input
-from nmtcheck.live.frames import LiveFrame, candump_line
+from nmtcheck.errors import UsageError
+from nmtcheck.live.frames import LiveFrame, candump_line, to_message
 from nmtcheck.live.tracker import LiveFinding, NodeState, Tracker
 from nmtcheck.network import Network
 from nmtcheck.profiles import Profile
@@ -35,6 +37,43 @@ FLUSH_S = 0.5  # the recording reaches the disk at least this often
 CLOCK_WINDOW_S = 10  # the bus clock's offset is learnt from this many recent seconds
 QUEUE_FRAMES = 50_000  # frames received and not yet checked; more are dropped and counted
 OVERLOAD_NOTE_S = 1.0  # the live note about dropped frames, at most this often
+
+CANDUMP_SUFFIXES = ("", ".log")  # a recording written as candump -L by the session itself
+
+
+def check_record(path: str) -> bool:
+    """Whether a recording at `path` is written by python-can (True: a suffix its
+    `can.Logger` knows: .asc, .blf, .csv, .db, .mf4, .trc, .txt, any of them .gz) or by
+    the session itself as a candump log (False: .log or no suffix); another suffix is a
+    usage error, before anything is received."""
+    from can.io.logger import MESSAGE_WRITERS
+
+    parts = [x.lower() for x in Path(path).suffixes]
+    suffix = parts[-1] if parts else ""
+    if suffix == ".gz":
+        suffix = parts[-2] if len(parts) > 1 else ""
+        if suffix in MESSAGE_WRITERS:
+            return True
+    elif suffix in CANDUMP_SUFFIXES:
+        return False
+    elif suffix in MESSAGE_WRITERS:
+        return True
+    known = ", ".join(sorted(MESSAGE_WRITERS))
+    raise UsageError(f"--record {path}: no log writer for this suffix (known: {known}, "
+                     "each also .gz)")
+
+
+def record_writer(path: str) -> Any:
+    """python-can's writer for a recording at `path`, chosen by its suffix as `can.Logger`
+    chooses; None for a candump log, which the session writes itself (`check_record`)."""
+    import can
+
+    if not check_record(path):
+        return None
+    try:
+        return can.Logger(path)
+    except (OSError, ImportError, ValueError) as exc:
+        raise UsageError(f"--record {path}: cannot write: {exc}") from None
 
 
 class BusClock:
@@ -111,14 +150,18 @@ class Session:
         self.frames = 0
         self.records = 0  # frames, or lines of a followed log (which may hold none)
         self.last_ts: float | None = None
-        self.temporary = record is None
-        if record is None:
-            fd, record = tempfile.mkstemp(prefix="nmtcheck-live-", suffix=".log")
+        # `record` in another format than candump (.blf, .asc, ...): python-can's writer
+        # for its suffix keeps it, beside the candump recording the checks read
+        self._writer = record_writer(record) if record is not None else None
+        self.temporary = record is None or self._writer is not None
+        path = record
+        if path is None or self._writer is not None:
+            fd, path = tempfile.mkstemp(prefix="nmtcheck-live-", suffix=".log")
             os.close(fd)
-        self.path = record
+        self.path = path
         # what the reports call the input: the recording kept, else `name`
-        self.name = record if not self.temporary else name or "<live>"
-        self._file: IO[bytes] | None = open(record, "wb")  # noqa: SIM115 - closed in close()
+        self.name = record if record is not None else name or "<live>"
+        self._file: IO[bytes] | None = open(path, "wb")  # noqa: SIM115 - closed in close()
         self._last_flush = time.monotonic()
         self._stop = threading.Event()
         # the bounded intake of `submit` (bus threads): frames wait here for the checker
@@ -153,6 +196,8 @@ class Session:
             if frame is None:
                 return
             self.frames += 1
+            if self._writer is not None:
+                self._writer.on_message_received(to_message(frame))
             self.last_ts = frame.ts
             self.clock.observe(frame.ts)
             self.tracker.feed(frame)
@@ -292,6 +337,9 @@ class Session:
                 if self._file is not None:
                     self._file.close()
                     self._file = None
+                if self._writer is not None:
+                    self._writer.stop()
+                    self._writer = None
                 if self.temporary:
                     with contextlib.suppress(OSError):
                         os.unlink(self.path)

@@ -3,13 +3,17 @@ r"""One line per finding for CI logs, grep and editors (`--format concise`).
 `PATH:LINE: TIME CODE [severity] node N: message` — TIME in seconds from the
 input's first frame; LINE is empty for binary formats (`run.blf:: …`). A finding
 of the network rather than a node (C001, C002 on a frame of the wrong length)
-says `network:`; a finding about the input itself (I-rules) has no node part.
-When an input has several channels the node part names the channel too
-(`node 5 on can1:`). Vim's `errorformat=%f:%l:\ %m` and Emacs' compilation mode
-follow these lines. A verdict line ends the output.
+says `network:`; a finding about the input itself (I-rules) has no node part, and
+neither has one whose message names its node already (`no heartbeat from node 3`:
+the node is not said twice). When an input has several channels the node part names
+the channel too (`node 5 on can1:`, or `can1:` before a message naming the node).
+Vim's `errorformat=%f:%l:\ %m` and Emacs' compilation mode follow these lines. A
+verdict line ends the output.
 """
 
 from __future__ import annotations
+
+import re
 
 from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
@@ -24,10 +28,13 @@ from nmtcheck.safe_text import escape_lines
 
 
 def finding_line(res: InputResult, f: Finding) -> str:
+    several = len(res.stats.channels) > 1
     if f.channel is None:
         who = ""
+    elif f.node is not None and re.search(rf"\bnode {f.node}\b", f.message):
+        who = f"{f.channel}: " if several else ""  # the message names the node: not twice
     else:
-        who = node_label(f.node) + (f" on {f.channel}" if len(res.stats.channels) > 1 else "")
+        who = node_label(f.node) + (f" on {f.channel}" if several else "")
         who += ": "
     return (f"{res.stats.path}:{f.line or ''}: {offset(res, f.time):.6f}s {f.rule} "
             f"[{f.severity}] {who}{f.message}")

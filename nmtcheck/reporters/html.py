@@ -21,8 +21,9 @@ import jinja2
 import numpy as np
 from markupsafe import Markup
 
-from nmtcheck import __version__
-from nmtcheck.engine import InputResult
+from nmtcheck import __version__, boot_report
+from nmtcheck.boot import LETTERS
+from nmtcheck.engine import Finding, InputResult
 from nmtcheck.model import NodeModel
 from nmtcheck.nmt import HEARTBEAT, STATES
 from nmtcheck.nmt import SOURCES as TIMELINE_SOURCES
@@ -152,9 +153,90 @@ def _group_view(res: InputResult, g: FindingGroup, gid: str) -> dict[str, Any]:
         "measured": measured_mark(f).strip(" []"),
         "timeline": None if g.channel is None else timeline_id(res, g.channel),
         "occurrences": [{"time": _r(offset(res, o.time)), "line": o.line or None,
-                         "message": o.message} for o in shown],
+                         "message": o.message, **_causes_view(res, o)} for o in shown],
         "hidden": g.count - len(shown),
     }
+
+
+def _causes_view(res: InputResult, f: Finding) -> dict[str, Any]:
+    """SPEC §8.6: the events that may explain a finding, times from the first frame; no
+    keys at all for a finding of a rule that has no causes."""
+    if f.causes is None:
+        return {}
+    return {"causes": [{"kind": c["kind"], "time": _r(offset(res, c["time"])),
+                        "end": None if c.get("end") is None else _r(offset(res, c["end"])),
+                        "line": c.get("line") or None, "node": c.get("node"),
+                        "count": c.get("count"), "code": c.get("code"), "text": c["text"]}
+                       for c in f.causes],
+            "causes_omitted": f.causes_omitted or 0}
+
+
+def _sub_index(step: dict[str, Any]) -> str:
+    if step.get("index") is None:
+        return ""
+    sub = step.get("sub")
+    index = str(step["index"]).removesuffix("h")
+    return index if sub is None else f"{index}:{int(sub):02X}"
+
+
+def _step_view(res: InputResult, step: dict[str, Any]) -> dict[str, Any]:
+    """One row of a node's steps (SPEC §8.5.3): time, step, index:sub, value / expected,
+    result, line; a summary of many configuration steps says how many and how many failed."""
+    if "count" in step:
+        end = step.get("end_time")
+        return {"time": _r(offset(res, step["time"])), "step": step["step"], "object": "",
+                "value": f"{step['count']} downloads, {step.get('failed', 0)} failed",
+                "expected": None, "result": "",
+                "line": None, "end": None if end is None else _r(offset(res, end))}
+    result = step.get("result") or ""
+    if step.get("abort_code") and result not in ("ok", ""):
+        result = f"{result} ({step['abort_code']})"
+    return {"time": _r(offset(res, step["time"])), "step": step["step"],
+            "object": _sub_index(step), "value": step.get("value"),
+            "expected": step.get("expected"), "expected_source": step.get("expected_source"),
+            "result": result, "line": step.get("line") or None,
+            "end": None}
+
+
+def _boot_row(res: InputResult, entry: dict[str, Any]) -> dict[str, Any]:
+    """A node's row in its channel's boot table, from the JSON report's `nodes[].boot`."""
+    boot = entry["boot"]
+    x = boot.get("process")
+    rep = res.boot.nodes.get((entry["channel"], entry["node"])) if res.boot else None
+    letter = boot.get("letter")
+    when: float | None = None
+    line = None
+    if boot["status"] == "incomplete":
+        when = res.model.end
+    elif x is not None:
+        evidence = x.get("evidence") or {}
+        when = evidence.get("time", x.get("end"))
+        line = evidence.get("line") or None
+    return {
+        "node": entry["node"], "status": boot["status"], "letter": letter,
+        "letter_text": LETTERS.get(letter or "", boot.get("reason") or ""),
+        "letter_source": boot.get("letter_source"),
+        "time": None if when is None else _r(offset(res, when)), "line": line,
+        "attempts": None if x is None else x.get("attempts"), "processes": boot["processes"],
+        "anchor": None if x is None else x.get("anchor"),
+        "detail": "" if rep is None else boot_report._detail(rep, res.findings),
+        "mandatory": bool((boot.get("assignment") or {}).get("mandatory")),
+        "steps": [] if x is None else [_step_view(res, s) for s in x.get("steps", ())],
+    }
+
+
+def _boot_views(res: InputResult, nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One "Boot (CiA 302-2)" table per channel of an input where the boot group ran (SPEC
+    §8.5.3), with its manager line; nothing when it ran on no channel."""
+    b = res.boot
+    if b is None or not any(cb.ran for cb in b.channels.values()):
+        return []
+    return [{"input": res.index, "path": res.stats.path, "channel": name,
+             "heading": cb.heading(),
+             "rows": [_boot_row(res, n) for n in nodes if n["input"] == res.index
+                      and n["channel"] == name and n.get("boot") is not None]
+             if cb.ran else []}
+            for name, cb in b.channels.items()]
 
 
 def _histogram(intervals: np.ndarray) -> dict[str, Any] | None:
@@ -235,10 +317,15 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         for channel, channel_nodes in nodes_by_channel(res).items():
             rows = []
             for node in channel_nodes:
-                marks = [[o["time"], g["id"], k] for g in res_groups
-                         if g["channel"] == channel and g["node"] == node
+                mine = [g for g in res_groups if g["channel"] == channel and g["node"] == node]
+                marks = [[o["time"], g["id"], k] for g in mine
                          for k, o in enumerate(g["occurrences"])]
+                # the events that may explain a finding, on the finding's row (SPEC §8.6)
+                causes = [[c["time"], g["id"], k, j] for g in mine
+                          for k, o in enumerate(g["occurrences"])
+                          for j, c in enumerate(o.get("causes", ()))]
                 rows.append({"node": node, "label": node_label(node), "marks": sorted(marks),
+                             "causes": sorted(causes),
                              "iv": [] if node is None
                              else intervals.get((res.index, channel, node), [])})
             cm = next((c for c in res.model.channels if c.name == channel), None)
@@ -276,6 +363,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "not_logs": not_logs_line(options),
         "counts": report["summary"],
         "inputs": inputs, "timelines": timelines, "groups": groups, "nodes": nodes,
+        "boot": [view for res in results for view in _boot_views(res, report["nodes"])],
         "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
         "several_inputs": len(results) > 1, "network_notes": network_notes(options),
         "omitted": omitted_lines(results, options),

@@ -129,28 +129,30 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     if config and not quiet:
         out.append(config)
     notes = network_notes(options)
-    if notes:
+    if notes and not quiet:
         out.append("network description: values that could not be read:")
         out += [f"  {n}" for n in notes]
     skipped_files = not_logs_line(options)
-    if skipped_files:
+    if skipped_files and not quiet:
         out.append(skipped_files)
     for res in results:
         if res.error is not None:  # named, and the others are still checked (SPEC §4)
             out += [error_line(res), ""]
             continue
+        if quiet:  # -q: only the findings (headed by their file and node) and the verdict
+            found = _findings(res) + [f"  … {line}" for line in omitted_lines([res], options)]
+            out += [*found, ""] if found else []
+            continue
         out += _input_line(res)
-        if res.not_evaluated and not quiet:
+        if res.not_evaluated:
             out.append("  not evaluated: " + "; ".join(
                 f"{code} ({why})" for code, why in res.not_evaluated.items()))
-        if not quiet:
-            out += [f"  {master_line(cm)}" for cm in res.model.channels]
-            out += _node_table(res)
-            out += _node_events(res)
+        out += [f"  {master_line(cm)}" for cm in res.model.channels]
+        out += _node_table(res)
+        out += _node_events(res)
         out += _findings(res)
         out += [f"  … {line}" for line in omitted_lines([res], options)]
-        if not quiet:
-            out += boot_report.text_lines(res)
+        out += boot_report.text_lines(res)
         out.append("")
     out.append(verdict_line(results, options))
     return escape_lines(out) + "\n"  # a name's newline or ESC is shown, never sent

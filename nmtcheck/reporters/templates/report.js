@@ -139,6 +139,22 @@
                        y: barY + 13, "text-anchor": "middle" }, bars, state);
         }
       });
+      // Events that may explain a finding (SPEC §8.6): small grey diamonds in the marker
+      // lane, drawn first so the findings' markers stay on top.
+      (row.causes || []).forEach(function (cause) {
+        var t = cause[0], group = data.groups[cause[1]];
+        if (t < self.v0 || t > self.v1) { return; }
+        var c = group.occurrences[cause[2]].causes[cause[3]];
+        var cx = self.x(t), cy = y0 + MARK_H / 2 + 1;
+        var dia = el("polygon", { "class": "cause-marker", "data-group": cause[1],
+                                  "data-kind": c.kind,
+                                  points: (cx - 3.5) + "," + cy + " " + cx + "," + (cy - 3.5) + " " +
+                                          (cx + 3.5) + "," + cy + " " + cx + "," + (cy + 3.5) }, g);
+        el("title", {}, dia, "may explain " + group.rule + " " + group.name + " at " +
+           group.occurrences[cause[2]].time.toFixed(6) + " s\n" + t.toFixed(6) + " s" +
+           (c.end !== null ? " – " + c.end.toFixed(6) + " s" : "") + " · " + c.kind + " · " +
+           c.text + (c.line ? " (line " + c.line + ")" : ""));
+      });
       row.marks.forEach(function (mark) {
         var t = mark[0], group = data.groups[mark[1]], k = mark[2];
         if (t < self.v0 || t > self.v1) { return; }
@@ -198,7 +214,7 @@
     svg.addEventListener("dblclick", function () { self.setView(0, self.total); });
     svg.addEventListener("click", function (e) {
       if (drag && drag.moved) { return; }
-      var marker = e.target.closest ? e.target.closest(".marker") : null;
+      var marker = e.target.closest ? e.target.closest(".marker, .cause-marker") : null;
       if (marker) { showFinding(marker.getAttribute("data-group")); }
     });
     this.figure.querySelectorAll("button[data-zoom]").forEach(function (button) {

@@ -1,0 +1,171 @@
+"""The HTML report's boot table (SPEC §8.5.3) and cause chains (SPEC §8.6)."""
+
+from __future__ import annotations
+
+import json
+import re
+from html.parser import HTMLParser
+from typing import Any
+
+from conftest import REPO, Checker
+
+from nmtcheck.boot import LETTERS
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.network import load_network
+from nmtcheck.profiles import load_profile
+from nmtcheck.reporters import html
+
+OPTIONS: dict[str, object] = {"fail_on": "error"}
+
+# SPEC_BOOT §8.7, P001: node 2's product code differs from 1F86h (letter M)
+P001_NET = ("master = 1\n[boot]\nmanager = true\n[nodes.2]\n"
+            "vendor_id = 0x00000300\nproduct_code = 0x00004645\n")
+P001_LOG = """
+(10.000000) can0 701#00
+(10.010000) can0 000#8200
+(10.020000) can0 702#00
+(10.021000) can0 602#4000100000000000
+(10.022000) can0 582#4300100092010200
+(10.023000) can0 602#4018100100000000
+(10.024000) can0 582#4318100100030000
+(10.025000) can0 602#4018100200000000
+(10.026000) can0 582#4318100244460000
+(11.000000) can0 080#
+"""
+
+# SPEC_BOOT §8.7, C1: node 5's heartbeat stops; its EMCY 8140h when it comes back
+C1_LOG = """
+(10.000000) can0 705#05
+(10.100000) can0 705#05
+(10.200000) can0 705#05
+(10.300000) can0 705#05
+(11.000000) can0 085#4081110000000000
+(11.010000) can0 705#05
+"""
+
+
+class _Tables(HTMLParser):
+    """Rows of every table with class `boot-table` (cells' text), and the script data."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.rows: list[dict[str, Any]] = []
+        self.depth = 0  # nesting of tables inside a boot table
+        self.cell: list[str] | None = None
+        self.data = ""
+        self.in_data = False
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        if tag == "table" and ("boot-table" in (a.get("class") or "") or self.depth):
+            self.depth += 1
+        elif tag == "tr" and self.depth == 1 and "data-node" in a:
+            self.rows.append({**a, "cells": []})
+        elif tag == "td" and self.depth == 1 and self.rows:
+            self.cell = []
+            self.rows[-1]["cells"].append(self.cell)
+        elif tag == "abbr" and self.depth == 1 and self.rows:
+            self.rows[-1]["letter_title"] = a.get("title")
+        elif tag == "script" and a.get("id") == "report-data":
+            self.in_data = True
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag == "table" and self.depth:
+            self.depth -= 1
+        elif tag == "td" and self.depth == 1:
+            self.cell = None
+        elif tag == "script":
+            self.in_data = False
+
+    def handle_data(self, data: str) -> None:
+        if self.cell is not None:
+            self.cell.append(data)
+        if self.in_data:
+            self.data += data
+
+
+def _parse(page: str) -> _Tables:
+    p = _Tables()
+    p.feed(page)
+    return p
+
+
+def _text(cell: list[str]) -> str:
+    return re.sub(r"\s+", " ", "".join(cell)).strip()
+
+
+def test_failed_boot_row_has_status_letter_and_proving_frame(checker: Checker) -> None:
+    res = checker.run(P001_LOG.strip() + "\n", network=P001_NET)
+    page = html.render([res], OPTIONS)
+    assert 'id="boot"' in page and "Boot (CiA 302-2)" in page
+    assert "manager network" in page  # the channel's manager line above the table
+    parsed = _parse(page)
+    row = next(r for r in parsed.rows if r["data-node"] == "2")
+    assert (row["data-status"], row["data-letter"]) == ("failed", "M")
+    assert row["letter_title"] == LETTERS["M"]
+    cells = [_text(c) for c in row["cells"][:6]]
+    assert cells[0] == "2" and cells[1] == "failed" and cells[2].startswith("M")
+    start = res.stats.start or 0.0
+    assert float(cells[3]) == round(10.026 - start, 6) and cells[4] == "9"  # proving frame
+    assert cells[5].startswith("1")  # attempts
+    detail = _text(row["cells"][6])
+    assert "0x00004644" in detail and "0x00004645" in detail  # the P001 message
+    assert "1018:02" in detail and "product_code" in detail  # the steps
+
+
+def test_causes_under_the_finding_and_on_the_timeline(checker: Checker) -> None:
+    res = checker.run(C1_LOG.strip() + "\n")
+    page = html.render([res], OPTIONS)
+    m = re.search(r'<div class="causes" data-causes="1">(.*?)</div>', page, re.S)
+    assert m is not None
+    assert 'data-kind="emcy"' in m.group(1) and "8140h recovered from bus" in m.group(1)
+    assert "line 5" in m.group(1)
+    data = json.loads(_parse(page).data)
+    rows = [r for tl in data["timelines"] for r in tl["rows"] if r["node"] == 5]
+    (row,) = rows
+    start = res.stats.start or 0.0
+    assert [c[0] for c in row["causes"]] == [round(11.0 - start, 6)]
+    gid = row["causes"][0][1]
+    assert data["groups"][gid]["rule"] == "H001"
+    cause = data["groups"][gid]["occurrences"][0]["causes"][0]
+    assert cause["kind"] == "emcy" and cause["code"] == "8140h"
+
+
+def test_no_boot_section_without_a_manager(checker: Checker) -> None:
+    page = html.render([checker.run(C1_LOG.strip() + "\n")], OPTIONS)
+    assert 'id="boot"' not in page
+
+
+def test_findings_of_other_rules_have_no_causes(checker: Checker) -> None:
+    res = checker.run(P001_LOG.strip() + "\n", network=P001_NET)
+    context = html.report_context([res], OPTIONS)
+    p001 = next(g for g in context["groups"] if g["rule"] == "P001")
+    assert "causes" not in p001["occurrences"][0]
+    assert 'class="causes' not in html.render([res], OPTIONS).split('id="boot"')[0]
+
+
+def test_cause_and_boot_text_is_escaped(checker: Checker) -> None:
+    res = checker.run(C1_LOG.strip() + "\n")
+    f = next(f for f in res.findings if f.rule == "H001")
+    assert f.causes
+    f.causes[0]["text"] = "<img src=x onerror=alert(1)></script>"
+    page = html.render([res], OPTIONS)
+    assert "<img src=x" not in page
+    assert "&lt;img src=x onerror=alert(1)&gt;&lt;/script&gt;" in page
+    assert "\\u003cimg src=x" in page  # and in the page data
+
+
+def test_lely_mandatory_sample() -> None:
+    lely = REPO / "samples" / "lely" / "mandatory"
+    prof = load_profile("default")
+    res = check_input(str(lely / "mandatory_lost.log"), 0, prof, select_rules(prof, [], []),
+                      load_network(str(lely / "network.toml")))
+    page = html.render([res], OPTIONS)
+    rows = {r["data-node"]: r for r in _parse(page).rows}
+    assert set(rows) == {"1", "2", "3", "4"}
+    assert rows["1"]["data-status"] == "not-managed"
+    assert all(rows[n]["data-status"] == "ok" for n in "234")
+    detail = _text(rows["3"]["cells"][6])
+    assert "started" in detail and "after reset" in detail
+    # H001 of node 3: the broadcast resets, under the finding
+    assert "NMT reset communication to all nodes" in page
