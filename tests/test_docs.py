@@ -3,7 +3,10 @@
 * `mkdocs build --strict` passes (a broken link or a missing page fails it), every rule
   of the registry has its generated page and the CLI reference is generated;
 * every ```sh block of README.md and docs/ marked `<!-- run: exit=N -->` is run against
-  the samples, line by line, and each `nmtcheck` command must exit with N.
+  the samples, line by line, and each `nmtcheck` command must exit with N;
+* every ```python block marked `<!-- run: python -->` runs in a fresh interpreter from
+  the repository root without an error. Blocks that need hardware or a server (a PCAN
+  adapter, an S3 endpoint) are not marked.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from nmtcheck.checks import RULES
 DOCS = REPO / "docs"
 MARKDOWN = [REPO / "README.md", *sorted(DOCS.rglob("*.md"))]
 RUN = re.compile(r"<!-- run: exit=(\d+) -->\n```sh\n(.*?)\n```", re.DOTALL)
+RUN_PYTHON = re.compile(r"<!-- run: python -->\n```python\n(.*?)\n```", re.DOTALL)
 HAS_MKDOCS = all(importlib.util.find_spec(m) is not None
                  for m in ("mkdocs", "material", "mkdocs_click"))
 
@@ -48,6 +52,31 @@ EXAMPLES = _examples()
 def test_examples_are_collected() -> None:
     assert len(EXAMPLES) >= 6
     assert any(where.startswith("README.md") for where, _, _ in EXAMPLES)
+
+
+def _python_examples() -> list[tuple[str, str]]:
+    found: list[tuple[str, str]] = []
+    for md in MARKDOWN:
+        text = md.read_text(encoding="utf-8")
+        for m in RUN_PYTHON.finditer(text):
+            line_no = text.count("\n", 0, m.start()) + 1
+            found.append((f"{md.relative_to(REPO)}:{line_no}", m.group(1)))
+    return found
+
+
+PYTHON_EXAMPLES = _python_examples()
+
+
+def test_python_examples_are_collected() -> None:
+    assert PYTHON_EXAMPLES, "no ```python block is marked <!-- run: python -->"
+
+
+@pytest.mark.parametrize(("where", "code"), PYTHON_EXAMPLES,
+                         ids=[w for w, _ in PYTHON_EXAMPLES])
+def test_python_example_runs(where: str, code: str) -> None:
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, (where, proc.stdout[-2000:], proc.stderr[-2000:])
 
 
 @pytest.mark.parametrize(("where", "cmd", "code"), EXAMPLES,
