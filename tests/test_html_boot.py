@@ -9,6 +9,11 @@ from typing import Any
 
 from conftest import REPO, Checker
 
+# SPEC_BOOT §8.7 vectors, as tests/test_rules_boot.py holds them: P001 (node 2's product
+# code differs from 1F86h, letter M) and C1 (node 5's heartbeat stops; its EMCY 8140h when
+# it comes back)
+from test_rules_boot import C1_LOG, P001_LOG, P001_NET
+
 from nmtcheck.boot import LETTERS
 from nmtcheck.engine import check_input, select_rules
 from nmtcheck.network import load_network
@@ -17,31 +22,6 @@ from nmtcheck.reporters import html
 
 OPTIONS: dict[str, object] = {"fail_on": "error"}
 
-# SPEC_BOOT §8.7, P001: node 2's product code differs from 1F86h (letter M)
-P001_NET = ("master = 1\n[boot]\nmanager = true\n[nodes.2]\n"
-            "vendor_id = 0x00000300\nproduct_code = 0x00004645\n")
-P001_LOG = """
-(10.000000) can0 701#00
-(10.010000) can0 000#8200
-(10.020000) can0 702#00
-(10.021000) can0 602#4000100000000000
-(10.022000) can0 582#4300100092010200
-(10.023000) can0 602#4018100100000000
-(10.024000) can0 582#4318100100030000
-(10.025000) can0 602#4018100200000000
-(10.026000) can0 582#4318100244460000
-(11.000000) can0 080#
-"""
-
-# SPEC_BOOT §8.7, C1: node 5's heartbeat stops; its EMCY 8140h when it comes back
-C1_LOG = """
-(10.000000) can0 705#05
-(10.100000) can0 705#05
-(10.200000) can0 705#05
-(10.300000) can0 705#05
-(11.000000) can0 085#4081110000000000
-(11.010000) can0 705#05
-"""
 
 
 class _Tables(HTMLParser):
