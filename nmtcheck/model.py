@@ -588,7 +588,6 @@ class NodeModel:
     writes: WriteTable = field(default_factory=WriteTable.empty)  # to N's own objects
     consumer_writes: WriteTable = field(default_factory=WriteTable.empty)  # 1016h naming N
     events: NodeEvents = field(default_factory=NodeEvents)
-    is_master: bool = False  # the channel's NMT master (SPEC §2)
     order_only: bool = False  # the input has no timestamps: no period is measured
     self_starts: list[tuple[float, int]] = field(default_factory=list)  # (ts, frame index)
     # after a boot-up, spans where nothing shows whether N started itself (no S001)
@@ -738,23 +737,6 @@ class NodeModel:
         if bool(((self.writes.index == 0x1017) & (self.writes.value != 0)).any()):
             return True
         return self.ec.count(HEARTBEAT) >= 2
-
-    def hb_timeout_s(self, timeout_factor: float, at: float | None = None) -> float | None:
-        """The heartbeat timeout in force at `at`: consumer time, else factor x period.
-
-        None when there is none, or when 1017h was set to 0 by SDO (heartbeat disabled).
-        """
-        return self.hb_timeout(self.config if at is None else self.config_at(at),
-                               timeout_factor)
-
-    def hb_timeout(self, cfg: NodeConfig, timeout_factor: float) -> float | None:
-        """The heartbeat timeout under configuration `cfg`."""
-        if cfg.heartbeat_ms == 0.0:
-            return None
-        if cfg.consumer_timeout_ms:
-            return cfg.consumer_timeout_ms / 1000.0
-        period = cfg.heartbeat_ms / 1000.0 if cfg.heartbeat_ms else self.period_s
-        return timeout_factor * period if period else None
 
     def periods_at(self, times: np.ndarray) -> np.ndarray:
         """N's heartbeat period in force at each time (SPEC §2): the producer time (1017h)

@@ -3,9 +3,6 @@ error-control frame, and the few comparisons every stage makes on them."""
 
 from __future__ import annotations
 
-import bisect
-from typing import Any
-
 import numpy as np
 
 UNKNOWN = "UNKNOWN"
@@ -29,15 +26,6 @@ RESETS = (CS_RESET_NODE, CS_RESET_COMM)
 EPS = 1e-7  # timestamps are microseconds at best: ignore float noise in comparisons
 
 
-def any_between(sorted_values: list[Any], lo: Any, hi: Any) -> bool:
-    """Whether a sorted list holds a value v with lo < v < hi.
-
-    Bisection, because rules ask this per heartbeat pair against every reset/command.
-    """
-    k = bisect.bisect_right(sorted_values, lo)
-    return k < len(sorted_values) and sorted_values[k] < hi
-
-
 def state_name(code: int) -> str:
     return CODE_NAMES.get(code, f"{code:02X}h")
 
@@ -50,7 +38,7 @@ SOURCE_INDEX = {s: i for i, s in enumerate(SOURCES)}
 
 
 def between(sorted_marks: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Per pair, whether a mark m with lo < m < hi exists (vectorised any_between)."""
+    """Per pair, whether a mark m with lo < m < hi exists."""
     if not len(sorted_marks):
         return np.zeros(len(lo), bool)
     return (np.searchsorted(sorted_marks, lo, side="right")

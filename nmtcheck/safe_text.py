@@ -31,13 +31,18 @@ def _escape(m: re.Match[str]) -> str:
     return f"\\x{code:02x}" if code <= 0xFF else f"\\u{code:04x}"
 
 
+def escape_matching(pattern: re.Pattern[str], text: str) -> str:
+    """`text` with every match of `pattern` (single characters) written as `\\xNN`."""
+    return pattern.sub(_escape, text)
+
+
 def escape_controls(text: object) -> str:
     """`text` with every control character written as `\\xNN` (or `\\uNNNN`): one line
     that no terminal or CI runner acts on."""
     s = "" if text is None else str(text)
     if s.isascii() and s.isprintable():  # the usual text: one C call, nothing to do
         return s
-    return _CONTROL.sub(_escape, s)
+    return escape_matching(_CONTROL, s)
 
 
 def escape_lines(lines: list[str]) -> str:

@@ -218,7 +218,6 @@ def _apply_commands(nmt: NmtTable, nodes: dict[int, NodeModel],
         if m.first_show_idx is not None:
             seen = broadcast & (m.first_show_idx < nmt.idx)
             if master is not None and n == master.node:
-                m.is_master = True
                 own = np.flatnonzero(seen)
                 obeyed = own[_master_obeyed(m, nmt, own, mine, params)]
                 m.own_command_idx = nmt.idx[obeyed]

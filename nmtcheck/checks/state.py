@@ -67,13 +67,15 @@ _CHECKED_STATES = (PRE_OPERATIONAL, STOPPED)  # the states S001-S003 look into
 
 
 def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
-          grace_s: float, grace_from: str | None) -> list[tuple[NodeModel, int, _Run]]:
+          grace_s: float, grace_from: str | None, unproven: bool = False
+          ) -> list[tuple[NodeModel, int, _Run]]:
     """Frames of `kinds` sent while the node is in one of `states`.
 
     Frames at most `grace_s` after the node left `grace_from` are excused (S001);
     with `grace_from` None, frames at most `grace_s` after the node entered its
     current state (S003). Returning from OFFLINE to the state it had before is
-    not a new entry.
+    not a new entry. With `unproven`, frames in a node's `unproven_spans` (after a
+    boot-up, nothing shows whether it started itself: SPEC §2) are excused too.
     """
     by_key = {m.key: m for cm in model.channels for m in cm.nodes.values()}
     offline = STATE_INDEX[OFFLINE]
@@ -103,9 +105,10 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
         iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
         bad = np.isin(codes[iv], wanted)
         bad &= ~((ts - since[iv]) <= grace_s + EPS)
-        if kinds == (KIND_TPDO,):  # after a boot-up, nothing may show N did not start itself
-            for lo, hi in m.unproven_spans:
-                bad &= ~((ts >= lo) & (ts <= hi + EPS))
+        if unproven and m.unproven_spans:
+            spans = np.asarray(m.unproven_spans, np.float64)
+            k = np.searchsorted(spans[:, 0], ts, side="right") - 1
+            bad &= ~((k >= 0) & (ts <= spans[np.maximum(k, 0), 1] + EPS))
         for j in np.flatnonzero(bad).tolist():
             row = rows[j]
             k = (key, int(iv[j]))
@@ -140,7 +143,8 @@ def pdo_while_not_operational(model: InputModel, p: Params) -> Iterator[Problem]
 
     **Example.** `702#00` (boot-up), then `182#0102` before any `000#01..`.
     """
-    yield from _pdo_problems(model, (KIND_TPDO,), p["grace_ms"] / 1000.0, OPERATIONAL, "sent")
+    yield from _pdo_problems(model, (KIND_TPDO,), p["grace_ms"] / 1000.0, OPERATIONAL, "sent",
+                             unproven=True)
 
 
 @input_rule("S002", "pdo-to-not-operational", "info", scope="node")
@@ -160,8 +164,10 @@ def pdo_to_not_operational(model: InputModel, p: Params) -> Iterator[Problem]:
 
 
 def _pdo_problems(model: InputModel, kinds: tuple[int, ...], grace_s: float,
-                  grace_from: str | None, verb: str) -> Iterator[Problem]:
-    for m, iv, run in _scan(model, kinds, (PRE_OPERATIONAL, STOPPED), grace_s, grace_from):
+                  grace_from: str | None, verb: str, unproven: bool = False
+                  ) -> Iterator[Problem]:
+    for m, iv, run in _scan(model, kinds, (PRE_OPERATIONAL, STOPPED), grace_s, grace_from,
+                            unproven):
         state = m.intervals[iv].state
         yield Problem(m.channel, m.node, run.ts,
                       f"{KIND_NAMES[run.kind]} {run.can_id:03X}h {verb} while node {m.node} is "

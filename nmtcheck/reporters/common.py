@@ -14,7 +14,7 @@ from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import SEVERITIES, Rule, fails
 from nmtcheck.engine import Finding, InputResult, summary
 from nmtcheck.model import ChannelModel, NodeModel
-from nmtcheck.safe_text import escape_controls
+from nmtcheck.safe_text import escape_controls, escape_matching
 
 SEVERITY_ORDER = SEVERITIES  # most severe first (one order, in checks.base)
 # Rules whose findings may name no node (a CAN-ID or a frame on 000h belongs to the network):
@@ -58,7 +58,7 @@ def spreadsheet_safe(cell: object) -> str:
 def xml_safe(text: str) -> str:
     """Text XML 1.0 can hold: characters it forbids (control characters from a channel
     name, say) are written as \\xNN so the document stays well-formed."""
-    return _XML_INVALID.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+    return escape_matching(_XML_INVALID, text)
 
 
 def omitted_lines(results: list[InputResult], options: dict[str, object]) -> list[str]:
