@@ -11,12 +11,25 @@ python-can's LogReader merely iterating, python-can plus a naive per-frame NMT
 tracker (bench/peers.py), and canopen-lens on candump. Each cell is the median
 wall time over the rounds; peak RSS is the child's own (wait4). The table is
 printed and written to bench/RESULTS.md with the date and the machine.
+
+Regressions: the medians are also compared with the stored figures of the previous
+run on the same machine (bench/figures.json: per machine, the last run's seconds per
+size, format and tool, with the commit they came from). The "÷ previous" column is
+this run's time over the stored one; an nmtcheck row 10 % or more slower is listed
+as a regression at the end, unless python-can on the same log slowed down as much (the
+machine was busier). `--save` stores this run's figures as the new previous
+ones; `--checkout DIR` times another checkout's nmtcheck (e.g. a worktree of the
+previous release, to store its figures):
+
+    python bench/run.py --sizes 2M --formats blf --checkout /tmp/base --save
+    python bench/run.py --sizes 2M --formats blf      # now against those figures
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
 import os
 import platform
 import statistics
@@ -24,6 +37,7 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -31,6 +45,8 @@ sys.path.insert(0, str(HERE))
 from generate import FORMATS, generate  # noqa: E402
 
 LENS_VERSION = "0.5.1"
+FIGURES = HERE / "figures.json"
+REGRESSION = 1.10  # an nmtcheck time this much over the stored one is reported
 PYTHON_CAN_FORMATS = {"candump", "asc", "blf"}  # python-can has no MCAP reader
 
 
@@ -89,20 +105,21 @@ def lens_venv(data: Path) -> Path | None:
     return exe
 
 
-def nmtcheck_formats() -> set[str]:
-    """The formats this checkout reads (others report n/a)."""
-    sys.path.insert(0, str(REPO))
-    from nmtcheck.readers import FORMAT_MODULES
+def nmtcheck_formats(checkout: Path = REPO) -> set[str]:
+    """The formats the checkout reads (others report n/a)."""
+    out = subprocess.run([sys.executable, "-P", "-c", "from nmtcheck.readers import "
+                          "FORMAT_MODULES; print(' '.join(FORMAT_MODULES))"],
+                         env=dict(os.environ, PYTHONPATH=str(checkout)), check=True,
+                         capture_output=True, text=True)
+    return set(out.stdout.split())
 
-    return set(FORMAT_MODULES)
 
-
-def tools(data: Path, with_lens: bool) -> list[Tool]:
+def tools(data: Path, with_lens: bool, checkout: Path = REPO) -> list[Tool]:
     py = sys.executable
-    out = [
-        Tool("nmtcheck", nmtcheck_formats() & set(FORMATS),
-             [py, "-m", "nmtcheck", "check", "LOG", "--format", "json", "--fail-on", "never"],
-             {"PYTHONPATH": str(REPO)}),
+    out = [  # -P: the checkout's nmtcheck, never the working directory's
+        Tool("nmtcheck", nmtcheck_formats(checkout) & set(FORMATS),
+             [py, "-P", "-m", "nmtcheck", "check", "LOG", "--format", "json", "--fail-on",
+              "never"], {"PYTHONPATH": str(checkout)}),
         Tool("python-can iterate", PYTHON_CAN_FORMATS,
              [py, str(HERE / "peers.py"), "iterate", "LOG"]),
         Tool("python-can + naive tracker", PYTHON_CAN_FORMATS,
@@ -151,11 +168,18 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path("/tmp/nmtcheck-bench"))
     ap.add_argument("--no-lens", action="store_true")
     ap.add_argument("--results", type=Path, default=HERE / "RESULTS.md")
+    ap.add_argument("--checkout", type=Path, default=REPO,
+                    help="the checkout whose nmtcheck is timed (default: this one)")
+    ap.add_argument("--figures", type=Path, default=FIGURES,
+                    help="stored figures of the previous run, per machine")
+    ap.add_argument("--save", action="store_true",
+                    help="store this run's figures in --figures as the previous ones")
     args = ap.parse_args()
+    previous = load_figures(args.figures).get(machine())
     sizes = [parse_size(s) for s in args.sizes.split(",")]
     formats = args.formats.split(",")
     peers_limit = parse_size(args.peers_up_to)
-    all_tools = tools(args.data, not args.no_lens)
+    all_tools = tools(args.data, not args.no_lens, args.checkout)
     rows: list[tuple[int, str, str, Sample | None, float | None]] = []
     for n in sizes:
         for fmt in formats:
@@ -180,25 +204,94 @@ def main() -> None:
                 med = Sample(statistics.median(s.seconds for s in got),
                              max(s.peak_rss_mb for s in got), True)
                 rows.append((n, fmt, t.name, med, n / med.seconds))
-    table = render(rows, args.rounds) + jobs_table(args.data, formats, args.rounds)
-    header = (f"Measured {dt.date.today().isoformat()} on {machine()}.\n"
+    before = previous["seconds"] if previous else {}
+    table = (render(rows, args.rounds, before) + regressions(rows, before)
+             + jobs_table(args.data, formats, args.rounds, args.checkout))
+    commit = describe(args.checkout)
+    against = (f"÷ previous: against the figures of {previous['date']} ({previous['commit']}) "
+               f"stored in {args.figures.name} for this machine" if previous else
+               f"÷ previous: no stored figures for this machine in {args.figures.name}")
+    header = (f"Measured {dt.date.today().isoformat()} on {machine()}, nmtcheck at {commit}.\n"
               f"Command: `python bench/run.py --sizes {args.sizes} --formats {args.formats} "
               f"--rounds {args.rounds} --peers-up-to {args.peers_up_to}`; medians of "
               f"{args.rounds} alternating rounds, whole processes; peak RSS is the largest of "
-              f"the rounds; n/a: no reader for that format.\n\n")
+              f"the rounds; n/a: no reader for that format; {against}.\n\n")
     print(header + table)
     args.results.write_text("# Benchmark results\n\n" + header + table)
+    if args.save:
+        save_figures(args.figures, rows, commit)
 
 
-def jobs_table(data: Path, formats: list[str], rounds: int) -> str:
+def row_key(n: int, fmt: str, tool: str) -> str:
+    return f"{n / 1e6:g} M {fmt} {tool}"
+
+
+def load_figures(path: Path) -> dict[str, dict[str, Any]]:
+    """Stored figures by machine: {machine: {date, commit, seconds: {row key: s}}}."""
+    try:
+        stored: dict[str, dict[str, Any]] = json.loads(path.read_text())
+    except FileNotFoundError:
+        return {}
+    return stored
+
+
+def save_figures(path: Path, rows: list[tuple[int, str, str, Sample | None, float | None]],
+                 commit: str) -> None:
+    """This run's medians become the machine's previous figures (other rows are kept)."""
+    stored = load_figures(path)
+    mine = stored.setdefault(machine(), {"seconds": {}})
+    mine.update(date=dt.date.today().isoformat(), commit=commit)
+    for n, fmt, name, s, _rate in rows:
+        if s is not None:
+            mine["seconds"][row_key(n, fmt, name)] = round(s.seconds, 3)
+    path.write_text(json.dumps(stored, indent=1, sort_keys=True) + "\n")
+    print(f"figures stored in {path}", file=sys.stderr)
+
+
+def describe(checkout: Path) -> str:
+    """The checkout's commit (with -dirty for local changes), or 'unknown'."""
+    try:
+        out = subprocess.run(["git", "-C", str(checkout), "describe", "--always", "--dirty"],
+                             capture_output=True, text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return out.stdout.strip()
+
+
+def regressions(rows: list[tuple[int, str, str, Sample | None, float | None]],
+                before: dict[str, float]) -> str:
+    """The nmtcheck rows at least REGRESSION times slower than the stored figures, unless
+    python-can on the same log slowed down as much (a busier machine, not nmtcheck)."""
+    now = {(n, fmt, name): s.seconds for n, fmt, name, s, _r in rows if s is not None}
+    slow = []
+    for (n, fmt, name), seconds in now.items():
+        old = before.get(row_key(n, fmt, name))
+        if name != "nmtcheck" or not old or seconds < REGRESSION * old:
+            continue
+        peer_now = now.get((n, fmt, "python-can iterate"))
+        peer_old = before.get(row_key(n, fmt, "python-can iterate"))
+        machine_factor = peer_now / peer_old if peer_now and peer_old else 1.0
+        if seconds / old / machine_factor < REGRESSION:
+            continue
+        slow.append(f"{n / 1e6:g} M {fmt} {old:.2f} s -> {seconds:.2f} s "
+                    f"({seconds / old:.2f}×; python-can {machine_factor:.2f}×)")
+    if not slow:
+        return ""
+    print("REGRESSION against the stored figures: " + "; ".join(slow), file=sys.stderr)
+    return "\n**Slower than the stored figures:** " + "; ".join(slow) + ".\n"
+
+
+def jobs_table(data: Path, formats: list[str], rounds: int, checkout: Path = REPO) -> str:
     """`-j 1` against `-j 2` on one 1 M-frame log per format, checked in one command."""
-    logs = [generate(10**6, data, fmt) for fmt in formats if fmt in nmtcheck_formats()]
+    readable = nmtcheck_formats(checkout)
+    logs = [generate(10**6, data, fmt) for fmt in formats if fmt in readable]
     if len(logs) < 2:
         return ""
     py = sys.executable
-    runs = {j: Tool(f"-j {j}", set(), [py, "-m", "nmtcheck", "check", "-j", str(j), *map(
-        str, logs), "--format", "json", "--fail-on", "never"], {"PYTHONPATH": str(REPO)})
-        for j in (1, 2)}
+    runs = {j: Tool(f"-j {j}", set(), [py, "-P", "-m", "nmtcheck", "check", "-j", str(j),
+                                       *map(str, logs), "--format", "json", "--fail-on",
+                                       "never"], {"PYTHONPATH": str(checkout)})
+            for j in (1, 2)}
     times: dict[int, list[float]] = {1: [], 2: []}
     for _ in range(rounds):
         for j, tool in runs.items():
@@ -208,20 +301,26 @@ def jobs_table(data: Path, formats: list[str], rounds: int) -> str:
             f"one command: `-j 1` {one:.2f} s, `-j 2` {two:.2f} s ({one / two:.2f}×).\n")
 
 
-def render(rows: list[tuple[int, str, str, Sample | None, float | None]], rounds: int) -> str:
-    """Markdown: one line per (size, format, tool), with nmtcheck's speed-up over each peer."""
+def render(rows: list[tuple[int, str, str, Sample | None, float | None]], rounds: int,
+           before: dict[str, float] | None = None) -> str:
+    """Markdown: one line per (size, format, tool), with nmtcheck's speed-up over each peer
+    and the time over the stored previous figures (÷ previous, > 1: slower)."""
+    before = before or {}
     ours = {(n, fmt): rate for n, fmt, name, _s, rate in rows if name == "nmtcheck"}
-    lines = ["| frames | format | tool | time (s) | frames/s | nmtcheck ÷ tool | peak RSS (MB) |",
-             "|---:|---|---|---:|---:|---:|---:|"]
+    lines = ["| frames | format | tool | time (s) | frames/s | nmtcheck ÷ tool | peak RSS (MB) "
+             "| ÷ previous |",
+             "|---:|---|---|---:|---:|---:|---:|---:|"]
     for n, fmt, name, s, rate in rows:
         if s is None or rate is None:
             if name == "nmtcheck" or name.startswith("python-can"):
-                lines.append(f"| {n / 1e6:g} M | {fmt} | {name} | n/a | n/a | | |")
+                lines.append(f"| {n / 1e6:g} M | {fmt} | {name} | n/a | n/a | | | |")
             continue
         mine = ours.get((n, fmt))
         ratio = "" if name == "nmtcheck" or not mine else f"{mine / rate:.2f}×"
+        old = before.get(row_key(n, fmt, name))
+        vs = f"{s.seconds / old:.2f}× (was {old:.2f})" if old else ""
         lines.append(f"| {n / 1e6:g} M | {fmt} | {name} | {s.seconds:.2f} | "
-                     f"{rate / 1e6:.2f} M | {ratio} | {s.peak_rss_mb:.0f} |")
+                     f"{rate / 1e6:.2f} M | {ratio} | {s.peak_rss_mb:.0f} | {vs} |")
     return "\n".join(lines) + "\n"
 
 

@@ -4,7 +4,9 @@
     report.findings   # one row per finding: the JSON report's fields (SPEC §7) + path,
                       # time_offset (s from the first frame), time_utc (datetime64, UTC)
     report.timeline   # state intervals (start/end + _offset, _utc);  report.nodes
-    results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats
+    report.boot       # one row per CiA 302-2 boot process (SPEC_BOOT §8.5), as the fleet's
+                      # `boot` table: status, Lely letter and its text, proving frame
+    results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats, boot
 
 The columns are the JSON report's field names, so code written against one reads the other.
 """
@@ -35,6 +37,8 @@ class Report:
     inputs: pd.DataFrame
     summary: dict[str, int]
     results: list[Any] = field(repr=False)  # the engine's InputResults
+    # one row per boot process (the fleet dataset's `boot` columns, with input and path)
+    boot: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def failed(self, fail_on: str = "error") -> bool:
         """What `nmtcheck check --fail-on` would decide: a finding at or above `fail_on`."""
@@ -147,12 +151,25 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
     inputs = _frame([{"input": i, **r} for i, r in enumerate(doc["inputs"])],
                     ["input", "path", "format", "frames"])
     starts = [(r["start"], r.get("start_utc") is not None) for r in doc["inputs"]]
-    return Report(findings=_with_times(_frame(with_path(doc["findings"]), FINDING_COLUMNS),
+    return Report(boot=_with_times(_boot_frame(results, path_of), starts, ("start",)),
+                  findings=_with_times(_frame(with_path(doc["findings"]), FINDING_COLUMNS),
                                        starts, ("time",)),
                   timeline=_with_times(_frame(with_path(doc["timeline"]), TIMELINE_COLUMNS),
                                        starts, ("start", "end")),
                   nodes=_frame(with_path(doc["nodes"]), NODE_COLUMNS),
                   inputs=inputs, summary=summary(results), results=results)
+
+
+def _boot_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:
+    """The `boot` rows of every input (fleet/tasks.py `boot_rows`, the dataset's columns),
+    with `input` and `path` first."""
+    from nmtcheck.fleet.dataset import COLUMNS
+    from nmtcheck.fleet.tasks import boot_rows
+
+    names = [n for n, _k in COLUMNS["boot"][6:] if n != "abs_start"]  # no fleet key
+    rows = [{"input": i, "path": path_of.get(i), **dict.fromkeys(names), **r}
+            for i, res in enumerate(results) for r in boot_rows(res)]
+    return _frame(rows, ["input", "path", *names])
 
 
 @dataclass
@@ -164,6 +181,7 @@ class Results:
     findings: pd.DataFrame
     node_stats: pd.DataFrame
     schema_version: int
+    boot: pd.DataFrame = field(default_factory=pd.DataFrame)  # SPEC_BOOT §8.5
 
 
 def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | None = None,
@@ -189,4 +207,4 @@ def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | 
     if latest:
         tables = newest(tables)
     return Results(tables["runs"], tables["inputs"], tables["findings"], tables["node_stats"],
-                   SCHEMA_VERSION)
+                   SCHEMA_VERSION, tables["boot"])

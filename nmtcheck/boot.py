@@ -7,9 +7,13 @@ Per channel the group runs when configured, or when the log shows a boot signatu
 Lely-compatible letter A-O with its `co_nmt_es2str` text, and the proving frame. The
 P rules (`checks/boot.py`) report what `analyse` found; the reports show the boot status.
 
-Nothing here is per frame: SDO frames are columns per server, a node's processes are a
-few Python objects (a node boots a few times in a log); a log that floods one node with
-probes keeps only the processes that have a finding, the last one and counts.
+Nothing here is per frame, nor per process where a log boots a node a million times: SDO
+frames and transfers are columns per server, a node's processes are columns (`_Procs`,
+one pass over the probes), and the processes that are plainly ok (completed by a start,
+every transfer ok, no failure possible: `_plainly_ok`) are judged all at once. Only the
+others, and the last of each node (the report's), are evaluated as `Process` objects;
+every process is kept as a row of `Spans`, whole processes only where a finding or the
+report needs them, and those without their steps unless P006 or P008 may read them.
 """
 
 from __future__ import annotations
@@ -230,6 +234,16 @@ class Spans:
     def __len__(self) -> int:
         return len(self.start)
 
+    def compact_names(self) -> None:
+        """`last_step` as `of` makes it: the names in use, sorted."""
+        used = sorted({self.last_step[k] for k in np.unique(self.step).tolist()})
+        remap = np.zeros(max(len(self.last_step), 1), np.int16)
+        for k, name in enumerate(self.last_step):
+            if name in used:
+                remap[k] = used.index(name)
+        self.step = remap[self.step]
+        self.last_step = used
+
 
 @dataclass
 class NodeBootReport:
@@ -397,80 +411,316 @@ def _node_inputs(cm: ChannelModel, n: int, m: NodeModel | None, t: st.TransferTa
 
 # --- processes ---------------------------------------------------------------------------
 
-def _processes(nd: _Node, p: BootParams) -> tuple[list[Process], list[int]]:
-    """N's processes (8.3.2) and the probes that belong to none (ad-hoc reads)."""
+END_HOW = ("start", "operational", "superseded", "trace-end")
+ANCHOR_KINDS = ("bootup", "reset", "master-bootup")
+NO_END = 1 << 62
+
+
+@dataclass
+class _Procs:
+    """A node's processes (8.3.2) as columns, in time order: a flood of boot-ups and probes
+    makes hundreds of thousands, and only those a report or finding needs become
+    `Process` objects."""
+
+    anchor: np.ndarray  # position among the node's anchors (the start)
+    p_lo: np.ndarray  # the process's probes: positions p_lo..p_hi (inclusive) of `probes`
+    p_hi: np.ndarray
+    answered: np.ndarray  # a probe answered with a value
+    end_idx: np.ndarray  # NO_END: none (trace end)
+    end_ts: np.ndarray
+    end_how: np.ndarray  # index into END_HOW
+    keep_alive: np.ndarray
+    probes: np.ndarray  # the node's probe rows (transfer table)
+
+    def __len__(self) -> int:
+        return len(self.anchor)
+
+
+def _anchor_ends(nd: _Node) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per anchor, for a process that would start there: keep-alive, and the natural end
+    (the first start to N, or N's first OPERATIONAL report): frame, time and how."""
+    a = nd.anchors
+    if nd.cfg is not None and nd.cfg.assignment is not None:
+        # keep-alive: the manager checks the state of every slave whose 1F81h has bits 0
+        # and 4, however its process began (Lely NB 1396; recorded:
+        # samples/lely/boot/keepalive, where the slaves' power-on boot-ups come after the
+        # manager's). Without the configuration, 8.3.5: anchored on the manager's boot-up,
+        # no reset to N since, N seen before.
+        ka = np.full(len(a), bool(nd.cfg.bit(0) and nd.cfg.bit(4)))
+    elif nd.first_tx_idx is not None:
+        ka = (nd.anchor_kind == 2) & (nd.first_tx_idx < a.idx)
+    else:
+        ka = np.zeros(len(a), bool)
+    end_idx = np.full(len(a), NO_END, np.int64)
+    end_ts = np.full(len(a), np.inf)
+    how = np.full(len(a), 3, np.int8)
+    if len(nd.starts):
+        s = np.searchsorted(nd.starts.idx, a.idx, side="right")
+        has = s < len(nd.starts)
+        sc = np.minimum(s, len(nd.starts) - 1)
+        end_idx = np.where(has, nd.starts.idx[sc], end_idx)
+        end_ts = np.where(has, nd.starts.ts[sc], end_ts)
+        how[has] = 0
+    if len(nd.op_pos):
+        rep = np.searchsorted(nd.reports.idx, a.idx, side="right")
+        op = np.searchsorted(nd.op_pos, rep)
+        has = op < len(nd.op_pos)
+        k = nd.op_pos[np.minimum(op, len(nd.op_pos) - 1)]
+        if nd.c_n is not None:
+            # a heartbeat-checked keep-alive slave: its first 05h only passes the state
+            # check; Lely then waits for the next heartbeat (error control) and ends with L
+            # there (NB 1441-1448, 2149-2190; recorded in samples/lely/boot/keepalive)
+            nxt = np.minimum(k + 1, len(nd.reports) - 1)
+            k = k + (ka & has & (k == rep) & (k + 1 < len(nd.reports))
+                     & (nd.report_value[nxt] == 0x05))
+        o_idx = nd.reports.idx[k]
+        first = has & (o_idx < end_idx)
+        end_idx = np.where(first, o_idx, end_idx)
+        end_ts = np.where(first, nd.reports.ts[k], end_ts)
+        how[first] = 1
+    return ka, end_idx, end_ts, how
+
+
+def _processes(nd: _Node, p: BootParams) -> _Procs:
+    """N's processes (8.3.2); probes that belong to none (ad-hoc reads) are left out. One
+    pass over the probes with plain Python values: what a process needs of its anchor
+    (keep-alive, natural end) is computed for every anchor at once."""
     t = nd.t
     probes = np.flatnonzero(t.is_probe())
-    out: list[Process] = []
-    adhoc: list[int] = []
-    x: Process | None = None
-    prev_probe_idx = -1
-    for r in probes.tolist():
-        pts, pidx = float(t.start_ts[r]), int(t.start_idx[r])
-        if x is not None and x.end_idx is not None and x.end_idx < pidx:
-            out.append(x)
-            x = None
-        k = int(np.searchsorted(nd.anchors.idx, pidx, side="left")) - 1
-        a = k if k >= 0 else None
-        if x is not None:
-            if (a is not None and nd.anchors.idx[a] > x.start_idx
-                    and pts - nd.anchors.ts[a] <= p.probe_window_s + EPS and x.answered
-                    and not _manager_restart(x, nd, int(nd.anchors.idx[a]))):
-                x.end, x.end_idx, x.end_how = (float(nd.anchors.ts[a]), int(nd.anchors.idx[a]),
-                                               "superseded")
-                out.append(x)
-                x = _new(nd, a)
-                x.probes.append(r)
-            else:
-                x.probes.append(r)
-        elif (a is not None and pts - nd.anchors.ts[a] <= p.probe_window_s + EPS
-              and prev_probe_idx < nd.anchors.idx[a]):
-            x = _new(nd, a)
-            x.probes.append(r)
-        else:
-            adhoc.append(r)
-        if x is not None and r in x.probes and t.result[r] == st.OK and t.has_value[r]:
-            x.answered = True
-        prev_probe_idx = pidx
-    if x is not None:
-        out.append(x)
-    return out, adhoc
+    a = nd.anchors
+    anchor: list[int] = []
+    lo: list[int] = []
+    hi: list[int] = []
+    e_idx: list[int] = []
+    e_how: list[int] = []
+    e_ts: list[float] = []
+    answ: list[bool] = []
+    k_a: list[bool] = []
+    if len(a) and len(probes):
+        ka, a_end_idx, a_end_ts, a_how = _anchor_ends(nd)
+        p_idx = t.start_idx[probes]
+        a_of = np.searchsorted(a.idx, p_idx, side="left") - 1
+        win = (a_of >= 0) & (t.start_ts[probes] - a.ts[np.maximum(a_of, 0)]
+                             <= p.probe_window_s + EPS)
+        ok = (t.result[probes] == st.OK) & t.has_value[probes]
+        # restarts the manager caused (a software update or restore) do not supersede
+        restart = np.isin(t.index, (0x1F50, 0x1F51, 0x1F57)) | (
+            (t.index == 0x1011) & (t.direction == st.DOWNLOAD) & (t.value == RESTORE_VALUE))
+        rs = np.concatenate([[0], np.cumsum(restart)]).tolist()
+        stop = np.searchsorted(t.start_idx, a.idx).tolist()
+        aidx, ats = a.idx.tolist(), a.ts.tolist()
+        a_end_idx_l, a_end_ts_l, a_how_l = a_end_idx.tolist(), a_end_ts.tolist(), a_how.tolist()
+        probe_rows = probes.tolist()
+        cur = -1  # the open process's anchor (-1: none)
+        cur_end = NO_END
+        cur_ans = False
+        prev = -1
+
+        def close(i: int, end: int, ts: float, how: int) -> None:
+            anchor.append(cur)
+            hi.append(i)
+            answ.append(cur_ans)
+            e_idx.append(end)
+            e_ts.append(ts)
+            e_how.append(how)
+
+        def open_(i: int, k: int) -> int:
+            lo.append(i)
+            k_a.append(bool(ka[k]))
+            return int(a_end_idx_l[k])
+
+        for i, (pidx, k, w, good) in enumerate(zip(p_idx.tolist(), a_of.tolist(),
+                                                   win.tolist(), ok.tolist(), strict=True)):
+            if cur >= 0 and cur_end < pidx:
+                close(i - 1, cur_end, a_end_ts_l[cur], a_how_l[cur])
+                cur = -1
+            if cur >= 0:
+                if k >= 0 and aidx[k] > aidx[cur] and w and cur_ans:
+                    last = probe_rows[i - 1]
+                    if rs[max(stop[k], last)] - rs[last] == 0:  # superseded (8.3.2 item 1)
+                        close(i - 1, aidx[k], ats[k], 2)
+                        cur, cur_ans = k, False
+                        cur_end = open_(i, k)
+            elif k >= 0 and w and prev < aidx[k]:
+                cur, cur_ans = k, False
+                cur_end = open_(i, k)
+            if cur >= 0 and good:
+                cur_ans = True
+            prev = pidx
+        if cur >= 0:
+            close(len(probe_rows) - 1, cur_end, a_end_ts_l[cur], a_how_l[cur])
+    return _Procs(np.asarray(anchor, np.int64), np.asarray(lo, np.int64),
+                  np.asarray(hi, np.int64), np.asarray(answ, bool),
+                  np.asarray(e_idx, np.int64), np.asarray(e_ts, np.float64),
+                  np.asarray(e_how, np.int8), np.asarray(k_a, bool), probes)
 
 
-def _new(nd: _Node, a: int) -> Process:
-    kind = int(nd.anchor_kind[a])
+def _process(nd: _Node, c: _Procs, i: int) -> Process:
+    """Process i as an object, for the full evaluation (`_evaluate`)."""
+    a = int(c.anchor[i])
     x = Process(nd.node, float(nd.anchors.ts[a]), int(nd.anchors.idx[a]),
-                int(nd.anchors.line[a]), ("bootup", "reset", "master-bootup")[kind])
-    # the natural end: the first start to N, or N's first OPERATIONAL report
-    s = nd.starts.first_after(x.start_idx)
-    ends: list[tuple[int, float, str]] = []
-    if s < len(nd.starts):
-        ends.append((int(nd.starts.idx[s]), float(nd.starts.ts[s]), "start"))
-    rep = nd.reports.first_after(x.start_idx)
-    op = int(np.searchsorted(nd.op_pos, rep))
-    if op < len(nd.op_pos):
-        k = int(nd.op_pos[op])
-        ends.append((int(nd.reports.idx[k]), float(nd.reports.ts[k]), "operational"))
-    if ends:
-        idx, ts, how = min(ends)
-        x.end_idx, x.end, x.end_how = idx, ts, how
-    # keep-alive (8.3.5): anchored on the manager's boot-up, no reset to N since, N seen before
-    if kind == 2 and nd.first_tx_idx is not None and nd.first_tx_idx < x.start_idx:
-        x.keep_alive = True
+                int(nd.anchors.line[a]), ANCHOR_KINDS[int(nd.anchor_kind[a])])
+    x.keep_alive = bool(c.keep_alive[i])
+    x.probes = c.probes[int(c.p_lo[i]):int(c.p_hi[i]) + 1].tolist()
+    x.answered = bool(c.answered[i])
+    how = int(c.end_how[i])
+    if how != 3:
+        x.end_idx, x.end, x.end_how = int(c.end_idx[i]), float(c.end_ts[i]), END_HOW[how]
     return x
 
 
-def _manager_restart(x: Process, nd: _Node, anchor_idx: int) -> bool:
-    """Whether X's current attempt has a software update or restore step before the anchor
-    (a restart the manager caused does not supersede X)."""
+IDENTITY_ROWS = {"device_type": (0x1000, 0), "vendor_id": (0x1018, 1),
+                 "product_code": (0x1018, 2), "revision_number": (0x1018, 3),
+                 "serial_number": (0x1018, 4)}
+
+
+@dataclass
+class _Plain:
+    """The processes `_evaluate` would only confirm, judged at once (`_plainly_judged`)."""
+
+    ok: np.ndarray  # completed by a start, no failure: status ok, no letter
+    incomplete: np.ndarray  # superseded before stall_ms, no failure: status incomplete
+    step: np.ndarray  # of the incomplete ones: the last step (index into STEP_NAMES)
+    ev_time: np.ndarray  # and the evidence (their last frame)
+    ev_idx: np.ndarray
+    ev_line: np.ndarray
+
+
+STEP_NAMES = ("device_type", "vendor_id", "product_code", "revision_number", "serial_number",
+              "software_check", "software_update", "config_check", "restore", "config",
+              "error_control")
+
+
+def _step_codes(t: st.TransferTable, r: np.ndarray) -> np.ndarray:
+    """`_step_name` of rows r, as indices into STEP_NAMES."""
+    index, sub, up = t.index[r], t.sub[r], t.direction[r] == st.UPLOAD
+    conds = [(index == 0x1000) & (sub == 0) & up]
+    conds += [(index == 0x1018) & up & (sub == k) for k in (1, 2, 3, 4)]
+    conds += [up & (((index == 0x1F56) & (sub == 1)) | ((index == 0x1F52) & (sub >= 1)
+                                                         & (sub <= 2))),
+              np.isin(index, (0x1F50, 0x1F51, 0x1F57)),
+              up & (index == 0x1020) & (sub >= 1) & (sub <= 2),
+              ~up & (index == 0x1011) & (t.value[r] == RESTORE_VALUE)]
+    found: np.ndarray = np.select(conds, list(range(len(conds))), STEP_NAMES.index("config"))
+    return found
+
+
+def _plainly_judged(nd: _Node, c: _Procs, last_frame_ts: float, p: BootParams,
+                    mandatory: bool) -> _Plain:
+    """The processes whose outcome is certain without `_evaluate`: not keep-alive; every
+    transfer ended `ok` before the process's end; an upload of 1000h answered; no identity
+    value differs from a non-zero expected one; no restore; with C_N known, N's heartbeat
+    within C_N of the last transfer (P004 K). Such a process ended by a start is `ok` (no
+    failure, no P007); one superseded (8.3.2) is `incomplete`, and when it ended before
+    stall_ms (no P008) with no boot-up or reset inside, of a node that is not mandatory
+    (no P006), nothing but its span is needed. Conservative: a process not proven so is
+    evaluated in full, and the P rules see exactly what they saw before."""
     t = nd.t
-    last_probe = x.probes[-1]
-    stop = int(np.searchsorted(t.start_idx, anchor_idx))
-    rows = np.arange(last_probe, max(stop, last_probe))
-    sw = np.isin(t.index[rows], (0x1F50, 0x1F51, 0x1F57))
-    restore = (t.index[rows] == 0x1011) & (t.direction[rows] == st.DOWNLOAD) & (
-        t.value[rows] == RESTORE_VALUE)
-    return bool(np.any(sw | restore))
+    n = len(c)
+    good = ((c.end_how == 0) | (c.end_how == 2)) & ~c.keep_alive
+    out = _Plain(np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, np.int16),
+                 np.full(n, np.nan), np.full(n, -1, np.int64), np.zeros(n, np.int64))
+    if not good.any() or len(t) == 0:
+        return out
+    start_idx = nd.anchors.idx[c.anchor]
+    lo = np.searchsorted(t.start_idx, start_idx)
+    hi = np.searchsorted(t.start_idx, np.where(good, c.end_idx, start_idx))
+    hi = np.maximum(hi, lo)
+    # processes whose transfer ranges overlap are left to the full evaluation, so that a
+    # row belongs to at most one candidate
+    ov = hi[:-1] > lo[1:]
+    good[:-1] &= ~ov
+    good[1:] &= ~ov
+    rows = np.arange(len(t))
+    proc = np.searchsorted(lo, rows, side="right") - 1
+    pc = np.maximum(proc, 0)
+    inside = (proc >= 0) & (rows < hi[pc]) & good[pc]
+    bad = (t.result != st.OK) | (t.end_idx > c.end_idx[pc])
+    bad |= (t.index == 0x1011) & (t.direction == st.DOWNLOAD) & (t.value == RESTORE_VALUE)
+    up = t.direction == st.UPLOAD
+    for name, (index, sub) in IDENTITY_ROWS.items():
+        e = _expected(nd.cfg, name).value
+        if e:
+            bad |= up & (t.index == index) & (t.sub == sub) & t.has_value & (
+                t.value != np.uint64(e))
+    # where its last transfer matters (t_c for K, the last frame of an incomplete one), it
+    # is its last row: ends strictly increasing
+    same = np.zeros(len(t), bool)
+    same[1:] = (proc[1:] == proc[:-1]) & ((t.end_ts[1:] <= t.end_ts[:-1])
+                                          | (t.end_idx[1:] <= t.end_idx[:-1]))
+    bad |= same & ((c.end_how[pc] == 2) | (nd.c_n is not None))
+    hit = np.bincount(proc[inside], weights=bad[inside], minlength=n) > 0
+    # a probe may open a process after its anchor's start (8.3.2): then no 1000h upload
+    # was answered before the start (P007)
+    dev = inside & up & (t.index == 0x1000) & (t.sub == 0)
+    answered = np.bincount(proc[dev], minlength=n) > 0
+    good &= ~hit & answered
+    last = np.maximum(hi - 1, 0)
+    tc_ts, tc_idx = t.end_ts[last], t.end_idx[last]
+    nz = nd.report_value != 0
+    z_idx, z_ts = nd.reports.idx[nz], nd.reports.ts[nz]
+    j = np.searchsorted(z_idx, tc_idx, side="right")
+    has_z = j < len(z_ts)
+    jc = np.minimum(j, max(len(z_ts) - 1, 0))
+    if nd.c_n is not None and good.any():
+        if np.any(np.diff(nd.reports.ts) < 0):
+            return out
+        limit = tc_ts + nd.c_n
+        found = has_z & (z_ts[jc] > tc_ts + EPS) & (z_ts[jc] <= limit + EPS) if len(
+            z_ts) else np.zeros(n, bool)
+        good &= found | (last_frame_ts < limit - EPS)
+    out.ok = good & (c.end_how == 0)
+    inc = good & (c.end_how == 2) & (c.end_ts <= nd.anchors.ts[c.anchor] + p.stall_s + EPS)
+    if mandatory or not inc.any():
+        return out
+    # no boot-up or reset of N inside (after the anchor): the last step is the last
+    # transfer or N's first heartbeat after it (error control)
+    for marks in (nd.bootups, nd.resets):
+        k = np.searchsorted(marks.idx, start_idx, side="right")
+        inc &= ~((k < len(marks)) & (marks.idx[np.minimum(k, max(len(marks) - 1, 0))]
+                                     < c.end_idx)) if len(marks) else True
+    # error control: the first report (state != 00h) after the last transfer, if its
+    # time is after the transfer's end (else `_first_report_in` looks further: evaluated)
+    if len(z_ts):
+        after = z_ts[jc] > (tc_ts - EPS) + EPS
+        inc &= ~has_z | after
+        ec = has_z & after & (z_idx[jc] < c.end_idx)
+    else:
+        ec = np.zeros(n, bool)
+    zk = np.flatnonzero(nz)[jc] if len(z_ts) else np.zeros(n, np.int64)
+    out.incomplete = inc
+    out.step[inc] = np.where(ec[inc], STEP_NAMES.index("error_control"),
+                             _step_codes(t, last[inc]))
+    r = nd.reports
+    out.ev_time[inc] = np.where(ec[inc], r.ts[zk[inc]] if len(r) else 0.0, t.end_ts[last[inc]])
+    out.ev_idx[inc] = np.where(ec[inc], r.idx[zk[inc]] if len(r) else 0, t.end_idx[last[inc]])
+    out.ev_line[inc] = np.where(ec[inc], r.line[zk[inc]] if len(r) else 0,
+                                t.end_line[last[inc]])
+    return out
+
+
+def _signature(nd: _Node, c: _Procs) -> bool:
+    """8.2.4: a probe that opens a process, followed before N's next anchor by an upload of
+    1018h:01-04, a second probe or a start to N."""
+    if len(c) == 0:
+        return False
+    t = nd.t
+    a = nd.anchors
+    first = c.probes[c.p_lo]
+    f_idx = t.start_idx[first]
+    nx = np.searchsorted(a.idx, a.idx[c.anchor], side="right")
+    nxt = np.where(nx < len(a), a.idx[np.minimum(nx, len(a) - 1)], NO_END)
+    flag = ((t.index == 0x1018) & (t.sub >= 1) & (t.sub <= 4) & (t.direction == st.UPLOAD)
+            ) | t.is_probe()
+    cs = np.concatenate([[0], np.cumsum(flag)])
+    stop = np.maximum(np.searchsorted(t.start_idx, nxt), first + 1)
+    if np.any(cs[stop] - cs[first + 1] > 0):
+        return True
+    if len(nd.starts):
+        s = np.searchsorted(nd.starts.idx, f_idx, side="right")
+        return bool(np.any((s < len(nd.starts))
+                           & (nd.starts.idx[np.minimum(s, len(nd.starts) - 1)] < nxt)))
+    return False
 
 
 # --- steps and failures ------------------------------------------------------------------
@@ -681,6 +931,8 @@ def _verdict(x: Process, nd: _Node, p: BootParams, steps: list[Step], last: list
     fails = _identity_failures(last, completed_by_start) + _download_failures(last)
     fails += _k_failure(x, nd, last, attempt, p, last_frame_ts, fails)
     fails += _b_failure(x, last, last_frame_ts)
+    if not any(f.code == "P003" for f in fails):
+        fails += _restore_failure(last, nd, p, last_frame_ts)
     fails.sort(key=lambda f: (f.at.time, f.at.frame_index))
     x.failures = len(fails)
     if fails:
@@ -775,6 +1027,7 @@ def _k_failure(x: Process, nd: _Node, last: list[Step], attempt: int, p: BootPar
                                        f"no answer to the guarding request (line {r.line}) "
                                        f"within {p.rtr_timeout_s * 1000:g} ms", r, moment=True))
                     return out
+            out += _keep_alive_reset(x, nd, t_i, p, last_frame_ts, rtr=nd.c_n is None)
         return out
     if nd.c_n is None or not answered or others:
         return out
@@ -792,6 +1045,52 @@ def _k_failure(x: Process, nd: _Node, last: list[Step], attempt: int, p: BootPar
                        f"after the last SDO transfer (line {t_c.line}){started}", t_c,
                        moment=True))
     return out
+
+
+def _keep_alive_reset(x: Process, nd: _Node, t_i: Where, p: BootParams, last_frame_ts: float,
+                      rtr: bool) -> list[Failure]:
+    """P004 (b): the state check found N not OPERATIONAL and reset it; N must then send a
+    heartbeat or guarding response, or the manager go on with SDO, within reset_timeout.
+    A boot-up alone does not end the wait (SPEC_BOOT 8.4, P004)."""
+    k = nd.resets.first_after(t_i.frame_index)
+    if k >= len(nd.resets) or (x.end_idx is not None and nd.resets.idx[k] >= x.end_idx):
+        return []
+    r = nd.resets.at(k)
+    hi = r.time + p.reset_timeout_s
+    if last_frame_ts < hi - EPS or _first_report_in(nd, r.frame_index, r.time, hi) is not None:
+        return []
+    t = nd.t
+    after = (t.start_idx > r.frame_index) & (t.start_ts <= hi + EPS)
+    if np.any(after):
+        return []
+    boot = "; its boot-up came, which the manager does not take as the answer" if _bootup_in(
+        nd, r.time, hi) else ""
+    letter = "F" if rtr else "E"
+    return [Failure("P004", letter, Where(hi, -1, 0),
+                    f"node {{node}} reset by the keep-alive state check (line {r.line}) sent no "
+                    f"heartbeat or guarding response within {p.reset_timeout_s * 1000:g} ms"
+                    f"{boot}", r, moment=True)]
+
+
+def _restore_failure(last: list[Step], nd: _Node, p: BootParams, last_frame_ts: float
+                     ) -> list[Failure]:
+    """P003 (b): after the restore step's reset command, no boot-up of N within
+    restore_timeout (Lely NC 48)."""
+    for s in last:
+        if s.step != "restore" or s.result != "ok" or s.end is None:
+            continue
+        k = nd.resets.first_after(s.end.frame_index)
+        if k >= len(nd.resets):
+            continue
+        r = nd.resets.at(k)
+        hi = r.time + p.restore_timeout_s
+        if last_frame_ts >= hi - EPS and not _bootup_in(nd, r.time, hi):
+            return [Failure("P003", "J", r,
+                            f"no boot-up of node {{node}} within "
+                            f"{p.restore_timeout_s * 1000:g} ms of the reset (line {r.line}) "
+                            f"that follows the restore of defaults (1011h:{s.sub:02X}, line "
+                            f"{s.line})", r)]
+    return []
 
 
 def _b_failure(x: Process, last: list[Step], last_frame_ts: float) -> list[Failure]:
@@ -839,7 +1138,7 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         per_node: dict[int, tuple[_Node, list[Process]]] = {}
         spans: dict[int, Spans] = {}
         counts: dict[int, int] = {}
-        aborts: list[float] = []
+        aborts: list[np.ndarray] = []
         first_starts: list[float] = []
         signature = False
         for n in nodes:
@@ -851,7 +1150,7 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
             nd, kept, spans[n], counts[n], sig, node_aborts = found
             per_node[n] = (nd, kept)
             signature = signature or sig
-            aborts += node_aborts
+            aborts.append(node_aborts)
             if len(spans[n]):
                 first_starts.append(float(spans[n].start[0]))
         if cfg.table.manager is True:
@@ -863,8 +1162,9 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         if not cb.ran:
             _not_managed(out, cm, cfg)
             continue
-        if aborts:
-            cb.sdo_timeout_inferred_ms = round(float(np.median(aborts)) * 1000.0, 3)
+        all_aborts = np.concatenate(aborts) if aborts else np.zeros(0)
+        if len(all_aborts):
+            cb.sdo_timeout_inferred_ms = round(float(np.median(all_aborts)) * 1000.0, 3)
         cb.manager_sdo_timeout_ms = cfg.table.manager_sdo_timeout_ms
         _channel_properties(cb, cm, cfg, min(first_starts, default=None))
         for n, (nd, kept) in per_node.items():
@@ -875,9 +1175,12 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
 
 def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, has_sdo: bool,
                mb: _Marks, cfg: BootConfig, p: BootParams
-               ) -> tuple[_Node, list[Process], Spans, int, bool, list[float]] | None:
+               ) -> tuple[_Node, list[Process], Spans, int, bool, np.ndarray] | None:
     """One node: its transfers, processes (judged at once), the signature test and the
-    client's timeout aborts; the transfers are released once judged."""
+    client's timeout aborts; the transfers are released once judged. A log may boot a node
+    a million times: the processes are columns, those plainly ok are judged by
+    `_plainly_ok` at once, the others one by one, and whole processes are kept only where
+    a finding or the report needs them (not ok, letter L, the last)."""
     rows = spool.frames(cm.chan * 128 + n) if has_sdo else None
     if rows is not None and n not in cfg.nodes and not _probed(rows):
         rows = None  # no probe: no process (and no columns for a flood of SDO)
@@ -885,22 +1188,62 @@ def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, 
          else st.TransferTable.empty())
     del rows
     nd = _node_inputs(cm, n, cm.nodes.get(n), t, mb, cfg.nodes.get(n))
-    procs, _adhoc = _processes(nd, p)
-    sig = _signature(nd, procs)
+    c = _processes(nd, p)
+    sig = _signature(nd, c)
     tm = (t.result == st.ABORTED) & (t.abort_code == st.TIMEOUT_ABORT)
-    aborts = (t.end_ts[tm] - t.start_ts[tm]).tolist()
-    for k, x in enumerate(procs):
+    aborts = t.end_ts[tm] - t.start_ts[tm]
+    mandatory = n in cfg.nodes and cfg.nodes[n].mandatory
+    judged = _plainly_judged(nd, c, model.end, p, mandatory)
+    if len(c):  # the report shows the last one whole
+        judged.ok[-1] = judged.incomplete[-1] = False
+    spans = _plain_spans(nd, c, judged)
+    kept: list[Process] = []
+    names = spans.last_step
+    for i in np.flatnonzero(~(judged.ok | judged.incomplete)).tolist():
+        x = _process(nd, c, i)
         _evaluate(x, nd, p, model.end, model.end, 1 << 62)
         x.last_step = x.steps[-1].step if x.steps else "none"
-        if x.status == "ok" and x.letter != "L" and k < len(procs) - 1:
-            x.steps = []  # not kept (below): its steps go at once
-    spans = Spans.of(procs)
-    # a log may boot a node a million times: whole processes are kept only where a finding
-    # or the report needs them
-    kept = [x for k, x in enumerate(procs)
-            if x.status != "ok" or x.letter == "L" or k == len(procs) - 1]
+        if x.last_step not in names:
+            names.append(x.last_step)
+        w = x.evidence
+        spans.end[i] = np.inf if x.end is None else x.end
+        spans.status[i] = STATUSES.index(x.status)
+        spans.letter[i] = x.letter or ""
+        spans.step[i] = names.index(x.last_step)
+        if w is not None:
+            spans.ev_time[i], spans.ev_idx[i], spans.ev_line[i] = w.time, w.frame_index, w.line
+        if i == len(c) - 1:
+            kept.append(x)  # the report's
+        elif x.status != "ok" or x.letter == "L":
+            if (x.status == "incomplete" and not mandatory and x.end is not None
+                    and x.end <= x.start + p.stall_s + EPS):
+                continue  # ended before P008 could fire; only P006 reads it
+            if x.status != "incomplete" and not mandatory:
+                x.steps, x.probes = [], []  # only P006 and P008 read an older one's steps
+            kept.append(x)
+    spans.compact_names()
     nd.t = st.TransferTable.empty()
-    return nd, kept, spans, len(procs), sig, aborts
+    return nd, kept, spans, len(c), sig, aborts
+
+
+def _plain_spans(nd: _Node, c: _Procs, judged: _Plain) -> Spans:
+    """The spans of every process, filled in for those judged at once: an ok one ends
+    with the start command (its last step and its evidence), an incomplete one as
+    `_plainly_judged` found; the others are filled in as they are evaluated."""
+    n = len(c)
+    start = nd.anchors.ts[c.anchor] if n else np.zeros(0)
+    ok, inc = judged.ok, judged.incomplete
+    sp = Spans(start.astype(np.float64), np.where(c.end_how == 3, np.inf, c.end_ts),
+               np.where(inc, STATUSES.index("incomplete"), 0).astype(np.int8),
+               np.full(n, "", "U1"), [*STEP_NAMES, "start"], judged.step.copy(),
+               judged.ev_time.copy(), judged.ev_idx.copy(), judged.ev_line.copy())
+    sp.step[ok] = len(STEP_NAMES)
+    if ok.any():
+        k = np.searchsorted(nd.starts.idx, c.end_idx[ok])
+        sp.ev_time[ok] = nd.starts.ts[k]
+        sp.ev_idx[ok] = nd.starts.idx[k]
+        sp.ev_line[ok] = nd.starts.line[k]
+    return sp
 
 
 def _probed(rows: np.ndarray) -> bool:
@@ -908,25 +1251,6 @@ def _probed(rows: np.ndarray) -> bool:
     d = rows["data"]
     return bool(np.any(rows["req"] & (d[:, 0] == 0x40) & (d[:, 1] == 0x00) & (d[:, 2] == 0x10)
                        & (d[:, 3] == 0x00)))
-
-
-def _signature(nd: _Node, procs: list[Process]) -> bool:
-    """8.2.4: a probe that opens a process, followed before N's next anchor by an upload of
-    1018h:01-04, a second probe or a start to N."""
-    t = nd.t
-    for x in procs:
-        a = nd.anchors.first_after(x.start_idx)
-        nxt = int(nd.anchors.idx[a]) if a < len(nd.anchors) else 1 << 62
-        first = x.probes[0]
-        after = (t.start_idx > t.start_idx[first]) & (t.start_idx < nxt)
-        ident = after & (t.index == 0x1018) & (t.sub >= 1) & (t.sub <= 4) & (
-            t.direction == st.UPLOAD)
-        probe = after & t.is_probe()
-        s = nd.starts.first_after(int(t.start_idx[first]))
-        start = s < len(nd.starts) and nd.starts.idx[s] < nxt
-        if ident.any() or probe.any() or start:
-            return True
-    return False
 
 
 def _channel_properties(cb: ChannelBoot, cm: ChannelModel, cfg: BootConfig,

@@ -47,18 +47,20 @@ def finding_fields(f: Finding) -> dict[str, Any]:
     return out
 
 
-def cause_lines(f: Finding) -> Iterator[str]:
-    """Text: one indented line per cause under the finding."""
+def cause_lines(f: Finding, start: float) -> Iterator[str]:
+    """Text: one indented line per cause under the finding, times as the finding shows
+    them (seconds from the recording's first frame, `start`)."""
     for c in f.causes or ():
         where = []
         if c.get("node") is not None:
             where.append(f"node {c['node']}")
         if c.get("line"):
             where.append(f"line {c['line']}")
-        span = f"{c['time']:.3f}" + (f"-{c['end']:.3f}" if c.get("end") is not None else "")
-        yield f"    cause: {span} {c['text']}" + (f" ({', '.join(where)})" if where else "")
+        span = f"{c['time'] - start:.6f}" + (
+            f"-{c['end'] - start:.6f}" if c.get("end") is not None else "")
+        yield f"        cause: {span} s {c['text']}" + (f" ({', '.join(where)})" if where else "")
     if f.causes_omitted:
-        yield f"    cause: ... {f.causes_omitted} more"
+        yield f"        cause: ... {f.causes_omitted} more"
 
 
 def _detail(rep: NodeBootReport, findings: list[Finding]) -> str:
@@ -86,12 +88,13 @@ def _detail(rep: NodeBootReport, findings: list[Finding]) -> str:
 
 def text_lines(res: InputResult) -> Iterator[str]:
     """Text: the boot section (one line per node) of one input, nothing if the group never
-    ran."""
+    ran; times as the findings show them (seconds from the recording's first frame)."""
     b = res.boot
     if b is None or not any(cb.ran for cb in b.channels.values()):
         return
+    start = res.stats.start or 0.0
     for name, cb in b.channels.items():
-        yield f"boot (CiA 302-2):  {name}: {cb.heading()}"
+        yield f"  boot-slave processes (CiA 302-2), {name}: {cb.heading()}"
         if not cb.ran:
             continue
         for (channel, node), rep in sorted(b.nodes.items()):
@@ -99,12 +102,12 @@ def text_lines(res: InputResult) -> Iterator[str]:
                 continue
             x = rep.process
             w = x.evidence if x is not None else None
-            when = (f"{w.time:.3f} (line {w.line})" if w is not None and w.line
-                    else f"{w.time:.3f}" if w is not None else "")
+            when = (f"{w.time - start:.6f} s (line {w.line})" if w is not None and w.line
+                    else f"{w.time - start:.6f} s" if w is not None else "")
             if rep.status == "incomplete":
-                when = f"{res.model.end:.3f}"
+                when = f"{res.model.end - start:.6f} s"
             letter = rep.letter or "-"
             status = "FAILED" if rep.status == "failed" else rep.status
             detail = _detail(rep, res.findings)
-            yield (f"  {channel} node {node}  {status:<11} {letter}  {when}  {detail}"
+            yield (f"    {channel} node {node}  {status:<11} {letter}  {when}  {detail}"
                    .rstrip())

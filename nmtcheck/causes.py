@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from nmtcheck import emcy
-from nmtcheck.decode import key_rows
+from nmtcheck.decode import frame_time_lines, key_rows
 from nmtcheck.nmt import BOOTUP, EPS, REQUEST
 
 if TYPE_CHECKING:
@@ -33,6 +33,8 @@ NMT_NAMES = {0x01: "start", 0x02: "stop", 0x80: "enter pre-operational", 0x81: "
              0x82: "reset communication"}
 
 
+CAN_ERR_CRTL = 0x004  # SocketCAN error class: controller problems (linux/can/error.h)
+CAN_ERR_CRTL_OVERFLOW = 0x03  # its byte 1: RX (01h) or TX (02h) buffer overflow
 MAX_CAUSED_PER_RULE = 1000  # findings of one rule per input that get their causes
 
 
@@ -94,6 +96,7 @@ class _Ctx:
         self.silence_min, self.cluster, self.reset_window = silence_min, cluster, reset_window
         self.channels = {cm.name: cm for cm in self.model.channels}
         self._errors: dict[str, np.ndarray] | None = None
+        self._drops: dict[str, np.ndarray] | None = None
 
     def causes(self, f: Finding) -> list[dict[str, Any]] | None:
         cm = self.channels.get(str(f.channel))
@@ -122,6 +125,7 @@ class _Ctx:
         if f.rule in ("H001", "G002", "B002"):
             out += self._emcy_other(cm, n, windows)
         out += self._error_frames(cm, windows)
+        out += self._frames_lost(cm, windows)
         out += self._silence(cm, m, windows)
         cmd_win = [(a0 - self.reset_window, a0)] if f.rule == "B002" else windows
         out += self._nmt(cm, m, n, f, cmd_win, a0)
@@ -228,6 +232,62 @@ class _Ctx:
         return [_entry("error_frames", e["ts"][a], int(e["idx"][a]), int(e["line"][a]),
                        f"{sel.size} error frame(s) on the channel", end=float(e["ts"][b]),
                        count=int(sel.size))]
+
+    def _frames_lost(self, cm: Any, windows: list[tuple[float, float]]
+                     ) -> list[dict[str, Any]]:
+        """The logger's drop records (candump `DROPCOUNT`, placed at the frame after the
+        line: the lost frames were due before it; a drop names no channel, so it counts on
+        every channel) and the channel's controller-overflow error frames in W."""
+        out: list[dict[str, Any]] = []
+        d = self._drop_positions()
+        sel = np.flatnonzero(_in(d["ts"], windows))
+        if sel.size:
+            a, b = int(sel[0]), int(sel[-1])
+            total = int(d["count"][sel].sum())
+            out.append(_entry("frames_lost", d["ts"][a], int(d["idx"][a]), int(d["line"][a]),
+                              f"the logger reported {total} frame(s) lost "
+                              f"({sel.size} DROPCOUNT record(s)): a gap here may be the "
+                              "logger's", end=float(d["ts"][b]) if b != a else None,
+                              count=total))
+        if self._errors is None:
+            self._errors = self.spool.error_frames()
+        e = self._errors
+        over = ((e["cls"] & CAN_ERR_CRTL) != 0) & ((e["d1"] & CAN_ERR_CRTL_OVERFLOW) != 0)
+        sel = np.flatnonzero(over & (e["chan"] == cm.chan) & _in(e["ts"], windows))
+        if sel.size:
+            a, b = int(sel[0]), int(sel[-1])
+            out.append(_entry("frames_lost", e["ts"][a], int(e["idx"][a]), int(e["line"][a]),
+                              f"{sel.size} controller overflow error frame(s): the interface "
+                              "lost received or queued frames", end=float(e["ts"][b])
+                              if b != a else None, count=int(sel.size)))
+        return out
+
+    def _drop_positions(self) -> dict[str, np.ndarray]:
+        """Each drop record's moment: the first frame after its line (one pass over the
+        frame times for all of them)."""
+        if self._drops is not None:
+            return self._drops
+        drops = getattr(self.res.stats, "drops", None) or []
+        lines = np.asarray([ln for ln, _c in drops], np.int64)
+        counts = np.asarray([c for _ln, c in drops], np.int64)
+        ts = np.full(len(lines), np.nan)
+        idx = np.full(len(lines), -1, np.int64)
+        todo = np.ones(len(lines), bool) & (lines > 0)
+        if todo.any():
+            for chunk in self.model.decoded.frame_times:
+                t = chunk["ts"]
+                if not len(t) or not todo.any():
+                    continue
+                fl = frame_time_lines(chunk)
+                pos = np.searchsorted(fl, lines, side="right")
+                hit = todo & (pos < len(t))
+                ts[hit] = t[pos[hit]]
+                idx[hit] = int(chunk["base"][0]) + pos[hit]
+                todo &= ~hit
+        keep = idx >= 0
+        self._drops = {"ts": ts[keep], "idx": idx[keep], "line": lines[keep],
+                       "count": counts[keep]}
+        return self._drops
 
     def _silence(self, cm: Any, m: Any, windows: list[tuple[float, float]]
                  ) -> list[dict[str, Any]]:

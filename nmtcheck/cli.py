@@ -1,4 +1,7 @@
-"""Command line: `nmtcheck check`, `nmtcheck timeline`, `nmtcheck rules`.
+"""Command line: `nmtcheck check`, `nmtcheck timeline`, `nmtcheck rules`, and the group
+that `nmtcheck monitor` (live/command.py) and `nmtcheck fleet` (fleet/commands.py) are
+registered on; what they share with these commands is in cli_common.py, so that neither
+imports this module.
 
 Exit codes: 0 no finding at or above --fail-on, 1 at least one, 2 usage or
 input error (one line on stderr, never a traceback unless --debug).
@@ -17,22 +20,32 @@ import signal
 import sys
 import tempfile
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import click
 
 from nmtcheck import __version__
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import Rule, fails
-from nmtcheck.config import Config, discover
+from nmtcheck.cli_common import (
+    EXIT_ERROR,
+    EXIT_FINDINGS,
+    EXIT_OK,
+    check_outputs,
+    load_profile_network,
+    resolve_settings,
+    write_atomically,
+    write_reports,
+    write_stdout,
+)
+from nmtcheck.config import discover
 from nmtcheck.engine import (
     MAX_FINDINGS_PER_RULE,
     InputResult,
     check_input,
     check_inputs,
-    check_patterns,
     select_rules,
     summary,
 )
@@ -44,13 +57,10 @@ from nmtcheck.fleet.commands import (
     fleet_requested,
 )
 from nmtcheck.live.command import monitor as live_monitor
-from nmtcheck.network import Network, load_network
-from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
+from nmtcheck.profiles import DEFAULT_PROFILE, Profile, load_profile
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
 from nmtcheck.readers import open_input
 from nmtcheck.reporters import (
-    FORMATS,
-    Streamer,
     auto_format,
     colour,
     format_for_path,
@@ -60,11 +70,34 @@ from nmtcheck.reporters import (
 from nmtcheck.reporters.common import plural, spreadsheet_safe
 from nmtcheck.safe_text import escape_controls
 
-EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
-
-
-def _split(values: tuple[str, ...]) -> list[str]:
-    return [v.strip() for item in values for v in item.split(",") if v.strip()]
+# The helpers that moved to cli_common.py (so that the monitor and fleet commands need not
+# import this module) stay importable from here: `from nmtcheck.cli import write_reports`.
+__all__ = [
+    "EXIT_ERROR",
+    "EXIT_FINDINGS",
+    "EXIT_OK",
+    "FleetGroupedCommand",
+    "ProgressBar",
+    "Terminated",
+    "check",
+    "check_outputs",
+    "cli",
+    "expand_inputs",
+    "expand_logs",
+    "is_log",
+    "load_profile_network",
+    "main",
+    "render_timeline",
+    "render_timelines",
+    "resolve_settings",
+    "rule_doc",
+    "rule_table",
+    "rules_cmd",
+    "timeline",
+    "write_atomically",
+    "write_reports",
+    "write_stdout",
+]
 
 
 def _common(f: Callable[..., Any]) -> Callable[..., Any]:
@@ -92,35 +125,6 @@ def _common(f: Callable[..., Any]) -> Callable[..., Any]:
     ]):
         f = opt(f)
     return f
-
-
-def _load(rules_profile: str | None, network_file: str | None, dcf: tuple[str, ...] = (),
-          config: Config | None = None) -> tuple[Profile, Network | None, dict[str, object]]:
-    """The profile and network in force (the command line wins over the configuration
-    file), and what the reports say about where they came from."""
-    overrides: list[str] = []
-    if rules_profile is not None or config is None:
-        name = rules_profile or DEFAULT_PROFILE
-        profile = load_profile(name)
-    else:
-        # The file's `rules` is resolved against its directory; its [rules.CODE] and
-        # [timeline] tables form a profile that extends the one it names.
-        name = config.profile or DEFAULT_PROFILE
-        profile = derived_profile(config.label, name, config.directory, config.rule_tables,
-                                  config.timeline)
-        overrides = [*sorted(config.rule_tables), *(["timeline"] if config.timeline else [])]
-    dcf_args: dict[int, str] = {}
-    for item in dcf:
-        node, sep, path = item.partition("=")
-        if not sep or not node.strip().isdigit() or not path:
-            raise UsageError(f"--dcf {item}: expected NODE=PATH, e.g. --dcf 3=node3.dcf")
-        dcf_args[int(node)] = path
-    if network_file is None and config is not None:
-        network_file = config.network
-    network = load_network(network_file, dcf_args) if network_file or dcf_args else None
-    info: dict[str, object] = {"file": config.display() if config else None, "profile": name,
-                               "overrides": overrides}
-    return profile, network, info
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -202,7 +206,7 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
     if fleet_requested(fleet_args):  # --results: a fleet run (nmtcheck/fleet/)
         from nmtcheck.fleet.commands import run_fleet_check
 
-        profile, network, _info = _load(rules_profile, network_file, dcf, config)
+        profile, network, _info = load_profile_network(rules_profile, network_file, dcf, config)
         sys.exit(run_fleet_check(
             logs, fleet_args, profile, select_rules(profile, selected, ignored), network,
             fail_on, input_format=input_format, strict=strict, channel=channel,
@@ -210,7 +214,7 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
             max_findings=max_findings, quiet=quiet, outputs=outputs, statistics=statistics))
     if not logs:
         raise click.UsageError("Missing argument 'LOGS...'.")
-    profile, network, config_info = _load(rules_profile, network_file, dcf, config)
+    profile, network, config_info = load_profile_network(rules_profile, network_file, dcf, config)
     rules = select_rules(profile, selected, ignored)
     stdout_render = streamer(fmt) if not statistics else statistics_renderer(fmt)
     files = [(path, streamer(format_for_path(path))) for path in outputs]
@@ -268,8 +272,8 @@ def timeline(logs: tuple[str, ...], input_format: str | None, rules_profile: str
              fmt: str) -> None:
     """Print the per-node NMT state timeline of each LOG (quoted globs and directories are
     expanded as by `check`): the states and the node events in time order."""
-    profile, network, _info = _load(rules_profile, network_file, dcf,
-                                    discover(config_file, isolated))
+    profile, network, _info = load_profile_network(rules_profile, network_file, dcf,
+                                                   discover(config_file, isolated))
     paths, _not_logs = expand_inputs(logs)
     results = [check_input(log, k, profile, [], network, input_format, strict, channel,
                            {"topics": list(topics)} if topics else {})
@@ -294,48 +298,6 @@ def render_timelines(results: list[InputResult], fmt: str) -> str:
             w.writerows([spreadsheet_safe(res.stats.path), *row] for row in rows[1:])
         return out.getvalue()
     return "\n".join(render_timeline(res, fmt) for res in results)
-
-
-class Settings(NamedTuple):
-    """What `check` and `monitor` take from the command line, else the configuration."""
-
-    config: Config | None
-    fmt: str
-    fail_on: str
-    select: list[str]
-    ignore: list[str]
-
-
-def resolve_settings(config_file: str | None, isolated: bool, fmt: str | None,
-                     fail_on: str | None, select: tuple[str, ...], ignore: tuple[str, ...]
-                     ) -> Settings:
-    """The command line wins over the configuration file; a bad value in the file is
-    named with the file."""
-    config = discover(config_file, isolated)
-    if config is not None and config.format is not None and config.format not in FORMATS:
-        raise UsageError(f"{config.label}: format: unknown format {config.format!r} "
-                         f"(available: {', '.join(FORMATS)})")
-    if config is not None:
-        check_patterns([] if select else config.select or [], f"{config.label}: select")
-        check_patterns([] if ignore else config.ignore or [], f"{config.label}: ignore")
-    return Settings(config, fmt or (config.format if config else None) or "text",
-                    fail_on or (config.fail_on if config else None) or "error",
-                    _split(select) if select else (config.select or [] if config else []),
-                    _split(ignore) if ignore else (config.ignore or [] if config else []))
-
-
-def check_outputs(outputs: Iterable[str]) -> None:
-    """Every `-o` path can be written: its directory exists, and it is no directory."""
-    for path in outputs:
-        target = Path(path)
-        parent = target.parent
-        if not parent.is_dir():
-            raise UsageError(f"--output {path}: the directory {str(parent)!r} does not exist")
-        if target.is_dir():
-            raise UsageError(f"--output {path}: is a directory")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise UsageError(f"--output {path}: cannot write in {str(parent)!r}: "
-                             "permission denied")
 
 
 def expand_inputs(args: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
@@ -415,62 +377,6 @@ class ProgressBar:
 
     def close(self) -> None:
         self._bar.close()
-
-
-def write_atomically(path: Path, text: str | Iterable[str]) -> None:
-    """Write a report beside its target and rename it into place: a full disk or a killed
-    run never leaves a truncated report or destroys the previous one, and `-o link.json`
-    replaces the link instead of writing through it into the file it points to."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            if isinstance(text, str):
-                f.write(text)
-            else:  # a report in pieces: it is never whole in memory
-                f.writelines(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
-def write_reports(results: list[InputResult], files: list[tuple[str, Streamer]],
-                  options: dict[str, object]) -> None:
-    """Every `-o` report, each atomically; when one fails, the error says which were
-    written before it."""
-    written: list[str] = []
-    for path, render in files:
-        try:
-            write_atomically(Path(path), render(results, options))
-        except OSError as exc:
-            done = f" (written: {', '.join(written)})" if written else " (none written)"
-            raise UsageError(f"--output {path}: cannot write: {exc.strerror}{done}") from None
-        written.append(path)
-
-
-def write_stdout(chunks: Iterable[str], color: bool | None = None) -> None:
-    """The report on standard output; a full disk or a closed device is an ordinary write
-    error (one line, exit 2), not an internal one. `color`: keep the colour codes also
-    when standard output is no terminal (`--color always`)."""
-    try:
-        for chunk in chunks:
-            click.echo(chunk, nl=False, color=color)
-    except BrokenPipeError:
-        raise
-    except OSError as exc:
-        with contextlib.suppress(OSError):  # nothing more reaches it, not even at exit
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        raise UsageError(f"cannot write to standard output: {exc.strerror}") from None
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 class Terminated(BaseException):

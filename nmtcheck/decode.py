@@ -446,11 +446,18 @@ def key_rows(keys: np.ndarray, lo: int, hi: int) -> slice:
                  int(np.searchsorted(keys, hi, side="right")))
 
 
-def node_groups(cols: dict[str, np.ndarray], chan: int) -> Iterator[tuple[int, slice]]:
-    """Per node of the channel, its rows of columns grouped by node key (`ec`, `emcy`)."""
+def node_groups(cols: dict[str, np.ndarray]) -> dict[int, list[tuple[int, slice]]]:
+    """Per channel code, each node's rows of columns grouped by node key (`ec`, `emcy`),
+    found in one pass: a log may have tens of thousands of channels."""
     keys = cols["key"]
-    for key in np.unique(keys[key_rows(keys, chan * 128, chan * 128 + 127)]).tolist():
-        yield key - chan * 128, key_rows(keys, key, key)
+    if not len(keys):
+        return {}
+    uniq, first = np.unique(keys, return_index=True)
+    bounds = np.append(first, len(keys)).tolist()
+    out: dict[int, list[tuple[int, slice]]] = {}
+    for g, key in enumerate(uniq.tolist()):
+        out.setdefault(key // 128, []).append((key % 128, slice(bounds[g], bounds[g + 1])))
+    return out
 
 
 def sdo_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:

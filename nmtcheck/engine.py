@@ -207,9 +207,11 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         result = InputResult(index, stats, model)
         result.boot = boot_stage.run(model, spool, network, profile)
         problems: list[tuple[Rule, Problem]] = []
+        nodes: dict[tuple[str | None, int], NodeModel] = {
+            (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
         for r in rules:
             found = _node_problems(r, model, profile[r.code].params) if r.per_node else (
-                _input_problems(r, model, profile[r.code].params))
+                _input_problems(r, model, profile[r.code].params, nodes))
             left = _keep(r, found, problems, max_findings)
             if left:
                 result.omitted.append(Omitted(r.code, r.name, profile[r.code].severity, left))
@@ -232,10 +234,10 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
 _Found = Iterator[tuple["NodeModel | None", "Problem | Problems"]]
 
 
-def _input_problems(r: Rule, model: InputModel, params: dict[str, Any]) -> _Found:
-    """A per-input rule's problems, each with its node's model (None: no such node)."""
-    nodes: dict[tuple[str | None, int], NodeModel] = {
-        (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
+def _input_problems(r: Rule, model: InputModel, params: dict[str, Any],
+                   nodes: dict[tuple[str | None, int], NodeModel]) -> _Found:
+    """A per-input rule's problems, each with its node's model (None: no such node;
+    `nodes`: every node of the input by channel name and node-ID, made once)."""
     check = cast(Check, r.check)
     for p in check(model, params):
         if isinstance(p, Problems) and p.nodes is not None:  # each row its own node

@@ -2,22 +2,21 @@
 its error-control frames, commands, configuration, timeouts and state intervals.
 
 The dense streams (heartbeats, NMT frames, commands, EMCYs, intervals) are numpy
-columns; an object (`EcFrame`, `NmtFrame`, `Command`, `NodeEvent`, `Interval`) is made
-only for what a rule or a report looks at.
+columns, kept in `tables.py` (NMT, commands, error control, intervals) and
+`node_events.py` (EMCY, SDO writes and aborts); an object (`EcFrame`, `NmtFrame`,
+`Command`, `NodeEvent`, `Interval`) is made only for what a rule or a report looks at.
 """
 
 from __future__ import annotations
 
 import heapq
-import sys
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
-from functools import cached_property, lru_cache
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 
-from nmtcheck import emcy, sdo
 from nmtcheck.decode import (
     KIND_RPDO,
     KIND_TPDO,
@@ -29,265 +28,69 @@ from nmtcheck.decode import (
 from nmtcheck.frames import RPDO_BASES, TPDO_BASES
 from nmtcheck.nmt import (
     BOOTUP,
-    COMMAND_NAMES,
-    COMMAND_STATE,
-    EC_KIND_NAMES,
     EPS,
     GUARD,
     HEARTBEAT,
-    MALFORMED,
-    REQUEST,
-    RESETS,
-    SOURCES,
     STATE_INDEX,
     STATES,
     between,
-    nmt_problem,
+    is_one_of,
+)
+from nmtcheck.node_events import (
+    ConfigWrite,
+    EmcyTable,
+    NodeEvent,
+    NodeEvents,
+    SdoEventTable,
+    WriteTable,
+)
+from nmtcheck.tables import (
+    Command,
+    CommandTable,
+    EcFrame,
+    EcTable,
+    Interval,
+    IntervalTable,
+    NmtFrame,
+    NmtTable,
+    known_cs,
+    plain_rows,
+    reset_cs,
 )
 
-
-@dataclass(frozen=True)
-class NmtFrame:
-    """A frame on CAN-ID 000h, valid or not."""
-
-    ts: float
-    idx: int
-    line: int
-    rtr: bool
-    dlc: int
-    cs: int
-    target: int
-    problem: str | None  # why it is malformed (C002), None if valid
-
-
-@dataclass(frozen=True)
-class Command:
-    """A valid NMT command as it applies to one node."""
-
-    ts: float
-    idx: int
-    line: int
-    cs: int
-    broadcast: bool
-
-    @property
-    def is_reset(self) -> bool:
-        return self.cs in RESETS
-
-    @property
-    def name(self) -> str:
-        return COMMAND_NAMES[self.cs] + (" (broadcast)" if self.broadcast else "")
-
-
+# The tables moved to tables.py and node_events.py are re-exported: `from nmtcheck.model
+# import X` keeps working for every name it gave before (tests/test_imports.py).
+__all__ = [
+    "QUERY_GROUP",
+    "ChannelModel",
+    "Command",
+    "CommandTable",
+    "ConfigWrite",
+    "EcFrame",
+    "EcTable",
+    "EmcyTable",
+    "InputModel",
+    "Interval",
+    "IntervalTable",
+    "Master",
+    "NmtFrame",
+    "NmtTable",
+    "NodeConfig",
+    "NodeEvent",
+    "NodeEvents",
+    "NodeModel",
+    "SdoEventTable",
+    "SentFrames",
+    "TimelineParams",
+    "Timeout",
+    "WriteTable",
+    "known_cs",
+    "plain_rows",
+    "reset_cs",
+]
 
 _UNKNOWN = STATES.index("UNKNOWN")
 QUERY_GROUP = 1 << 20  # resets asked of the node-frame store in one pass
-_KNOWN_CS = np.zeros(256, bool)
-_KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
-
-
-def known_cs(cs: np.ndarray) -> np.ndarray:
-    """Whether each byte is a command specifier CiA 301 defines."""
-    known: np.ndarray = _KNOWN_CS[cs]
-    return known
-_RESET_CS = np.zeros(256, bool)
-_RESET_CS[list(RESETS)] = True
-
-
-def reset_cs(cs: np.ndarray) -> np.ndarray:
-    """Whether each byte is a reset command specifier (reset node, reset communication)."""
-    reset: np.ndarray = _RESET_CS[cs]
-    return reset
-
-
-class NmtTable:
-    """A channel's frames on CAN-ID 000h as columns, valid or not (a hostile log may
-    hold millions of them): a `NmtFrame` is made only for what a rule reports."""
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
-                 dlc: np.ndarray, cs: np.ndarray, target: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.rtr = np.asarray(rtr, bool)
-        self.dlc = np.asarray(dlc, np.int16)
-        self.cs = np.asarray(cs, np.uint8)
-        self.target = np.asarray(target, np.uint8)
-        self.valid = ~self.rtr & (self.dlc == 2) & _KNOWN_CS[self.cs] & (self.target <= 127)
-
-    @classmethod
-    def empty(cls) -> NmtTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __getitem__(self, pos: int) -> NmtFrame:
-        rtr, dlc, cs, target = (bool(self.rtr[pos]), int(self.dlc[pos]), int(self.cs[pos]),
-                                int(self.target[pos]))
-        return NmtFrame(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]), rtr, dlc,
-                        cs, target, nmt_problem(rtr, dlc, cs, target))
-
-    def __iter__(self) -> Iterator[NmtFrame]:
-        return (self[i] for i in range(len(self)))
-
-
-def plain_rows(*columns: np.ndarray, block: int = 4096) -> Iterator[tuple[Any, ...]]:
-    """The rows of some columns as tuples of plain Python numbers, converted a block at a
-    time (`tolist` per block: fast, and memory stays flat however long the columns)."""
-    for lo in range(0, len(columns[0]) if columns else 0, block):
-        yield from zip(*(c[lo:lo + block].tolist() for c in columns), strict=True)
-
-
-class _Gathered:
-    """A `CommandTable` column: the NMT table's column of that name at the commands'
-    positions, gathered on each access."""
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.name = name
-
-    def __get__(self, table: CommandTable, owner: type | None = None) -> np.ndarray:
-        column: np.ndarray = getattr(table.nmt, self.name)[table.pos]
-        return column
-
-
-class CommandTable:
-    """The valid NMT commands that apply to one node, as positions into its channel's
-    `NmtTable`: a log of nothing but NMT commands gives each of 127 nodes every
-    broadcast, so a node holds a position per command, not a copy of the columns. The
-    columns (`ts`, `idx`, ...) are gathered on each access: take them once per check."""
-
-    def __init__(self, nmt: NmtTable, pos: np.ndarray) -> None:
-        self.nmt = nmt
-        self.pos = np.asarray(pos, np.int32 if len(nmt) < 1 << 31 else np.int64)
-        self.is_reset = _RESET_CS[nmt.cs[self.pos]]
-
-    @classmethod
-    def empty(cls) -> CommandTable:
-        return cls(NmtTable.empty(), np.zeros(0, np.int64))
-
-    def __len__(self) -> int:
-        return len(self.pos)
-
-    def __getitem__(self, pos: int) -> Command:
-        nmt, at = self.nmt, int(self.pos[pos])
-        return Command(float(nmt.ts[at]), int(nmt.idx[at]), int(nmt.line[at]), int(nmt.cs[at]),
-                       bool(nmt.target[at] == 0))
-
-    def __iter__(self) -> Iterator[Command]:
-        return (self[i] for i in range(len(self)))
-
-    def name(self, pos: int) -> str:
-        at = int(self.pos[pos])
-        return COMMAND_NAMES[int(self.nmt.cs[at])] + (
-            " (broadcast)" if self.nmt.target[at] == 0 else "")
-
-    ts = _Gathered()
-    idx = _Gathered()
-    line = _Gathered()
-    cs = _Gathered()
-
-    @property
-    def broadcast(self) -> np.ndarray:
-        broadcast: np.ndarray = self.nmt.target[self.pos] == 0
-        return broadcast
-
-    @property
-    def reset_idx(self) -> np.ndarray:
-        """File positions of the reset commands (sorted: commands are in file order)."""
-        idx: np.ndarray = self.nmt.idx[self.pos[self.is_reset]]
-        return idx
-
-    @property
-    def reset_ts(self) -> np.ndarray:
-        ts: np.ndarray = self.nmt.ts[self.pos[self.is_reset]]
-        return ts
-
-
-@dataclass(frozen=True)
-class EcFrame:
-    """One frame on 700h+N, materialised from the node's columns for a finding or a test."""
-
-    pos: int  # position in the node's EcTable
-    ts: float
-    idx: int
-    line: int
-    rtr: bool
-    dlc: int
-    value: int  # data byte 0
-    kind: str  # request | bootup | heartbeat | guard | malformed
-
-    @property
-    def code(self) -> int:
-        return self.value & 0x7F
-
-    @property
-    def toggle(self) -> int:
-        return self.value >> 7
-
-    @property
-    def reports_state(self) -> bool:
-        return self.kind in ("bootup", "heartbeat", "guard")
-
-
-class EcTable:
-    """A node's frames on 700h+N as columns, in file order.
-
-    Heartbeats are the one dense NMT stream (a frame per node per period), so
-    they stay numpy columns; rules compute on them vectorised and materialise an
-    `EcFrame` only for what they report.
-    """
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
-                 dlc: np.ndarray, value: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.rtr = np.asarray(rtr, bool)
-        self.dlc = np.asarray(dlc, np.int16)
-        self.value = np.asarray(value, np.uint8)
-        self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
-        # a report of the pre-command state just after a command (SPEC §2 stale reports)
-        self.stale = np.zeros(len(self.ts), bool)
-
-    @classmethod
-    def empty(cls) -> EcTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __getitem__(self, pos: int) -> EcFrame:
-        return EcFrame(int(pos), float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
-                       bool(self.rtr[pos]), int(self.dlc[pos]), int(self.value[pos]),
-                       EC_KIND_NAMES[self.kind[pos]])
-
-    def __iter__(self) -> Iterator[EcFrame]:
-        return (self[i] for i in range(len(self)))
-
-    def frames(self, positions: Iterable[int]) -> list[EcFrame]:
-        return [self[int(p)] for p in positions]
-
-    def where(self, *kinds: int) -> np.ndarray:
-        """Positions of the frames of these kinds (compared one kind at a time: np.isin
-        costs far more on the few frames most nodes have)."""
-        hit = self.kind == kinds[0]
-        for k in kinds[1:]:
-            hit |= self.kind == k
-        return np.flatnonzero(hit)
-
-    def count(self, kind: int) -> int:
-        return int(np.count_nonzero(self.kind == kind))
-
-    @property
-    def code(self) -> np.ndarray:
-        return self.value & 0x7F
-
-    def after(self, idx: int) -> int:
-        """Position of the first frame later in the file than frame index `idx`."""
-        return int(np.searchsorted(self.idx, idx, side="right"))
 
 
 @dataclass
@@ -303,242 +106,6 @@ class Timeout:
     requests: int = 1  # G002: unanswered requests in the run
     ended_by: float | None = None  # ts of the node's next frame (end of OFFLINE)
 
-
-@dataclass
-class ConfigWrite:
-    """A confirmed SDO expedited download to a configuration object of `node`."""
-
-    ts: float  # the server's confirmation (60h)
-    idx: int
-    line: int
-    node: int  # the SDO server whose object was written
-    index: int
-    sub: int
-    value: int
-    until: float = float("inf")  # the node's next boot-up or reset: power-on values again
-    request_ts: float = float("nan")  # the client's request: the server may act on it at once
-    request_idx: int = -1
-
-
-class WriteTable:
-    """Confirmed SDO writes to configuration objects as columns, in file order (a log may
-    write 1017h a million times): a `ConfigWrite` is made when one is looked at."""
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, node: np.ndarray,
-                 index: np.ndarray, sub: np.ndarray, value: np.ndarray, until: np.ndarray,
-                 request_ts: np.ndarray, request_idx: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)  # the server's confirmation (60h)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.node = np.asarray(node, np.int16)  # the SDO server whose object was written
-        self.index = np.asarray(index, np.int32)
-        self.sub = np.asarray(sub, np.uint8)
-        self.value = np.asarray(value, np.int64)
-        self.until = np.asarray(until, np.float64)  # next boot-up or reset: power-on values
-        self.request_ts = np.asarray(request_ts, np.float64)  # the server may act on it at once
-        self.request_idx = np.asarray(request_idx, np.int64)
-
-    _COLUMNS = ("ts", "idx", "line", "node", "index", "sub", "value", "until", "request_ts",
-                "request_idx")
-
-    @classmethod
-    def empty(cls) -> WriteTable:
-        z = np.zeros(0)  # every node starts with one: no per-column list comprehension
-        return cls(z, z, z, z, z, z, z, z, z, z)
-
-    @classmethod
-    def of(cls, writes: Iterable[ConfigWrite]) -> WriteTable:
-        rows = list(writes)
-        return cls(*(np.asarray([getattr(w, name) for w in rows]) for name in cls._COLUMNS))
-
-    @classmethod
-    def concat(cls, tables: list[WriteTable]) -> WriteTable:
-        if not tables:
-            return cls.empty()
-        return cls(*(np.concatenate([getattr(t, name) for t in tables]) for name in cls._COLUMNS))
-
-    def take(self, rows: np.ndarray) -> WriteTable:
-        return WriteTable(*(getattr(self, name)[rows] for name in self._COLUMNS))
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __getitem__(self, pos: int) -> ConfigWrite:
-        return ConfigWrite(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
-                           int(self.node[pos]), int(self.index[pos]), int(self.sub[pos]),
-                           int(self.value[pos]), float(self.until[pos]),
-                           float(self.request_ts[pos]), int(self.request_idx[pos]))
-
-    def __iter__(self) -> Iterator[ConfigWrite]:
-        return (self[i] for i in range(len(self)))
-
-    def events(self) -> Iterator[NodeEvent]:
-        """Each write as the node event the reports list."""
-        for ts, idx, line, index, sub, value in plain_rows(
-                self.ts, self.idx, self.line, self.index, self.sub, self.value):
-            yield NodeEvent(ts, idx, line, "sdo-write", f"{sdo.object_name(index, sub)} = "
-                            f"{value} ({value:X}h{_meaning(index, value)}) written by SDO")
-
-
-def _meaning(index: int, value: int) -> str:
-    """What a written value says, where it packs several fields: a 1016h consumer entry
-    is the producer's node-ID and the consumer time."""
-    if index == 0x1016:
-        producer, time_ms = (value >> 16) & 0xFF, value & 0xFFFF
-        return f": node {producer}, {time_ms} ms" if time_ms else ": disabled"
-    return ""
-
-
-@dataclass
-class NodeEvent:
-    """Something a node said that is not a finding: EMCY, SDO abort, configuration write."""
-
-    ts: float
-    idx: int
-    line: int
-    kind: str  # emcy | sdo-abort | sdo-write | sdo-segmented
-    text: str
-    code: int | None = None
-
-
-class EmcyTable:
-    """A node's EMCY frames as columns, in file order (a node may send them as fast as
-    the bus allows): a `NodeEvent`, with its decoded text, is made when one is looked at."""
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, dlc: np.ndarray,
-                 data: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.dlc = np.asarray(dlc, np.int16)
-        self.data = np.asarray(data, np.uint64)  # the 8 data bytes, packed
-
-    @classmethod
-    def empty(cls) -> EmcyTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __getitem__(self, pos: int) -> NodeEvent:
-        code, text = _describe_emcy(int(self.data[pos]), int(self.dlc[pos]))
-        return NodeEvent(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]), "emcy",
-                         text, code)
-
-    def __iter__(self) -> Iterator[NodeEvent]:
-        for ts, idx, line, dlc, data in plain_rows(self.ts, self.idx, self.line, self.dlc,
-                                                   self.data):
-            code, text = _describe_emcy(data, dlc)
-            yield NodeEvent(ts, idx, line, "emcy", text, code)
-
-
-@lru_cache(maxsize=4096)
-def _describe_emcy(packed: int, dlc: int) -> tuple[int | None, str]:
-    """`emcy.describe` of packed data bytes: a node that floods the bus with EMCYs mostly
-    repeats a few of them."""
-    return emcy.describe(list(packed.to_bytes(8, sys.byteorder)), dlc)
-
-
-class SdoEventTable:
-    """A server's SDO aborts and confirmed segmented downloads as columns, in file order
-    (a log may abort a million of them): their texts are made as the reports read them."""
-
-    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, abort: np.ndarray,
-                 index: np.ndarray, sub: np.ndarray, code: np.ndarray,
-                 answered: np.ndarray) -> None:
-        self.ts = np.asarray(ts, np.float64)
-        self.idx = np.asarray(idx, np.int64)
-        self.line = np.asarray(line, np.int64)
-        self.abort = np.asarray(abort, bool)  # else a confirmed segmented download
-        self.index = np.asarray(index, np.int32)
-        self.sub = np.asarray(sub, np.uint8)
-        self.code = np.asarray(code, np.int64)  # the abort code
-        self.answered = np.asarray(answered, bool)  # it answers the pending request
-
-    @classmethod
-    def empty(cls) -> SdoEventTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z, z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.ts)
-
-    def __iter__(self) -> Iterator[NodeEvent]:
-        for ts, idx, line, abort, index, sub, code, answered in plain_rows(
-                self.ts, self.idx, self.line, self.abort, self.index, self.sub, self.code,
-                self.answered):
-            if abort:
-                what = (f" to {sdo.object_name(index, sub)}" if answered
-                        else f" ({index:04X}h sub {sub})")
-                yield NodeEvent(ts, idx, line, "sdo-abort", f"SDO abort{what}: "
-                                f"{code:08X}h {sdo.abort_text(code)}", code)
-            else:
-                yield NodeEvent(ts, idx, line, "sdo-segmented", "segmented download to "
-                                f"{sdo.object_name(index, sub)} confirmed; its value is "
-                                "not applied")
-
-
-class NodeEvents:
-    """Everything a node said that is not a finding, in file order when iterated, each
-    kind as columns: EMCYs (`emcy`), configuration writes (`writes`), SDO aborts and
-    segmented downloads (`sdo`)."""
-
-    def __init__(self) -> None:
-        self.emcy = EmcyTable.empty()
-        self.writes = WriteTable.empty()
-        self.sdo = SdoEventTable.empty()
-
-    def __len__(self) -> int:
-        return len(self.emcy) + len(self.writes) + len(self.sdo)
-
-    def __bool__(self) -> bool:
-        return len(self) > 0
-
-    def __iter__(self) -> Iterator[NodeEvent]:
-        return heapq.merge(self.emcy, self.writes.events(), self.sdo, key=_by_idx)
-
-
-def _by_idx(e: NodeEvent) -> int:
-    return e.idx
-
-
-@dataclass
-class Interval:
-    start: float
-    end: float
-    state: str
-    source: str
-
-
-class IntervalTable:
-    """A node's state intervals as columns (state and source as indices into `STATES`
-    and `SOURCES`): a node that changes state on every heartbeat has millions of them.
-    An `Interval` is made only when one is looked at."""
-
-    def __init__(self, start: np.ndarray, end: np.ndarray, state: np.ndarray,
-                 source: np.ndarray) -> None:
-        self.start = np.asarray(start, np.float64)
-        self.end = np.asarray(end, np.float64)
-        self.state = np.asarray(state, np.int8)
-        self.source = np.asarray(source, np.int8)
-
-    @classmethod
-    def empty(cls) -> IntervalTable:
-        z = np.zeros(0)
-        return cls(z, z, z, z)
-
-    def __len__(self) -> int:
-        return len(self.start)
-
-    def __getitem__(self, pos: int) -> Interval:
-        return Interval(float(self.start[pos]), float(self.end[pos]), STATES[self.state[pos]],
-                        SOURCES[self.source[pos]])
-
-    def __iter__(self) -> Iterator[Interval]:
-        for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
-                                self.source.tolist(), strict=True):
-            yield Interval(a, b, STATES[st], SOURCES[so])
 
 
 @dataclass
@@ -690,6 +257,9 @@ class NodeModel:
         The configuration only changes where a write is confirmed or stops holding, so
         it is evaluated once per stretch between those moments.
         """
+        if not len(self.writes) and not len(self.consumer_writes):  # the files' values only
+            value = get(next(self._configs_at([-np.inf])))
+            return np.full(np.shape(times), np.nan if value is None else value, np.float64)
         moments = [t.ts for t in (self.writes, self.consumer_writes)] + [
             t.until[np.isfinite(t.until)] for t in (self.writes, self.consumer_writes)]
         bps = np.unique(np.concatenate(moments))
@@ -950,8 +520,8 @@ def _pdo_overrides(model: InputModel) -> list[_PdoOverride]:
             spans: list[tuple[int, int | None, float, float]] = [
                 (n, cob, -np.inf, np.inf) for n, cob in table.items()]
             # SDO-written COB-IDs hold until the next boot-up/reset
-            pdo = (m.writes.index >= index) & (m.writes.index <= index + 3)
-            for w in m.writes.take(np.flatnonzero(pdo)):
+            pdo = np.flatnonzero((m.writes.index >= index) & (m.writes.index <= index + 3))
+            for w in m.writes.take(pdo) if len(pdo) else ():
                 cob = None if w.value & 0x80000000 else w.value & 0x7FF
                 spans.append(((w.index & 3) + 1, cob, w.ts, w.until))
             for n, cob, start, until in spans:
@@ -994,7 +564,7 @@ def _windows(model: InputModel, states: tuple[str, ...]) -> tuple[np.ndarray, np
             continue
         lo, hi = ivs.start.copy(), ivs.end.copy()
         lo[0], hi[-1] = -np.inf, np.inf  # the first/last interval also take stray times
-        keep = np.isin(ivs.state, wanted)
+        keep = is_one_of(ivs.state, wanted)
         lo_parts.append(lo[keep])
         hi_parts.append(hi[keep])
     lo_all = np.concatenate(lo_parts) if lo_parts else np.zeros(0)

@@ -3,6 +3,8 @@ error-control frame, and the few comparisons every stage makes on them."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 UNKNOWN = "UNKNOWN"
@@ -43,6 +45,19 @@ def between(sorted_marks: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndar
         return np.zeros(len(lo), bool)
     return (np.searchsorted(sorted_marks, lo, side="right")
             < np.searchsorted(sorted_marks, hi, side="left"))
+
+
+def is_one_of(values: np.ndarray, choices: Iterable[int] | np.ndarray) -> np.ndarray:
+    """`np.isin` for a few choices or few values: one comparison per choice (np.isin
+    costs tens of microseconds a call, and the per-node checks call it for every node
+    of a log that may have tens of thousands)."""
+    choices = np.asarray(choices).ravel()
+    if len(choices) > 8:
+        return np.isin(values, choices)
+    hit = np.zeros(np.shape(values), bool)
+    for c in choices.tolist():
+        hit |= values == c
+    return hit
 
 
 def nmt_problem(rtr: bool, dlc: int, cs: int, target: int) -> str | None:

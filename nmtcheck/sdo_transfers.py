@@ -33,7 +33,7 @@ SDO_DTYPE = np.dtype([("ts", "f8"), ("idx", "i8"), ("line", "i8"), ("req", "?"),
                       ("dlc", "i1"), ("data", "u1", (8,))])  # 34 bytes a frame
 
 ERR_COLUMNS: dict[str, type] = {"ts": np.float64, "idx": np.int64, "line": np.int64,
-                                "chan": np.int32}
+                                "chan": np.int32, "cls": np.uint32, "d1": np.uint8}
 
 OK, REFUSED, ABORTED, UNANSWERED, OPEN = range(5)
 RESULTS = ("ok", "refused", "aborted", "unanswered", "open")
@@ -65,8 +65,10 @@ class SdoSpool:
                     | ((cid > SDO_RX_BASE) & (cid <= SDO_RX_BASE + MAX_NODE_ID)))
         if b.err.any():
             sel = np.flatnonzero(b.err)
+            # the class bits and byte 1 (controller problems: RX/TX overflow = frames lost)
             self.errors.append({"ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
-                                "chan": b.chan[sel]})
+                                "chan": b.chan[sel], "cls": b.can_id[sel],
+                                "d1": b.data[sel, 1]})
         if not sdo.any():
             return
         short = sdo & (b.dlc < 4)
@@ -115,7 +117,7 @@ class SdoSpool:
         return np.concatenate(parts) if parts else np.empty(0, SDO_DTYPE)
 
     def error_frames(self) -> dict[str, np.ndarray]:
-        """Every error frame (ts, idx, line, chan), file order."""
+        """Every error frame (ts, idx, line, chan, class bits, data byte 1), file order."""
         if self._err_cols is None:
             self._err_cols = {n: self.errors.column(n) for n in ERR_COLUMNS}
             self.errors.close()

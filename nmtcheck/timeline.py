@@ -51,6 +51,7 @@ from nmtcheck.nmt import (
     STATE_OF_CODE,
     UNKNOWN,
     between,
+    is_one_of,
 )
 from nmtcheck.sdo_config import pair_sdo_writes, write_validity
 
@@ -69,8 +70,10 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     sent: dict[int, list[int]] = {}
     for key in decoded.first_tx:
         sent.setdefault(key // 128, []).append(key)
+    ec_groups, emcy_groups = node_groups(decoded.ec), node_groups(decoded.emcy)
     models = [_channel(decoded, chan, name, start, end, params, configs, masters or {},
-                       ev_rows.get(chan), nmt_rows.get(chan), sent.get(chan, []))
+                       ev_rows.get(chan), nmt_rows.get(chan), sent.get(chan, []),
+                       ec_groups.get(chan, []), emcy_groups.get(chan, []))
               for chan, name in enumerate(channels)]
     # OFFLINE lasts until the node's next frame of any kind: one pass for all channels
     _offline_ends(decoded, [(m, t) for cm in models for m in cm.nodes.values()
@@ -115,12 +118,15 @@ def _rows_by_channel(chan: np.ndarray) -> dict[int, np.ndarray | None]:
 def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
              params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig],
              masters: dict[str, Master], ev_rows: np.ndarray | None,
-             nmt_rows: np.ndarray | None, sent: list[int]) -> ChannelModel:
+             nmt_rows: np.ndarray | None, sent: list[int],
+             ec_groups: list[tuple[int, slice]],
+             emcy_groups: list[tuple[int, slice]]) -> ChannelModel:
     """One channel's nodes, commands and master, each node classified and timed (the
     state intervals come last, once every node's timeouts have their ends).
 
     `ev_rows`/`nmt_rows`: the channel's rows of the decoded events and NMT frames (None:
-    all of them); `sent`: the node keys of the channel that transmitted."""
+    all of them); `sent`: the node keys of the channel that transmitted; `ec_groups`,
+    `emcy_groups`: each node's rows of the decoded error-control and EMCY columns."""
     ev = decoded.events
     if ev_rows is None:
         rows = ev if not len(ev) or int(ev["chan"][0]) == chan else ev[:0]
@@ -129,12 +135,12 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
     nmt = _nmt_table(decoded.nmt, chan, nmt_rows)
     nodes = _Nodes(chan, name, configs)
     _nodes_that_sent(decoded, sent, nodes)
-    ec_tables = _ec_tables(decoded, chan)
+    ec_tables = _ec_tables(decoded, ec_groups)
     for n, table in ec_tables.items():
         if not table.rtr.all():  # a node exists once it sends; requests alone do not
             nodes(n)
     _first_shown_by_commands(nmt, nodes)
-    _emcy(decoded, chan, nodes)
+    _emcy(decoded, emcy_groups, nodes)
     pair_sdo_writes(rows, nodes)  # SDO traffic: the configuration written in the trace
     for n, table in ec_tables.items():
         if n in nodes:  # requests to a node nothing else shows are not kept
@@ -171,10 +177,10 @@ def _nodes_that_sent(decoded: Decoded, keys: list[int], nodes: _Nodes) -> None:
             m.last_seen = decoded.last_tx.get(key)
 
 
-def _emcy(decoded: Decoded, chan: int, nodes: _Nodes) -> None:
+def _emcy(decoded: Decoded, groups: list[tuple[int, slice]], nodes: _Nodes) -> None:
     """Each node's EMCYs: views into the decoded columns (grouped by node)."""
     cols = decoded.emcy
-    for n, r in node_groups(cols, chan):
+    for n, r in groups:
         nodes(n).events.emcy = EmcyTable(cols["ts"][r], cols["idx"][r], cols["line"][r],
                                          cols["dlc"][r], cols["data"][r])
 
@@ -478,11 +484,11 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
     return False
 
 
-def _ec_tables(decoded: Decoded, chan: int) -> dict[int, EcTable]:
+def _ec_tables(decoded: Decoded, groups: list[tuple[int, slice]]) -> dict[int, EcTable]:
     """One column table per node of the channel: views into the decoded columns."""
     ec = decoded.ec
     return {n: EcTable(ec["ts"][r], ec["idx"][r], ec["line"][r], ec["rtr"][r], ec["dlc"][r],
-                       ec["value"][r]) for n, r in node_groups(ec, chan)}
+                       ec["value"][r]) for n, r in groups}
 
 
 def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> None:
@@ -516,7 +522,7 @@ def _heartbeat_disabled(m: NodeModel, kind: np.ndarray) -> np.ndarray:
     has = k >= 0
     latest = np.where(has, w_idx[np.maximum(k, 0)], -1)
     ends = np.sort(np.concatenate([ec.idx[kind == BOOTUP], m.commands.reset_idx]))
-    ended = between(ends, latest, ec.idx) | np.isin(ec.idx, ends)
+    ended = between(ends, latest, ec.idx) | is_one_of(ec.idx, ends)
     disabled: np.ndarray = has & (w_val[np.maximum(k, 0)] == 0) & ~ended
     return disabled
 
@@ -584,13 +590,13 @@ def _segment_medians(m: NodeModel) -> tuple[np.ndarray, np.ndarray]:
     the one the master wrote. Returns the segments' bounds and one median per segment
     (NaN: no interval of its own); an interval across a bound belongs to none."""
     ec = m.ec
+    a, b = m.heartbeat_pairs()
+    if not a.size:  # no interval: every segment's median is NaN, wherever they are bounded
+        return np.zeros(0), np.full(1, np.nan)
     bounds = np.unique(np.concatenate([
         ec.ts[ec.kind == BOOTUP], m.commands.reset_ts,
         m.writes.ts[m.writes.index == 0x1017]]).astype(np.float64))
     medians = np.full(len(bounds) + 1, np.nan)
-    a, b = m.heartbeat_pairs()
-    if not a.size:
-        return bounds, medians
     seg_a = np.searchsorted(bounds, ec.ts[a], side="right")
     seg_b = np.searchsorted(bounds, ec.ts[b], side="right")
     inside = seg_a == seg_b
@@ -642,7 +648,7 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     prev = np.concatenate([[_BOOT], what[:-1]])
     prev_silent = np.concatenate([[False], silent[:-1]])
     opens = ((what == _HB) & ~silent) | ((what == _ON) & (
-        np.isin(prev, (_BOOT, _RESET, _OFF)) | prev_silent))
+        is_one_of(prev, (_BOOT, _RESET, _OFF)) | prev_silent))
     ends = np.flatnonzero(what != _ON)  # every event but a non-zero write ends a gap
     gap = np.flatnonzero(opens)
     k = np.searchsorted(ends, gap, side="right")
@@ -858,6 +864,12 @@ def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, i
         (t, t) for t in [t.moment for t in m.timeouts]
         + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
     pos = _evidence(m, windows)
+    if not len(cmds) and not m.timeouts and not m.self_starts:  # the evidence alone, in
+        for lo in range(0, len(pos), STEP_CHUNK):  # time order already (most nodes)
+            part = pos[lo:lo + STEP_CHUNK]
+            yield from ((t, _EV_EC, r) for t, r in zip(ec.ts[part].tolist(), part.tolist(),
+                                                       strict=True))
+        return
     back_of = [i for i, t in enumerate(m.timeouts) if t.ended_by is not None]
     backs = [m.timeouts[i] for i in back_of]
     # the steps as columns: time, order at one moment, file position, what, reference

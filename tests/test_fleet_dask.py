@@ -85,6 +85,7 @@ def test_dask_cluster_run_retries_then_marks_the_crashing_log(scheduler: str,
     # the cluster has Dask's defaults that slow nmtcheck down: the run says so
     assert "nmtcheck: warning: " in res.stderr and "MALLOC_TRIM_THRESHOLD_ is set" in res.stderr
     assert "worker profiler is on" in res.stderr
+    assert "ticks every 20 ms (distributed.admin.tick.interval)" in res.stderr
 
     data = nmtcheck.read_results(tmp_path / "dask-results").inputs.set_index("url")
     crashme = str(logs / "CRASHME.log")
@@ -120,7 +121,8 @@ finally:
 """)
     name, slots, info = json.loads(out.strip().splitlines()[-1])
     assert (name, slots) == ("dask-local:1", 1)
-    assert info == [{"nmtcheck": nmtcheck.__version__, "malloc_trim": None, "profile": False}]
+    assert info == [{"nmtcheck": nmtcheck.__version__, "malloc_trim": None, "profile": False,
+                     "tick_s": 1.0}]
 
 
 def test_client_worker_version_skew_is_a_usage_error(scheduler: str) -> None:

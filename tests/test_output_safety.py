@@ -153,9 +153,10 @@ def test_stdout_on_a_full_device_is_one_line_and_exit_2(tmp_path: Path, args: li
 def test_third_party_logging_never_reaches_stderr(tmp_path: Path) -> None:
     """asammdf logs its own errors (and canopen, python-can theirs): only nmtcheck's one
     line may reach stderr."""
-    code = ("import logging, sys; from nmtcheck import cli; "
-            "load = cli.load_profile; "
-            "cli.load_profile = lambda *a: (logging.getLogger('asammdf').error('NoneType: None'),"
+    code = ("import logging, sys; from nmtcheck import cli, cli_common; "
+            "load = cli_common.load_profile; "
+            "cli_common.load_profile = lambda *a: (logging.getLogger('asammdf').error("
+            "'NoneType: None'),"
             " load(*a))[1]; "
             "sys.argv = ['nmtcheck', 'check', sys.argv[1], '-q']; cli.main()")
     res = subprocess.run([sys.executable, "-c", code, str(tmp_path / "missing.log")],

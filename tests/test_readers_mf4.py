@@ -200,7 +200,7 @@ def test_without_asammdf_the_install_command_is_named(written: Path,
     with pytest.raises(InputError) as exc:
         list(open_input(str(written)).batches)
     assert str(exc.value) == (f"{written}: reading MF4 needs the optional asammdf package: "
-                              "pip install 'nmtcheck[mf4]'")
+                              "pip install '.[mf4]' in the nmtcheck checkout")
 
 
 def test_without_asammdf_the_command_exits_2(written: Path, tmp_path: Path) -> None:
@@ -212,7 +212,7 @@ def test_without_asammdf_the_command_exits_2(written: Path, tmp_path: Path) -> N
     assert res.returncode == 2, res.stdout + res.stderr
     assert res.stderr.strip().splitlines() == [
         f"nmtcheck: {written}: reading MF4 needs the optional asammdf package: "
-        "pip install 'nmtcheck[mf4]'"]
+        "pip install '.[mf4]' in the nmtcheck checkout"]
 
 
 def test_sniff() -> None:

@@ -123,6 +123,9 @@ def boot_slave_already_operational(model: InputModel, params: Params) -> Iterato
     reports OPERATIONAL (a heartbeat or guarding response with state 05h that is not a
     stale report queued before a command). A CiA 302 manager then skips reset and
     configuration (keep-alive) or ends the process with letter L, and sends no start.
+    For a keep-alive slave whose heartbeat the manager consumes (its 1016h entry is
+    known), the process ends at N's second such report, as Lely's master does (recorded
+    in `samples/lely/boot/keepalive`): the first only passes its state check.
 
     **Why it matters.** Not an error (ros2_canopen accepts L as booted), but the manager
     did not configure the slave: a slave that starts itself keeps its old configuration.

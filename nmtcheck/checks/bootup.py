@@ -10,7 +10,15 @@ import numpy as np
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, batch, rule
 from nmtcheck.decode import KIND_EC, KIND_NAMES, NodeFrames
 from nmtcheck.model import EcFrame, EcTable, NodeModel
-from nmtcheck.nmt import BOOTUP, EC_KIND_NAMES, EPS, GUARD, HEARTBEAT, MALFORMED
+from nmtcheck.nmt import (
+    BOOTUP,
+    EC_KIND_NAMES,
+    EPS,
+    GUARD,
+    HEARTBEAT,
+    MALFORMED,
+    is_one_of,
+)
 
 _NEVER = np.iinfo(np.int64).max  # a frame index after every frame
 
@@ -96,7 +104,7 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float, grace
     no_boot = (~has_other & ~has_sign & ~restarted & (boot_ts - r_ts > timeout + EPS)
                & (ctx.end > r_ts + timeout + EPS) & awaited)
     found = has_other | has_sign | no_boot
-    found &= ~np.isin(r_idx, m.own_command_idx)  # the master's own: never a finding for it
+    found &= ~is_one_of(r_idx, m.own_command_idx)  # the master's own: never a finding for it
     found = np.flatnonzero(found)
     if not found.size:
         return

@@ -28,7 +28,7 @@ from nmtcheck.model import (
     NodeModel,
     known_cs,
 )
-from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE
+from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE, is_one_of
 
 
 @input_rule("C001", "restricted-can-id", "error",
@@ -218,5 +218,5 @@ def unknown_nmt_state(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
 def _unknown_state(ec: EcTable, pos: np.ndarray) -> np.ndarray:
     kind = ec.kind[pos]
     bad: np.ndarray = (((kind == HEARTBEAT) | (kind == GUARD))
-                       & ~np.isin(ec.code[pos], list(STATE_OF_CODE)))
+                       & ~is_one_of(ec.code[pos], list(STATE_OF_CODE)))
     return bad

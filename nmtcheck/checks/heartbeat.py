@@ -84,6 +84,8 @@ def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[F
     factor = p["early_factor"]
     ec = m.ec
     pos = ec.where(HEARTBEAT, BOOTUP)
+    if len(pos) < 2:  # no pair (most nodes of a log of many channels)
+        return
     a, b = pos[:-1], pos[1:]
     # the period in force at the first heartbeat: a confirmed 1017h beats the median
     period = m.periods_at(ec.ts[a])

@@ -40,6 +40,7 @@ from nmtcheck.nmt import (
     STATES,
     STOPPED,
     between,
+    is_one_of,
     state_name,
 )
 
@@ -83,9 +84,12 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
     wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
     found: dict[tuple[int, int], _Run] = {}
     cand = model.sent_while(_CHECKED_STATES)
-    sel = np.flatnonzero(np.isin(cand.kind, kinds))
+    sel = np.flatnonzero(is_one_of(cand.kind, kinds))
     keys = cand.key[sel]
-    for key in np.unique(keys).tolist():
+    order = np.argsort(keys, kind="stable")  # each node's rows in file order, found once
+    uniq, first = np.unique(keys[order], return_index=True)
+    bounds = np.append(first, len(order))
+    for g, key in enumerate(uniq.tolist()):
         m = by_key.get(key)
         if m is None:
             continue
@@ -100,15 +104,15 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
                 since[i] = starts[i]
             elif i >= 1 and codes[i - 1] != offline:
                 since[i] = since[i - 1]  # e.g. OPERATIONAL -> STOPPED -> PRE-OPERATIONAL
-        rows = sel[keys == key]  # in file order
+        rows = sel[order[bounds[g]:bounds[g + 1]]]  # in file order
         ts = cand.ts[rows]
         iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
-        bad = np.isin(codes[iv], wanted)
+        bad = is_one_of(codes[iv], wanted)
         bad &= ~((ts - since[iv]) <= grace_s + EPS)
         if unproven and m.unproven_spans:
             spans = np.asarray(m.unproven_spans, np.float64)
-            k = np.searchsorted(spans[:, 0], ts, side="right") - 1
-            bad &= ~((k >= 0) & (ts <= spans[np.maximum(k, 0), 1] + EPS))
+            span = np.searchsorted(spans[:, 0], ts, side="right") - 1
+            bad &= ~((span >= 0) & (ts <= spans[np.maximum(span, 0), 1] + EPS))
         for j in np.flatnonzero(bad).tolist():
             row = rows[j]
             k = (key, int(iv[j]))
@@ -218,7 +222,7 @@ def command_not_obeyed(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fo
     obey = p["obey_ms"] / 1000.0
     cmds = m.commands
     # the master's own broadcasts are applied only where it obeyed them: never a finding
-    todo = np.flatnonzero(~cmds.is_reset & ~np.isin(cmds.idx, m.own_command_idx))
+    todo = np.flatnonzero(~cmds.is_reset & ~is_one_of(cmds.idx, m.own_command_idx))
     if not todo.size:  # positions, not objects: there may be a million commands
         return
     ec = m.ec

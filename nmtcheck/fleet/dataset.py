@@ -4,6 +4,7 @@
     RESULTS/inputs/date=2026-11-23/part-<batch>.parquet
     RESULTS/findings/date=2026-11-23/part-<batch>.parquet
     RESULTS/node_stats/date=2026-11-23/part-<batch>.parquet
+    RESULTS/boot/date=2026-11-23/part-<batch>.parquet      (SPEC_BOOT §8.5)
     RESULTS/runs/date=2026-11-24/run-<run_id>.parquet
     RESULTS/<table>/date=1970-01-01/part-schema.parquet   zero rows: the table's schema
 
@@ -20,7 +21,7 @@ One run at a time (issue 24): a run holds an exclusive lock on a local dataset
 into the same `--results` meanwhile is a usage error naming the first. Two runs could
 otherwise both check every log (each with an empty skip list, each with its own batching),
 and the raw tables would hold each log's rows twice. Under the lock a run first removes
-findings and node_stats files whose batch never wrote its `inputs` file (a run killed or
+findings, node_stats and boot files whose batch never wrote its `inputs` file (a run killed or
 stopped by a full disk between them): rows without their commit record. An object store
 (s3://, gs://, ...) has no such lock: the docs say to run one fleet run per dataset there.
 """
@@ -45,7 +46,7 @@ LOCK = "_nmtcheck_run.lock"
 # read it), a name no batch has (theirs are `part-<24 hex>`), under a date (`unknown` would
 # make DuckDB's hive partitioning read every `date` as text, not as DATE)
 SCHEMA_PART = ("date=1970-01-01", "part-schema.parquet")
-TABLES = ("runs", "inputs", "findings", "node_stats")
+TABLES = ("runs", "inputs", "findings", "node_stats", "boot")
 DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER, LOCK)  # what a dataset's folder holds
 SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
 
@@ -86,6 +87,17 @@ COLUMNS: dict[str, list[tuple[str, str]]] = {
                    ("hb_max_ms", "float64"), ("worst_gap_ms", "float64"),
                    ("worst_gap_at", "float64"), ("n_error", "int64"), ("n_warning", "int64"),
                    ("n_info", "int64")],
+    # SPEC_BOOT §8.5: one row per boot process of a node (fleet/tasks.py boot_rows)
+    "boot": [*_KEY, ("channel", "string"), ("node", "int64"), ("manager", "string"),
+             ("process", "int64"), ("processes", "int64"), ("last", "bool"),
+             ("status", "string"), ("letter", "string"), ("letter_text", "string"),
+             ("letter_source", "string"), ("reason", "string"), ("anchor", "string"),
+             ("start", "float64"), ("end", "float64"), ("abs_start", "timestamp"),
+             ("started_at", "float64"), ("attempts", "int64"), ("keep_alive", "bool"),
+             ("last_step", "string"), ("evidence_time", "float64"),
+             ("evidence_frame_index", "int64"), ("evidence_line", "int64"),
+             ("findings", "string"), ("assignment", "string"), ("mandatory", "bool"),
+             ("assignment_source", "string")],
 }
 STATE_COLUMNS = {"UNKNOWN": "s_unknown", "INITIALISING": "s_initialising",
                  "PRE-OPERATIONAL": "s_pre_operational", "OPERATIONAL": "s_operational",
@@ -237,11 +249,11 @@ class Dataset:
         return handle
 
     def remove_uncommitted(self) -> int:
-        """Remove findings and node_stats files of batches without an `inputs` file (their
+        """Remove findings, node_stats and boot files of batches without an `inputs` file (their
         commit record): what a run stopped between the two left. The number removed."""
         committed = {p.rsplit("/", 1)[-1] for p in self.files("inputs")} | {SCHEMA_PART[1]}
         removed = 0
-        for table in ("findings", "node_stats"):
+        for table in ("findings", "node_stats", "boot"):
             for path in self.files(table):
                 if path.rsplit("/", 1)[-1] not in committed:
                     self.fs.rm(path)
@@ -344,7 +356,9 @@ def latest(tables: dict[str, Any]) -> dict[str, Any]:
     keep = set(zip(newest["input_id"], newest["batch_id"], strict=True))
     out = dict(tables)
     out["inputs"] = newest.reset_index(drop=True)
-    for name in ("findings", "node_stats"):
+    for name in ("findings", "node_stats", "boot"):
+        if name not in tables:
+            continue
         df = tables[name]
         mask = [(a, b) in keep for a, b in zip(df["input_id"], df["batch_id"], strict=True)]
         out[name] = df.loc[np.asarray(mask, dtype=bool)].reset_index(drop=True)  # [] keeps rows

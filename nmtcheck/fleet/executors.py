@@ -26,6 +26,7 @@ from typing import Any, Protocol
 from nmtcheck.errors import UsageError
 
 ALLOWED_FAILURES = 2  # a task on a worker that died is retried this many times
+MIN_TICK_S = 0.1  # a Dask worker's event loop waking more often than this slows a check
 DRIVER_GONE_EXIT = 75  # a worker's exit status when it ends because its driver died
 WATCH_POLL_S = 0.5  # where no pidfd can watch the driver, how often it is looked for
 
@@ -284,11 +285,18 @@ class LocalExecutor:
 # What nmtcheck sets on the Dask workers it starts. Dask's defaults cost nmtcheck 5-7x here:
 # MALLOC_TRIM_THRESHOLD_=65536 (nanny.pre-spawn-environ) makes glibc give memory back to
 # the system after every numpy temporary, and the statistical profiler samples every
-# worker thread every 10 ms.
+# worker thread every 10 ms. Then 10-15 % more per log (2 cores, 2026-11-26: a log's check
+# 0.57-0.59 s in a dask-local worker, 0.50-0.52 s in a local one): the worker's event loop
+# wakes every 20 ms (the tick that watches for a blocked loop), measures its memory every
+# 100 ms and its system every 500 ms, each time taking the GIL from the task's thread.
+# Once a second is enough for a task of seconds that is never paused or spilled.
 DASK_CONFIG: dict[str, Any] = {
     "distributed.worker.profile.enabled": False,
     # None unsets a variable of Dask's defaults (dask.config.set merges dictionaries)
     "distributed.nanny.pre-spawn-environ": {"MALLOC_TRIM_THRESHOLD_": None},
+    "distributed.admin.tick.interval": "1s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
     "distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
     # each worker imports the checker, the readers and pyarrow as it starts (part of the
     # cluster's start-up), not at its first task
@@ -299,12 +307,14 @@ DASK_CONFIG: dict[str, Any] = {
 def worker_info() -> dict[str, Any]:
     """Run on each worker: what the client compares with its own."""
     import dask
+    from dask.utils import parse_timedelta
 
     from nmtcheck import __version__
 
     return {"nmtcheck": __version__,
             "malloc_trim": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
-            "profile": bool(dask.config.get("distributed.worker.profile.enabled", True))}
+            "profile": bool(dask.config.get("distributed.worker.profile.enabled", True)),
+            "tick_s": parse_timedelta(dask.config.get("distributed.admin.tick.interval"))}
 
 
 def _allowed_failures(dask_scheduler: Any) -> int:
@@ -317,7 +327,7 @@ def _import_dask() -> Any:
         import distributed
     except ImportError:
         raise UsageError("--executor dask: Dask is not installed; install it with "
-                         "pip install 'nmtcheck[dask]'") from None
+                         "pip install '.[dask]' in the nmtcheck checkout") from None
     return distributed
 
 
@@ -382,6 +392,15 @@ class DaskExecutor:
                               "these settings when measured; start the workers with "
                               "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False and without "
                               "MALLOC_TRIM_THRESHOLD_ in distributed.nanny.pre-spawn-environ",
+                              stacklevel=2)
+            tick = min(float(i.get("tick_s") or 0) for i in info.values())
+            if tick < MIN_TICK_S:
+                warnings.warn(f"{self.name}: the workers' event loop ticks every "
+                              f"{tick * 1e3:.0f} ms (distributed.admin.tick.interval): "
+                              "each log's check took 10-15 % longer than with 1s when "
+                              "measured; start the workers with "
+                              "DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s (and "
+                              "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL=1s)",
                               stacklevel=2)
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:

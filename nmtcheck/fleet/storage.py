@@ -90,7 +90,8 @@ def filesystem(url: str, storage_options: dict[str, Any] | None = None) -> tuple
     except ImportError as exc:
         extra = {"s3": "fleet", "s3a": "fleet", "gs": "gcs", "gcs": "gcs", "az": "azure",
                  "abfs": "azure", "abfss": "azure"}.get(protocol or "", "fleet")
-        raise UsageError(f"{url}: {exc}; install it with pip install 'nmtcheck[{extra}]'"
+        raise UsageError(f"{url}: {exc}; install it with pip install '.[{extra}]' in "
+                         "the nmtcheck checkout"
                          ) from None
     except ValueError as exc:
         raise UsageError(f"{url}: {exc}") from None

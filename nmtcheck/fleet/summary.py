@@ -22,8 +22,9 @@ class FleetSummary:
     results: str
     totals: dict[str, Any]
     status: Any  # DataFrame: status, logs
-    devices: Any  # DataFrame: rule, device, findings, logs, nodes, first, last
-    nodes: Any  # DataFrame: rule, device, channel, node, findings, logs, first, last
+    rules: Any  # DataFrame: rule, name, findings, logs (most findings first, ties by code)
+    devices: Any  # DataFrame: rule, device, log, findings, logs, nodes, first, last
+    nodes: Any  # DataFrame: rule, device, log, channel, node, findings, logs, first, last
     by_day: Any  # DataFrame: date, rule, findings
     by_version: Any  # DataFrame: nmtcheck_version, logs, rule, findings
     failed: Any  # DataFrame: url, status, error
@@ -32,7 +33,9 @@ class FleetSummary:
 def summarise(results: str, storage_options: dict[str, Any] | None = None,
               rules: list[str] | None = None, top: int = 10,
               latest_only: bool = True) -> FleetSummary:
-
+    """The summary's tables. The unit a rule's worst list ranks is the device where the log
+    has one (`--path-pattern`), else the log itself: `device` or `log` says which, never a
+    path in the `device` column."""
     from nmtcheck.api import read_results
 
     res = read_results(results, storage_options=storage_options, latest=latest_only)
@@ -40,24 +43,31 @@ def summarise(results: str, storage_options: dict[str, Any] | None = None,
     if rules:
         findings = findings[findings["rule"].isin(rules)]
     f = findings.copy()
-    f["device"] = f["device"].fillna(f["url"])  # without --path-pattern: the log is the device
+    f["log"] = f["url"].where(f["device"].isna())
+    f["unit"] = f["device"].fillna(f["url"])
     # "since when": the finding's own date when the log is dated, else its partition's
     f["when"] = f["abs_time"].dt.strftime("%Y-%m-%d").fillna(f["date"].astype(str))
-    dev = (f.groupby(["rule", "device"], dropna=False)
-           .agg(findings=("rule", "size"), logs=("input_id", "nunique"),
+    keep = {"device": ("device", "first"), "log": ("log", "first")}
+    dev = (f.groupby(["rule", "unit"], dropna=False)
+           .agg(**keep, findings=("rule", "size"), logs=("input_id", "nunique"),
                 nodes=("node", "nunique"), first=("when", "min"), last=("when", "max"))
-           .reset_index().sort_values(["rule", "findings", "device"],
+           .reset_index().sort_values(["rule", "findings", "unit"],
                                       ascending=[True, False, True])
-           .groupby("rule").head(top).reset_index(drop=True))
+           .groupby("rule").head(top).drop(columns="unit").reset_index(drop=True))
     nod = (f.dropna(subset=["node"])
-           .groupby(["rule", "device", "channel", "node"], dropna=False)
-           .agg(findings=("rule", "size"), logs=("input_id", "nunique"),
+           .groupby(["rule", "unit", "channel", "node"], dropna=False)
+           .agg(**keep, findings=("rule", "size"), logs=("input_id", "nunique"),
                 first=("when", "min"), last=("when", "max"))
-           .reset_index().sort_values(["rule", "findings", "device", "channel", "node"],
+           .reset_index().sort_values(["rule", "findings", "unit", "channel", "node"],
                                       ascending=[True, False, True, True, True])
-           .groupby("rule").head(top).reset_index(drop=True))
+           .groupby("rule").head(top).drop(columns="unit").reset_index(drop=True)
+           [["rule", "device", "log", "channel", "node", "findings", "logs", "first", "last"]])
     if len(nod):
         nod["node"] = nod["node"].astype("int64")
+    per_rule = (f.groupby("rule").agg(name=("name", "first"), findings=("rule", "size"),
+                                      logs=("input_id", "nunique"))
+                .reset_index().sort_values(["findings", "rule"], ascending=[False, True])
+                .reset_index(drop=True))
     day = (f.groupby(["when", "rule"]).size().rename("findings").reset_index()
            .rename(columns={"when": "date"}).sort_values(["date", "rule"]))
     versions = inputs[["input_id", "batch_id", "nmtcheck_version"]]
@@ -74,6 +84,7 @@ def summarise(results: str, storage_options: dict[str, Any] | None = None,
     dated = dated[dated != "unknown"]
     totals = {
         "logs": len(inputs), "devices": int(inputs["device"].nunique()),
+        "logs_without_device": int(inputs["device"].isna().sum()),
         "frames": int(inputs["frames"].fillna(0).sum()),
         "bytes": int(inputs["size"].fillna(0).sum()),
         "error": int(inputs["n_error"].fillna(0).sum()),
@@ -84,7 +95,36 @@ def summarise(results: str, storage_options: dict[str, Any] | None = None,
         "versions": sorted(inputs["nmtcheck_version"].dropna().unique().tolist()),
         "runs": len(res.runs), "latest_only": latest_only,
     }
-    return FleetSummary(results, totals, status, dev, nod, day, ver, failed)
+    return FleetSummary(results, totals, status, per_rule, dev, nod, day, ver, failed)
+
+
+def _units(t: dict[str, Any]) -> str:
+    """How many logs and devices: a log without a device (no `--path-pattern`, or one its
+    path does not match) is its own unit, and the phrase says so rather than "0 devices"."""
+    logs, devices, alone = t["logs"], t["devices"], t["logs_without_device"]
+    if not logs:
+        return "0 logs"
+    if not alone:
+        return f"{logs} logs, {devices} devices"
+    if not devices:
+        return (f"{logs} logs, no device names (each log is its own unit: give "
+                "check --results a --path-pattern to name devices)")
+    return f"{logs} logs, {devices} devices and {alone} logs without a device"
+
+
+def _unit_columns(df: Any) -> list[str]:
+    """`device`, `log` or both: the columns that name a table's rows."""
+    return [c for c in ("device", "log") if df[c].notna().any()] or ["device"]
+
+
+def _worst(df: Any) -> str:
+    return {"device": "devices", "log": "logs"}.get(" ".join(_unit_columns(df)),
+                                                     "devices and logs")
+
+
+def _rule_head(r: Any) -> str:
+    return (f"{r.rule} {r.name}: {r.findings} finding{'s' if r.findings != 1 else ''} "
+            f"in {r.logs} log{'s' if r.logs != 1 else ''}")
 
 
 def _cell(v: Any) -> str:
@@ -106,19 +146,20 @@ def render_text(s: FleetSummary) -> str:
     t = s.totals
     span = f"{t['first_date']} .. {t['last_date']}" if t["first_date"] else "no dated logs"
     lines = [f"nmtcheck fleet summary of {s.results}",
-             f"{t['logs']} logs, {t['devices']} devices, {t['frames']} frames, {span}; "
+             f"{_units(t)}, {t['frames']} frames, {span}; "
              f"nmtcheck {', '.join(t['versions']) or '-'}",
              f"findings: {t['error']} errors, {t['warning']} warnings, {t['info']} info",
              "status: " + ", ".join(f"{r.status} {r.logs}" for r in s.status.itertuples()), ""]
-    for rule in sorted(s.devices["rule"].unique()):
-        lines.append(f"{rule}: worst devices")
-        lines += _table_text(s.devices[s.devices["rule"] == rule],
-                             ["device", "findings", "logs", "nodes", "first", "last"])
-        nodes = s.nodes[s.nodes["rule"] == rule]
+    for r in s.rules.itertuples():  # most findings first
+        worst = s.devices[s.devices["rule"] == r.rule]
+        lines += [_rule_head(r), f"{r.rule}: worst {_worst(worst)}"]
+        lines += _table_text(worst, [*_unit_columns(worst), "findings", "logs", "nodes",
+                                     "first", "last"])
+        nodes = s.nodes[s.nodes["rule"] == r.rule]
         if len(nodes):
-            lines.append(f"{rule}: worst nodes")
-            lines += _table_text(nodes, ["device", "channel", "node", "findings", "logs",
-                                         "first", "last"])
+            lines.append(f"{r.rule}: worst nodes")
+            lines += _table_text(nodes, [*_unit_columns(nodes), "channel", "node", "findings",
+                                         "logs", "first", "last"])
         lines.append("")
     if len(s.by_version):
         lines.append("findings by nmtcheck version")
@@ -132,10 +173,15 @@ def render_text(s: FleetSummary) -> str:
 
 
 def render_csv(s: FleetSummary) -> str:
-    """One table: `section` says which part a row belongs to (devices, nodes, by_day,
-    by_version, failed), the other columns are those of the part (empty elsewhere)."""
-    parts = [("devices", s.devices), ("nodes", s.nodes), ("by_day", s.by_day),
-             ("by_version", s.by_version), ("status", s.status), ("failed", s.failed)]
+    """One table: `section` says which part a row belongs to (rules, devices, logs, nodes,
+    by_day, by_version, status, failed), the other columns are those of the part (empty
+    elsewhere). A worst-list row is `devices` when it names a device, `logs` when it names
+    a log that has none."""
+    worst = s.devices
+    parts = [("rules", s.rules), ("devices", worst[worst["device"].notna()]),
+             ("logs", worst[worst["device"].isna()]), ("nodes", s.nodes),
+             ("by_day", s.by_day), ("by_version", s.by_version), ("status", s.status),
+             ("failed", s.failed)]
     columns: list[str] = []
     for _name, df in parts:
         columns += [c for c in df.columns if c not in columns]
@@ -162,40 +208,121 @@ def _table_html(df: Any, columns: list[str]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
+MAX_DAYS_FILLED = 92  # a longer span gets a bar per day with findings, not one per day
+
+
+def _scale(top: int) -> list[int]:
+    """Tick values 0, step, 2 step, ... up to at least `top`: the smallest step of 1, 2 or
+    5 x 10^k that needs at most 4 ticks above zero."""
+    k = 1
+    while True:
+        for step in (k, 2 * k, 5 * k):
+            if step * 4 >= top:
+                return list(range(0, -(-top // step) * step + 1, step))
+        k *= 10
+
+
+def _day_span(days: list[str]) -> tuple[list[str], bool]:
+    """Every day from the first to the last when they are dates no more than
+    MAX_DAYS_FILLED apart (a day without findings shows as one), else the given days."""
+    from datetime import date, timedelta
+
+    try:
+        first, last = date.fromisoformat(days[0]), date.fromisoformat(days[-1])
+        for d in days:
+            date.fromisoformat(d)
+    except ValueError:
+        return days, False
+    n = (last - first).days + 1
+    if n > MAX_DAYS_FILLED:
+        return days, False
+    return [str(first + timedelta(days=i)) for i in range(n)], True
+
+
 def _bars(by_day: Any) -> str:
-    """Findings per day as an inline SVG bar chart (no script, no CDN)."""
+    """Findings per day as an inline SVG bar chart (no script, no CDN): a y axis with an
+    even scale, the date under each bar (every k-th when they would overlap), the count
+    on each bar that has room for it, and each bar's count by rule as its tooltip."""
     if not len(by_day):
         return "<p>No findings.</p>"
     per_day = by_day.groupby("date")["findings"].sum()
-    top = max(int(per_day.max()), 1)
-    w, h = max(8, 600 // max(len(per_day), 1)), 120
-    rects = []
-    for i, (day, n) in enumerate(per_day.items()):
-        bh = max(1, int(h * n / top))
-        rects.append(f'<rect x="{i * w}" y="{h - bh}" width="{w - 1}" height="{bh}" '
-                     f'fill="#c0392b"><title>{html.escape(str(day))}: {n}</title></rect>')
-    return (f'<svg width="{len(per_day) * w}" height="{h}" role="img" '
-            f'aria-label="findings per day">{"".join(rects)}</svg>')
+    days, filled = _day_span(sorted(per_day.index))
+    counts = [int(per_day.get(d, 0)) for d in days]
+    by_rule = {d: ", ".join(f"{r.rule} {r.findings}" for r in g.itertuples())
+               for d, g in by_day.groupby("date")}
+    ticks = _scale(max(max(counts), 1))
+    bar = max(4, min(48, 960 // len(days)))
+    digits = len(str(max(counts)))
+    # the counts on the bars: all across, all upright, or (bars too narrow) none
+    counts_as = "across" if bar >= 7 * digits else "upright" if bar >= 11 else ""
+    left, top, plot_h, bottom = 56, 14 if counts_as != "upright" else 7 * digits + 8, 160, 84
+    width, base = left + bar * len(days) + 12, top + plot_h
+    label_every = -(-14 // bar)  # rotated dates need about 14 px each
+
+    def y(v: float) -> float:
+        return base - plot_h * v / ticks[-1]
+
+    parts = [f'<g class="y-axis"><line x1="{left}" y1="{top}" x2="{left}" y2="{base}" '
+             f'stroke="#444"/>']
+    parts += [f'<line x1="{left - 4}" y1="{y(t):.1f}" x2="{width - 8}" y2="{y(t):.1f}" '
+              f'stroke="{"#444" if t == 0 else "#e4e4e4"}"/>'
+              f'<text class="tick" x="{left - 7}" y="{y(t) + 4:.1f}" '
+              f'text-anchor="end">{t}</text>' for t in ticks]
+    parts.append(f'<text class="axis-title" transform="translate(14 {top + plot_h / 2}) '
+                 f'rotate(-90)" text-anchor="middle">findings</text></g>')
+    for i, (d, n) in enumerate(zip(days, counts, strict=True)):
+        x, mid = left + i * bar, left + i * bar + bar / 2
+        what = f"{n} finding{'s' if n != 1 else ''}" + (f" ({by_rule[d]})" if n else "")
+        g = [f'<g class="day" data-date="{html.escape(d)}">'
+             f"<title>{html.escape(f'{d}: {what}')}</title>"]
+        if n:
+            g.append(f'<rect x="{x + 1}" y="{y(n):.1f}" width="{max(bar - 2, 1)}" '
+                     f'height="{base - y(n):.1f}" fill="#c0392b"/>')
+            if counts_as == "across":
+                g.append(f'<text class="count" x="{mid}" y="{y(n) - 3:.1f}" '
+                         f'text-anchor="middle">{n}</text>')
+            elif counts_as:
+                g.append(f'<text class="count" transform="translate({mid + 4} {y(n) - 3:.1f}) '
+                         f'rotate(-90)">{n}</text>')
+        if i % label_every == 0:
+            g.append(f'<text class="date" transform="translate({mid + 4} {base + 8}) '
+                     f'rotate(-60)" text-anchor="end">{html.escape(d)}</text>')
+        parts.append("".join(g) + "</g>")
+    parts.append(f'<text class="axis-title" x="{left + bar * len(days) / 2}" '
+                 f'y="{base + bottom - 4}" text-anchor="middle">day (UTC)</text>')
+    chart = (f'<svg width="{width}" height="{base + bottom}" role="img" font-size="11" '
+             f'font-family="system-ui,sans-serif" aria-label="findings per day">'
+             f'{"".join(parts)}</svg>')
+    total = sum(counts)
+    note = (f"{total} findings on {sum(1 for n in counts if n)} days from {days[0]} to "
+            f"{days[-1]} (a finding's own date, else its log's); hover a bar for its count "
+            "by rule" + ("." if counts_as else " (too many bars to write each count)."))
+    if not filled and len(days) > 1:
+        note += (f" The span is longer than {MAX_DAYS_FILLED} days: only the days with "
+                 "findings are shown.")
+    return f"{chart}<p><small>{html.escape(note)}</small></p>"
 
 
 def render_html(s: FleetSummary) -> str:
     t = s.totals
     sections = [f"<h1>nmtcheck fleet summary</h1><p>{html.escape(s.results)}: "
-                f"{t['logs']} logs, {t['devices']} devices, {t['frames']} frames; "
+                f"{html.escape(_units(t))}, {t['frames']} frames; "
                 f"<b>{t['error']}</b> errors, {t['warning']} warnings, {t['info']} info; "
                 f"logs from {t['first_date'] or '-'} to {t['last_date'] or '-'}; "
                 f"nmtcheck {html.escape(', '.join(t['versions']) or '-')}</p>",
                 _table_html(s.status, ["status", "logs"]),
                 "<h2>Findings per day</h2>", _bars(s.by_day)]
-    for rule in sorted(s.devices["rule"].unique()):
-        sections.append(f"<h2>{html.escape(rule)}</h2><h3>Worst devices</h3>")
-        sections.append(_table_html(s.devices[s.devices["rule"] == rule],
-                                    ["device", "findings", "logs", "nodes", "first", "last"]))
-        nodes = s.nodes[s.nodes["rule"] == rule]
+    for r in s.rules.itertuples():  # most findings first
+        worst = s.devices[s.devices["rule"] == r.rule]
+        sections.append(f"<h2>{html.escape(_rule_head(r))}</h2>"
+                        f"<h3>Worst {_worst(worst)}</h3>")
+        sections.append(_table_html(worst, [*_unit_columns(worst), "findings", "logs",
+                                            "nodes", "first", "last"]))
+        nodes = s.nodes[s.nodes["rule"] == r.rule]
         if len(nodes):
             sections.append("<h3>Worst nodes</h3>")
-            sections.append(_table_html(nodes, ["device", "channel", "node", "findings",
-                                                "logs", "first", "last"]))
+            sections.append(_table_html(nodes, [*_unit_columns(nodes), "channel", "node",
+                                                "findings", "logs", "first", "last"]))
     sections.append("<h2>By nmtcheck version</h2>")
     sections.append(_table_html(s.by_version, ["nmtcheck_version", "logs", "rule", "findings"]))
     if len(s.failed):

@@ -82,7 +82,7 @@ def batch_id(ids: list[str]) -> str:
 
 def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> BatchCounts:
     """Fetch the batch (concurrently), check each log, write the batch's Parquet files
-    (findings, node_stats, then inputs: the commit record), return the counts."""
+    (findings, node_stats, boot, then inputs: the commit record), return the counts."""
     os.environ["NMTCHECK_THREADS"] = "1"
     from nmtcheck.checks import BY_CODE
     from nmtcheck.fleet.dataset import Dataset, arrow_without_pandas
@@ -94,7 +94,8 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
     pattern = PathPattern(cfg.path_pattern)
     ids = [input_id(fi, cfg.version, cfg.digest) for fi in files]
     bid = batch_id(ids)
-    rows: dict[str, list[dict[str, Any]]] = {"inputs": [], "findings": [], "node_stats": []}
+    rows: dict[str, list[dict[str, Any]]] = {"inputs": [], "findings": [], "node_stats": [],
+                                             "boot": []}
     counts = BatchCounts()
     crash_on = os.environ.get(CRASH_ENV)
     with tempfile.TemporaryDirectory(prefix="nmtcheck-fleet-") as tmp:
@@ -121,7 +122,7 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
             _count(counts, fi, row)
     ds = Dataset(cfg.results, cfg.storage_options)
     name = f"part-{bid}"
-    for table in ("findings", "node_stats", "inputs"):  # inputs last: the commit record
+    for table in ("findings", "node_stats", "boot", "inputs"):  # inputs last: the commit record
         ds.write(table, name, rows[table])
     return counts
 
@@ -215,6 +216,77 @@ def _check_one(path: str, fi: FileInfo, key: dict[str, Any], cfg: TaskConfig,
     for o in res.omitted:  # left out of the rows, not out of the counts
         row[f"n_{o.severity}"] += o.count
     rows["node_stats"].extend(node_rows(res, key, date, by_node))
+    rows["boot"].extend({**key, **r, "date": date,
+                         "abs_start": r["start"] if start_time is not None else None}
+                        for r in boot_rows(res))
+
+
+MAX_BOOT_ROWS_PER_NODE = 1000  # a log may boot a node a million times: failures come first
+
+
+def boot_rows(res: Any) -> list[dict[str, Any]]:
+    """SPEC_BOOT §8.5, the `boot` table: one row per boot process of each node on a channel
+    where the P group ran, and one (`process` null) for an assigned node that had none. The
+    node's last process (`last`) carries its boot status as `nodes[].boot` states it; the
+    earlier ones what the analysis keeps of every process (status, letter, span, last step,
+    proving frame). Past MAX_BOOT_ROWS_PER_NODE processes, failed and incomplete ones and
+    the last are kept first (`processes` still counts them all)."""
+    import math
+
+    import numpy as np
+
+    from nmtcheck.boot import LETTERS, STATUSES
+
+    b = getattr(res, "boot", None)
+    if b is None:
+        return []
+    out: list[dict[str, Any]] = []
+    for (channel, node), rep in sorted(b.nodes.items()):
+        cb = b.channels.get(channel)
+        if cb is None or not cb.ran:
+            continue
+        sp = rep.spans
+        if not len(sp) and rep.assignment is None:
+            continue  # not managed and not assigned: no boot status to ask about
+        a = rep.assignment or {}
+        base = {"channel": channel, "node": node, "manager": cb.manager,
+                "processes": rep.processes, "assignment": a.get("value"),
+                "mandatory": a.get("mandatory"), "assignment_source": a.get("source")}
+        if not len(sp):
+            out.append({**base, "process": None, "last": True, "status": rep.status,
+                        "letter": rep.letter, "letter_text": LETTERS.get(rep.letter or ""),
+                        "letter_source": rep.letter_source, "reason": rep.reason})
+            continue
+        n = len(sp)
+        keep = np.arange(n)
+        if n > MAX_BOOT_ROWS_PER_NODE:
+            bad = (sp.status != 0) | (np.arange(n) == n - 1)
+            keep = np.sort(np.concatenate([np.flatnonzero(bad), np.flatnonzero(~bad)])
+                           [:MAX_BOOT_ROWS_PER_NODE])
+        for k in keep.tolist():
+            letter = str(sp.letter[k]) or None
+            row = {**base, "process": k, "last": k == n - 1,
+                   "status": STATUSES[int(sp.status[k])], "letter": letter,
+                   "letter_source": "observed" if letter else None,
+                   "reason": LETTERS.get(letter or ""),
+                   "start": float(sp.start[k]),
+                   "end": float(sp.end[k]) if math.isfinite(sp.end[k]) else None,
+                   "last_step": sp.last_step[int(sp.step[k])]}
+            if int(sp.ev_idx[k]) >= 0:
+                row.update(evidence_time=float(sp.ev_time[k]),
+                           evidence_frame_index=int(sp.ev_idx[k]),
+                           evidence_line=int(sp.ev_line[k]) or None)
+            x = rep.process
+            if k == n - 1:  # the node's status (a P006 may fail it after its process)
+                row.update(status=rep.status, letter=rep.letter,
+                           letter_source=rep.letter_source, reason=rep.reason)
+                if x is not None:
+                    row.update(anchor=x.anchor, attempts=x.attempts, keep_alive=x.keep_alive,
+                               started_at=None if x.started_at is None else x.started_at.time,
+                               findings=",".join(x.findings) or None)
+            row["letter_text"] = LETTERS.get(row["letter"] or "")
+            out.append(row)
+    return out
 
 
 def node_rows(res: Any, key: dict[str, Any], date: str,

@@ -16,6 +16,15 @@ from typing import Any
 
 import click
 
+from nmtcheck.cli_common import (
+    EXIT_ERROR,
+    EXIT_FINDINGS,
+    EXIT_OK,
+    load_profile_network,
+    resolve_settings,
+    write_reports,
+    write_stdout,
+)
 from nmtcheck.engine import MAX_FINDINGS_PER_RULE, select_rules, summary
 from nmtcheck.errors import NmtcheckError, UsageError
 from nmtcheck.live.display import Display, finding_line
@@ -76,14 +85,14 @@ def monitor(interface: str | None, channels: tuple[str, ...], bitrate: int | Non
             fmt: str | None, outputs: tuple[str, ...], quiet: bool) -> None:
     """Check a live CAN bus (any python-can interface): findings the moment they happen,
     a node table on a terminal, the reports of `nmtcheck check` at the end."""
-    from nmtcheck.cli import _load, resolve_settings
     from nmtcheck.live.bus import BusReader, close_buses, open_buses, parse_option
 
     config, fmt, fail_on, selected, ignored = resolve_settings(
         config_file, isolated, fmt, fail_on, select, ignore)
     if fmt not in FORMATS:
         raise UsageError(f"--format {fmt}: unknown format (available: {', '.join(FORMATS)})")
-    profile, network, config_info = _load(rules_profile, network_file, dcf, config)
+    profile, network, config_info = load_profile_network(rules_profile, network_file, dcf,
+                                                         config)
     rules = select_rules(profile, selected, ignored)
     stdout_render = streamer(fmt)
     files = [(path, streamer(format_for_path(path))) for path in outputs]
@@ -167,7 +176,6 @@ def finish(outcome: Outcome, files: list[tuple[str, Any]], stdout_render: Any,
     """Write every report, print the final one and the live summary; the exit code is
     `check`'s on the recording."""
     from nmtcheck.checks.base import fails
-    from nmtcheck.cli import EXIT_ERROR, EXIT_FINDINGS, EXIT_OK, write_reports, write_stdout
 
     if outcome.result is None:
         click.echo(escape_controls(f"nmtcheck: {nothing} ({ended})"), err=True)

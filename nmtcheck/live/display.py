@@ -25,6 +25,21 @@ def finding_line(lf: LiveFinding, start: float | None) -> str:
             f"  {lf.message}" + ("" if lf.certain else "  [provisional]"))
 
 
+def cause_lines(lf: LiveFinding, start: float | None) -> list[str]:
+    """SPEC §8.6: one indented line per cause under the live line, times as the live
+    line shows them (seconds from the session's first frame)."""
+    base = start if start is not None else lf.time
+    out = []
+    for c in lf.causes or ():
+        span = f"{c['time'] - base:.3f}" + (
+            f"-{c['end'] - base:.3f}" if c.get("end") is not None else "")
+        node = f" (node {c['node']})" if c.get("node") is not None else ""
+        out.append(f"    cause: {span} s {c['text']}{node}")
+    if lf.causes_omitted:
+        out.append(f"    cause: ... {lf.causes_omitted} more")
+    return out
+
+
 def node_table(nodes: list[NodeState], now: float | None) -> list[str]:
     rows = [f"{'channel':<10} {'node':>4}  {'state':<16} {'heartbeat age':>13}  findings"]
     for st in nodes:
@@ -50,6 +65,8 @@ class Display:
         with self.lock:
             self._clear()
             self.out.write(escape_controls(finding_line(lf, self.start)) + "\n")
+            for line in cause_lines(lf, self.start):
+                self.out.write(escape_controls(line) + "\n")
             self._draw()
             self.out.flush()
 

@@ -68,7 +68,11 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
             for lineno, raw in enumerate(lines, 1):
                 if done.is_set():
                     return
-                session.feed(_live_frame(raw, lineno, stats, live, display), raw)
+                lost = stats.dropped
+                frame = _live_frame(raw, lineno, stats, live, display)
+                if stats.dropped > lost:  # a DROPCOUNT line: a cause of what follows
+                    session.frames_lost(stats.dropped - lost)
+                session.feed(frame, raw)
         except Exception as exc:  # noqa: BLE001 - reported by the main thread
             failure.append(exc)
         finally:

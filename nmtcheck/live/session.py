@@ -169,6 +169,8 @@ class Session:
         self.on_overload = on_overload
         self.dropped = 0  # frames `submit` had no room for, in all
         self._unrecorded_drops = 0  # of those, not yet written as a DROPCOUNT line
+        self._drop_span: tuple[float, float] | None = None  # their first and last ts
+        self._pending_lost = 0  # a followed log's DROPCOUNT: placed at the next frame
         self._queue: deque[LiveFrame] = deque()
         self._intake = threading.Condition(threading.Lock())
         self._submitted = 0
@@ -198,9 +200,19 @@ class Session:
             self.frames += 1
             if self._writer is not None:
                 self._writer.on_message_received(to_message(frame))
+            if self._pending_lost:  # lost between the previous frame and this one
+                before = self.last_ts if self.last_ts is not None else frame.ts
+                self.tracker.recent.frames_lost(before, frame.ts, self._pending_lost)
+                self._pending_lost = 0
             self.last_ts = frame.ts
             self.clock.observe(frame.ts)
             self.tracker.feed(frame)
+
+    def frames_lost(self, count: int) -> None:
+        """A followed log's logger lost `count` frames here (its DROPCOUNT line, which the
+        recording keeps): a `frames_lost` cause for live findings around the next frame."""
+        with self.lock:
+            self._pending_lost += count
 
     def submit(self, frame: LiveFrame) -> None:
         """A frame from a bus thread, queued for the checker thread: the bus thread never
@@ -216,6 +228,8 @@ class Session:
             if len(self._queue) >= self.queue_frames:
                 self.dropped += 1
                 self._unrecorded_drops += 1
+                span = self._drop_span
+                self._drop_span = (frame.ts if span is None else span[0], frame.ts)
                 self._taken += 1
                 now = time.monotonic()
                 if now - self._last_note >= OVERLOAD_NOTE_S:
@@ -241,10 +255,15 @@ class Session:
                 frames = list(self._queue)
                 self._queue.clear()
                 drops, self._unrecorded_drops = self._unrecorded_drops, 0
+                span, self._drop_span = self._drop_span, None
             with self.lock:
-                self._record_drops(drops)
                 for frame in frames:
                     self.feed(frame)
+                # the dropped frames came after those the queue held: the DROPCOUNT line
+                # goes after them, where candump would write it (before the next frame)
+                self._record_drops(drops)
+                if drops and span is not None:
+                    self.tracker.recent.frames_lost(span[0], span[1], drops)
             with self._intake:
                 self._taken += len(frames)
                 self._intake.notify_all()
@@ -351,10 +370,16 @@ class Session:
         Findings: a test bench must not lose a timeout because the bus went quiet."""
         with self.lock:
             reconcile(self.live, result)
-            return [Finding(0, lf.rule, lf.name, lf.severity, lf.channel, lf.node, lf.time,
+            out = []
+            for lf in self.live:
+                if lf.confirmed != "clock-only":
+                    continue
+                f = Finding(0, lf.rule, lf.name, lf.severity, lf.channel, lf.node, lf.time,
                             None, None, lf.message + " [live: after the last recorded frame"
                             + ("" if lf.certain else "; provisional") + "]")
-                    for lf in self.live if lf.confirmed == "clock-only"]
+                f.causes, f.causes_omitted = lf.causes, lf.causes_omitted
+                out.append(f)
+            return out
 
 
 def reconcile(live: list[LiveFinding], result: InputResult | None) -> None:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from nmtcheck.checks.base import Rule
+from nmtcheck.live.causes import Recent
 from nmtcheck.live.frames import LiveFrame
 from nmtcheck.model import NodeConfig
 from nmtcheck.network import Network
@@ -71,6 +72,10 @@ class LiveFinding:
     # measured so far, a frame's class that depends on it): provisional
     certain: bool = True
     until: float | None = None  # the offline finding may come this late (B001's timeout)
+    # SPEC §8.6: what may explain it, as far as the bus had shown when it fired (H001,
+    # G002, B001, B002; None on the other rules)
+    causes: list[dict[str, Any]] | None = None
+    causes_omitted: int | None = None
 
 
 @dataclass
@@ -197,6 +202,7 @@ class Tracker:
         self.nodes: dict[tuple[str, int], NodeState] = {}
         self.c001_seen: set[tuple[str, int]] = set()
         self.emit = emit
+        self.recent = Recent(profile.timeline, self.reset_window_s)  # for causes
         self.start: float | None = None
         self.now = float("-inf")
         self._scanned = float("-inf")  # the last `now` every node was looked at
@@ -219,7 +225,8 @@ class Tracker:
 
     def _find(self, code: str, channel: str, node: NodeState | None, ts: float,
               message: str, unknown_ok: bool = False, certain: bool = True,
-              until: float | None = None) -> LiveFinding | None:
+              until: float | None = None, cause_from: float | None = None
+              ) -> LiveFinding | None:
         if code not in self.active:
             return None
         if node is not None and not unknown_ok and node.state == UNKNOWN:
@@ -229,8 +236,22 @@ class Tracker:
         lf = LiveFinding(code, self.active[code].name, self.severity[code], channel,
                          node.node if node else None, ts, message, certain=certain,
                          until=until)
+        if cause_from is not None and node is not None:
+            self._causes(lf, node, cause_from)
         self.emit(lf)
         return lf
+
+    def _causes(self, lf: LiveFinding, st: NodeState, a0: float) -> None:
+        """SPEC §8.6 causes of a live finding whose interval starts at `a0`: what the bus
+        showed from `a0 - causes_before_ms` up to now (a live finding cannot look ahead)."""
+        periods = [p for o in self.nodes.values()
+                   if o.channel == st.channel and o is not st and o.producer()
+                   for p in (o.period(),) if p]
+        found = self.recent.causes(lf.rule, st.channel, st.node, a0, max(self.now, lf.time),
+                                   master=self.master(st.channel), periods=periods,
+                                   bootups=list(self.boots_on.get(st.channel, ())))
+        if found is not None:
+            lf.causes, lf.causes_omitted = found
 
     def _go_offline(self, st: NodeState) -> None:
         if st.state not in (UNKNOWN, OFFLINE):
@@ -289,7 +310,7 @@ class Tracker:
             self._find("B001", st.channel, st, reset_ts + self.bootup_timeout_s,
                        f"no boot-up from node {st.node} within "
                        f"{self.bootup_timeout_s:.3f} s after {name}", unknown_ok=True,
-                       certain=sure, until=float("inf"))
+                       certain=sure, until=float("inf"), cause_from=reset_ts)
 
     def _expire_gap(self, st: NodeState, now: float) -> None:
         if (st.gap_start is None or st.gap_fired or st.gap_limit is None
@@ -308,7 +329,7 @@ class Tracker:
         else:
             whose = f"timeout {limit:.3f} s"
         st.gap_finding = self._find(
-            "H001", st.channel, st, moment,
+            "H001", st.channel, st, moment, cause_from=st.gap_start, message=
             f"no heartbeat from node {st.node} for {limit:.3f} s since "
             f"{st.gap_start - (self.start or 0.0):.3f} s ({whose}"
             + ("" if st.gap_certain else ", period measured so far") + ")",
@@ -341,7 +362,8 @@ class Tracker:
             st.guard_run = True
             self._find("G002", st.channel, st, moment,
                        f"no node-guarding response from node {st.node} within "
-                       f"{self.response_s:.3f} s", certain=not st.ambiguous)
+                       f"{self.response_s:.3f} s", certain=not st.ambiguous,
+                       cause_from=moment - self.response_s)
             self._go_offline(st)
 
     # -- frames ----------------------------------------------------------------------------
@@ -360,6 +382,9 @@ class Tracker:
             own = self.nodes.get((f.channel, cid & 0x7F)) if cid & 0x7F else None
             if own is not None:
                 self._expire(own, f.ts)
+        self.recent.frame(f.channel, f.ts)  # after the timeouts it may end: silence
+        if f.err:
+            self.recent.error_frame(f.channel, f.ts, cid, f.data)
         if f.ext or f.err:
             return
         if cid not in self.allow and any(lo <= cid <= hi for lo, hi in _RESERVED):
@@ -380,6 +405,7 @@ class Tracker:
         if 0x581 <= cid <= 0x5FF or 0x601 <= cid <= 0x67F:
             self._sdo(f, self.node(f.channel, n))
         if 0x081 <= cid <= 0x0FF:
+            self.recent.emcy_frame(f.channel, n, f.ts, f.dlc, f.data)
             self._sign_of_life(self.node(f.channel, n), f.ts, what="EMCY")
         elif 0x581 <= cid <= 0x5FF:
             self._sign_of_life(self.node(f.channel, n), f.ts, what="SDO response")
@@ -406,7 +432,8 @@ class Tracker:
                 self._find("B001", st.channel, st, ts,
                            f"{what} from node {st.node} {ts - reset_ts:.3f} s after {name} "
                            f"without a boot-up", unknown_ok=True,
-                           certain=sure and (not in_window or st.timeout_configured()))
+                           certain=sure and (not in_window or st.timeout_configured()),
+                           cause_from=reset_ts)
         st.seen = True
         st.last_frame = ts
         self._back(st)
@@ -420,6 +447,7 @@ class Tracker:
             self._find("C002", f.channel, st, f.ts, f"malformed NMT command: {problem}",
                        unknown_ok=st is None)
             return
+        self.recent.command(f.channel, f.ts, cs, target)
         master = self.master(f.channel)
         like = self.master_like.setdefault(f.channel, set())
         if not target:
@@ -637,7 +665,7 @@ class Tracker:
         elif was_seen:
             self._find("B002", st.channel, st, ts,
                        f"node {st.node} sent a boot-up with no reset command before it "
-                       f"(spontaneous reboot?)", certain=sure or since is None)
+                       f"(spontaneous reboot?)", certain=sure or since is None, cause_from=ts)
         st.last_boot_repeat = repeat
         st.last_boot = ts
         st.boots += 1
@@ -662,6 +690,10 @@ class Tracker:
         if f.dlc < 4 or len(f.data) < 4:
             return
         cmd, index, sub = f.data[0], f.data[1] | f.data[2] << 8, f.data[3]
+        if f.can_id >= 0x601:
+            self.recent.sdo_request(f.channel, st.node, f.ts, cmd, index, sub, f.data)
+        else:
+            self.recent.sdo_response(f.channel, st.node, cmd, index, sub)
         if f.can_id >= 0x601:
             if 0x1800 <= index <= 0x1803:
                 st.custom_pdo = True  # a TPDO COB-ID written: leave S001 to the offline check

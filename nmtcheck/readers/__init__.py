@@ -36,6 +36,9 @@ MAX_LINE_BYTES = 1 << 20
 OVERLONG_LINE = b"<line-longer-than-1-MiB>\n"
 
 
+MAX_DROPS = 10000  # drop records placed (InputStats.drops); all of them are counted
+
+
 @dataclass
 class InputStats:
     """What a reader saw in one input; every record is accounted for here."""
@@ -53,6 +56,8 @@ class InputStats:
     remote_frames: int = 0
     fd_frames: int = 0
     dropped: int = 0  # frames the logger says it lost (candump DROPCOUNT)
+    # (line, count) of the first MAX_DROPS drop records: where a loss sits (SPEC §8.6)
+    drops: list[tuple[int, int]] = field(default_factory=list)
     backwards_timestamps: int = 0
     first_backwards: tuple[int, int, float] | None = None  # frame index, line, time
     truncated: bool = False  # the input ends early (cut off, or a damaged compressed stream)
@@ -74,6 +79,13 @@ class InputStats:
             self._chan_codes[name] = code
             self.channels.append(name)
         return code
+
+    def drop(self, line: int, count: int) -> None:
+        """A logger's drop record (`DROPCOUNT`) at `line`: counted, and placed for the
+        `frames_lost` cause of the findings around it."""
+        self.dropped += count
+        if len(self.drops) < MAX_DROPS:
+            self.drops.append((line, count))
 
     def skip(self, line: int, why: str) -> None:
         """Count an unparseable record; fatal under --strict."""

@@ -11,11 +11,14 @@ record (ignored). Object header versions 1 and 2 are read; a frame object with
 any other version is reported as skipped, never silently dropped.
 
 Speed: containers are decompressed in C (zlib) and a few MB of object stream are
-parsed at once with numpy (signature search, header and field gathers by object
-type); Python touches single objects only for the unusual ones (lost-data
-records, corrupt or unsupported objects). Timestamps are the file header's start
-time (SYSTEMTIME, read as UTC, as python-can does; 0 when the header has none)
-plus each object's offset, so they match python-can's numbers.
+parsed at once with numpy: a stretch of equal-sized objects (python-can's and most
+loggers' files) is checked at its stride without a signature search, headers and
+bodies are gathered as whole records through byte-strided views (one gather each,
+not one per byte: 2 M frames read in half the time); Python touches single objects
+only for the unusual ones (lost-data records, corrupt or unsupported objects).
+Timestamps are the file header's start time (SYSTEMTIME, read as UTC, as python-can
+does; 0 when the header has none) plus each object's offset, so they match python-can's
+numbers.
 
 Damage is reported, not fatal (unless --strict): an object with a size below its
 header (size 0 hangs python-can's BLFReader forever), a bad signature, a damaged
@@ -181,15 +184,37 @@ class _Parsed:
     data: np.ndarray
 
 
-def _u16(a: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    out: np.ndarray = a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
+# Unaligned little-endian fields read by one gather each: a view of the buffer with a
+# stride of one byte, so element p is the field that starts at byte p.
+_HEADER = np.dtype({"names": ["size", "type", "hsize", "hver", "flags", "stamp"],
+                    "formats": ["<u4", "<u4", "<u2", "<u2", "<u4", "<u8"],
+                    "offsets": [8, 12, 4, 6, 16, 24], "itemsize": 32})
+_CLASSIC = np.dtype({"names": ["chan", "flags", "dlc", "id"],
+                     "formats": ["<u2", "u1", "u1", "<u4"], "offsets": [0, 2, 3, 4],
+                     "itemsize": 8})
+# Zeros after the parsed bytes: a gather near the end never reads past the buffer.
+_PAD = bytes(64)
+# KEEP[k]: native uint64 whose bytes are k × FF then zeros (the first k data bytes shown).
+_KEEP = np.array([[0xFF] * k + [0] * (8 - k) for k in range(9)], np.uint8).view(np.uint64)[:, 0]
+_SIG32 = int(np.frombuffer(SIGNATURE, "<u4")[0])
+_TYPE_TABLE = 128  # every object type read here is below this
+_IS_FRAME = np.zeros(_TYPE_TABLE, bool)
+_IS_FRAME[FRAME_TYPES] = True
+_MIN_BODY = np.zeros(_TYPE_TABLE, np.int64)
+_MIN_BODY[list(MIN_BODY)] = list(MIN_BODY.values())
+
+
+def _view(buf: bytes, dtype: np.dtype | str, n: int) -> np.ndarray:
+    """Element p: the `dtype` field at byte p of buf (n bytes, zero padded by _PAD)."""
+    dt = np.dtype(dtype)
+    out: np.ndarray = np.ndarray((max(n + len(_PAD) - dt.itemsize + 1, 0),), dt, buf, 0, (1,))
     return out
 
 
-def _u32(a: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    out: np.ndarray = (a[pos].astype(np.uint32) | (a[pos + 1].astype(np.uint32) << 8)
-                       | (a[pos + 2].astype(np.uint32) << 16)
-                       | (a[pos + 3].astype(np.uint32) << 24))
+def _records(buf: bytes, n: int, dtype: np.dtype, pos: np.ndarray) -> np.ndarray:
+    """The `dtype` records at byte offsets pos: gathered as raw bytes (numpy copies a
+    structured dtype field by field, ten times slower), then viewed."""
+    out: np.ndarray = _view(buf, f"V{dtype.itemsize}", n)[pos].view(dtype)
     return out
 
 
@@ -222,25 +247,28 @@ class _ObjectParser:
         return cut
 
     def parse(self, chunks: list[bytes]) -> _Parsed | None:
-        buf = b"".join([self.tail, *chunks])
-        starts, self.tail = self._object_starts(buf)
-        return self._frames(buf, starts)
+        buf = b"".join([self.tail, *chunks, _PAD])
+        n = len(buf) - len(_PAD)
+        starts, rest = self._object_starts(buf, n)
+        self.tail = buf[rest:n]
+        return self._frames(buf, n, starts)
 
-    def _object_starts(self, buf: bytes) -> tuple[np.ndarray, bytes]:
-        """Start offsets of the complete objects in buf, and the unfinished rest."""
-        a = np.frombuffer(buf, np.uint8)
-        n = len(a)
+    def _object_starts(self, buf: bytes, n: int) -> tuple[np.ndarray, int]:
+        """Start offsets of the complete objects in buf[:n], and where the unfinished rest
+        begins."""
         if n < BASE_HEADER.size:
-            return np.empty(0, np.int64), buf
-        hit = a[:-3] == 0x4C
-        hit &= a[1:-2] == 0x4F
-        hit &= a[2:-1] == 0x42
-        hit &= a[3:] == 0x4A
-        cand = np.flatnonzero(hit).astype(np.int64)
+            return np.empty(0, np.int64), 0
+        uniform = self._uniform(buf, n)
+        if uniform is not None:
+            return uniform
+        a = np.frombuffer(buf, np.uint8, n)
+        u32 = _view(buf, "<u4", n)
+        first = np.flatnonzero(a[:-3] == SIGNATURE[0])  # one byte compare, then the word
+        cand = first[u32[first] == _SIG32].astype(np.int64)
         whole = cand[cand + BASE_HEADER.size <= n]
         cut = cand[len(whole):]  # a signature whose header the buffer ends in
         if len(whole) and len(cut) <= 1 and not self.tail_is_mid_object:
-            size = _u32(a, whole + 8).astype(np.int64)
+            size = u32[whole + 8].astype(np.int64)
             ends = whole + size
             gaps = whole[1:] - ends[:-1]
             regular = (
@@ -253,163 +281,214 @@ class _ObjectParser:
                 last_end = int(ends[-1])
                 if last_end > n:  # the last object goes on in the next container
                     if not len(cut):
-                        return whole[:-1], buf[int(whole[-1]):]
+                        return whole[:-1], int(whole[-1])
                 elif not len(cut):
-                    return whole, buf[last_end:]
+                    return whole, last_end
                 elif 0 <= int(cut[0]) - last_end < MAX_GAP:
-                    return whole, buf[int(cut[0]):]
+                    return whole, int(cut[0])
         return self._walk(buf, cand, n)
 
-    def _walk(self, buf: bytes, cand: np.ndarray, n: int) -> tuple[np.ndarray, bytes]:
+    def _uniform(self, buf: bytes, n: int) -> tuple[np.ndarray, int] | None:
+        """Objects of one size back to back from the first byte (what loggers write for one
+        kind of frame): checked at their stride, no signature search. The same starts and
+        rest as `_walk`; None for any other stretch."""
+        if self.tail_is_mid_object or not buf.startswith(SIGNATURE):
+            return None
+        size: int = struct.unpack_from("<L", buf, 8)[0]
+        if size < BASE_HEADER.size or size > MAX_OBJECT_SIZE:
+            return None
+        headers = (n - BASE_HEADER.size) // size + 1  # objects whose header is in buf
+        words = np.ndarray((headers, 3), "<u4", buf, 0, (size, 4))  # signature, -, size
+        if not (bool(np.all(words[:, 0] == _SIG32)) and bool(np.all(words[:, 2] == size))):
+            return None
+        whole = min(headers, n // size)
+        rest = whole * size
+        if whole == headers and buf.find(SIGNATURE, rest + 1, n) >= 0:
+            return None  # bytes after the last object: left to the walk's judgement
+        return np.arange(0, rest, size, dtype=np.int64), rest
+
+    def _walk(self, buf: bytes, cand: np.ndarray, n: int) -> tuple[np.ndarray, int]:
         """Object by object, for stretches with damage or a signature inside an object's data."""
-        a = np.frombuffer(buf, np.uint8)
         found: list[int] = []
         pos = 0
         while True:
             j = int(np.searchsorted(cand, pos))
             if j == len(cand):
-                rest = buf[pos:]
-                if len(rest) > MAX_OBJECT_SIZE:  # garbage that will never become an object
+                if n - pos > MAX_OBJECT_SIZE:  # garbage that will never become an object
                     self._skip("bytes without an object signature", len(found))
-                    rest = b""
-                return np.array(found, np.int64), rest
+                    pos = n
+                return np.array(found, np.int64), pos
             c = int(cand[j])
             if c - pos >= MAX_GAP and not self.tail_is_mid_object:
                 self._skip(f"{c - pos} bytes that are not an object", len(found))
             self.tail_is_mid_object = False
             if c + BASE_HEADER.size > n:
-                return np.array(found, np.int64), buf[c:]
-            size = int(_u32(a, np.array([c + 8]))[0])
+                return np.array(found, np.int64), c
+            size: int = struct.unpack_from("<L", buf, c + 8)[0]
             if size < BASE_HEADER.size or size > MAX_OBJECT_SIZE:
                 self._skip(f"object size {size} is impossible", len(found))
                 pos = c + len(SIGNATURE)
                 self.tail_is_mid_object = True  # what follows is the broken object's body
                 continue
             if c + size > n:
-                return np.array(found, np.int64), buf[c:]
+                return np.array(found, np.int64), c
             found.append(c)
             pos = c + size
 
-    def _frames(self, buf: bytes, starts: np.ndarray) -> _Parsed | None:
+    def _frames(self, buf: bytes, n: int, starts: np.ndarray) -> _Parsed | None:
+        """The frame objects among `starts` as columns: one gather per header or body layout."""
         stats = self.stats
         first_object = self.objects_seen
         self.objects_seen += len(starts)
         if len(starts) == 0:
             return None
-        a = np.frombuffer(buf, np.uint8)
-        hsize = _u16(a, starts + 4).astype(np.int64)
-        hver = _u16(a, starts + 6)
-        size = _u32(a, starts + 8).astype(np.int64)
-        otype = _u32(a, starts + 12)
-        is_frame = np.isin(otype, FRAME_TYPES)
-        others = np.flatnonzero(~is_frame)
-        stats.ignored += len(others)
-        _count_lost(a, starts, hsize, size, others[otype[others] == DATA_LOST_END], stats)
-        frames = np.flatnonzero(is_frame)
-        if len(frames) == 0:
-            return None
-        s, hs, hv, sz, ty = starts[frames], hsize[frames], hver[frames], size[frames], otype[frames]
+        head = _records(buf, n, _HEADER, starts)
+        otype = head["type"]
+        is_frame = _IS_FRAME[np.minimum(otype, _TYPE_TABLE - 1)]
+        if not is_frame.all():
+            others = np.flatnonzero(~is_frame)
+            stats.ignored += len(others)
+            _count_lost(buf, starts, head, others[otype[others] == DATA_LOST_END], stats)
+            frames = np.flatnonzero(is_frame)
+            if len(frames) == 0:
+                return None
+            s, head = starts[frames], head[frames]
+        else:
+            frames, s = np.arange(len(starts)), starts
+        hs = head["hsize"].astype(np.int64)
+        hv = head["hver"]
+        sz = head["size"].astype(np.int64)
+        ty = head["type"]
         expected_hs = np.where(hv == 1, 32, np.where(hv == 2, 40, -1))
-        min_body = np.zeros(len(ty), np.int64)
-        for t, need in MIN_BODY.items():
-            min_body[ty == t] = need
-        good = (hs == expected_hs) & (sz >= hs + min_body)
-        for i in np.flatnonzero(~good):
-            where = first_object + int(frames[i])
-            stats.skip(where + 1, _why_bad(int(ty[i]), int(hv[i]), int(hs[i]),
-                                           int(expected_hs[i]), int(sz[i])))
+        good = (hs == expected_hs) & (sz >= hs + _MIN_BODY[ty])
         if not good.all():
-            s, hs, sz, ty = s[good], hs[good], sz[good], ty[good]
-        n = len(s)
-        if n == 0:
+            for i in np.flatnonzero(~good):
+                where = first_object + int(frames[i])
+                stats.skip(where + 1, _why_bad(int(ty[i]), int(hv[i]), int(hs[i]),
+                                               int(expected_hs[i]), int(sz[i])))
+            s, hs, sz, ty, head = s[good], hs[good], sz[good], ty[good], head[good]
+        count = len(s)
+        if count == 0:
             return None
 
-        flags = _u32(a, s + 16)
-        stamp = (_u32(a, s + 24).astype(np.uint64)
-                 | (_u32(a, s + 28).astype(np.uint64) << np.uint64(32))).astype(np.float64)
-        ts = np.where(flags == TIME_TEN_MICS, stamp / 1e5, stamp / 1e9) + self.start_time
+        flags = head["flags"]
+        stamp = head["stamp"].astype(np.float64)
+        ten = flags == TIME_TEN_MICS
+        if ten.all():
+            ts = stamp / 1e5 + self.start_time
+        elif not ten.any():
+            ts = stamp / 1e9 + self.start_time
+        else:
+            ts = np.where(ten, stamp / 1e5, stamp / 1e9) + self.start_time
         b = s + hs  # object bodies
-
-        chan = np.zeros(n, np.int64)
-        raw_id = np.zeros(n, np.uint32)
-        rtr = np.zeros(n, bool)
-        err = np.zeros(n, bool)
-        fd = np.zeros(n, bool)
-        dlc = np.zeros(n, np.int16)
-        data_at = np.zeros(n, np.int64)
-        data_len = np.zeros(n, np.int64)
-
-        classic = np.flatnonzero((ty == CAN_MESSAGE) | (ty == CAN_MESSAGE2))
-        if len(classic):
-            bb = b[classic]
-            chan[classic] = _u16(a, bb)
-            classic_dlc = a[bb + 3].astype(np.int16)
-            raw_id[classic] = _u32(a, bb + 4)
-            rtr[classic] = (a[bb + 2] & MSG_FLAG_RTR) != 0
-            dlc[classic] = classic_dlc
-            data_at[classic] = bb + 8
-            data_len[classic] = np.minimum(classic_dlc, 8)
-
-        fd100 = np.flatnonzero(ty == CAN_FD_MESSAGE)
-        if len(fd100):
-            bb = b[fd100]
-            chan[fd100] = _u16(a, bb)
-            raw_dlc = a[bb + 3]
-            edl = (a[bb + 13] & FD_FLAG_EDL) != 0
-            raw_id[fd100] = _u32(a, bb + 4)
-            fd[fd100] = edl
-            rtr[fd100] = ((a[bb + 2] & MSG_FLAG_RTR) != 0) & ~edl
-            dlc[fd100] = np.where(edl, _DLC_TO_LEN[raw_dlc], raw_dlc)
-            data_at[fd100] = bb + 20
-            data_len[fd100] = np.minimum(a[bb + 14], 64)
-
-        fd64 = np.flatnonzero(ty == CAN_FD_MESSAGE_64)
-        if len(fd64):
-            bb = b[fd64]
-            chan[fd64] = a[bb]
-            raw_dlc = a[bb + 1]
-            valid = a[bb + 2].astype(np.int64)
-            raw_id[fd64] = _u32(a, bb + 4)
-            fd_flags = _u32(a, bb + 12)
-            edl = (fd_flags & FD64_FLAG_EDL) != 0
-            fd[fd64] = edl
-            rtr[fd64] = ((fd_flags & FD64_FLAG_RTR) != 0) & ~edl
-            dlc[fd64] = np.where(edl, _DLC_TO_LEN[raw_dlc], raw_dlc)
-            ext_offset = a[bb + 35].astype(np.int64)
-            # TSMaster writes valid_bytes larger than the data stored (python-can issue 1905):
-            # the missing bytes are zeros, as in CANoe
-            stored = np.where(ext_offset > 0, ext_offset, sz[fd64]) - hs[fd64] - 40
-            data_at[fd64] = bb + 40
-            data_len[fd64] = np.clip(np.minimum(valid, stored), 0, 64)
-
-        errors = np.flatnonzero((ty == CAN_ERROR) | (ty == CAN_ERROR_EXT))
-        if len(errors):
-            chan[errors] = _u16(a, b[errors])
-            err[errors] = True
-            ext_err = errors[ty[errors] == CAN_ERROR_EXT]
-            raw_id[ext_err] = _u32(a, b[ext_err] + 16)
-        fd_errors = np.flatnonzero(ty == CAN_FD_ERROR_64)
-        if len(fd_errors):
-            chan[fd_errors] = a[b[fd_errors]]
-            err[fd_errors] = True
-            fd[fd_errors] = True
-            raw_id[fd_errors] = _u32(a, b[fd_errors] + 12)
+        if bool(np.all((ty == CAN_MESSAGE) | (ty == CAN_MESSAGE2))):  # the usual file
+            body = _records(buf, n, _CLASSIC, b)
+            chan = body["chan"].astype(np.int64)
+            dlc = body["dlc"].astype(np.int16)
+            raw_id = body["id"]
+            rtr = (body["flags"] & MSG_FLAG_RTR) != 0
+            err = np.zeros(count, bool)
+            fd = np.zeros(count, bool)
+            data_at = b + 8
+            data_len = np.minimum(dlc, 8)
+        else:
+            chan, raw_id, rtr, err, fd, dlc, data_at, data_len = _mixed(buf, n, ty, b, hs, sz)
 
         ext = ((raw_id & CAN_MSG_EXT) != 0) & ~err
         shown = np.where(rtr | err, 0, np.minimum(data_len, 8))
-        idx = np.minimum(data_at[:, None] + _BYTE8, len(a) - 1)
-        data = np.where(shown[:, None] > _BYTE8, a[idx], 0).astype(np.uint8)
+        words = _view(buf, "=u8", n)[data_at] & _KEEP[shown]
+        data = words.view(np.uint8).reshape(count, 8)
+        late = np.flatnonzero(data_at + shown > n)
+        if len(late):  # shown bytes past the buffer: the last byte repeated, as always read
+            a = np.frombuffer(buf, np.uint8, n)
+            idx = np.minimum(data_at[late, None] + _BYTE8, n - 1)
+            data[late] = np.where(shown[late, None] > _BYTE8, a[idx], 0)
         return _Parsed(ts=ts, chan=chan, can_id=raw_id & CAN_ID_MASK, ext=ext, rtr=rtr,
                        err=err, fd=fd, dlc=dlc, data=data)
 
 
-def _count_lost(a: np.ndarray, starts: np.ndarray, hsize: np.ndarray, size: np.ndarray,
-                lost: np.ndarray, stats: InputStats) -> None:
+def _mixed(buf: bytes, n: int, ty: np.ndarray, b: np.ndarray, hs: np.ndarray,
+           sz: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The columns of a stretch with FD, error or several kinds of frame objects, per type."""
+    a = np.frombuffer(buf, np.uint8)
+    u16 = _view(buf, "<u2", n)
+    u32 = _view(buf, "<u4", n)
+    count = len(ty)
+    chan = np.zeros(count, np.int64)
+    raw_id = np.zeros(count, np.uint32)
+    rtr = np.zeros(count, bool)
+    err = np.zeros(count, bool)
+    fd = np.zeros(count, bool)
+    dlc = np.zeros(count, np.int16)
+    data_at = np.zeros(count, np.int64)
+    data_len = np.zeros(count, np.int64)
+
+    classic = np.flatnonzero((ty == CAN_MESSAGE) | (ty == CAN_MESSAGE2))
+    if len(classic):
+        bb = b[classic]
+        chan[classic] = u16[bb]
+        classic_dlc = a[bb + 3].astype(np.int16)
+        raw_id[classic] = u32[bb + 4]
+        rtr[classic] = (a[bb + 2] & MSG_FLAG_RTR) != 0
+        dlc[classic] = classic_dlc
+        data_at[classic] = bb + 8
+        data_len[classic] = np.minimum(classic_dlc, 8)
+
+    fd100 = np.flatnonzero(ty == CAN_FD_MESSAGE)
+    if len(fd100):
+        bb = b[fd100]
+        chan[fd100] = u16[bb]
+        raw_dlc = a[bb + 3]
+        edl = (a[bb + 13] & FD_FLAG_EDL) != 0
+        raw_id[fd100] = u32[bb + 4]
+        fd[fd100] = edl
+        rtr[fd100] = ((a[bb + 2] & MSG_FLAG_RTR) != 0) & ~edl
+        dlc[fd100] = np.where(edl, _DLC_TO_LEN[raw_dlc], raw_dlc)
+        data_at[fd100] = bb + 20
+        data_len[fd100] = np.minimum(a[bb + 14], 64)
+
+    fd64 = np.flatnonzero(ty == CAN_FD_MESSAGE_64)
+    if len(fd64):
+        bb = b[fd64]
+        chan[fd64] = a[bb]
+        raw_dlc = a[bb + 1]
+        valid = a[bb + 2].astype(np.int64)
+        raw_id[fd64] = u32[bb + 4]
+        fd_flags = u32[bb + 12]
+        edl = (fd_flags & FD64_FLAG_EDL) != 0
+        fd[fd64] = edl
+        rtr[fd64] = ((fd_flags & FD64_FLAG_RTR) != 0) & ~edl
+        dlc[fd64] = np.where(edl, _DLC_TO_LEN[raw_dlc], raw_dlc)
+        ext_offset = a[bb + 35].astype(np.int64)
+        # TSMaster writes valid_bytes larger than the data stored (python-can issue 1905):
+        # the missing bytes are zeros, as in CANoe
+        stored = np.where(ext_offset > 0, ext_offset, sz[fd64]) - hs[fd64] - 40
+        data_at[fd64] = bb + 40
+        data_len[fd64] = np.clip(np.minimum(valid, stored), 0, 64)
+
+    errors = np.flatnonzero((ty == CAN_ERROR) | (ty == CAN_ERROR_EXT))
+    if len(errors):
+        chan[errors] = u16[b[errors]]
+        err[errors] = True
+        ext_err = errors[ty[errors] == CAN_ERROR_EXT]
+        raw_id[ext_err] = u32[b[ext_err] + 16]
+    fd_errors = np.flatnonzero(ty == CAN_FD_ERROR_64)
+    if len(fd_errors):
+        chan[fd_errors] = a[b[fd_errors]]
+        err[fd_errors] = True
+        fd[fd_errors] = True
+        raw_id[fd_errors] = u32[b[fd_errors] + 12]
+    return chan, raw_id, rtr, err, fd, dlc, data_at, data_len
+
+
+def _count_lost(buf: bytes, starts: np.ndarray, head: np.ndarray, lost: np.ndarray,
+                stats: InputStats) -> None:
     """Frames the logger says it lost: the counts of DATA_LOST_END objects (`lost`)."""
     for i in lost:
-        body = int(starts[i] + hsize[i])
-        if hsize[i] >= BASE_HEADER.size and body + 16 <= starts[i] + size[i]:
-            stats.dropped += int(_u32(a, np.array([body + 12]))[0])
+        hsize, size = int(head["hsize"][i]), int(head["size"][i])
+        body = int(starts[i]) + hsize
+        if hsize >= BASE_HEADER.size and body + 16 <= int(starts[i]) + size:
+            stats.dropped += struct.unpack_from("<L", buf, body + 12)[0]
 
 
 def _why_bad(otype: int, hver: int, hsize: int, expected_hsize: int, size: int) -> str:
@@ -431,11 +510,16 @@ class _BatchMaker:
         self._codes: dict[int, int] = {}
 
     def batch(self, p: _Parsed) -> FrameBatch | None:
-        numbers, inverse = np.unique(p.chan, return_inverse=True)
-        codes = np.array([self._code(int(c)) for c in numbers], np.int32)
         n = len(p.ts)
+        first = int(p.chan[0]) if n else 0
+        if bool(np.all(p.chan == first)):  # one channel: no sort to find the others
+            chan = np.full(n, self._code(first), np.int32)
+        else:
+            numbers, inverse = np.unique(p.chan, return_inverse=True)
+            codes = np.array([self._code(int(c)) for c in numbers], np.int32)
+            chan = codes[inverse.reshape(-1)]
         out = FrameBatch(
-            ts=p.ts, chan=codes[inverse.reshape(-1)], can_id=p.can_id.astype(np.uint32),
+            ts=p.ts, chan=chan, can_id=p.can_id.astype(np.uint32),
             ext=p.ext, rtr=p.rtr, err=p.err, fd=p.fd, dlc=p.dlc.astype(np.int16), data=p.data,
             index=np.arange(self.next_index, self.next_index + n, dtype=np.int64),
             line=np.zeros(n, np.int64),

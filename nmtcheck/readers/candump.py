@@ -141,19 +141,20 @@ def _parse_line(raw: bytes, lineno: int, stats: InputStats, stamped: bool = True
             return (float(fast[1]), fast[2], int(fast[3], 16), False, False, False, False,
                     len(data), data)
     try:
-        return _parse_general(raw, stats, stamped)
+        return _parse_general(raw, stats, stamped, lineno)
     except _Skip as bad:
         stats.skip(lineno, str(bad))
         return None
 
 
-def _parse_general(raw: bytes, stats: InputStats, stamped: bool = True) -> _Row | None:
+def _parse_general(raw: bytes, stats: InputStats, stamped: bool = True, lineno: int = 0
+                   ) -> _Row | None:
     """Any line `_FAST` does not take; raises _Skip for an unparseable record."""
     parts = raw.split()
     if not parts:
         return None
     if parts[0].startswith(b"DROPCOUNT"):
-        _count_drops(raw, stats)
+        _count_drops(raw, stats, lineno)
         return None
     if is_note_line(raw):
         stats.note()  # a comment, a shell prompt, `...`: no record
@@ -239,12 +240,12 @@ def _timestamped(head: bytes) -> bool:
     return stamped >= bare
 
 
-def _count_drops(raw: bytes, stats: InputStats) -> None:
+def _count_drops(raw: bytes, stats: InputStats, lineno: int = 0) -> None:
     """A `DROPCOUNT: dropped N` line: frames the logger lost."""
     m = _DROP.search(raw)
     if m is None:
         raise _Skip("DROPCOUNT line without a count")
-    stats.dropped += int(m.group(1))
+    stats.drop(lineno, int(m.group(1)))
     stats.ignored += 1
 
 

@@ -258,7 +258,7 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
             if count is None:
                 stats.skip(lineno, "DROPCOUNT line without a count")
             else:
-                stats.dropped += count
+                stats.drop(lineno, count)
                 stats.ignored += 1
             continue
         if is_note_line(raw):

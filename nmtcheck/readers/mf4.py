@@ -1,7 +1,7 @@
 """ASAM MDF 4 bus logging (CAN_DataFrame, CAN_RemoteFrame, CAN_ErrorFrame groups),
 as written by CSS Electronics CANedge, Vector and python-can's MF4Writer.
 
-Needs the optional `asammdf` package (`pip install 'nmtcheck[mf4]'`). Each
+Needs the optional `asammdf` package (the `mf4` extra). Each
 group is read through asammdf's array access in large slices, so a frame is
 never a Python object (python-can's MF4Reader builds one per frame and is
 about 20 times slower). Frames of all groups are merged by time, like
@@ -28,7 +28,7 @@ from nmtcheck.frames import BATCH_SIZE, FrameBatch
 from nmtcheck.readers import MAX_TIMESTAMP_S, InputStats, Source
 from nmtcheck.readers.binary import BatchCollector, ChannelNames, Frames, zero_beyond
 
-INSTALL_HINT = "pip install 'nmtcheck[mf4]'"
+INSTALL_HINT = "pip install '.[mf4]' in the nmtcheck checkout"
 FRAME_GROUPS = ("CAN_DataFrame", "CAN_RemoteFrame", "CAN_ErrorFrame")
 RECORDS_PER_READ = 1 << 20
 BUS_TYPE_CAN = 2  # acquisition source bus type (MDF 4 SI block)

@@ -112,7 +112,7 @@ def _findings(res: InputResult) -> list[str]:
             same = by_rule[f.rule]
             if k < REPEATS_SHOWN or len(same) == REPEATS_SHOWN + 1:
                 out.append(_finding_line(f, start))
-                out += boot_report.cause_lines(f)
+                out += boot_report.cause_lines(f, start)
             elif k == REPEATS_SHOWN:
                 last = same[-1]
                 where = f"line {last.line}" if last.line else f"frame {last.frame_index}"

@@ -1,0 +1,325 @@
+"""The columnar tables of the NMT and error-control streams: a channel's frames on 000h
+(`NmtTable`), the commands that apply to a node (`CommandTable`), a node's frames on
+700h+N (`EcTable`) and its state intervals (`IntervalTable`), with the frame objects
+(`NmtFrame`, `Command`, `EcFrame`, `Interval`) made only for what a rule or a report
+looks at.
+
+Their own module because they are storage, not knowledge of a node: the timeline fills
+them, the rules read them, and `model.py` holds what is known of nodes and channels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import DTypeLike
+
+from nmtcheck.nmt import (
+    COMMAND_NAMES,
+    COMMAND_STATE,
+    EC_KIND_NAMES,
+    MALFORMED,
+    REQUEST,
+    RESETS,
+    SOURCES,
+    STATES,
+    nmt_problem,
+)
+
+_NO_ROWS: dict[np.dtype[Any], np.ndarray] = {}  # per dtype: see column()
+
+
+def column(values: Any, dtype: DTypeLike) -> np.ndarray:
+    """`np.asarray(values, dtype)`, but one shared zero-length array per dtype for no
+    rows: every node starts with a dozen empty tables, and a log may have tens of
+    thousands of nodes (a zero-length array cannot be written into)."""
+    if not isinstance(values, np.ndarray) or values.size or values.ndim != 1:
+        return np.asarray(values, dtype)
+    key = np.dtype(dtype)
+    empty = _NO_ROWS.get(key)
+    if empty is None:
+        empty = _NO_ROWS[key] = np.zeros(0, key)
+    return empty
+
+
+@dataclass(frozen=True)
+class NmtFrame:
+    """A frame on CAN-ID 000h, valid or not."""
+
+    ts: float
+    idx: int
+    line: int
+    rtr: bool
+    dlc: int
+    cs: int
+    target: int
+    problem: str | None  # why it is malformed (C002), None if valid
+
+
+@dataclass(frozen=True)
+class Command:
+    """A valid NMT command as it applies to one node."""
+
+    ts: float
+    idx: int
+    line: int
+    cs: int
+    broadcast: bool
+
+    @property
+    def is_reset(self) -> bool:
+        return self.cs in RESETS
+
+    @property
+    def name(self) -> str:
+        return COMMAND_NAMES[self.cs] + (" (broadcast)" if self.broadcast else "")
+
+
+_KNOWN_CS = np.zeros(256, bool)
+_KNOWN_CS[list(COMMAND_STATE) + list(RESETS)] = True
+
+
+def known_cs(cs: np.ndarray) -> np.ndarray:
+    """Whether each byte is a command specifier CiA 301 defines."""
+    known: np.ndarray = _KNOWN_CS[cs]
+    return known
+_RESET_CS = np.zeros(256, bool)
+_RESET_CS[list(RESETS)] = True
+
+
+def reset_cs(cs: np.ndarray) -> np.ndarray:
+    """Whether each byte is a reset command specifier (reset node, reset communication)."""
+    reset: np.ndarray = _RESET_CS[cs]
+    return reset
+
+
+class NmtTable:
+    """A channel's frames on CAN-ID 000h as columns, valid or not (a hostile log may
+    hold millions of them): a `NmtFrame` is made only for what a rule reports."""
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
+                 dlc: np.ndarray, cs: np.ndarray, target: np.ndarray) -> None:
+        self.ts = column(ts, np.float64)
+        self.idx = column(idx, np.int64)
+        self.line = column(line, np.int64)
+        self.rtr = column(rtr, bool)
+        self.dlc = column(dlc, np.int16)
+        self.cs = column(cs, np.uint8)
+        self.target = column(target, np.uint8)
+        self.valid = ~self.rtr & (self.dlc == 2) & _KNOWN_CS[self.cs] & (self.target <= 127)
+
+    @classmethod
+    def empty(cls) -> NmtTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> NmtFrame:
+        rtr, dlc, cs, target = (bool(self.rtr[pos]), int(self.dlc[pos]), int(self.cs[pos]),
+                                int(self.target[pos]))
+        return NmtFrame(float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]), rtr, dlc,
+                        cs, target, nmt_problem(rtr, dlc, cs, target))
+
+    def __iter__(self) -> Iterator[NmtFrame]:
+        return (self[i] for i in range(len(self)))
+
+
+def plain_rows(*columns: np.ndarray, block: int = 4096) -> Iterator[tuple[Any, ...]]:
+    """The rows of some columns as tuples of plain Python numbers, converted a block at a
+    time (`tolist` per block: fast, and memory stays flat however long the columns)."""
+    for lo in range(0, len(columns[0]) if columns else 0, block):
+        yield from zip(*(c[lo:lo + block].tolist() for c in columns), strict=True)
+
+
+class _Gathered:
+    """A `CommandTable` column: the NMT table's column of that name at the commands'
+    positions, gathered on each access."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, table: CommandTable, owner: type | None = None) -> np.ndarray:
+        column: np.ndarray = getattr(table.nmt, self.name)[table.pos]
+        return column
+
+
+class CommandTable:
+    """The valid NMT commands that apply to one node, as positions into its channel's
+    `NmtTable`: a log of nothing but NMT commands gives each of 127 nodes every
+    broadcast, so a node holds a position per command, not a copy of the columns. The
+    columns (`ts`, `idx`, ...) are gathered on each access: take them once per check."""
+
+    def __init__(self, nmt: NmtTable, pos: np.ndarray) -> None:
+        self.nmt = nmt
+        self.pos = np.asarray(pos, np.int32 if len(nmt) < 1 << 31 else np.int64)
+        self.is_reset = _RESET_CS[nmt.cs[self.pos]]
+
+    @classmethod
+    def empty(cls) -> CommandTable:
+        return cls(NmtTable.empty(), np.zeros(0, np.int64))
+
+    def __len__(self) -> int:
+        return len(self.pos)
+
+    def __getitem__(self, pos: int) -> Command:
+        nmt, at = self.nmt, int(self.pos[pos])
+        return Command(float(nmt.ts[at]), int(nmt.idx[at]), int(nmt.line[at]), int(nmt.cs[at]),
+                       bool(nmt.target[at] == 0))
+
+    def __iter__(self) -> Iterator[Command]:
+        return (self[i] for i in range(len(self)))
+
+    def name(self, pos: int) -> str:
+        at = int(self.pos[pos])
+        return COMMAND_NAMES[int(self.nmt.cs[at])] + (
+            " (broadcast)" if self.nmt.target[at] == 0 else "")
+
+    ts = _Gathered()
+    idx = _Gathered()
+    line = _Gathered()
+    cs = _Gathered()
+
+    @property
+    def broadcast(self) -> np.ndarray:
+        broadcast: np.ndarray = self.nmt.target[self.pos] == 0
+        return broadcast
+
+    @property
+    def reset_idx(self) -> np.ndarray:
+        """File positions of the reset commands (sorted: commands are in file order)."""
+        idx: np.ndarray = self.nmt.idx[self.pos[self.is_reset]]
+        return idx
+
+    @property
+    def reset_ts(self) -> np.ndarray:
+        ts: np.ndarray = self.nmt.ts[self.pos[self.is_reset]]
+        return ts
+
+
+@dataclass(frozen=True)
+class EcFrame:
+    """One frame on 700h+N, materialised from the node's columns for a finding or a test."""
+
+    pos: int  # position in the node's EcTable
+    ts: float
+    idx: int
+    line: int
+    rtr: bool
+    dlc: int
+    value: int  # data byte 0
+    kind: str  # request | bootup | heartbeat | guard | malformed
+
+    @property
+    def code(self) -> int:
+        return self.value & 0x7F
+
+    @property
+    def toggle(self) -> int:
+        return self.value >> 7
+
+    @property
+    def reports_state(self) -> bool:
+        return self.kind in ("bootup", "heartbeat", "guard")
+
+
+class EcTable:
+    """A node's frames on 700h+N as columns, in file order.
+
+    Heartbeats are the one dense NMT stream (a frame per node per period), so
+    they stay numpy columns; rules compute on them vectorised and materialise an
+    `EcFrame` only for what they report.
+    """
+
+    def __init__(self, ts: np.ndarray, idx: np.ndarray, line: np.ndarray, rtr: np.ndarray,
+                 dlc: np.ndarray, value: np.ndarray) -> None:
+        self.ts = column(ts, np.float64)
+        self.idx = column(idx, np.int64)
+        self.line = column(line, np.int64)
+        self.rtr = column(rtr, bool)
+        self.dlc = column(dlc, np.int16)
+        self.value = column(value, np.uint8)
+        self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
+        # a report of the pre-command state just after a command (SPEC §2 stale reports)
+        self.stale = np.zeros(len(self.ts), bool)
+
+    @classmethod
+    def empty(cls) -> EcTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.ts)
+
+    def __getitem__(self, pos: int) -> EcFrame:
+        return EcFrame(int(pos), float(self.ts[pos]), int(self.idx[pos]), int(self.line[pos]),
+                       bool(self.rtr[pos]), int(self.dlc[pos]), int(self.value[pos]),
+                       EC_KIND_NAMES[self.kind[pos]])
+
+    def __iter__(self) -> Iterator[EcFrame]:
+        return (self[i] for i in range(len(self)))
+
+    def frames(self, positions: Iterable[int]) -> list[EcFrame]:
+        return [self[int(p)] for p in positions]
+
+    def where(self, *kinds: int) -> np.ndarray:
+        """Positions of the frames of these kinds (compared one kind at a time: np.isin
+        costs far more on the few frames most nodes have). Not kept between calls: for
+        a node of millions of heartbeats that would hold 8 bytes a frame more."""
+        hit = self.kind == kinds[0]
+        for k in kinds[1:]:
+            hit |= self.kind == k
+        return np.flatnonzero(hit)
+
+    def count(self, kind: int) -> int:
+        return int(np.count_nonzero(self.kind == kind))
+
+    @property
+    def code(self) -> np.ndarray:
+        return self.value & 0x7F
+
+    def after(self, idx: int) -> int:
+        """Position of the first frame later in the file than frame index `idx`."""
+        return int(np.searchsorted(self.idx, idx, side="right"))
+
+
+@dataclass
+class Interval:
+    start: float
+    end: float
+    state: str
+    source: str
+
+
+class IntervalTable:
+    """A node's state intervals as columns (state and source as indices into `STATES`
+    and `SOURCES`): a node that changes state on every heartbeat has millions of them.
+    An `Interval` is made only when one is looked at."""
+
+    def __init__(self, start: np.ndarray, end: np.ndarray, state: np.ndarray,
+                 source: np.ndarray) -> None:
+        self.start = column(start, np.float64)
+        self.end = column(end, np.float64)
+        self.state = column(state, np.int8)
+        self.source = column(source, np.int8)
+
+    @classmethod
+    def empty(cls) -> IntervalTable:
+        z = np.zeros(0)
+        return cls(z, z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.start)
+
+    def __getitem__(self, pos: int) -> Interval:
+        return Interval(float(self.start[pos]), float(self.end[pos]), STATES[self.state[pos]],
+                        SOURCES[self.source[pos]])
+
+    def __iter__(self) -> Iterator[Interval]:
+        for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
+                                self.source.tolist(), strict=True):
+            yield Interval(a, b, STATES[st], SOURCES[so])
