@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import SAMPLES
@@ -131,7 +132,7 @@ def test_api_check_has_the_same_rows() -> None:
     assert len(empty) == 0 and {"status", "letter", "letter_text"} <= set(empty.columns)
 
 
-def pd_isna(v: object) -> bool:
+def pd_isna(v: Any) -> bool:
     import pandas as pd
 
     return bool(pd.isna(v))
