@@ -159,7 +159,9 @@ def to_table(table: str, rows: list[dict[str, Any]]) -> Any:
             # int(): round() of a numpy float is a numpy float with numpy < 2
             values = [None if v is None else int(round(v * 1e6))  # noqa: RUF046
                       for v in values]
-            cols[name] = pa.array(values, pa.int64()).cast(sch.field(name).type)
+            # made as the timestamp type directly: a cast would import pyarrow.compute,
+            # 0.2 s of the driver's CPU at the end of every fleet run
+            cols[name] = pa.array(values, sch.field(name).type)
         else:
             cols[name] = pa.array(values, sch.field(name).type)
     return pa.table(cols, schema=sch)
