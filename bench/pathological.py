@@ -29,7 +29,10 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
   CAN-ID dimension (NMT, SYNC, EMCY, PDOs, SDOs, heartbeats of every node 1..127);
 - extended: 29-bit J1939 frames (18FEF100h + source address, 8 bytes) with one
   heartbeat in five, 100 us apart: the vectorised reader's 8-digit IDs;
-- errorframes: error frames (`20000004#...`) with one heartbeat in five: likewise.
+- errorframes: error frames (`20000004#...`) with one heartbeat in five: likewise;
+- boots (issue 22): CiA 302-2 boot processes of 16 nodes in turn, every one ok;
+- bootfail (issue 22): the same, but each node refuses the 1017h download (SDO abort
+  06010002h, read-only): a failed process and a P003 finding per 8 frames.
 
 Then runs `NMTCHECK check LOG --format text` (stdout to /dev/null) with one report
 file per run (`-o report.json`, ... ; `text` alone writes none) through a small
@@ -64,7 +67,7 @@ from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
 KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts",
-         "channels", "canids", "extended", "errorframes", "boots")
+         "channels", "canids", "extended", "errorframes", "boots", "bootfail")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -163,7 +166,7 @@ def aborts(i: np.ndarray) -> Frames:
     return _frames(i, i * 100, can_id, np.where(hb, 1, 8), data)
 
 
-def boots(i: np.ndarray) -> Frames:
+def boots(i: np.ndarray, refuse: bool = False) -> Frames:
     """A flood of CiA 302-2 boot processes (SPEC §8): 16 nodes in turn, each a boot-up, the
     manager's probe (upload 1000h) and its answer, an identity upload (1018h:01) and its
     answer, a configuration download (1017h) and its confirmation, and a direct start,
@@ -180,6 +183,8 @@ def boots(i: np.ndarray) -> Frames:
         [0x60, 0x17, 0x10, 0x00, 0, 0, 0, 0],
         [0x01, 0, 0, 0, 0, 0, 0, 0],  # start (node-ID below)
     ], np.uint8)
+    if refuse:  # the node refuses the download: abort 06010002h (attempt to write read-only)
+        rows[6] = [0x80, 0x17, 0x10, 0x00, 0x02, 0x00, 0x01, 0x06]
     data = rows[k].copy()
     data[k == 7, 1] = node[k == 7]
     base = np.asarray([0x700, 0x600, 0x580, 0x600, 0x580, 0x600, 0x580, 0x000])[k]
@@ -188,9 +193,17 @@ def boots(i: np.ndarray) -> Frames:
     return _frames(i, i * 100, can_id, dlc, data)
 
 
+def bootfail(i: np.ndarray) -> Frames:
+    """`boots` with every 1017h download refused (abort 06010002h): no network file is
+    needed, the probe and the 1018h:01 upload are the boot signature (SPEC_BOOT §8.2.4),
+    and each process fails with one P003 (letter J, started anyway)."""
+    return boots(i, refuse=True)
+
+
 MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
     "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127,
-    "emcy": emcy, "sdo": sdo, "aborts": aborts, "boots": boots}
+    "emcy": emcy, "sdo": sdo, "aborts": aborts, "boots": boots,
+    "bootfail": bootfail}
 
 
 def chunks(kind: str, n: int) -> Iterator[Frames]:

@@ -14,12 +14,16 @@ every transfer ok, no failure possible: `_plainly_ok`) are judged all at once. O
 others, and the last of each node (the report's), are evaluated as `Process` objects;
 every process is kept as a row of `Spans`, whole processes only where a finding or the
 report needs them, and those without their steps unless P006 or P008 may read them.
+A flood of failing processes makes a finding each: past the engine's per-rule cap a
+finding is only counted (`BootAnalysis.omitted`), the process that only it would read is
+not kept, and one failed by a refused download alone (`_plainly_refused`) is not even
+evaluated: its span is filled as columns.
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -300,12 +304,45 @@ class ChannelBoot:
 
 @dataclass
 class BootAnalysis:
+    """What the boot stage found. A log may fail a million boot processes: past `cap`
+    findings of a code (the engine's per-rule cap, 0: none) a finding is only counted in
+    `omitted`, since the engine would only count it too; `findings` holds the others, in
+    the order the P rules hand them on (channel, node, process)."""
+
     channels: dict[str, ChannelBoot] = field(default_factory=dict)
     nodes: dict[tuple[str, int], NodeBootReport] = field(default_factory=dict)
     findings: list[BootFinding] = field(default_factory=list)
+    cap: int = 0
+    counts: dict[str, int] = field(default_factory=dict)  # per code: made and omitted
+    omitted: dict[tuple[str, str], int] = field(default_factory=dict)  # (code, channel)
 
     def for_rule(self, code: str) -> Iterator[BootFinding]:
         return (f for f in self.findings if f.code == code)
+
+    def make(self, code: str, channel: str) -> bool:
+        """Count a finding of `code`; whether it is made (under the cap)."""
+        seen = self.counts.get(code, 0)
+        if self.cap and seen >= self.cap:
+            self.omit(code, channel, 1)
+            return False
+        self.counts[code] = seen + 1
+        return True
+
+    def omit(self, code: str, channel: str, k: int) -> None:
+        """Count k findings of `code` past the cap."""
+        self.counts[code] = self.counts.get(code, 0) + k
+        self.omitted[(code, channel)] = self.omitted.get((code, channel), 0) + k
+
+    def batches(self, code: str) -> Iterator[tuple[str, list[BootFinding], int]]:
+        """Per channel (in order): the findings of `code` made, then how many follow them
+        uncounted past the cap."""
+        made: dict[str, list[BootFinding]] = {}
+        for f in self.for_rule(code):
+            made.setdefault(f.channel, []).append(f)
+        for ch in self.channels:
+            rows, left = made.get(ch, []), self.omitted.get((code, ch), 0)
+            if rows or left:
+                yield ch, rows, left
 
 
 _ATTR = "_nmtcheck_boot"
@@ -584,6 +621,10 @@ class _Plain:
     ev_time: np.ndarray  # and the evidence (their last frame)
     ev_idx: np.ndarray
     ev_line: np.ndarray
+    # completed by a start, failed by one refused or aborted configuration download and
+    # nothing else (P003 J): its span, for when its finding is past the cap (None: none)
+    failed: np.ndarray | None = None
+    fail_row: np.ndarray | None = None  # the download's row (the evidence: its end)
 
 
 STEP_NAMES = ("device_type", "vendor_id", "product_code", "revision_number", "serial_number",
@@ -619,7 +660,8 @@ def _plainly_judged(nd: _Node, c: _Procs, last_frame_ts: float, p: BootParams,
     n = len(c)
     good = ((c.end_how == 0) | (c.end_how == 2)) & ~c.keep_alive
     out = _Plain(np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, np.int16),
-                 np.full(n, np.nan), np.full(n, -1, np.int64), np.zeros(n, np.int64))
+                 np.full(n, np.nan), np.full(n, -1, np.int64), np.zeros(n, np.int64),
+                 np.zeros(n, bool), np.full(n, -1, np.int64))
     if not good.any() or len(t) == 0:
         return out
     start_idx = nd.anchors.idx[c.anchor]
@@ -635,7 +677,9 @@ def _plainly_judged(nd: _Node, c: _Procs, last_frame_ts: float, p: BootParams,
     proc = np.searchsorted(lo, rows, side="right") - 1
     pc = np.maximum(proc, 0)
     inside = (proc >= 0) & (rows < hi[pc]) & good[pc]
-    bad = (t.result != st.OK) | (t.end_idx > c.end_idx[pc])
+    refused = ((t.result == st.REFUSED) | (t.result == st.ABORTED)) & (
+        t.direction == st.DOWNLOAD)
+    bad = ((t.result != st.OK) & ~refused) | (t.end_idx > c.end_idx[pc])
     bad |= (t.index == 0x1011) & (t.direction == st.DOWNLOAD) & (t.value == RESTORE_VALUE)
     up = t.direction == st.UPLOAD
     for name, (index, sub) in IDENTITY_ROWS.items():
@@ -649,11 +693,16 @@ def _plainly_judged(nd: _Node, c: _Procs, last_frame_ts: float, p: BootParams,
     same[1:] = (proc[1:] == proc[:-1]) & ((t.end_ts[1:] <= t.end_ts[:-1])
                                           | (t.end_idx[1:] <= t.end_idx[:-1]))
     bad |= same & ((c.end_how[pc] == 2) | (nd.c_n is not None))
-    hit = np.bincount(proc[inside], weights=bad[inside], minlength=n) > 0
+    other = np.bincount(proc[inside], weights=bad[inside], minlength=n) > 0
+    refusals = np.bincount(proc[inside], weights=refused[inside], minlength=n)
+    hit = other | (refusals > 0)
     # a probe may open a process after its anchor's start (8.3.2): then no 1000h upload
     # was answered before the start (P007)
     dev = inside & up & (t.index == 0x1000) & (t.sub == 0)
     answered = np.bincount(proc[dev], minlength=n) > 0
+    if not mandatory:
+        out.failed, out.fail_row = _plainly_refused(t, c, good & ~other & (refusals == 1),
+                                                    inside, proc, lo, refused, dev)
     good &= ~hit & answered
     last = np.maximum(hi - 1, 0)
     tc_ts, tc_idx = t.end_ts[last], t.end_idx[last]
@@ -697,6 +746,38 @@ def _plainly_judged(nd: _Node, c: _Procs, last_frame_ts: float, p: BootParams,
     out.ev_line[inc] = np.where(ec[inc], r.line[zk[inc]] if len(r) else 0,
                                 t.end_line[last[inc]])
     return out
+
+
+def _plainly_refused(t: st.TransferTable, c: _Procs, cand: np.ndarray, inside: np.ndarray,
+                     proc: np.ndarray, lo: np.ndarray, refused: np.ndarray, dev: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Of the candidates (one refused or aborted download, every other transfer as for an
+    ok process), those `_evaluate` certainly fails with that download alone (P003 J, no
+    P007): ended by a start; one attempt (the only 1000h upload is the first transfer, a
+    probe, answered); no download of the same object again (no retry to recover it); no
+    software update (letter I, Lely's 1F51h exception). The process's last step is the
+    start. Returns the mask and each one's download row."""
+    n = len(c)
+    fail_row = np.full(n, -1, np.int64)
+    cand = cand & (c.end_how == 0)
+    if not cand.any():
+        return cand, fail_row
+    pc = np.maximum(proc, 0)
+    sw = inside & np.isin(t.index, (0x1F50, 0x1F51, 0x1F57))
+    cand &= np.bincount(proc[sw], minlength=n) == 0
+    cand &= np.bincount(proc[dev], minlength=n) == 1
+    first = np.minimum(lo, max(len(t) - 1, 0))
+    cand &= dev[first] & (proc[first] == np.arange(n)) & (t.probe_byte[first] == 0x40) & (
+        t.has_value[first])
+    dl = np.flatnonzero(inside & (t.direction == st.DOWNLOAD))
+    key = pc[dl] * (1 << 24) + t.index[dl].astype(np.int64) * 256 + t.sub[dl]
+    _u, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    again = np.zeros(len(t), bool)
+    again[dl] = cnt[inv.reshape(-1)] > 1
+    cand &= np.bincount(proc[inside], weights=(refused & again)[inside], minlength=n) == 0
+    rows = np.flatnonzero(inside & refused)
+    fail_row[proc[rows]] = rows
+    return cand & (fail_row >= 0), fail_row
 
 
 def _signature(nd: _Node, c: _Procs) -> bool:
@@ -1117,9 +1198,10 @@ def _b_failure(x: Process, last: list[Step], last_frame_ts: float) -> list[Failu
 # --- channel ----------------------------------------------------------------------------
 
 def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig],
-            p: BootParams) -> BootAnalysis:
-    """Reconstruct every channel's boot processes; the P findings and the boot report."""
-    out = BootAnalysis()
+            p: BootParams, cap: int = 0) -> BootAnalysis:
+    """Reconstruct every channel's boot processes; the P findings and the boot report
+    (findings past `cap` per code only counted, 0: none)."""
+    out = BootAnalysis(cap=cap)
     last_frame = model.end
     for cm in model.channels:
         cfg = configs.get(cm.name) or BootConfig()
@@ -1136,6 +1218,8 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         keys = [k for k in spool.servers() if k // 128 == cm.chan]
         nodes = sorted({k % 128 for k in keys} | set(cfg.nodes))
         per_node: dict[int, tuple[_Node, list[Process]]] = {}
+        dropped: dict[int, _Dropped] = {}
+        seen = dict(out.counts)  # what `_findings` will have counted, node by node
         spans: dict[int, Spans] = {}
         counts: dict[int, int] = {}
         aborts: list[np.ndarray] = []
@@ -1144,10 +1228,11 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         for n in nodes:
             if n == 0:
                 continue
-            found = _node_pass(model, spool, cm, n, cm.chan * 128 + n in keys, mb, cfg, p)
+            found = _node_pass(model, spool, cm, n, cm.chan * 128 + n in keys, mb, cfg, p,
+                               cap, seen)
             if found is None:
                 continue
-            nd, kept, spans[n], counts[n], sig, node_aborts = found
+            nd, kept, spans[n], counts[n], sig, node_aborts, dropped[n] = found
             per_node[n] = (nd, kept)
             signature = signature or sig
             aborts.append(node_aborts)
@@ -1169,18 +1254,38 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         _channel_properties(cb, cm, cfg, min(first_starts, default=None))
         for n, (nd, kept) in per_node.items():
             _node_report(out, cm, n, nd, kept, cfg, spans[n], counts[n])
-        _findings(out, cm, per_node, cfg, cb, p, last_frame)
+        _findings(out, cm, per_node, dropped, cfg, cb, p, last_frame)
     return out
 
 
+@dataclass
+class _Dropped:
+    """A node's processes that only their finding reads (failed or L, not the last, node
+    not mandatory), in order: those whose finding is made (under the cap, without their
+    steps), then how many per code are only counted."""
+
+    procs: list[Process] = field(default_factory=list)
+    omitted: dict[str, int] = field(default_factory=dict)
+
+
+def _code_of(x: Process) -> str | None:
+    """The code of the finding `_findings` reports for process x (None: none)."""
+    if x.failure is not None:
+        return x.failure.code
+    return "P005" if x.letter == "L" and x.operational_at is not None else None
+
+
 def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, has_sdo: bool,
-               mb: _Marks, cfg: BootConfig, p: BootParams
-               ) -> tuple[_Node, list[Process], Spans, int, bool, np.ndarray] | None:
+               mb: _Marks, cfg: BootConfig, p: BootParams, cap: int, seen: dict[str, int]
+               ) -> tuple[_Node, list[Process], Spans, int, bool, np.ndarray, _Dropped] | None:
     """One node: its transfers, processes (judged at once), the signature test and the
     client's timeout aborts; the transfers are released once judged. A log may boot a node
     a million times: the processes are columns, those plainly ok are judged by
     `_plainly_ok` at once, the others one by one, and whole processes are kept only where
-    a finding or the report needs them (not ok, letter L, the last)."""
+    a finding or the report needs them (not ok, letter L, the last). A failed one that
+    only its finding reads is kept only while that finding is under the cap: `seen`
+    counts per code the findings `_findings` will have reached (this node's dropped ones
+    come before its kept ones)."""
     rows = spool.frames(cm.chan * 128 + n) if has_sdo else None
     if rows is not None and n not in cfg.nodes and not _probed(rows):
         rows = None  # no probe: no process (and no columns for a flood of SDO)
@@ -1194,12 +1299,21 @@ def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, 
     aborts = t.end_ts[tm] - t.start_ts[tm]
     mandatory = n in cfg.nodes and cfg.nodes[n].mandatory
     judged = _plainly_judged(nd, c, model.end, p, mandatory)
+    if judged.failed is None or len(judged.failed) != len(c):
+        judged.failed = np.zeros(len(c), bool)
     if len(c):  # the report shows the last one whole
-        judged.ok[-1] = judged.incomplete[-1] = False
+        judged.ok[-1] = judged.incomplete[-1] = judged.failed[-1] = False
     spans = _plain_spans(nd, c, judged)
     kept: list[Process] = []
+    drop = _Dropped()
     names = spans.last_step
+    plain_failed = judged.failed.tolist()
     for i in np.flatnonzero(~(judged.ok | judged.incomplete)).tolist():
+        if plain_failed[i] and cap and seen.get("P003", 0) >= cap:
+            # its P003 is past the cap: counted, its span filled at once, not evaluated
+            drop.omitted["P003"] = drop.omitted.get("P003", 0) + 1
+            seen["P003"] += 1
+            continue
         x = _process(nd, c, i)
         _evaluate(x, nd, p, model.end, model.end, 1 << 62)
         x.last_step = x.steps[-1].step if x.steps else "none"
@@ -1215,15 +1329,36 @@ def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, 
         if i == len(c) - 1:
             kept.append(x)  # the report's
         elif x.status != "ok" or x.letter == "L":
-            if (x.status == "incomplete" and not mandatory and x.end is not None
-                    and x.end <= x.start + p.stall_s + EPS):
-                continue  # ended before P008 could fire; only P006 reads it
-            if x.status != "incomplete" and not mandatory:
-                x.steps, x.probes = [], []  # only P006 and P008 read an older one's steps
-            kept.append(x)
+            _keep(x, mandatory, p, cap, seen, kept, drop)
+    for x in kept:
+        code = _code_of(x)
+        if code is not None:
+            seen[code] = seen.get(code, 0) + 1
     spans.compact_names()
     nd.t = st.TransferTable.empty()
-    return nd, kept, spans, len(c), sig, aborts
+    return nd, kept, spans, len(c), sig, aborts, drop
+
+
+def _keep(x: Process, mandatory: bool, p: BootParams, cap: int, seen: dict[str, int],
+          kept: list[Process], drop: _Dropped) -> None:
+    """Keep an evaluated process (not the last, not ok unless L) where P006, P008 or its
+    finding reads it: one with a finding (failed, or L) of a node that is not mandatory
+    only while that finding is under the cap (`seen`: the findings of its code so far),
+    and without its steps."""
+    if (x.status == "incomplete" and not mandatory and x.end is not None
+            and x.end <= x.start + p.stall_s + EPS):
+        return  # ended before P008 could fire; only P006 reads it
+    if x.status != "incomplete" and not mandatory:
+        x.steps, x.probes = [], []  # only P006 and P008 read an older one's steps
+    code = _code_of(x)
+    if code is not None and not mandatory:
+        if cap and seen.get(code, 0) >= cap:
+            drop.omitted[code] = drop.omitted.get(code, 0) + 1
+        else:
+            drop.procs.append(x)
+        seen[code] = seen.get(code, 0) + 1
+        return
+    kept.append(x)
 
 
 def _plain_spans(nd: _Node, c: _Procs, judged: _Plain) -> Spans:
@@ -1238,6 +1373,13 @@ def _plain_spans(nd: _Node, c: _Procs, judged: _Plain) -> Spans:
                np.full(n, "", "U1"), [*STEP_NAMES, "start"], judged.step.copy(),
                judged.ev_time.copy(), judged.ev_idx.copy(), judged.ev_line.copy())
     sp.step[ok] = len(STEP_NAMES)
+    if judged.failed is not None and judged.fail_row is not None and judged.failed.any():
+        f, r = judged.failed, judged.fail_row[judged.failed]
+        sp.status[f] = STATUSES.index("failed")
+        sp.letter[f] = "J"
+        sp.step[f] = len(STEP_NAMES)
+        sp.ev_time[f], sp.ev_idx[f], sp.ev_line[f] = (nd.t.end_ts[r], nd.t.end_idx[r],
+                                                      nd.t.end_line[r])
     if ok.any():
         k = np.searchsorted(nd.starts.idx, c.end_idx[ok])
         sp.ev_time[ok] = nd.starts.ts[k]
@@ -1336,8 +1478,8 @@ def describe_step(s: Step) -> str:
 
 
 def _findings(out: BootAnalysis, cm: ChannelModel, per_node: dict[int, tuple[_Node,
-              list[Process]]], cfg: BootConfig, cb: ChannelBoot, p: BootParams,
-              last_frame: float) -> None:
+              list[Process]]], dropped: dict[int, _Dropped], cfg: BootConfig, cb: ChannelBoot,
+              p: BootParams, last_frame: float) -> None:
     master_boots: list[Where] = []
     if cm.master is not None and cm.master.node in cm.nodes:
         ec = cm.nodes[cm.master.node].ec
@@ -1346,36 +1488,51 @@ def _findings(out: BootAnalysis, cm: ChannelModel, per_node: dict[int, tuple[_No
                         for k in sel.tolist()]
     p_fired: dict[int, list[Process]] = {}
     for n, (_nd, procs) in per_node.items():
+        mandatory = cfg.nodes.get(n) is not None and cfg.nodes[n].mandatory
+        drop = dropped.get(n) or _Dropped()
+        for x in drop.procs:
+            _process_finding(out, cm, n, x, mandatory, p_fired)
+        for code, k in drop.omitted.items():
+            out.omit(code, cm.name, k)
         for x in procs:
-            f = x.failure
-            if f is None:
-                if x.letter == "L" and x.operational_at is not None:
-                    w = x.operational_at
-                    _add(out, "P005", cm, n, w, w,
-                         f"node {n} reports OPERATIONAL (line {w.line}) during its boot "
-                         f"process: Lely-compatible letter L ({LETTERS['L']}); the manager "
-                         f"sends no start", "L", w, x)
-                continue
-            msg = f.message.replace("{node}", str(n))
-            mandatory = cfg.nodes.get(n) is not None and cfg.nodes[n].mandatory
-            if f.code == "P007":
-                _add(out, "P007", cm, n, f.at, f.at,
-                     f"{msg}: node {n}'s boot process (from {x.start:.6f}, line "
-                     f"{x.start_line}) had not completed", None, f.at, x)
-                continue
-            more = f" ({x.failures} failures in the process)" if x.failures > 1 else ""
-            started = ""
-            if f.code == "P003" and x.started_at is not None:
-                started = (f"; node {n} was started anyway at {x.started_at.time:.6f} "
-                           f"(line {x.started_at.line})")
-            halt = "; mandatory: network boot halted" if mandatory else ""
-            text = (f"{msg}{more}{started}{halt}: Lely-compatible letter {f.letter} "
-                    f"({LETTERS[f.letter]})")
-            ev = f.evidence or f.at
-            _add(out, f.code, cm, n, f.at, None if f.moment else f.at, text, f.letter, ev, x)
-            p_fired.setdefault(n, []).append(x)
+            _process_finding(out, cm, n, x, mandatory, p_fired)
     p006 = _p006(out, cm, per_node, cfg, cb, master_boots, p_fired, last_frame)
     _p008(out, cm, per_node, cb, p, last_frame, p006)
+
+
+def _process_finding(out: BootAnalysis, cm: ChannelModel, n: int, x: Process, mandatory: bool,
+                     p_fired: dict[int, list[Process]]) -> None:
+    """The finding of process x (`_code_of`), its text made only if it is under the cap."""
+    f = x.failure
+    if f is None:
+        w = x.operational_at
+        if x.letter == "L" and w is not None:
+            line = w.line
+            _add(out, "P005", cm, n, w, w,
+                 lambda: f"node {n} reports OPERATIONAL (line {line}) during its boot "
+                         f"process: Lely-compatible letter L ({LETTERS['L']}); the manager "
+                         f"sends no start", "L", w, x)
+        return
+    if f.code == "P007":
+        _add(out, "P007", cm, n, f.at, f.at,
+             lambda: f"{f.message.replace('{node}', str(n))}: node {n}'s boot process (from "
+                     f"{x.start:.6f}, line {x.start_line}) had not completed", None, f.at, x)
+        return
+
+    def text() -> str:
+        msg = f.message.replace("{node}", str(n))
+        more = f" ({x.failures} failures in the process)" if x.failures > 1 else ""
+        started = ""
+        if f.code == "P003" and x.started_at is not None:
+            started = (f"; node {n} was started anyway at {x.started_at.time:.6f} "
+                       f"(line {x.started_at.line})")
+        halt = "; mandatory: network boot halted" if mandatory else ""
+        return (f"{msg}{more}{started}{halt}: Lely-compatible letter {f.letter} "
+                f"({LETTERS[f.letter]})")
+
+    _add(out, f.code, cm, n, f.at, None if f.moment else f.at, text, f.letter,
+         f.evidence or f.at, x)
+    p_fired.setdefault(n, []).append(x)
 
 
 def _p006(out: BootAnalysis, cm: ChannelModel,
@@ -1475,12 +1632,14 @@ def _waits_for_broadcast(x: Process) -> bool:
 
 
 def _add(out: BootAnalysis, code: str, cm: ChannelModel, n: int, at: Where,
-         frame: Where | None, message: str, letter: str | None, evidence: Where | None,
-         x: Process | None, inferred: str | None = None) -> None:
-    out.findings.append(BootFinding(code, cm.name, n, at.time,
-                                    None if frame is None else frame.frame_index,
-                                    None if frame is None else frame.line, message, letter,
-                                    evidence))
+         frame: Where | None, message: str | Callable[[], str], letter: str | None,
+         evidence: Where | None, x: Process | None, inferred: str | None = None) -> None:
+    if out.make(code, cm.name):
+        out.findings.append(BootFinding(code, cm.name, n, at.time,
+                                        None if frame is None else frame.frame_index,
+                                        None if frame is None else frame.line,
+                                        message if isinstance(message, str) else message(),
+                                        letter, evidence))
     if x is not None:
         x.findings.append(code)
         if code == "P006" and letter and x.letter is None:
@@ -1510,14 +1669,15 @@ def params_of(profile: Any) -> BootParams:
         stall_s=rule("P008", "stall_ms", 10000.0) / 1000.0)
 
 
-def run(model: InputModel, spool: st.SdoSpool, network: Any, profile: Any
+def run(model: InputModel, spool: st.SdoSpool, network: Any, profile: Any, cap: int = 0
         ) -> BootAnalysis | None:
     """The boot stage of the engine: reconstruct, keep the result with the model for the
-    P rules, and return it for the reports. Not run on an input without timestamps."""
+    P rules, and return it for the reports. Not run on an input without timestamps.
+    `cap`: the engine's findings per rule (0: all), past which findings are only counted."""
     if model.timeline.order_only:
         return None
     configs = ({cm.name: network.boot_config(cm.name) for cm in model.channels}
                if network is not None else {})
-    analysis = analyse(model, spool, configs, params_of(profile))
+    analysis = analyse(model, spool, configs, params_of(profile), cap)
     attach(model, analysis)
     return analysis

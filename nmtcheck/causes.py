@@ -77,6 +77,12 @@ def _capped(found: list[dict[str, Any]], cap: int) -> tuple[list[dict[str, Any]]
     return keep, omitted
 
 
+def drop_records(fmt: str) -> str:
+    """What a format calls the records that count lost frames (for a cause's text)."""
+    return {"blf": "BLF data-lost record(s)", "cl2000": "CL2000 Lost count(s)"}.get(
+        fmt, "DROPCOUNT record(s)")
+
+
 def _entry(kind: str, time: float, idx: int | None, line: int | None, text: str,
            node: int | None = None, end: float | None = None, count: int | None = None,
            code: str | None = None) -> dict[str, Any]:
@@ -246,8 +252,8 @@ class _Ctx:
             total = int(d["count"][sel].sum())
             out.append(_entry("frames_lost", d["ts"][a], int(d["idx"][a]), int(d["line"][a]),
                               f"the logger reported {total} frame(s) lost "
-                              f"({sel.size} DROPCOUNT record(s)): a gap here may be the "
-                              "logger's", end=float(d["ts"][b]) if b != a else None,
+                              f"({sel.size} {drop_records(self.res.stats.format)}): a gap "
+                              "here may be the logger's", end=float(d["ts"][b]) if b != a else None,
                               count=total))
         if self._errors is None:
             self._errors = self.spool.error_frames()
@@ -263,27 +269,42 @@ class _Ctx:
         return out
 
     def _drop_positions(self) -> dict[str, np.ndarray]:
-        """Each drop record's moment: the first frame after its line (one pass over the
-        frame times for all of them)."""
+        """Each drop record's moment: the frame its reader placed it at (BLF, CLX000), at
+        the time the record gives (else that frame's), or else the first frame after its
+        line (candump `DROPCOUNT`); one pass over the frame times for all of them."""
         if self._drops is not None:
             return self._drops
         drops = getattr(self.res.stats, "drops", None) or []
-        lines = np.asarray([ln for ln, _c in drops], np.int64)
-        counts = np.asarray([c for _ln, c in drops], np.int64)
+        lines = np.asarray([d[0] for d in drops], np.int64)
+        counts = np.asarray([d[1] for d in drops], np.int64)
+        given = np.asarray([d[2] if len(d) > 2 and d[2] is not None else -1 for d in drops],
+                           np.int64)
+        at = np.asarray([d[3] if len(d) > 3 and d[3] is not None else np.nan for d in drops],
+                        np.float64)
         ts = np.full(len(lines), np.nan)
         idx = np.full(len(lines), -1, np.int64)
-        todo = np.ones(len(lines), bool) & (lines > 0)
-        if todo.any():
+        placed = given >= 0
+        todo = ~placed & (lines > 0)
+        find = placed.copy()  # the reader's frames: that they exist, and their times
+        if todo.any() or find.any():
             for chunk in self.model.decoded.frame_times:
                 t = chunk["ts"]
-                if not len(t) or not todo.any():
+                if not len(t) or not (todo.any() or find.any()):
                     continue
-                fl = frame_time_lines(chunk)
-                pos = np.searchsorted(fl, lines, side="right")
-                hit = todo & (pos < len(t))
-                ts[hit] = t[pos[hit]]
-                idx[hit] = int(chunk["base"][0]) + pos[hit]
-                todo &= ~hit
+                base = int(chunk["base"][0])
+                if todo.any():
+                    fl = frame_time_lines(chunk)
+                    pos = np.searchsorted(fl, lines, side="right")
+                    hit = todo & (pos < len(t))
+                    ts[hit] = t[pos[hit]]
+                    idx[hit] = base + pos[hit]
+                    todo &= ~hit
+                rel = given - base
+                hit = find & (rel >= 0) & (rel < len(t))
+                ts[hit] = t[rel[hit]]
+                idx[hit] = given[hit]
+                find &= ~hit
+        ts = np.where(placed & ~np.isnan(at), at, ts)
         keep = idx >= 0
         self._drops = {"ts": ts[keep], "idx": idx[keep], "line": lines[keep],
                        "count": counts[keep]}

@@ -205,7 +205,7 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                                  f"{', '.join(stats.channels) or 'none'})")
             model.channels = [cm for cm in model.channels if cm.name == channel]
         result = InputResult(index, stats, model)
-        result.boot = boot_stage.run(model, spool, network, profile)
+        result.boot = boot_stage.run(model, spool, network, profile, max_findings)
         problems: list[tuple[Rule, Problem]] = []
         nodes: dict[tuple[str | None, int], NodeModel] = {
             (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}

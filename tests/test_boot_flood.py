@@ -20,6 +20,7 @@ import pytest
 from conftest import Checker
 
 from nmtcheck import boot
+from nmtcheck.engine import InputResult
 
 NETWORKS = {
     "none": None,
@@ -117,8 +118,8 @@ def _log(seed: int, starts: float) -> str:
     return "\n".join(out) + "\n"
 
 
-def _outcome(checker: Checker, log: str, network: str | None) -> Any:
-    res = checker.run(log, network=network)
+def boot_nodes(res: InputResult) -> dict[Any, Any]:
+    """Every node's boot report and every column of its process spans, comparable."""
     assert res.boot is not None
     nodes = {}
     for key, rep in res.boot.nodes.items():
@@ -127,7 +128,13 @@ def _outcome(checker: Checker, log: str, network: str | None) -> Any:
                       sp.end.tolist(), sp.status.tolist(), sp.letter.tolist(),
                       [sp.last_step[k] for k in sp.step.tolist()], np.nan_to_num(sp.ev_time,
                       nan=-1.0).tolist(), sp.ev_idx.tolist(), sp.ev_line.tolist())
-    return (nodes, {k: c.as_dict() for k, c in res.boot.channels.items()},
+    return nodes
+
+
+def _outcome(checker: Checker, log: str, network: str | None) -> Any:
+    res = checker.run(log, network=network)
+    assert res.boot is not None
+    return (boot_nodes(res), {k: c.as_dict() for k, c in res.boot.channels.items()},
             [(f.code, f.node, f.time, f.frame_index, f.line, f.message, f.letter, f.evidence)
              for f in res.boot.findings],
             [(f.rule, f.node, f.time, f.frame_index, f.message, f.boot_letter, f.evidence)

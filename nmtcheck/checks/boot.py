@@ -8,23 +8,43 @@ probed node may never transmit.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+
+import numpy as np
 
 from nmtcheck import boot
-from nmtcheck.checks.base import Param, Params, Problem, input_rule
+from nmtcheck.checks.base import Param, Params, Problems, input_rule
 from nmtcheck.model import InputModel
 
 
-def _found(model: InputModel, code: str) -> Iterator[Problem]:
+def _found(model: InputModel, code: str) -> Iterator[Problems]:
+    """One batch per channel: the findings the boot stage made, then those it only counted
+    past the per-rule cap (rows the engine counts and never makes: no time, no text)."""
     analysis = boot.of(model)
     if analysis is None:
         return
-    for f in analysis.for_rule(code):
-        yield Problem(f.channel, f.node, f.time, f.message, f.frame_index, f.line)
+    for channel, made, left in analysis.batches(code):
+        k, n = len(made), len(made) + left
+        time = np.full(n, np.nan)
+        time[:k] = [f.time for f in made]
+        idx = np.full(n, -1, np.int64)
+        idx[:k] = [-1 if f.frame_index is None else f.frame_index for f in made]
+        line = np.zeros(n, np.int64)
+        line[:k] = [f.line or 0 for f in made]
+        nodes = np.full(n, -1, np.int64)
+        nodes[:k] = [f.node for f in made]
+        yield Problems(channel, None, time, _messages(made), idx, line, nodes)
+
+
+def _messages(made: list[boot.BootFinding]) -> Callable[[int], str]:
+    def message(i: int) -> str:
+        return made[i].message
+
+    return message
 
 
 @input_rule("P001", "boot-identity-mismatch", "error", exempt_from_unknown=True, scope="node")
-def boot_identity_mismatch(model: InputModel, params: Params) -> Iterator[Problem]:
+def boot_identity_mismatch(model: InputModel, params: Params) -> Iterator[Problems]:
     """A node's identity does not match what the manager expects (letters C, D, M, N, O).
 
     **What it checks.** In an attempt of node N's boot process, the value the manager
@@ -46,7 +66,7 @@ def boot_identity_mismatch(model: InputModel, params: Params) -> Iterator[Proble
 
 
 @input_rule("P002", "boot-no-response", "error", exempt_from_unknown=True, scope="node")
-def boot_no_response(model: InputModel, params: Params) -> Iterator[Problem]:
+def boot_no_response(model: InputModel, params: Params) -> Iterator[Problems]:
     """The manager's probe (upload of 1000h:00) is never answered (letter B).
 
     **What it checks.** No probe of node N's boot process is answered with a value, at
@@ -69,7 +89,7 @@ def boot_no_response(model: InputModel, params: Params) -> Iterator[Problem]:
             Param("restore_timeout_ms", float, "how long the manager waits for the boot-up "
                   "after a restore (1011h) and its reset", 1000.0),
             exempt_from_unknown=True, scope="node")
-def boot_download_failed(model: InputModel, params: Params) -> Iterator[Problem]:
+def boot_download_failed(model: InputModel, params: Params) -> Iterator[Problems]:
     """A configuration download of the boot process fails (letter J, or I for 1F50h/1F51h).
 
     **What it checks.** Between the start and the end of node N's boot process, an SDO
@@ -94,7 +114,7 @@ def boot_download_failed(model: InputModel, params: Params) -> Iterator[Problem]
             Param("reset_timeout_ms", float, "how long the manager waits for the boot-up after "
                   "resetting a keep-alive slave", 1000.0),
             exempt_from_unknown=True, scope="node")
-def boot_no_error_control(model: InputModel, params: Params) -> Iterator[Problem]:
+def boot_no_error_control(model: InputModel, params: Params) -> Iterator[Problems]:
     """No heartbeat when the manager starts error control (letter K; E/F for keep-alive).
 
     **What it checks.** The manager's consumer time C_N for node N is known
@@ -116,7 +136,7 @@ def boot_no_error_control(model: InputModel, params: Params) -> Iterator[Problem
 
 @input_rule("P005", "boot-slave-already-operational", "info", exempt_from_unknown=True,
             scope="node")
-def boot_slave_already_operational(model: InputModel, params: Params) -> Iterator[Problem]:
+def boot_slave_already_operational(model: InputModel, params: Params) -> Iterator[Problems]:
     """The slave reports OPERATIONAL during its boot process (letter L).
 
     **What it checks.** Inside node N's boot process, before any start command to N, N
@@ -138,7 +158,7 @@ def boot_slave_already_operational(model: InputModel, params: Params) -> Iterato
 
 @input_rule("P006", "mandatory-slave-not-booted", "error", exempt_from_unknown=True,
             scope="node")
-def mandatory_slave_not_booted(model: InputModel, params: Params) -> Iterator[Problem]:
+def mandatory_slave_not_booted(model: InputModel, params: Params) -> Iterator[Problems]:
     """A mandatory slave did not complete its boot within the boot time (1F89h).
 
     **What it checks.** For each boot-up of the channel's master and each mandatory slave
@@ -159,7 +179,7 @@ def mandatory_slave_not_booted(model: InputModel, params: Params) -> Iterator[Pr
 
 @input_rule("P007", "start-before-boot-complete", "error", exempt_from_unknown=True,
             scope="node")
-def start_before_boot_complete(model: InputModel, params: Params) -> Iterator[Problem]:
+def start_before_boot_complete(model: InputModel, params: Params) -> Iterator[Problems]:
     """A start command reaches a slave whose boot process is not complete.
 
     **What it checks.** A start command to node N (direct, or broadcast) arrives while N
@@ -181,7 +201,7 @@ def start_before_boot_complete(model: InputModel, params: Params) -> Iterator[Pr
             Param("stall_ms", float, "how long a boot process may stay open before it counts "
                   "as stalled", 10000.0),
             exempt_from_unknown=True, scope="node")
-def boot_stalled(model: InputModel, params: Params) -> Iterator[Problem]:
+def boot_stalled(model: InputModel, params: Params) -> Iterator[Problems]:
     """A boot process stops without a verdict: no start, no failure, no further request.
 
     **What it checks.** Node N's boot process is still open `stall_ms` after its start,

@@ -39,6 +39,15 @@ OVERLONG_LINE = b"<line-longer-than-1-MiB>\n"
 MAX_DROPS = 10000  # drop records placed (InputStats.drops); all of them are counted
 
 
+class Drop(NamedTuple):
+    """One drop record of the logger (`InputStats.drop`); `line` 0: a binary format's."""
+
+    line: int
+    lost: int  # frames lost (`count` is a tuple's method)
+    frame: int | None = None  # the first frame after the loss; None: after `line`
+    ts: float | None = None  # when the logger reported it; None: that frame's time
+
+
 @dataclass
 class InputStats:
     """What a reader saw in one input; every record is accounted for here."""
@@ -55,9 +64,9 @@ class InputStats:
     error_frames: int = 0
     remote_frames: int = 0
     fd_frames: int = 0
-    dropped: int = 0  # frames the logger says it lost (candump DROPCOUNT)
-    # (line, count) of the first MAX_DROPS drop records: where a loss sits (SPEC §8.6)
-    drops: list[tuple[int, int]] = field(default_factory=list)
+    dropped: int = 0  # frames the logger says it lost (DROPCOUNT, BLF data lost, CLX000 Lost)
+    # the first MAX_DROPS drop records: where a loss sits (SPEC §8.6)
+    drops: list[Drop] = field(default_factory=list)
     backwards_timestamps: int = 0
     first_backwards: tuple[int, int, float] | None = None  # frame index, line, time
     truncated: bool = False  # the input ends early (cut off, or a damaged compressed stream)
@@ -80,12 +89,16 @@ class InputStats:
             self.channels.append(name)
         return code
 
-    def drop(self, line: int, count: int) -> None:
-        """A logger's drop record (`DROPCOUNT`) at `line`: counted, and placed for the
-        `frames_lost` cause of the findings around it."""
+    def drop(self, line: int, count: int, frame: int | None = None,
+             ts: float | None = None) -> None:
+        """A logger's drop record: counted, and placed for the `frames_lost` cause of the
+        findings around it. A text record (`DROPCOUNT`) gives only its `line`: the cause
+        places it at the first frame after that line. A reader that knows more gives the
+        index of the first frame after the loss (`frame`) and the moment the logger
+        reported it (`ts`; None: that frame's time)."""
         self.dropped += count
         if len(self.drops) < MAX_DROPS:
-            self.drops.append((line, count))
+            self.drops.append(Drop(line, count, frame, ts))
 
     def skip(self, line: int, why: str) -> None:
         """Count an unparseable record; fatal under --strict."""

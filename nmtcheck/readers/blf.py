@@ -6,7 +6,8 @@ container boundaries. Read: CAN_MESSAGE (1), CAN_MESSAGE2 (86), CAN_FD_MESSAGE
 (100), CAN_FD_MESSAGE_64 (101) with their RTR/extended/direction flags and
 1-based channel numbers, and the error objects CAN_ERROR (2), CAN_ERROR_EXT (73)
 and CAN_FD_ERROR_64 (104), counted as error frames. DATA_LOST_END (126) adds its
-count of lost events to the dropped frames; every other object is a non-frame
+count of lost events to the dropped frames, placed at its timestamp and the next frame
+(the `frames_lost` cause); every other object is a non-frame
 record (ignored). Object header versions 1 and 2 are read; a frame object with
 any other version is reported as skipped, never silently dropped.
 
@@ -227,6 +228,7 @@ class _ObjectParser:
         self.tail = b""
         self.tail_is_mid_object = False  # after damage: resynchronise silently at the next object
         self.objects_seen = 0  # for skip locations
+        self.frames_seen = 0  # the index of the next frame: where a lost-data record sits
 
     def _skip(self, why: str, extra_objects: int = 0) -> None:
         self.stats.skip(self.objects_seen + extra_objects + 1, why)
@@ -245,6 +247,25 @@ class _ObjectParser:
             self._skip("the file ends inside an object")
         self.tail = b""
         return cut
+
+    def _lost(self, buf: bytes, starts: np.ndarray, head: np.ndarray, lost: np.ndarray,
+              frames: np.ndarray) -> None:
+        """Frames the logger says it lost: the counts of the DATA_LOST_END objects among
+        `starts` (at `lost`), each placed for the `frames_lost` cause at the first frame
+        object after it (`frames`: where the frames kept sit among `starts`) and at its
+        own timestamp (None where its header has none: that frame's time)."""
+        for i in lost:
+            hsize, size = int(head["hsize"][i]), int(head["size"][i])
+            body = int(starts[i]) + hsize
+            if hsize >= BASE_HEADER.size and body + 16 <= int(starts[i]) + size:
+                count: int = struct.unpack_from("<L", buf, body + 12)[0]
+                frame = self.frames_seen + int(np.searchsorted(frames, i))
+                ts = None
+                if hsize == HEADER_SIZE_BY_VERSION.get(int(head["hver"][i])):
+                    stamp = float(head["stamp"][i])
+                    ts = self.start_time + (stamp / 1e5 if int(head["flags"][i]) == TIME_TEN_MICS
+                                            else stamp / 1e9)
+                self.stats.drop(0, count, frame, ts)
 
     def parse(self, chunks: list[bytes]) -> _Parsed | None:
         buf = b"".join([self.tail, *chunks, _PAD])
@@ -342,15 +363,17 @@ class _ObjectParser:
         self.objects_seen += len(starts)
         if len(starts) == 0:
             return None
-        head = _records(buf, n, _HEADER, starts)
+        head = objects = _records(buf, n, _HEADER, starts)
         otype = head["type"]
         is_frame = _IS_FRAME[np.minimum(otype, _TYPE_TABLE - 1)]
+        lost = None
         if not is_frame.all():
             others = np.flatnonzero(~is_frame)
             stats.ignored += len(others)
-            _count_lost(buf, starts, head, others[otype[others] == DATA_LOST_END], stats)
+            lost = others[otype[others] == DATA_LOST_END]
             frames = np.flatnonzero(is_frame)
             if len(frames) == 0:
+                self._lost(buf, starts, objects, lost, frames)
                 return None
             s, head = starts[frames], head[frames]
         else:
@@ -367,7 +390,11 @@ class _ObjectParser:
                 stats.skip(where + 1, _why_bad(int(ty[i]), int(hv[i]), int(hs[i]),
                                                int(expected_hs[i]), int(sz[i])))
             s, hs, sz, ty, head = s[good], hs[good], sz[good], ty[good], head[good]
+            frames = frames[good]
+        if lost is not None:
+            self._lost(buf, starts, objects, lost, frames)
         count = len(s)
+        self.frames_seen += count
         if count == 0:
             return None
 
@@ -479,16 +506,6 @@ def _mixed(buf: bytes, n: int, ty: np.ndarray, b: np.ndarray, hs: np.ndarray,
         fd[fd_errors] = True
         raw_id[fd_errors] = u32[b[fd_errors] + 12]
     return chan, raw_id, rtr, err, fd, dlc, data_at, data_len
-
-
-def _count_lost(buf: bytes, starts: np.ndarray, head: np.ndarray, lost: np.ndarray,
-                stats: InputStats) -> None:
-    """Frames the logger says it lost: the counts of DATA_LOST_END objects (`lost`)."""
-    for i in lost:
-        hsize, size = int(head["hsize"][i]), int(head["size"][i])
-        body = int(starts[i]) + hsize
-        if hsize >= BASE_HEADER.size and body + 16 <= int(starts[i]) + size:
-            stats.dropped += struct.unpack_from("<L", buf, body + 12)[0]
 
 
 def _why_bad(otype: int, hver: int, hsize: int, expected_hsize: int, size: int) -> str:
@@ -636,8 +653,10 @@ class _Reader:
         yield from self.flush()
         single = _ObjectParser(self.stats, self.start)
         single.objects_seen = self.parser.objects_seen
+        single.frames_seen = self.parser.frames_seen
         parsed = single.parse([obj])
         self.parser.objects_seen = single.objects_seen
+        self.parser.frames_seen = single.frames_seen
         if parsed is not None and (batch := self.maker.batch(parsed)) is not None:
             yield batch
 

@@ -8,7 +8,8 @@ standard, 9 transmitted extended. A timestamp carries only its trailing digits
 of `YYYYMMDDhhmmsskkk` (how many depends on `Time format`); the leading digits
 come from the header's start time, as in the CSS and Wireshark readers. Times
 are read as UTC (the logger's clock has no time zone). `Lost` (messages the
-logger lost before the record) adds to the dropped frames. The logger has one
+logger lost before the record) adds to the dropped frames and is placed at the
+record's frame (the `frames_lost` cause). The logger has one
 CAN port: every frame is on channel `1`.
 
 python-can has no reader for this format.
@@ -103,6 +104,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
 
 def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
     layout = _Layout()
+    frame = 0  # the index of the next frame (every row yielded becomes one, in order)
     for lineno, raw in enumerate(source.lines(), source.first_line):
         line = raw.strip()
         if not line:
@@ -122,8 +124,10 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
         except _Bad as exc:
             stats.skip(lineno, str(exc))
             continue
-        stats.dropped += lost
+        if lost:  # lost before this record: placed at its frame (the `frames_lost` cause)
+            stats.drop(lineno, lost, frame, ts)
         yield lineno, Row(ts, CHANNEL, can_id, ext, False, False, False, dlc, data)
+        frame += 1
 
 
 def _record(fields: list[bytes], layout: _Layout) -> tuple[float, int, bool, int, bytes, int]:

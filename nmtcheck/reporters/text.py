@@ -26,6 +26,8 @@ MAX_EVENTS_SHOWN = 50
 REPEATS_SHOWN = 3  # findings of one rule on one node listed before the rest is rolled up
 
 
+_DROPS = {"blf": "BLF data-lost", "cl2000": "CL2000 Lost"}  # else candump's DROPCOUNT
+
 def _input_line(res: InputResult) -> list[str]:
     s = res.stats
     dur = (s.end or 0.0) - (s.start or 0.0)
@@ -40,7 +42,8 @@ def _input_line(res: InputResult) -> list[str]:
                  if s.skipped_lines else ""),
               f"extended frames: {s.extended}", f"error frames: {s.error_frames}",
               f"remote frames: {s.remote_frames}", f"CAN FD frames: {s.fd_frames}",
-              f"non-frame records: {s.ignored}", f"DROPCOUNT dropped: {s.dropped}"]
+              f"non-frame records: {s.ignored}", f"{_DROPS.get(s.format, 'DROPCOUNT')} dropped: "
+              f"{s.dropped}"]
     if s.backwards_timestamps:
         counts.append(f"timestamps going backwards: {s.backwards_timestamps}")
     if s.truncated:
