@@ -62,10 +62,10 @@ def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
             found = ctx.causes(f)
             if found is None:
                 continue
-            f.causes, f.causes_omitted = _capped(found, ctx.max)
+            f.causes, f.causes_omitted = capped(found, ctx.max)
 
 
-def _capped(found: list[dict[str, Any]], cap: int) -> tuple[list[dict[str, Any]], int]:
+def capped(found: list[dict[str, Any]], cap: int) -> tuple[list[dict[str, Any]], int]:
     """Sorted by time (ties by kind); past `cap`, the lowest kinds are kept."""
     rank = {k: i for i, k in enumerate(KINDS)}
     if len(found) > cap:
@@ -77,15 +77,10 @@ def _capped(found: list[dict[str, Any]], cap: int) -> tuple[list[dict[str, Any]]
     return keep, omitted
 
 
-def drop_records(fmt: str) -> str:
-    """What a format calls the records that count lost frames (for a cause's text)."""
-    return {"blf": "BLF data-lost record(s)", "cl2000": "CL2000 Lost count(s)"}.get(
-        fmt, "DROPCOUNT record(s)")
-
-
-def _entry(kind: str, time: float, idx: int | None, line: int | None, text: str,
-           node: int | None = None, end: float | None = None, count: int | None = None,
-           code: str | None = None) -> dict[str, Any]:
+def cause_entry(kind: str, time: float, idx: int | None, line: int | None, text: str,
+                node: int | None = None, end: float | None = None, count: int | None = None,
+                code: str | None = None) -> dict[str, Any]:
+    """One entry of a finding's `causes` (SPEC §8.6), offline and live alike."""
     return {"kind": kind, "time": round(float(time), 6),
             "end": None if end is None else round(float(end), 6),
             "frame_index": idx, "line": line or None, "node": node, "count": count,
@@ -123,7 +118,7 @@ class _Ctx:
             if r is not None:
                 windows.append((r[0], r[0] + self.after))
                 if r[3] == "bootup":
-                    out.append(_entry("reboot", r[0], r[1], r[2],
+                    out.append(cause_entry("reboot", r[0], r[1], r[2],
                                       f"node {n} rebooted: its next frame is a boot-up", n))
         if f.rule == "B002":
             windows = [(a0 - self.before, a0 + self.after)]
@@ -199,7 +194,7 @@ class _Ctx:
                 continue
             _c, text = emcy.describe(list(int(data[k]).to_bytes(8, sys.byteorder)),
                                      int(dlc[k]))
-            prev = _entry("emcy", ts[k], int(idx[k]), int(line[k]), text, n, count=1,
+            prev = cause_entry("emcy", ts[k], int(idx[k]), int(line[k]), text, n, count=1,
                           code=f"{code:04X}h")
             out.append(prev)
         return out
@@ -221,7 +216,7 @@ class _Ctx:
                 seen.add(c)
                 _c, text = emcy.describe(list(int(data[k]).to_bytes(8, sys.byteorder)),
                                          int(dlc[k]))
-                out.append(_entry("emcy_other", ts[k], int(idx[k]), int(line[k]), text,
+                out.append(cause_entry("emcy_other", ts[k], int(idx[k]), int(line[k]), text,
                                   o.node, count=int(np.count_nonzero(code[sel] == c)),
                                   code=f"{c:04X}h"))
         return out
@@ -235,7 +230,7 @@ class _Ctx:
         if not sel.size:
             return []
         a, b = int(sel[0]), int(sel[-1])
-        return [_entry("error_frames", e["ts"][a], int(e["idx"][a]), int(e["line"][a]),
+        return [cause_entry("error_frames", e["ts"][a], int(e["idx"][a]), int(e["line"][a]),
                        f"{sel.size} error frame(s) on the channel", end=float(e["ts"][b]),
                        count=int(sel.size))]
 
@@ -250,9 +245,9 @@ class _Ctx:
         if sel.size:
             a, b = int(sel[0]), int(sel[-1])
             total = int(d["count"][sel].sum())
-            out.append(_entry("frames_lost", d["ts"][a], int(d["idx"][a]), int(d["line"][a]),
+            out.append(cause_entry("frames_lost", d["ts"][a], int(d["idx"][a]), int(d["line"][a]),
                               f"the logger reported {total} frame(s) lost "
-                              f"({sel.size} {drop_records(self.res.stats.format)}): a gap "
+                              f"({sel.size} {self.res.stats.drop_record} record(s)): a gap "
                               "here may be the logger's", end=float(d["ts"][b]) if b != a else None,
                               count=total))
         if self._errors is None:
@@ -262,7 +257,7 @@ class _Ctx:
         sel = np.flatnonzero(over & (e["chan"] == cm.chan) & _in(e["ts"], windows))
         if sel.size:
             a, b = int(sel[0]), int(sel[-1])
-            out.append(_entry("frames_lost", e["ts"][a], int(e["idx"][a]), int(e["line"][a]),
+            out.append(cause_entry("frames_lost", e["ts"][a], int(e["idx"][a]), int(e["line"][a]),
                               f"{sel.size} controller overflow error frame(s): the interface "
                               "lost received or queued frames", end=float(e["ts"][b])
                               if b != a else None, count=int(sel.size)))
@@ -324,7 +319,7 @@ class _Ctx:
             return []
         gaps = np.diff(ts)
         k = np.flatnonzero(gaps >= need - EPS)
-        return [_entry("silence", ts[j], None, None,
+        return [cause_entry("silence", ts[j], None, None,
                        f"no frame on the channel for {gaps[j] * 1000:.0f} ms",
                        end=float(ts[j + 1])) for j in k[:3].tolist()]
 
@@ -358,7 +353,7 @@ class _Ctx:
                 text += f": reset at {nmt.ts[k]:.3f} already answered before the boot-up"
             elif f.rule == "B001":
                 text += ": likely lost while the node initialises"
-            out.append(_entry("nmt", nmt.ts[k], int(nmt.idx[k]), int(nmt.line[k]), text, n))
+            out.append(cause_entry("nmt", nmt.ts[k], int(nmt.idx[k]), int(nmt.line[k]), text, n))
         return out
 
     def _sdo_writes(self, m: Any, rule: str, windows: list[tuple[float, float]]
@@ -368,13 +363,13 @@ class _Ctx:
             return []
         w = m.writes
         sel = np.flatnonzero(np.isin(w.index, wanted) & _in(w.request_ts, windows))
-        out = [_entry("sdo_write", w.request_ts[k], int(w.request_idx[k]), None,
+        out = [cause_entry("sdo_write", w.request_ts[k], int(w.request_idx[k]), None,
                       f"SDO write {int(w.index[k]):04X}h:{int(w.sub[k]):02X} = "
                       f"0x{int(w.value[k]):08X} confirmed", m.node) for k in sel.tolist()]
         if rule == "H001":
             cw = m.consumer_writes
             sel = np.flatnonzero(_in(cw.request_ts, windows))
-            out += [_entry("sdo_write", cw.request_ts[k], int(cw.request_idx[k]), None,
+            out += [cause_entry("sdo_write", cw.request_ts[k], int(cw.request_idx[k]), None,
                            f"SDO write 1016h:{int(cw.sub[k]):02X} = 0x{int(cw.value[k]):08X} "
                            f"to node {int(cw.node[k])} confirmed", int(cw.node[k]))
                     for k in sel.tolist()]
@@ -394,7 +389,7 @@ class _Ctx:
             return []
         hits.sort()
         nodes = ", ".join(str(h[1]) for h in sorted(hits, key=lambda h: h[1]))
-        return [_entry("bootup_cluster", hits[0][0], hits[0][2], hits[0][3],
+        return [cause_entry("bootup_cluster", hits[0][0], hits[0][2], hits[0][3],
                        f"boot-ups of node(s) {nodes} within {self.cluster * 1000:g} ms: "
                        f"several nodes rebooted together", None, end=hits[-1][0])]
 
@@ -417,7 +412,7 @@ class _Ctx:
         status = ("ok", "failed", "incomplete")[int(sp.status[k])]
         letter = f", letter {sp.letter[k]}" if sp.letter[k] else ""
         has_ev = int(sp.ev_idx[k]) >= 0
-        return [_entry("boot_process", float(sp.ev_time[k]) if has_ev else float(sp.start[k]),
+        return [cause_entry("boot_process", float(sp.ev_time[k]) if has_ev else float(sp.start[k]),
                        int(sp.ev_idx[k]) if has_ev else None,
                        int(sp.ev_line[k]) if has_ev else None,
                        f"boot process {status}{letter}, last step "

@@ -865,10 +865,8 @@ def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, i
         + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
     pos = _evidence(m, windows)
     if not len(cmds) and not m.timeouts and not m.self_starts:  # the evidence alone, in
-        for lo in range(0, len(pos), STEP_CHUNK):  # time order already (most nodes)
-            part = pos[lo:lo + STEP_CHUNK]
-            yield from ((t, _EV_EC, r) for t, r in zip(ec.ts[part].tolist(), part.tolist(),
-                                                       strict=True))
+        yield from _in_chunks(ec.ts[pos], np.full(len(pos), _EV_EC, np.int8), pos,
+                              np.arange(len(pos)))  # in time order already
         return
     back_of = [i for i, t in enumerate(m.timeouts) if t.ended_by is not None]
     backs = [m.timeouts[i] for i in back_of]
@@ -893,8 +891,15 @@ def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, i
         what = np.concatenate([what, np.full(len(m.self_starts), _EV_CMD, np.int8)])
         ref = np.concatenate([ref, len(cmds) + np.arange(len(m.self_starts))])
     steps = np.lexsort((idx, order, ts))
-    for lo in range(0, len(steps), STEP_CHUNK):  # a node may have millions of steps: a
-        part = steps[lo:lo + STEP_CHUNK]  # chunk of them at a time as Python numbers
+    yield from _in_chunks(ts, what, ref, steps)
+
+
+def _in_chunks(ts: np.ndarray, what: np.ndarray, ref: np.ndarray, steps: np.ndarray
+               ) -> Iterator[tuple[float, int, int]]:
+    """The rows `steps` of the step columns, in that order, as Python numbers a chunk at
+    a time: a node may have millions of steps."""
+    for lo in range(0, len(steps), STEP_CHUNK):
+        part = steps[lo:lo + STEP_CHUNK]
         yield from zip(ts[part].tolist(), what[part].tolist(), ref[part].tolist(), strict=True)
 
 

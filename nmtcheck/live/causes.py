@@ -21,8 +21,8 @@ from nmtcheck.causes import (
     CAN_ERR_CRTL_OVERFLOW,
     NMT_NAMES,
     SDO_WRITES,
-    _capped,
-    _entry,
+    capped,
+    cause_entry,
 )
 from nmtcheck.nmt import EPS
 
@@ -150,7 +150,7 @@ class Recent:
         out += self._sdo(rule, channel, node, cmd)
         if rule == "B002" and bootups:
             out += self._cluster(node, a0, bootups)
-        return _capped(out, self.cap)
+        return capped(out, self.cap)
 
     def _emcy(self, rule: str, channel: str, node: int, lo: float, hi: float
               ) -> list[dict[str, Any]]:
@@ -159,10 +159,10 @@ class Recent:
             if not (lo - EPS <= ts <= hi + EPS) and not (lo - EPS <= end <= hi + EPS):
                 continue
             if n == node and code and dlc >= 3:
-                out.append(_entry("emcy", ts, None, None, text, n, count=count,
+                out.append(cause_entry("emcy", ts, None, None, text, n, count=count,
                                   code=f"{code:04X}h"))
             elif n != node and code >> 8 == 0x81 and rule != "B001":
-                out.append(_entry("emcy_other", ts, None, None, text, n, count=count,
+                out.append(cause_entry("emcy_other", ts, None, None, text, n, count=count,
                                   code=f"{code:04X}h"))
         return out
 
@@ -182,7 +182,7 @@ class Recent:
                 text += ": likely lost while the node initialises"
             elif rule == "B002":
                 text += f": reset at {ts:.3f} already answered before the boot-up"
-            out.append(_entry("nmt", ts, None, None, text, node))
+            out.append(cause_entry("nmt", ts, None, None, text, node))
         return out
 
     def _sdo(self, rule: str, channel: str, node: int, window: tuple[float, float]
@@ -197,7 +197,7 @@ class Recent:
                 continue
             shown = "?" if value is None else f"0x{value:08X}"
             to = "" if n == node else f" to node {n}"
-            out.append(_entry("sdo_write", ts, None, None,
+            out.append(cause_entry("sdo_write", ts, None, None,
                               f"SDO write {index:04X}h:{sub:02X} = {shown}{to} "
                               + ("confirmed" if confirmed else "not confirmed"), n))
         return out
@@ -211,7 +211,7 @@ class Recent:
         if not hits:
             return []
         nodes = ", ".join(str(n) for n in sorted({n for _t, n in hits}))
-        return [_entry("bootup_cluster", hits[0][0], None, None,
+        return [cause_entry("bootup_cluster", hits[0][0], None, None,
                        f"boot-ups of node(s) {nodes} within {self.cluster * 1000:g} ms: "
                        "several nodes rebooted together", None, end=hits[-1][0])]
 
@@ -220,7 +220,7 @@ class Recent:
         if not hit:
             return []
         count = sum(e[2] for e in hit)
-        return [_entry("error_frames", hit[0][0], None, None,
+        return [cause_entry("error_frames", hit[0][0], None, None,
                        f"{count} error frame(s) on the channel", end=hit[-1][1], count=count)]
 
     def _lost(self, channel: str, lo: float, hi: float) -> list[dict[str, Any]]:
@@ -229,14 +229,14 @@ class Recent:
                  and e[1] >= lo - EPS and e[0] <= hi + EPS]
         if drops:
             total = sum(e[2] for e in drops)
-            out.append(_entry("frames_lost", drops[0][0], None, None,
+            out.append(cause_entry("frames_lost", drops[0][0], None, None,
                               f"{total} frame(s) lost before the checks saw them (the "
                               "logger's or the monitor's drop): a gap here may be theirs",
                               end=drops[-1][1] if drops[-1][1] != drops[0][0] else None,
                               count=total))
         over = [e for e in self.errors.get(channel, ()) if e[3] and lo - EPS <= e[0] <= hi + EPS]
         if over:
-            out.append(_entry("frames_lost", over[0][0], None, None,
+            out.append(cause_entry("frames_lost", over[0][0], None, None,
                               f"{len(over)} controller overflow error frame(s): the interface "
                               "lost received or queued frames",
                               end=over[-1][0] if len(over) > 1 else None, count=len(over)))
@@ -254,7 +254,7 @@ class Recent:
         last = self.last_frame.get(channel)
         if last is not None and now - last >= need - EPS:
             spans.append((last, now))
-        return [_entry("silence", a, None, None,
+        return [cause_entry("silence", a, None, None,
                        f"no frame on the channel for {(b - a) * 1000:.0f} ms"
                        + (" (so far)" if b == now and a == last else ""), end=b)
                 for a, b in spans if b - a >= need - EPS][:3]

@@ -100,6 +100,11 @@ class InputStats:
         if len(self.drops) < MAX_DROPS:
             self.drops.append(Drop(line, count, frame, ts))
 
+    @property
+    def drop_record(self) -> str:
+        """What this format calls its records of lost frames (reports name them)."""
+        return {"blf": "BLF data-lost", "cl2000": "CL2000 Lost"}.get(self.format, "DROPCOUNT")
+
     def skip(self, line: int, why: str) -> None:
         """Count an unparseable record; fatal under --strict."""
         if self.strict:

@@ -26,7 +26,6 @@ MAX_EVENTS_SHOWN = 50
 REPEATS_SHOWN = 3  # findings of one rule on one node listed before the rest is rolled up
 
 
-_DROPS = {"blf": "BLF data-lost", "cl2000": "CL2000 Lost"}  # else candump's DROPCOUNT
 
 def _input_line(res: InputResult) -> list[str]:
     s = res.stats
@@ -42,7 +41,7 @@ def _input_line(res: InputResult) -> list[str]:
                  if s.skipped_lines else ""),
               f"extended frames: {s.extended}", f"error frames: {s.error_frames}",
               f"remote frames: {s.remote_frames}", f"CAN FD frames: {s.fd_frames}",
-              f"non-frame records: {s.ignored}", f"{_DROPS.get(s.format, 'DROPCOUNT')} dropped: "
+              f"non-frame records: {s.ignored}", f"{s.drop_record} dropped: "
               f"{s.dropped}"]
     if s.backwards_timestamps:
         counts.append(f"timestamps going backwards: {s.backwards_timestamps}")
