@@ -46,7 +46,10 @@ LOOP = "s = 0\nfor i in range({n}):\n    s += i * i\n"
 # fleet run's outcome says about its driver (CPU, executor start) and the bytes the driver
 # pickles per batch (sizes measured after the run's own timing, so not counted in it).
 FLEET_WRAPPER = r"""
-import json, os, pickle, sys, time
+import sys
+sys.argv[0] = "nmtcheck"  # as the command: fleet/prestart.py starts the fork server now
+import nmtcheck.fleet.prestart
+import json, os, pickle, time
 from nmtcheck.fleet import run as fleet_run
 from nmtcheck.fleet import tasks as fleet_tasks
 stats = {"sent": 0, "received": 0, "batches": 0}
@@ -158,8 +161,55 @@ def fleet_cmd(logs_glob: str, results: Path, executor: str) -> list[str]:
 
 
 def run_fleet(cmd: list[str], stats_file: Path) -> tuple[float, float, dict[str, Any]]:
-    wall, cpu = timed(cmd, env=env(NMTCHECK_BENCH_STATS=str(stats_file)))
-    return wall, cpu, json.loads(stats_file.read_text())
+    trace = stats_file.with_suffix(".trace")
+    trace.unlink(missing_ok=True)
+    launched = time.time()
+    wall, cpu = timed(cmd, env=env(NMTCHECK_BENCH_STATS=str(stats_file),
+                                   NMTCHECK_FLEET_TRACE=str(trace)))
+    stats = json.loads(stats_file.read_text())
+    stats["phases"] = phases([json.loads(line) for line in trace.read_text().splitlines()],
+                             launched, wall)
+    return wall, cpu, stats
+
+
+def phases(marks: list[dict[str, Any]], launched: float, wall: float) -> dict[str, Any]:
+    """Where a fleet run's time went (nmtcheck/fleet/trace.py marks): seconds from the
+    driver's launch to each of its phases, to the fork server's preload and to the first
+    and last task; each worker's time between its tasks and in its Parquet writes."""
+    driver = {m["phase"]: m for m in marks if m["phase"] in (
+        "prestart", "cli", "run_fleet", "warm_up", "ensure", "lock", "skip_list", "executor",
+        "drained", "closed", "run_row", "run_end", "reported")}
+    at = {k: m["t"] - launched for k, m in driver.items()}
+    for name in ("preload_start", "preload"):
+        ts = [m["t"] for m in marks if m["phase"] == name]
+        if ts:
+            at[name] = min(ts) - launched
+    starts = [m["t"] for m in marks if m["phase"] == "task_start"]
+    ends = [m["t"] for m in marks if m["phase"] == "task_end"]
+    if starts:
+        at["first_task"] = min(starts) - launched
+        at["last_task_end"] = max(ends) - launched
+    at["exit"] = wall
+    by_pid: dict[int, list[dict[str, Any]]] = {}
+    for m in marks:
+        by_pid.setdefault(m["pid"], []).append(m)
+    writes = []
+    busy = []
+    for ms in by_pid.values():
+        t = {}
+        for m in ms:
+            if m["phase"] == "checked":
+                t["checked"] = m["t"]
+            elif m["phase"] == "written" and "checked" in t:
+                writes.append(m["t"] - t.pop("checked"))
+        s = [m["t"] for m in ms if m["phase"] == "task_start"]
+        e = [m["t"] for m in ms if m["phase"] == "task_end"]
+        if s and e:
+            busy.append(max(e) - min(s))
+    cpu = {k: m["cpu"] for k, m in driver.items()}
+    return {"at": at, "writes_s": writes, "worker_span_s": busy,
+            "driver_cpu_run_s": cpu.get("run_end", 0) - cpu.get("run_fleet", 0),
+            "driver_cpu_to_cli_s": cpu.get("cli")}
 
 
 def check_seconds(results: Path) -> list[float]:
@@ -292,6 +342,45 @@ def _xargs_python(nmt: list[str], paths: list[str], n: int, environ: dict[str, s
     return time.perf_counter() - t0, children_cpu() - cpu0
 
 
+PHASES = (("prestart", "driver: fork server started (prestart)"),
+          ("cli", "driver: command line parsed, imports done"),
+          ("run_fleet", "driver: run begins"), ("lock", "driver: dataset ensured, locked"),
+          ("executor", "driver: listed, executor made"),
+          ("preload_start", "fork server: interpreter up, preload begins"),
+          ("preload", "fork server: preload done"), ("first_task", "first task starts"),
+          ("last_task_end", "last task ends"), ("drained", "driver: every result in"),
+          ("run_row", "driver: pool closed, run row written"), ("exit", "process exit"))
+
+
+def print_phases(fleet_stats: dict[str, list[dict[str, Any]]]) -> None:
+    """Median seconds from launch to each phase, per fleet command (the trace's marks)."""
+    names = [n for n in fleet_stats if all("phases" in s for s in fleet_stats[n])]
+    if not names:
+        return
+    print("\n| phase (median s from launch) | " + " | ".join(names) + " |")
+    print("|---|" + "---:|" * len(names))
+    for key, label in PHASES:
+        cells = []
+        for n in names:
+            vals = [s["phases"]["at"][key] for s in fleet_stats[n] if key in s["phases"]["at"]]
+            cells.append(f"{statistics.median(vals):.3f}" if vals else "")
+        print(f"| {label} | " + " | ".join(cells) + " |")
+    for n in names:
+        runs = [s["phases"] for s in fleet_stats[n]]
+        writes = [w for r in runs for w in r["writes_s"]]
+        tail = [r["at"]["exit"] - r["at"]["last_task_end"] for r in runs
+                if "last_task_end" in r["at"]]
+        if not all("first_task" in r["at"] for r in runs):  # Dask tasks are not traced
+            continue
+        first = statistics.median(r["at"]["first_task"] for r in runs)
+        nan = float("nan")
+        print(f"{n}: fixed cost = first task {first:.3f} s + tail "
+              f"{statistics.median(tail) if tail else nan:.3f} s (last task end to exit); "
+              f"worker writes {1e3 * statistics.median(writes) if writes else nan:.1f} ms "
+              f"per task; driver CPU in run_fleet "
+              f"{1e3 * min(r['driver_cpu_run_s'] for r in runs):.1f} ms")
+
+
 def summarise(m: dict[str, Any]) -> dict[str, Any]:
     n, walls, cpus = m["n"], m["walls"], m["cpus"]
     best = {k: min(v) for k, v in walls.items()}
@@ -339,6 +428,7 @@ def summarise(m: dict[str, Any]) -> dict[str, Any]:
             "sent_bytes_per_log": st["sent"] / files, "received_bytes_per_log":
                 st["received"] / files, "batches": st["batches"],
             "start_seconds": st["start_seconds"]}
+    print_phases(m["fleet_stats"])
     startup = m["startup"]
     print(f"\nratios: local:{n} {ratios['local_n_over_local_1']:.2f}x local:1 (goal >= "
           f"{0.9 * n:.1f}x where the ceiling allows), {ratios['local_n_of_ceiling']:.2f} of the "

@@ -57,12 +57,13 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from generate import candump_lines, write_text  # noqa: E402
+from generate import candump_lines  # noqa: E402
 from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
@@ -251,18 +252,28 @@ TEXT_MAKERS: dict[str, Callable[[int], Iterator[bytes]]] = {
 }
 
 
-def generate(kind: str, n: int, data: Path) -> Path:
-    """The candump log (written unless already there)."""
-    path = data / f"{kind}-{label(n)}.log"
+def generate(kind: str, n: int, data: Path, zst: bool = False) -> Path:
+    """The candump log (written unless already there); `zst`: compressed as it is made
+    (`.log.zst`), so a log of 10 GiB needs a few MB of disk, not 10 GiB."""
+    path = data / f"{kind}-{label(n)}.log{'.zst' if zst else ''}"
     if not path.exists():
         data.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".log.part")
-        if kind in TEXT_MAKERS:
-            with tmp.open("wb") as out:
+        tmp = path.with_name(path.name + ".part")
+        with tmp.open("wb") as raw:
+            if zst:
+                import zstandard
+
+                out: Any = zstandard.ZstdCompressor(level=3).stream_writer(raw)
+            else:
+                out = raw
+            if kind in TEXT_MAKERS:
                 for piece in TEXT_MAKERS[kind](n):
                     out.write(piece)
-        else:
-            write_text(tmp, chunks(kind, n), candump_lines)
+            else:
+                for f in chunks(kind, n):
+                    out.write(candump_lines(f))
+            if zst:
+                out.flush(zstandard.FLUSH_FRAME)
         os.replace(tmp, path)
     return path
 
@@ -484,6 +495,8 @@ def main() -> None:
     ap.add_argument("--label", default="", help="the section's title, e.g. Before")
     ap.add_argument("--results", type=Path, default=HERE / "PATHOLOGICAL.md")
     ap.add_argument("--generate-only", action="store_true")
+    ap.add_argument("--zst", action="store_true",
+                    help="write the logs zstd-compressed (.log.zst; a 10 GiB log in MB)")
     args = ap.parse_args()
     sizes = sorted(parse_size(s) for s in args.sizes.split(","))
     kinds = args.kinds.split(",")
@@ -498,7 +511,7 @@ def main() -> None:
     for n in sizes:
         for kind in kinds:
             print(f"generating {n:,} frames of {kind} …", file=sys.stderr, flush=True)
-            log = generate(kind, n, args.data)
+            log = generate(kind, n, args.data, args.zst)
             if args.generate_only:
                 continue
             for output in outputs:

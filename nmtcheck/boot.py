@@ -34,6 +34,7 @@ from nmtcheck import sdo_transfers as st
 from nmtcheck.boot_config import BootConfig, Expected, NodeBoot
 from nmtcheck.model import ChannelModel, InputModel, NodeModel
 from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST
+from nmtcheck.tables import blank
 
 # Lely's co_nmt_es2str (src/co/nmt.c)
 LETTERS = {
@@ -233,7 +234,9 @@ class Spans:
 
     @classmethod
     def empty(cls) -> Spans:
-        return cls.of([])
+        spans = blank(cls, lambda: cls.of([]))  # one per node: its columns made once
+        spans.last_step = []  # appended to in place
+        return spans
 
     def __len__(self) -> int:
         return len(self.start)
@@ -1203,6 +1206,9 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
     (findings past `cap` per code only counted, 0: none)."""
     out = BootAnalysis(cap=cap)
     last_frame = model.end
+    servers: dict[int, set[int]] = {}  # per channel code, found once (40,000 channels)
+    for k in spool.servers():
+        servers.setdefault(k // 128, set()).add(k)
     for cm in model.channels:
         cfg = configs.get(cm.name) or BootConfig()
         out.channels[cm.name] = cb = ChannelBoot(cm.name, "none")
@@ -1215,7 +1221,7 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         if master is not None and master in cm.nodes:
             ec = cm.nodes[master].ec
             mb = _take(ec.ts, ec.idx, ec.line, np.flatnonzero(ec.kind == BOOTUP))
-        keys = [k for k in spool.servers() if k // 128 == cm.chan]
+        keys = servers.get(cm.chan, set())
         nodes = sorted({k % 128 for k in keys} | set(cfg.nodes))
         per_node: dict[int, tuple[_Node, list[Process]]] = {}
         dropped: dict[int, _Dropped] = {}

@@ -16,6 +16,7 @@ import numpy as np
 
 from nmtcheck import emcy
 from nmtcheck.decode import frame_time_lines, key_rows
+from nmtcheck.ec_compact import expanded
 from nmtcheck.nmt import BOOTUP, EPS, REQUEST
 
 if TYPE_CHECKING:
@@ -328,6 +329,9 @@ class _Ctx:
         columns (no per-frame store is read in full)."""
         parts = [cm.nmt.ts[(cm.nmt.ts >= lo) & (cm.nmt.ts <= hi)]]
         parts += [o.ec.ts[(o.ec.ts >= lo) & (o.ec.ts <= hi)] for o in cm.nodes.values()]
+        for o in cm.nodes.values():  # a long log's dropped heartbeats: stand-ins
+            if o.ec.runs is not None:
+                parts += [t[(t >= lo) & (t <= hi)] for t in expanded(o.ec.ts, o.ec.runs, lo, hi)]
         for chunk in self.model.decoded.node_frames.reaching(lo):
             sel = ((chunk["key"] // 128) == cm.chan) & (chunk["ts"] >= lo) & (chunk["ts"] <= hi)
             parts.append(chunk["ts"][sel])

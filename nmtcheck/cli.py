@@ -24,6 +24,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+# first of nmtcheck's modules: `check --results` starts the fleet's fork server here, so that
+# its imports run beside this module's (issue 25; does nothing for any other command)
+import nmtcheck.fleet.prestart  # noqa: F401
+
+# isort: split
 import click
 
 from nmtcheck import __version__

@@ -26,11 +26,13 @@ import signal
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import BinaryIO, NamedTuple
 
 import numpy as np
 from numpy.typing import DTypeLike
 
+from nmtcheck import ec_compact
+from nmtcheck.errors import NmtcheckError
 from nmtcheck.frames import (
     EC_BASE,
     EMCY_BASE,
@@ -95,6 +97,19 @@ def spill_directory() -> tempfile.TemporaryDirectory[str]:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
+def write_spill(col: np.ndarray, f: BinaryIO | str, directory: str) -> None:
+    """Append a column to a spill file; a full or unwritable temporary directory is the
+    user's to fix (TMPDIR), so it ends the run with one line, not an internal error."""
+    try:
+        np.ascontiguousarray(col).tofile(f)
+    except OSError as e:
+        why = e.strerror or str(e)
+        raise NmtcheckError(
+            f"cannot write temporary data to {directory} ({why}; a full disk?): a long log "
+            "spills about 40 bytes per frame there; set TMPDIR to a directory with more "
+            "room") from None
+
+
 class ColumnSpool:
     """Columns appended batch by batch and read back whole once: the error-control
     frames. Past a small budget they go to one file per column, so the decoder keeps
@@ -104,15 +119,43 @@ class ColumnSpool:
         self._dtypes = dtypes
         self._parts: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
         self._size = 0
+        self._rows = 0
         self._budget = budget
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    @property
+    def dtypes(self) -> Mapping[str, DTypeLike]:
+        return self._dtypes
+
+    def __len__(self) -> int:
+        """Rows appended so far."""
+        return self._rows
 
     def append(self, cols: dict[str, np.ndarray]) -> None:
         for name, col in cols.items():
             self._parts[name].append(col.astype(self._dtypes[name], copy=False))
             self._size += col.nbytes
+        self._rows += len(next(iter(cols.values())))
         if self._size > self._budget:
             self._flush()
+
+    def chunks(self, size: int) -> Iterator[dict[str, np.ndarray]]:
+        """Every row so far, `size` rows at a time in order; the spool keeps them (it can
+        be read again: `ec_compact.restore`)."""
+        if self._tmp is not None:
+            self._flush()
+        else:  # small: one part per column, in memory
+            self._parts = {name: [np.concatenate(parts) if parts else np.empty(
+                0, self._dtypes[name])] for name, parts in self._parts.items()}
+        for start in range(0, self._rows, size):
+            count = min(size, self._rows - start)
+            if self._tmp is None:
+                yield {name: parts[0][start:start + count] for name, parts in self._parts.items()}
+                continue
+            yield {name: np.fromfile(os.path.join(self._tmp.name, name),
+                                     np.dtype(self._dtypes[name]), count=count,
+                                     offset=start * np.dtype(self._dtypes[name]).itemsize)
+                   for name in self._dtypes}
 
     def _flush(self) -> None:
         if self._tmp is None:
@@ -120,7 +163,7 @@ class ColumnSpool:
         for name, parts in self._parts.items():
             with open(os.path.join(self._tmp.name, name), "ab") as f:
                 for part in parts:
-                    np.ascontiguousarray(part).tofile(f)
+                    write_spill(part, f, self._tmp.name)
             parts.clear()
         self._size = 0
 
@@ -132,7 +175,7 @@ class ColumnSpool:
             path = os.path.join(self._tmp.name, name)
             with open(path, "ab") as f:
                 for part in parts:
-                    np.ascontiguousarray(part).tofile(f)
+                    write_spill(part, f, self._tmp.name)
             parts.clear()
             col = np.fromfile(path, dtype)
             os.remove(path)
@@ -186,7 +229,7 @@ class ChunkStore:
         spilled: dict[str, _Spilled] = {}
         for name, col in cols.items():
             path = os.path.join(self._tmp.name, f"chunk{len(self._chunks)}.{name}")
-            np.ascontiguousarray(col).tofile(path)
+            write_spill(col, path, self._tmp.name)
             spilled[name] = (path, col.dtype, col.shape)
         self._chunks.append(spilled)
 
@@ -269,6 +312,9 @@ class Decoded:
     first_tx: dict[int, FirstTx] = field(default_factory=dict)
     last_tx: dict[int, float] = field(default_factory=dict)
     standard_frames: int = 0  # 11-bit data and remote frames: what CANopen decoding sees
+    # per node key, the steady heartbeat runs dropped from `ec` (a long log only)
+    ec_runs: dict[int, ec_compact.GapRuns] = field(default_factory=dict)
+    ec_spool: ColumnSpool | None = None  # every error-control row, when `ec` is compacted
 
     def ec_rows(self, key: int) -> slice:
         """The rows of `ec` that belong to one node key."""
@@ -283,6 +329,15 @@ class Decoded:
     def close(self) -> None:
         self.frame_times.close()
         self.node_frames.close()
+        if self.ec_spool is not None:
+            self.ec_spool.close()
+
+    def restore_ec(self, keys: set[int]) -> None:
+        """Every error-control row of these node keys back in `ec`, their runs gone."""
+        if self.ec_spool is None or not keys:
+            return
+        self.ec, self.ec_runs = ec_compact.restore(self.ec_spool, self.ec, self.ec_runs, keys,
+                                                   ec_compact.SETTINGS.chunk)
 
     def first_frame_at_or_after(self, moments: list[float]) -> list[FrameAt | None]:
         """(frame index, line) of the first frame whose time is >= each moment."""
@@ -665,10 +720,17 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     nmt_spool.close()
     emcy_cols = _grouped(emcy_spool, EMCY_COLUMNS)
     emcy_spool.close()
-    ec_cols = _grouped(ec_spool, EC_COLUMNS)
-    ec_spool.close()
+    settings = ec_compact.SETTINGS
+    ec_runs: dict[int, ec_compact.GapRuns] = {}
+    kept_spool: ColumnSpool | None = None
+    if len(ec_spool) > settings.above:  # a long log: steady heartbeat runs as summaries
+        ec_cols, ec_runs = ec_compact.compact(ec_spool, nmt_cols, events, settings)
+        kept_spool = ec_spool  # read again if a run turns out to matter (`restore`)
+    else:
+        ec_cols = _grouped(ec_spool, EC_COLUMNS)
+        ec_spool.close()
     return Decoded(events, nmt_cols, emcy_cols, ec_cols, frame_times, node_frames, restricted,
-                   first_tx, last_tx, standard)
+                   first_tx, last_tx, standard, ec_runs, kept_spool)
 
 
 def _grouped(spool: ColumnSpool, columns: dict[str, type]) -> dict[str, np.ndarray]:

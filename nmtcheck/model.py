@@ -26,8 +26,10 @@ from nmtcheck.decode import (
     node_frame_lines,
 )
 from nmtcheck.frames import RPDO_BASES, TPDO_BASES
+from nmtcheck.gaps import Gaps
 from nmtcheck.nmt import (
     BOOTUP,
+    EC_KIND_NAMES,
     EPS,
     GUARD,
     HEARTBEAT,
@@ -56,6 +58,7 @@ from nmtcheck.tables import (
     known_cs,
     plain_rows,
     reset_cs,
+    shared_empty,
 )
 
 # The tables moved to tables.py and node_events.py are re-exported: `from nmtcheck.model
@@ -124,6 +127,11 @@ class NodeConfig:
     consumes: dict[int, float] = field(default_factory=dict)
 
 
+# a new node's defaults, shared (a log may have tens of thousands of nodes), read only
+_NO_BOUNDS, _NO_MEDIAN, _NO_IDX = np.zeros(0), np.full(1, np.nan), np.zeros(0, np.int64)
+for _shared in (_NO_BOUNDS, _NO_MEDIAN, _NO_IDX):
+    _shared.flags.writeable = False
+
 # error-control objects whose file value gives way once SDO writes them (SPEC §6)
 _ERROR_CONTROL_OBJECTS = {0x1017: "heartbeat_ms", 0x100C: "guard_time_ms",
                           0x100D: "life_time_factor"}
@@ -137,8 +145,9 @@ class NodeModel:
     channel: str
     node: int
     config: NodeConfig
-    ec: EcTable = field(default_factory=EcTable.empty)
-    commands: CommandTable = field(default_factory=CommandTable.empty)
+    # a node's tables are shared empty ones until the timeline gives it its own
+    ec: EcTable = field(default_factory=lambda: shared_empty(EcTable))
+    commands: CommandTable = field(default_factory=lambda: shared_empty(CommandTable))
     first_show_idx: int | None = None
     first_show_ts: float | None = None
     first_tx: FirstTx | None = None  # N's first transmitted frame
@@ -148,12 +157,14 @@ class NodeModel:
     median_s: float | None = None  # the median heartbeat interval, whatever is configured
     # the measured period per producer-time segment (SPEC §2): segment k runs from
     # seg_bounds[k-1] to seg_bounds[k]; NaN where the segment has no interval of its own
-    seg_bounds: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    seg_median: np.ndarray = field(default_factory=lambda: np.full(1, np.nan))
+    seg_bounds: np.ndarray = field(default_factory=lambda: _NO_BOUNDS)
+    seg_median: np.ndarray = field(default_factory=lambda: _NO_MEDIAN)
     timeouts: list[Timeout] = field(default_factory=list)
-    intervals: IntervalTable = field(default_factory=IntervalTable.empty)
-    writes: WriteTable = field(default_factory=WriteTable.empty)  # to N's own objects
-    consumer_writes: WriteTable = field(default_factory=WriteTable.empty)  # 1016h naming N
+    intervals: IntervalTable = field(default_factory=lambda: shared_empty(IntervalTable))
+    writes: WriteTable = field(  # to N's own objects
+        default_factory=lambda: shared_empty(WriteTable))
+    consumer_writes: WriteTable = field(  # 1016h entries naming N
+        default_factory=lambda: shared_empty(WriteTable))
     events: NodeEvents = field(default_factory=NodeEvents)
     order_only: bool = False  # the input has no timestamps: no period is measured
     self_starts: list[tuple[float, int]] = field(default_factory=list)  # (ts, frame index)
@@ -161,13 +172,17 @@ class NodeModel:
     unproven_spans: list[tuple[float, float]] = field(default_factory=list)
     # the master's own broadcasts that its frames show it obeyed: applied to its timeline,
     # never a finding for it (B001, B002, B003, S004)
-    own_command_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    own_command_idx: np.ndarray = field(default_factory=lambda: _NO_IDX)
     # heartbeat_pairs() and the `ec.kind` it was computed from (classification replaces it)
     _pairs: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = field(
+        default=None, init=False, repr=False, compare=False)
+    _kinds: tuple[np.ndarray, list[int]] | None = field(  # kind_counts(), likewise
         default=None, init=False, repr=False, compare=False)
 
     def config_at(self, ts: float) -> NodeConfig:
         """The configuration in force at `ts`: files, then SDO writes confirmed before it."""
+        if not len(self.writes) and not len(self.consumer_writes):  # the files' (most nodes)
+            return self.config
         return next(self._configs_at([ts]))
 
     def _configs_at(self, moments: list[float]) -> Iterator[NodeConfig]:
@@ -275,6 +290,9 @@ class NodeModel:
         if cached is not None and cached[0] is self.ec.kind:
             return cached[1]
         kind = self.ec.kind
+        if self.kind_counts()[HEARTBEAT] < 2:  # no pair (most nodes of many channels)
+            self._pairs = (kind, (_NO_IDX, _NO_IDX))
+            return _NO_IDX, _NO_IDX
         pos = np.flatnonzero((kind == HEARTBEAT) | (kind == BOOTUP))
         a, b = pos[:-1], pos[1:]
         ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
@@ -283,10 +301,39 @@ class NodeModel:
         self._pairs = (kind, pairs)
         return pairs
 
+    def kind_counts(self) -> list[int]:
+        """How many of N's error-control frames are of each kind (indexed by `REQUEST`,
+        `BOOTUP`, ...; dropped runs not counted), computed once per classification: a
+        rule returns at once for a node with none of the kinds it looks at (most nodes of
+        a log of many channels have a frame or two)."""
+        cached = self._kinds
+        if cached is not None and cached[0] is self.ec.kind:
+            return cached[1]
+        counts: list[int] = np.bincount(self.ec.kind, minlength=len(EC_KIND_NAMES)).tolist()
+        self._kinds = (self.ec.kind, counts)
+        return counts
+
     def heartbeat_intervals(self) -> np.ndarray:
+        """The pairs' intervals as they stand in `ec` (a compacted run's pair spans the
+        whole run: `heartbeat_gaps` counts its intervals)."""
         a, b = self.heartbeat_pairs()
         gaps: np.ndarray = self.ec.ts[b] - self.ec.ts[a]
         return gaps
+
+    def heartbeat_gaps(self, pairs: np.ndarray | None = None) -> Gaps:
+        """The intervals of these heartbeat pairs (positions in `heartbeat_pairs()`; None:
+        all) as a multiset: the pair around a dropped run of a long log counts as the
+        run's intervals (`ec_compact`)."""
+        a, b = self.heartbeat_pairs()
+        if pairs is not None:
+            a, b = a[pairs], b[pairs]
+        gaps = self.ec.ts[b] - self.ec.ts[a]
+        runs = self.ec.runs
+        if runs is None:
+            return Gaps(gaps)
+        r = runs.at_rows(b)
+        plain = r < 0
+        return Gaps.join(gaps[plain], runs.hists(r[~plain]))
 
     @property
     def heartbeats(self) -> list[EcFrame]:
@@ -298,14 +345,17 @@ class NodeModel:
 
     @property
     def bootup_count(self) -> int:
-        return self.ec.count(BOOTUP)
+        return self.kind_counts()[BOOTUP]
 
     @property
     def is_producer(self) -> bool:
         if self.config.heartbeat_ms is not None and self.config.heartbeat_ms > 0:
             return True
-        if bool(((self.writes.index == 0x1017) & (self.writes.value != 0)).any()):
+        if len(self.writes) and bool(((self.writes.index == 0x1017)
+                                      & (self.writes.value != 0)).any()):
             return True
+        if self.ec.runs is None:  # no dropped runs: the count of the classification
+            return self.kind_counts()[HEARTBEAT] >= 2
         return self.ec.count(HEARTBEAT) >= 2
 
     def periods_at(self, times: np.ndarray) -> np.ndarray:
@@ -354,8 +404,9 @@ class NodeModel:
 
     @property
     def error_control(self) -> str:
-        hb = bool(self.ec.count(HEARTBEAT))
-        guard = bool(self.ec.count(GUARD))
+        k = self.kind_counts()  # dropped runs (`ec.runs`) are heartbeats too
+        hb = bool(k[HEARTBEAT]) or (self.ec.runs is not None and bool(self.ec.count(HEARTBEAT)))
+        guard = bool(k[GUARD])
         return {(True, True): "both", (True, False): "heartbeat", (False, True): "guarding"}.get(
             (hb, guard), "none")
 
@@ -416,7 +467,8 @@ class InputModel:
     def events(self) -> Iterator[tuple[NodeModel, NodeEvent]]:
         """Every node's events (EMCY, SDO aborts and writes) in file order, each made when
         it is reached: a log may hold millions of EMCYs."""
-        return heapq.merge(*(_tagged(m) for m in self.nodes()), key=lambda me: me[1].idx)
+        return heapq.merge(*(_tagged(m) for m in self.nodes() if m.events),
+                           key=lambda me: me[1].idx)
 
     def event_count(self) -> int:
         return sum(len(m.events) for m in self.nodes())
@@ -519,6 +571,8 @@ def _pdo_overrides(model: InputModel) -> list[_PdoOverride]:
                 (KIND_RPDO, m.config.rpdo_cob_ids, RPDO_BASES, 0x1400)):
             spans: list[tuple[int, int | None, float, float]] = [
                 (n, cob, -np.inf, np.inf) for n, cob in table.items()]
+            if not spans and not len(m.writes):  # most nodes: nothing configured
+                continue
             # SDO-written COB-IDs hold until the next boot-up/reset
             pdo = np.flatnonzero((m.writes.index >= index) & (m.writes.index <= index + 3))
             for w in m.writes.take(pdo) if len(pdo) else ():
@@ -557,18 +611,17 @@ def _windows(model: InputModel, states: tuple[str, ...]) -> tuple[np.ndarray, np
     """The union over all nodes of the times they spent in `states`, as sorted [start, end]
     windows: a cheap first filter on time."""
     wanted = [STATE_INDEX[s] for s in states]
-    lo_parts, hi_parts = [], []
-    for m in model.nodes():
-        ivs = m.intervals
-        if not len(ivs):
-            continue
-        lo, hi = ivs.start.copy(), ivs.end.copy()
-        lo[0], hi[-1] = -np.inf, np.inf  # the first/last interval also take stray times
-        keep = is_one_of(ivs.state, wanted)
-        lo_parts.append(lo[keep])
-        hi_parts.append(hi[keep])
-    lo_all = np.concatenate(lo_parts) if lo_parts else np.zeros(0)
-    hi_all = np.concatenate(hi_parts) if hi_parts else np.zeros(0)
+    tables = [m.intervals for m in model.nodes() if len(m.intervals)]
+    if tables:  # every node's intervals as one set of columns: a log may have 40,000 nodes
+        lengths = np.asarray([len(t) for t in tables], np.int64)
+        lo = np.concatenate([t.start for t in tables]).astype(np.float64)
+        hi = np.concatenate([t.end for t in tables]).astype(np.float64)
+        ends = np.cumsum(lengths)
+        lo[ends - lengths], hi[ends - 1] = -np.inf, np.inf  # the first/last interval of
+        keep = is_one_of(np.concatenate([t.state for t in tables]), wanted)  # each node
+        lo_all, hi_all = lo[keep], hi[keep]  # also take stray times
+    else:
+        lo_all = hi_all = np.zeros(0)
     if not lo_all.size:
         return lo_all.astype(np.float64), hi_all.astype(np.float64)
     by_start = np.lexsort((hi_all, lo_all))

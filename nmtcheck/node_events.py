@@ -19,7 +19,7 @@ from functools import lru_cache
 import numpy as np
 
 from nmtcheck import emcy, sdo
-from nmtcheck.tables import column, plain_rows
+from nmtcheck.tables import blank, column, plain_rows, shared_empty
 
 
 @dataclass
@@ -61,8 +61,8 @@ class WriteTable:
 
     @classmethod
     def empty(cls) -> WriteTable:
-        z = np.zeros(0)  # every node starts with one: no per-column list comprehension
-        return cls(z, z, z, z, z, z, z, z, z, z)
+        z = np.zeros(0)  # every node starts with two
+        return blank(cls, lambda: cls(z, z, z, z, z, z, z, z, z, z))
 
     @classmethod
     def of(cls, writes: Iterable[ConfigWrite]) -> WriteTable:
@@ -134,7 +134,7 @@ class EmcyTable:
     @classmethod
     def empty(cls) -> EmcyTable:
         z = np.zeros(0)
-        return cls(z, z, z, z, z)
+        return blank(cls, lambda: cls(z, z, z, z, z))
 
     def __len__(self) -> int:
         return len(self.ts)
@@ -177,7 +177,7 @@ class SdoEventTable:
     @classmethod
     def empty(cls) -> SdoEventTable:
         z = np.zeros(0)
-        return cls(z, z, z, z, z, z, z, z)
+        return blank(cls, lambda: cls(z, z, z, z, z, z, z, z))
 
     def __len__(self) -> int:
         return len(self.ts)
@@ -203,9 +203,9 @@ class NodeEvents:
     segmented downloads (`sdo`)."""
 
     def __init__(self) -> None:
-        self.emcy = EmcyTable.empty()
-        self.writes = WriteTable.empty()
-        self.sdo = SdoEventTable.empty()
+        self.emcy = shared_empty(EmcyTable)  # until the timeline gives the node its own
+        self.writes = shared_empty(WriteTable)
+        self.sdo = shared_empty(SdoEventTable)
 
     def __len__(self) -> int:
         return len(self.emcy) + len(self.writes) + len(self.sdo)

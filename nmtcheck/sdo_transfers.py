@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmtcheck.decode import ColumnSpool, spill_directory
+from nmtcheck.decode import ColumnSpool, spill_directory, write_spill
 from nmtcheck.frames import MAX_NODE_ID, SDO_RX_BASE, SDO_TX_BASE, FrameBatch, node_key
 
 SDO_DTYPE = np.dtype([("ts", "f8"), ("idx", "i8"), ("line", "i8"), ("req", "?"),
@@ -99,7 +99,7 @@ class SdoSpool:
             if parts:
                 with open(os.path.join(self._dir, str(key)), "ab") as f:
                     for p in parts:
-                        p.tofile(f)
+                        write_spill(p, f, self._dir)
                 self._files.add(key)
                 parts.clear()
         self._size = 0

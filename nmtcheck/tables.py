@@ -10,9 +10,9 @@ them, the rules read them, and `model.py` holds what is known of nodes and chann
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -21,6 +21,7 @@ from nmtcheck.nmt import (
     COMMAND_NAMES,
     COMMAND_STATE,
     EC_KIND_NAMES,
+    HEARTBEAT,
     MALFORMED,
     REQUEST,
     RESETS,
@@ -29,7 +30,11 @@ from nmtcheck.nmt import (
     nmt_problem,
 )
 
+if TYPE_CHECKING:
+    from nmtcheck.ec_compact import GapRuns
+
 _NO_ROWS: dict[np.dtype[Any], np.ndarray] = {}  # per dtype: see column()
+_T = TypeVar("_T")
 
 
 def column(values: Any, dtype: DTypeLike) -> np.ndarray:
@@ -43,6 +48,36 @@ def column(values: Any, dtype: DTypeLike) -> np.ndarray:
     if empty is None:
         empty = _NO_ROWS[key] = np.zeros(0, key)
     return empty
+
+
+_BLANKS: dict[type, dict[str, Any]] = {}
+
+
+def blank(cls: type[_T], make: Callable[[], _T]) -> _T:
+    """An empty table of `cls` without building it: its attributes are those of one
+    `make()` made once per class (zero-length columns, shared: they cannot be written
+    into). Every node starts with a dozen empty tables, and a log may have tens of
+    thousands of nodes."""
+    attrs = _BLANKS.get(cls)
+    if attrs is None:
+        attrs = _BLANKS[cls] = dict(vars(make()))
+    obj: _T = object.__new__(cls)
+    obj.__dict__.update(attrs)
+    return obj
+
+
+_SHARED: dict[type, Any] = {}
+
+
+def shared_empty(cls: type[_T]) -> _T:
+    """The one empty table of `cls` (its `empty()`) that every node without one of its own
+    holds: a log may have tens of thousands of nodes, and an empty table per node and
+    kind took 2.7 KB a node. Never changed: the timeline gives a node a table of its
+    own, it never writes into or assigns to the shared one."""
+    table = _SHARED.get(cls)
+    if table is None:
+        table = _SHARED[cls] = cls.empty()  # type: ignore[attr-defined]
+    return cast(_T, table)
 
 
 @dataclass(frozen=True)
@@ -114,7 +149,7 @@ class NmtTable:
     @classmethod
     def empty(cls) -> NmtTable:
         z = np.zeros(0)
-        return cls(z, z, z, z, z, z, z)
+        return blank(cls, lambda: cls(z, z, z, z, z, z, z))
 
     def __len__(self) -> int:
         return len(self.ts)
@@ -161,7 +196,7 @@ class CommandTable:
 
     @classmethod
     def empty(cls) -> CommandTable:
-        return cls(NmtTable.empty(), np.zeros(0, np.int64))
+        return blank(cls, lambda: cls(NmtTable.empty(), np.zeros(0, np.int64)))
 
     def __len__(self) -> int:
         return len(self.pos)
@@ -246,11 +281,25 @@ class EcTable:
         self.kind = np.where(self.rtr, REQUEST, MALFORMED).astype(np.int8)
         # a report of the pre-command state just after a command (SPEC §2 stale reports)
         self.stale = np.zeros(len(self.ts), bool)
+        # steady heartbeats dropped between rows (a long log only, `ec_compact`)
+        self.runs: GapRuns | None = None
 
     @classmethod
     def empty(cls) -> EcTable:
         z = np.zeros(0)
-        return cls(z, z, z, z, z, z)
+        return blank(cls, lambda: cls(z, z, z, z, z, z))
+
+    @classmethod
+    def view(cls, cols: dict[str, np.ndarray], rows: slice, kind: np.ndarray,
+             stale: np.ndarray) -> EcTable:
+        """Rows `rows` of columns of the constructor's dtypes, with their kinds and stale
+        marks, all views: the timeline makes `kind` and `stale` once for every node (a
+        log may have tens of thousands of nodes of a frame or two each)."""
+        t = blank(cls, cls.empty)
+        t.ts, t.idx, t.line = cols["ts"][rows], cols["idx"][rows], cols["line"][rows]
+        t.rtr, t.dlc, t.value = cols["rtr"][rows], cols["dlc"][rows], cols["value"][rows]
+        t.kind, t.stale = kind[rows], stale[rows]
+        return t
 
     def __len__(self) -> int:
         return len(self.ts)
@@ -276,7 +325,11 @@ class EcTable:
         return np.flatnonzero(hit)
 
     def count(self, kind: int) -> int:
-        return int(np.count_nonzero(self.kind == kind))
+        """How many frames of this kind, the heartbeats of dropped runs included."""
+        n = int(np.count_nonzero(self.kind == kind))
+        if kind == HEARTBEAT and self.runs is not None:
+            n += self.runs.dropped
+        return n
 
     @property
     def code(self) -> np.ndarray:
@@ -310,7 +363,7 @@ class IntervalTable:
     @classmethod
     def empty(cls) -> IntervalTable:
         z = np.zeros(0)
-        return cls(z, z, z, z)
+        return blank(cls, lambda: cls(z, z, z, z))
 
     def __len__(self) -> int:
         return len(self.start)

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from nmtcheck.decode import KIND_TPDO, Decoded, node_groups
+from nmtcheck.frames import node_key
 from nmtcheck.model import (
     ChannelModel,
     CommandTable,
@@ -54,6 +55,7 @@ from nmtcheck.nmt import (
     is_one_of,
 )
 from nmtcheck.sdo_config import pair_sdo_writes, write_validity
+from nmtcheck.tables import shared_empty
 
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
@@ -71,9 +73,10 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     for key in decoded.first_tx:
         sent.setdefault(key // 128, []).append(key)
     ec_groups, emcy_groups = node_groups(decoded.ec), node_groups(decoded.emcy)
+    ec_cols = _ec_columns(decoded.ec)
     models = [_channel(decoded, chan, name, start, end, params, configs, masters or {},
                        ev_rows.get(chan), nmt_rows.get(chan), sent.get(chan, []),
-                       ec_groups.get(chan, []), emcy_groups.get(chan, []))
+                       ec_groups.get(chan, []), emcy_groups.get(chan, []), ec_cols)
               for chan, name in enumerate(channels)]
     # OFFLINE lasts until the node's next frame of any kind: one pass for all channels
     _offline_ends(decoded, [(m, t) for cm in models for m in cm.nodes.values()
@@ -81,8 +84,12 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     _self_starts(decoded, [m for cm in models for m in cm.nodes.values()], end)
     for cm in models:
         for m in cm.nodes.values():
-            m.intervals = _intervals(m, start, end, params.obey_s)
+            m.intervals = (_bootups_only(m.ec, start, end) if _only_bootups(m)
+                           else _intervals(m, start, end, params.obey_s))
     return InputModel(decoded, start, end, models, params)
+
+
+_NO_CONFIG = NodeConfig()  # nothing from files: shared by such nodes, never changed
 
 
 class _Nodes(dict[int, NodeModel]):
@@ -96,7 +103,7 @@ class _Nodes(dict[int, NodeModel]):
     def __call__(self, n: int) -> NodeModel:
         m = self.get(n)
         if m is None:
-            cfg = self.configs.get((self.name, n)) or self.configs.get((None, n)) or NodeConfig()
+            cfg = self.configs.get((self.name, n)) or self.configs.get((None, n)) or _NO_CONFIG
             m = self[n] = NodeModel(self.chan, self.name, n, cfg)
         return m
 
@@ -120,13 +127,15 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
              masters: dict[str, Master], ev_rows: np.ndarray | None,
              nmt_rows: np.ndarray | None, sent: list[int],
              ec_groups: list[tuple[int, slice]],
-             emcy_groups: list[tuple[int, slice]]) -> ChannelModel:
+             emcy_groups: list[tuple[int, slice]], ec_cols: dict[str, np.ndarray]
+             ) -> ChannelModel:
     """One channel's nodes, commands and master, each node classified and timed (the
     state intervals come last, once every node's timeouts have their ends).
 
     `ev_rows`/`nmt_rows`: the channel's rows of the decoded events and NMT frames (None:
     all of them); `sent`: the node keys of the channel that transmitted; `ec_groups`,
-    `emcy_groups`: each node's rows of the decoded error-control and EMCY columns."""
+    `emcy_groups`: each node's rows of the decoded error-control and EMCY columns;
+    `ec_cols`: the error-control columns of `_ec_columns`."""
     ev = decoded.events
     if ev_rows is None:
         rows = ev if not len(ev) or int(ev["chan"][0]) == chan else ev[:0]
@@ -135,7 +144,7 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
     nmt = _nmt_table(decoded.nmt, chan, nmt_rows)
     nodes = _Nodes(chan, name, configs)
     _nodes_that_sent(decoded, sent, nodes)
-    ec_tables = _ec_tables(decoded, ec_groups)
+    ec_tables = _ec_tables(decoded, chan, ec_groups, ec_cols)
     for n, table in ec_tables.items():
         if not table.rtr.all():  # a node exists once it sends; requests alone do not
             nodes(n)
@@ -146,22 +155,25 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
         if n in nodes:  # requests to a node nothing else shows are not kept
             nodes[n].ec = table
     master, master_note = _channel_master(name, nmt, ec_tables, params, masters, start)
-    _apply_commands(nmt, nodes, master, params)
-    for m in nodes.values():
-        _classify(m, params, with_period=False)  # boot-ups bound the SDO-written values
+    if len(nmt):  # else every node keeps its empty command table
+        _apply_commands(nmt, nodes, master, params)
+    requests = {n: _classify(m, params, with_period=False)  # boot-ups bound the
+                for n, m in nodes.items()}  # SDO-written values
     write_validity(nodes)
-    for m in nodes.values():
+    for n, m in nodes.items():
         _find_period(m)
-        _classify(m, params, with_period=True)
-        _find_period(m)
+        if requests[n]:  # without requests the second pass classifies alike
+            _classify(m, params, with_period=True)
+            _find_period(m)
         if params.order_only:  # frame numbers are no time: nothing was measured
             m.order_only = True
             m.median_s = m.period_s = None
             m.period_source = "none"
-    for m in nodes.values():
+    for n, m in nodes.items():
         if not params.order_only:  # no timestamps: no timeouts either (SPEC §1)
             _heartbeat_timeouts(m, params, end)
-            _guard_timeouts(m, params, end)
+            if requests[n]:  # G002 needs a request
+                _guard_timeouts(m, params, end)
     return ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master, master_note)
 
 
@@ -191,14 +203,16 @@ def _nmt_table(cols: dict[str, np.ndarray], chan: int, rows: np.ndarray | None) 
     held twice)."""
     names = ("ts", "idx", "line", "rtr", "dlc", "cs", "target")
     if rows is None:
-        if len(cols["chan"]) and int(cols["chan"][0]) != chan:
-            return NmtTable(*(cols[name][:0] for name in names))
+        if not len(cols["chan"]) or int(cols["chan"][0]) != chan:
+            return shared_empty(NmtTable)  # most channels of a many-channel log
         return NmtTable(*(cols[name] for name in names))
     return NmtTable(*(cols[name][rows] for name in names))
 
 
 def _first_shown_by_commands(nmt: NmtTable, node_model: Callable[[int], NodeModel]) -> None:
     """A valid direct command shows its target node exists, from that command on."""
+    if not len(nmt):
+        return
     direct = np.flatnonzero(nmt.valid & (nmt.target != 0))
     if not direct.size:
         return
@@ -305,6 +319,8 @@ def _channel_master(name: str, nmt: NmtTable, tables: dict[int, EcTable],
     """The channel's master from the files, else inferred; with a note on how or why not."""
     if name in known:
         return known[name], known[name].detail
+    if not len(nmt):  # what _burst_master concludes of no command at all
+        return None, "not inferred: no broadcast NMT command or burst of resets"
     return infer_master(nmt, tables, params, start)
 
 
@@ -484,26 +500,54 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
     return False
 
 
-def _ec_tables(decoded: Decoded, groups: list[tuple[int, slice]]) -> dict[int, EcTable]:
-    """One column table per node of the channel: views into the decoded columns."""
-    ec = decoded.ec
-    return {n: EcTable(ec["ts"][r], ec["idx"][r], ec["line"][r], ec["rtr"][r], ec["dlc"][r],
-                       ec["value"][r]) for n, r in groups}
+def _ec_columns(ec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The decoded error-control columns in `EcTable`'s dtypes, with every frame's kind
+    as far as it is known without the node's history (request, malformed, boot-up,
+    heartbeat: final unless the node has requests, see `_classify`) and a stale mark,
+    made once for all nodes: each node's table is a view of its rows."""
+    rtr, dlc, value = (np.asarray(ec["rtr"], bool), np.asarray(ec["dlc"], np.int16),
+                       np.asarray(ec["value"], np.uint8))
+    return {"ts": np.asarray(ec["ts"], np.float64), "idx": np.asarray(ec["idx"], np.int64),
+            "line": np.asarray(ec["line"], np.int64), "rtr": rtr, "dlc": dlc, "value": value,
+            "kind": _plain_kinds(rtr, dlc, value), "stale": np.zeros(len(rtr), bool)}
 
 
-def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> None:
+def _plain_kinds(rtr: np.ndarray, dlc: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Request, malformed (DLC not 1), boot-up (00h) or heartbeat, frame by frame."""
+    kind: np.ndarray = np.where(rtr, REQUEST, np.where(
+        dlc != 1, MALFORMED, np.where(value == 0, BOOTUP, HEARTBEAT))).astype(np.int8)
+    return kind
+
+
+def _ec_tables(decoded: Decoded, chan: int, groups: list[tuple[int, slice]],
+               cols: dict[str, np.ndarray]) -> dict[int, EcTable]:
+    """One column table per node of the channel: views into the columns of
+    `_ec_columns`, with the node's dropped heartbeat runs when the log was long enough
+    to compact them."""
+    kind, stale = cols["kind"], cols["stale"]
+    tables = {n: EcTable.view(cols, r, kind, stale) for n, r in groups}
+    if decoded.ec_runs:
+        for n, table in tables.items():
+            table.runs = decoded.ec_runs.get(node_key(chan, n))
+    return tables
+
+
+def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> bool:
     """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2).
 
     Without the period (first pass) only boot-ups are final: the period in force needs
-    the SDO-written values, which hold until the next boot-up.
+    the SDO-written values, which hold until the next boot-up. Returns whether N has
+    remote requests: without them the kinds `_ec_columns` gave are final, both passes
+    alike, and G002 has nothing.
     """
     ec = m.ec
-    kind = np.where(ec.rtr, REQUEST, np.where(
-        ec.dlc != 1, MALFORMED, np.where(ec.value == 0, BOOTUP, HEARTBEAT))).astype(np.int8)
-    if kind.size and (kind == REQUEST).any():
-        periods = m.periods_at(ec.ts) if with_period else np.full(len(ec), np.nan)
-        _classify_guarding(ec, kind, params, periods, _heartbeat_disabled(m, kind))
+    if not m.kind_counts()[REQUEST]:
+        return False
+    kind = _plain_kinds(ec.rtr, ec.dlc, ec.value)
+    periods = m.periods_at(ec.ts) if with_period else np.full(len(ec), np.nan)
+    _classify_guarding(ec, kind, params, periods, _heartbeat_disabled(m, kind))
     ec.kind = kind
+    return True
 
 
 def _heartbeat_disabled(m: NodeModel, kind: np.ndarray) -> np.ndarray:
@@ -572,15 +616,25 @@ def _find_period(m: NodeModel) -> None:
 
     The median is kept apart too: it is the period where 1017h = 0 is in force.
     """
-    intervals = m.heartbeat_intervals()
-    m.median_s = float(np.median(intervals)) if intervals.size else None
-    m.seg_bounds, m.seg_median = _segment_medians(m)
+    if m.kind_counts()[HEARTBEAT] < 2 and m.ec.runs is None:
+        # no interval at all (most nodes of a log of many channels): what the two below
+        # find of none, without their set-up
+        m.median_s = None
+        m.seg_bounds, m.seg_median = _NO_SEGMENTS, _ONE_NAN
+    else:
+        intervals = m.heartbeat_gaps()
+        m.median_s = intervals.median() if intervals.count else None
+        m.seg_bounds, m.seg_median = _segment_medians(m)
     if m.config.heartbeat_ms:
         m.period_s, m.period_source = m.config.heartbeat_ms / 1000.0, "configured"
     elif m.median_s is not None:
         m.period_s, m.period_source = m.median_s, "measured"
     else:
         m.period_s, m.period_source = None, "none"
+
+
+_NO_SEGMENTS, _ONE_NAN = np.zeros(0), np.full(1, np.nan)  # read only: shared by nodes
+_NO_SEGMENTS.flags.writeable = _ONE_NAN.flags.writeable = False
 
 
 def _segment_medians(m: NodeModel) -> tuple[np.ndarray, np.ndarray]:
@@ -602,6 +656,10 @@ def _segment_medians(m: NodeModel) -> tuple[np.ndarray, np.ndarray]:
     inside = seg_a == seg_b
     seg, gaps = seg_a[inside], (ec.ts[b] - ec.ts[a])[inside]
     if not seg.size:
+        return bounds, medians
+    if ec.runs is not None:  # a long log: its dropped runs count as their intervals
+        for s in np.unique(seg).tolist():
+            medians[s] = m.heartbeat_gaps(np.flatnonzero(inside & (seg_a == s))).median()
         return bounds, medians
     order = np.lexsort((gaps, seg))  # by segment, then by length: medians by position
     seg, gaps = seg[order], gaps[order]
@@ -629,15 +687,18 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     ec = m.ec
     pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
     resets = m.commands.reset_idx
-    writes = m.writes.take(np.flatnonzero(m.writes.index == 0x1017))
+    writes = m.writes.take(np.flatnonzero(m.writes.index == 0x1017)) if len(
+        m.writes) else m.writes
     # the events as columns: heartbeats and boot-ups, reset commands, 1017h writes
     ts = np.concatenate([ec.ts[pos], m.commands.reset_ts, writes.ts])
     idx = np.concatenate([ec.idx[pos], resets, writes.idx])
     what = np.concatenate([np.where(ec.kind[pos] == HEARTBEAT, _HB, _BOOT).astype(np.int8),
                            np.full(len(resets), _RESET, np.int8),
                            np.where(writes.value != 0, _ON, _OFF).astype(np.int8)])
-    order = np.argsort(idx, kind="stable")
-    ts, idx, what = ts[order], idx[order], what[order]
+    row = np.concatenate([pos, np.full(len(resets) + len(writes), -1)])  # in ec
+    if len(resets) or len(writes):  # else the frames alone, in file order already
+        order = np.argsort(idx, kind="stable")
+        ts, idx, what, row = ts[order], idx[order], what[order], row[order]
     if not ts.size:
         return
     # A write of a non-zero 1017h starts a gap only when none runs: right after a boot-up,
@@ -662,6 +723,13 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     limit = m.hb_timeouts_at(at, params.timeout_factor)
     with np.errstate(invalid="ignore"):
         fire = (limit > 0) & (until - ts[gap] > limit + EPS)
+    if ec.runs is not None and fire.any() and len(ends):
+        # a gap closed by the heartbeat after a dropped run spans the run, whose every
+        # interval is within the timeout (`ec_compact.unsafe_nodes` made sure)
+        nxt = np.where(closed, ends[np.minimum(k, len(ends) - 1)], -1)
+        inner = closed & (what[nxt] == _HB) & (row[nxt] == row[gap] + 1) & (
+            ec.runs.at_rows(row[nxt]) >= 0)
+        fire &= ~inner
     for g, lim, u, c in zip(gap[fire].tolist(), limit[fire].tolist(), until[fire].tolist(),
                             closed[fire].tolist(), strict=True):
         start = float(ts[g])
@@ -767,32 +835,13 @@ def _self_starts(decoded: Decoded, nodes: list[NodeModel], end: float) -> None:
     """
     queries: list[tuple[NodeModel, int, int, int]] = []  # node, boot pos, boot idx, msg idx
     for m in nodes:
-        ec = m.ec
-        boots = ec.where(BOOTUP)
-        if not boots.size:
+        counts = m.kind_counts()
+        if not counts[BOOTUP]:
             continue
-        msgs = ec.where(HEARTBEAT, GUARD)
-        msgs = msgs[_CODE_STATE[ec.value[msgs] & 0x7F] >= 0]
-        b_idx, b_ts = ec.idx[boots], ec.ts[boots]
-        never = np.iinfo(np.int64).max
-        next_boot = np.append(b_idx[1:], never)
-        next_boot_ts = np.append(b_ts[1:], end)
-        r_idx, r_ts = m.commands.reset_idx, m.commands.reset_ts
-        msg: np.ndarray = _next_of(ec.idx[msgs], b_idx, msgs, -1).astype(np.int64)
-        msg_idx = np.where(msg >= 0, ec.idx[msg], never)
-        next_cmd = _next_of(m.commands.idx, b_idx)
-        next_reset = _next_of(r_idx, b_idx)
-        next_reset_ts = _next_of(r_idx, b_idx, r_ts, end)
-        stop = np.minimum(next_boot, next_reset)
-        answered = (msg_idx < stop) & (msg_idx < next_cmd)
-        started = answered & (_CODE_STATE[ec.value[msg] & 0x7F] == STATE_INDEX[OPERATIONAL])
-        queries.extend((m, int(boots[i]), int(b_idx[i]), int(msg_idx[i]))
-                       for i in np.flatnonzero(started).tolist())
-        # no message before the next reset or boot-up, and no other command before it
-        unknown = (msg_idx >= stop) & (next_cmd >= stop)
-        m.unproven_spans = [(float(a), float(b)) for a, b in zip(
-            b_ts[unknown].tolist(), np.minimum(next_boot_ts, next_reset_ts)[unknown].tolist(),
-            strict=True)]
+        if not counts[HEARTBEAT] and not counts[GUARD] and not len(m.commands):
+            m.unproven_spans = _unproven_bootups(m, end)  # most nodes of many channels
+            continue
+        queries.extend(_self_start_queries(m, end))
     if not queries:
         return
     found = decoded.first_node_frame_after(
@@ -806,6 +855,43 @@ def _self_starts(decoded: Decoded, nodes: list[NodeModel], end: float) -> None:
         else:
             q = int(np.searchsorted(m.ec.idx, report_idx))
             m.self_starts.append((float(m.ec.ts[q]), report_idx))
+
+
+def _self_start_queries(m: NodeModel, end: float) -> list[tuple[NodeModel, int, int, int]]:
+    """`_self_starts` for one node with boot-ups: the boot-ups its first message shows it
+    started itself after (node, boot-up position, its frame index, the message's), and
+    its unproven spans, set on it."""
+    ec = m.ec
+    boots = ec.where(BOOTUP)
+    msgs = ec.where(HEARTBEAT, GUARD)
+    msgs = msgs[_CODE_STATE[ec.value[msgs] & 0x7F] >= 0]
+    b_idx, b_ts = ec.idx[boots], ec.ts[boots]
+    never = np.iinfo(np.int64).max
+    next_boot = np.append(b_idx[1:], never)
+    next_boot_ts = np.append(b_ts[1:], end)
+    r_idx, r_ts = m.commands.reset_idx, m.commands.reset_ts
+    msg: np.ndarray = _next_of(ec.idx[msgs], b_idx, msgs, -1).astype(np.int64)
+    msg_idx = np.where(msg >= 0, ec.idx[msg], never)
+    next_cmd = _next_of(m.commands.idx, b_idx)
+    next_reset = _next_of(r_idx, b_idx)
+    next_reset_ts = _next_of(r_idx, b_idx, r_ts, end)
+    stop = np.minimum(next_boot, next_reset)
+    answered = (msg_idx < stop) & (msg_idx < next_cmd)
+    started = answered & (_CODE_STATE[ec.value[msg] & 0x7F] == STATE_INDEX[OPERATIONAL])
+    # no message before the next reset or boot-up, and no other command before it
+    unknown = (msg_idx >= stop) & (next_cmd >= stop)
+    m.unproven_spans = [(float(a), float(b)) for a, b in zip(
+        b_ts[unknown].tolist(), np.minimum(next_boot_ts, next_reset_ts)[unknown].tolist(),
+        strict=True)]
+    return [(m, int(boots[i]), int(b_idx[i]), int(msg_idx[i]))
+            for i in np.flatnonzero(started).tolist()]
+
+
+def _unproven_bootups(m: NodeModel, end: float) -> list[tuple[float, float]]:
+    """What `_self_start_queries` finds for a node with boot-ups but no message and no
+    command: no self-start, and each boot-up to the next (or the end) unproven."""
+    b_ts = m.ec.ts[m.ec.kind == BOOTUP].tolist()
+    return [(a, min(b, end)) for a, b in zip(b_ts, [*b_ts[1:], end], strict=True)]
 
 
 # state index a data byte reports, -1 if none (boot-up handled apart)
@@ -985,3 +1071,30 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     finish = np.append(begin[1:], max(end, starts[-1]))
     return IntervalTable(begin, finish, np.frombuffer(states, np.int8).copy(),
                          np.frombuffer(sources, np.int8).copy())
+
+
+def _only_bootups(m: NodeModel) -> bool:
+    """Whether N's frames are boot-ups only (or none), with no command, timeout or
+    self-start: its intervals are `_bootups_only`'s."""
+    return (not len(m.commands) and not m.timeouts and not m.self_starts
+            and m.kind_counts()[BOOTUP] == len(m.ec))
+
+
+def _bootups_only(ec: EcTable, start: float, end: float) -> IntervalTable:
+    """What the walk of `_intervals` makes of a node whose frames are boot-ups only (or
+    none), with no command, timeout or self-start: UNKNOWN until its first boot-up,
+    PRE-OPERATIONAL from then on (every later boot-up changes nothing). Most nodes of a
+    log of many short channels; the walk's set-up costs far more than this."""
+    unknown, pre_op = STATE_INDEX[UNKNOWN], STATE_INDEX[PRE_OPERATIONAL]
+    if not len(ec):
+        starts, states, sources = [start], [unknown], [SOURCE_INDEX["start"]]
+    else:
+        first = float(ec.ts.min())
+        if first <= start:  # the UNKNOWN interval would be empty
+            starts, states, sources = [start], [pre_op], [_EC_SOURCE[BOOTUP]]
+        else:
+            starts, states, sources = [start, first], [unknown, pre_op], [
+                SOURCE_INDEX["start"], _EC_SOURCE[BOOTUP]]
+    begin = np.asarray(starts, np.float64)
+    return IntervalTable(begin, np.append(begin[1:], max(end, starts[-1])),
+                         np.asarray(states, np.int8), np.asarray(sources, np.int8))

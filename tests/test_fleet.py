@@ -294,13 +294,13 @@ def test_plain_check_imports_no_fleet_dependency(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, text=True,
                          capture_output=True)
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr
-    # a local fleet run needs pyarrow and fsspec, never Dask
+    # a local fleet run needs pyarrow, never Dask, nor fsspec (issue 25: storage.LocalFS)
     fleet = code.replace("'-q']", "'-q', '--results', 'res']")
     out = subprocess.run([sys.executable, "-c", fleet], cwd=tmp_path, text=True,
                          capture_output=True)
     # ... and not pandas either: pyarrow is kept from importing it (issue 25: 0.3-0.5 s of
     # start-up per process)
-    assert out.stdout.strip().splitlines()[-1] == "['fsspec', 'pyarrow']", \
+    assert out.stdout.strip().splitlines()[-1] == "['pyarrow']", \
         out.stdout + out.stderr
 
 

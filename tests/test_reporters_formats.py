@@ -322,7 +322,7 @@ def test_heartbeat_stats_leave_out_boot_ups_and_resets(tmp_path: Path) -> None:
     res = Checker(tmp_path).run(candump(lines))
     (m,) = res.nodes()
     stats = heartbeat_stats(m)
-    assert [round(x, 3) for x in stats.intervals] == [0.1, 0.1, 0.12]
+    assert [round(x, 3) for x in stats.intervals.values] == [0.1, 0.1, 0.12]
     assert (round(stats.minimum or 0, 3), round(stats.median or 0, 3),
             round(stats.maximum or 0, 3)) == (0.1, 0.1, 0.12)
     assert stats.jitter == pytest.approx(0.00943, abs=1e-5)  # population σ of the three

@@ -77,6 +77,8 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float, grace
     reset order, of findings at a frame (the sign of life) or at a moment (the timeout).
     """
     cmds, ec = m.commands, m.ec
+    if not len(cmds):
+        return
     rpos = np.flatnonzero(cmds.is_reset)
     if not len(rpos):
         return
@@ -149,7 +151,7 @@ def _following(ec: EcTable, pos: np.ndarray, after_idx: np.ndarray,
 
 def _late_start(m: NodeModel, ctx: NodeContext, late_start_ms: float) -> Iterator[Found]:
     """B001 (b): the node was already running when it first appeared, without a boot-up."""
-    if m.first_tx is None or m.first_tx.kind != KIND_EC:
+    if m.first_tx is None or m.first_tx.kind != KIND_EC or not m.kind_counts()[HEARTBEAT]:
         return
     ec = m.ec
     k = int(np.searchsorted(ec.idx, m.first_tx.idx))
@@ -211,6 +213,8 @@ def bootup_repeated(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found
 
     **Example.** `000#8102`, then `702#00` every 100 ms for the rest of the trace.
     """
+    if m.kind_counts()[BOOTUP] < 2:  # a repeat needs two
+        return
     for run in _repeats(m, _auto_window_s(m, p["repeat_window_ms"]),
                         ctx.timeline.reset_window_s):
         yield (run[1].ts, f"node {m.node} sent boot-up (00h) {len(run)} times in a row over "
@@ -233,23 +237,30 @@ def unexpected_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
 
     **Example.** `703#05` every 100 ms, then `703#00` with no `000#8103` before it.
     """
+    boots = m.kind_counts()[BOOTUP]
+    if not boots or m.first_tx is None:  # a finding needs a frame before the boot-up
+        return
     window = p["reset_window_ms"] / 1000.0
     repeat_ms = ctx.timeline.repeat_window_ms  # B003's: its repeats are left to it
     repeated = {b.pos for run in _repeats(m, _auto_window_s(m, repeat_ms), window)
-                for b in run[1:]}
-    r_ts, r_idx = m.commands.reset_ts.tolist(), m.commands.reset_idx.tolist()
+                for b in run[1:]} if boots >= 2 else set()
+    r_ts: list[float] = m.commands.reset_ts.tolist() if len(m.commands) else []
+    r_idx: list[int] = m.commands.reset_idx.tolist() if len(m.commands) else []
     unanswered: list[float] = []
     ri = 0
-    for b in m.bootups:
-        while ri < len(r_idx) and r_idx[ri] < b.idx:
+    ec = m.ec
+    pos = ec.where(BOOTUP)  # as columns: a frame is made only for a finding
+    for b_pos, b_ts, b_idx in zip(pos.tolist(), ec.ts[pos].tolist(), ec.idx[pos].tolist(),
+                                  strict=True):
+        while ri < len(r_idx) and r_idx[ri] < b_idx:
             unanswered.append(r_ts[ri])
             ri += 1
-        unanswered = [t for t in unanswered if b.ts - t <= window + EPS]
+        unanswered = [t for t in unanswered if b_ts - t <= window + EPS]
         if unanswered:
             unanswered.pop(0)
             continue
-        if b.pos in repeated:
+        if b_pos in repeated:
             continue
-        if m.first_tx is not None and m.first_tx.idx < b.idx:
-            yield (b.ts, f"node {m.node} sent a boot-up with no reset command before it "
-                   f"(spontaneous reboot?)", b)
+        if m.first_tx.idx < b_idx:
+            yield (b_ts, f"node {m.node} sent a boot-up with no reset command before it "
+                   f"(spontaneous reboot?)", ec[b_pos])

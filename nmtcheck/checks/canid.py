@@ -186,6 +186,9 @@ def malformed_error_control(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
 
     **Example.** `703#0500` (DLC 2).
     """
+    k = m.kind_counts()
+    if not k[MALFORMED] and not k[HEARTBEAT]:
+        return
     for f, n in _ec_runs(m, _malformed):
         why = (f"DLC {f.dlc} (must be 1)" if f.kind == "malformed"
                else f"heartbeat {f.value:02X}h has the reserved bit 7 set")
@@ -211,6 +214,9 @@ def unknown_nmt_state(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
 
     **Example.** `703#02` (legacy "pre-operational" of DS301 v3).
     """
+    k = m.kind_counts()
+    if not k[HEARTBEAT] and not k[GUARD]:
+        return
     for f, n in _ec_runs(m, _unknown_state):
         yield f.ts, f"node {m.node} reports unknown NMT state {f.code:02X}h{count_note(n)}", f
 

@@ -26,10 +26,10 @@ def guard_toggle(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
 
     **Example.** Responses `705#85`, `705#05`, `705#05`: the third repeats toggle 0.
     """
+    if not m.kind_counts()[GUARD]:
+        return
     ec = m.ec
     pos = ec.where(GUARD, BOOTUP)  # heartbeats and requests play no part
-    if not (ec.kind[pos] == GUARD).any():
-        return
     bad = _toggle_errors(ec, pos, m.commands.reset_idx.tolist())
     # consecutive offending responses within one timeline interval: one finding
     iv = m.interval_indices(ec.ts[[b.pos for b in bad]])
@@ -113,11 +113,11 @@ def guard_interval_exceeded(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
 
     **Example.** 100Ch = 100 ms, 100Dh = 3: requests 0.5 s apart exceed 0.3 s.
     """
+    if m.kind_counts()[REQUEST] < 2:
+        return
     ec = m.ec
     resets = np.sort(np.concatenate([m.commands.reset_idx, ec.idx[ec.kind == BOOTUP]]))
     reqs = ec.where(REQUEST)
-    if len(reqs) < 2:
-        return
     a, b = reqs[:-1], reqs[1:]
     # node life time in force at each request (files, or 100Ch/100Dh written by SDO)
     life = m.config_series(ec.ts[a], _life_s)
@@ -157,10 +157,11 @@ def guarding_with_heartbeat(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
 
     **Example.** `705#05` every 100 ms and `705#R` answered by `705#85`.
     """
+    k = m.kind_counts()
+    if not k[HEARTBEAT] or not k[GUARD]:
+        return
     ec = m.ec
     hb, guard = ec.where(HEARTBEAT), ec.where(GUARD)
-    if not hb.size or not guard.size:
-        return
     # per stretch between boot-ups and confirmed 1017h writes (a master switching N from
     # heartbeat to guarding writes 1017h = 0 first): the first frame by which N did both
     cuts = np.sort(np.concatenate([ec.idx[ec.where(BOOTUP)],

@@ -81,11 +81,11 @@ def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[F
 
     **Example.** Period 100 ms, heartbeats at 0.000, 0.020, 0.100 s.
     """
+    if m.kind_counts()[HEARTBEAT] < 2:  # no pair (most nodes of a log of many channels)
+        return
     factor = p["early_factor"]
     ec = m.ec
     pos = ec.where(HEARTBEAT, BOOTUP)
-    if len(pos) < 2:  # no pair (most nodes of a log of many channels)
-        return
     a, b = pos[:-1], pos[1:]
     # the period in force at the first heartbeat: a confirmed 1017h beats the median
     period = m.periods_at(ec.ts[a])
@@ -138,14 +138,19 @@ def heartbeat_period_mismatch(m: NodeModel, ctx: NodeContext, p: Params) -> Iter
         return
     ts = m.ec.ts
     value = m.config_series(ts[a], lambda cfg: cfg.heartbeat_ms)
+    runs = m.ec.runs
+    in_run = runs.at_rows(b) >= 0 if runs is not None else None
     for v in dict.fromkeys(value[(value > 0)].tolist()):  # in order of appearance
         sel = np.flatnonzero(value == v)
-        if len(sel) < 5:
+        counted = m.heartbeat_gaps(sel)  # a long log's dropped runs count as their intervals
+        if counted.count < 5:
             continue
         configured = v / 1000.0
         gaps = ts[b[sel]] - ts[a[sel]]
-        median = float(np.median(gaps))
-        what = f"median of {len(sel)} intervals"
+        if in_run is not None:  # a dropped run lies within the tolerance: it breaks off-runs
+            gaps = np.where(in_run[sel], configured, gaps)
+        median = counted.median()
+        what = f"median of {counted.count} intervals"
         last = sel[-1]
         if abs(median - configured) <= tolerance * configured + EPS:
             # the producer may change its own period later (an application writing its
@@ -206,6 +211,10 @@ def consumer_without_producer(m: NodeModel, ctx: NodeContext, p: Params) -> Iter
         if pm is not None:
             hb = pm.ec.ts[pm.ec.kind == HEARTBEAT]
             if bool(((hb >= start - EPS) & (hb < end)).any()):
+                continue
+            runs = pm.ec.runs  # a long log's dropped heartbeats lie inside their runs
+            if runs is not None and bool(((pm.ec.ts[runs.pos - 1] < end)
+                                          & (pm.ec.ts[runs.pos] > start)).any()):
                 continue
         moment = _watched_for(m, start, end, time_ms / 1000.0)
         if moment is not None:

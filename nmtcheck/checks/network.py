@@ -93,6 +93,9 @@ def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:
                       f"{state_name(int(a[i]))} and {state_name(int(b[i]))}"))
     if len(hb) >= 5:
         g = np.diff(ts)
+        if ec.runs is not None:  # a dropped run's pair: one of its (steady) intervals
+            r = ec.runs.at_rows(hb[1:])
+            g[r >= 0] = ec.runs.first[r[r >= 0]]
         w = [g[k:len(g) - 3 + k] for k in range(4)]  # windows of four consecutive gaps
         longer = [w[k] >= 1.5 * w[k + 1] - EPS for k in range(3)]
         shorter = [~longer[k] & (w[k + 1] >= 1.5 * w[k] - EPS) for k in range(3)]

@@ -77,53 +77,124 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
     current state (S003). Returning from OFFLINE to the state it had before is
     not a new entry. With `unproven`, frames in a node's `unproven_spans` (after a
     boot-up, nothing shows whether it started itself: SPEC §2) are excused too.
+
+    Every node's intervals are matched at once, as columns (a log of many channels
+    has tens of thousands of nodes with a frame or two each).
     """
     by_key = {m.key: m for cm in model.channels for m in cm.nodes.values()}
-    offline = STATE_INDEX[OFFLINE]
-    grace_code = STATE_INDEX[grace_from] if grace_from else -2
-    wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
-    found: dict[tuple[int, int], _Run] = {}
     cand = model.sent_while(_CHECKED_STATES)
     sel = np.flatnonzero(is_one_of(cand.kind, kinds))
     keys = cand.key[sel]
     order = np.argsort(keys, kind="stable")  # each node's rows in file order, found once
-    uniq, first = np.unique(keys[order], return_index=True)
-    bounds = np.append(first, len(order))
-    for g, key in enumerate(uniq.tolist()):
-        m = by_key.get(key)
-        if m is None:
-            continue
-        starts = m.interval_starts()
-        codes = m.intervals.state
-        since = np.full(len(codes), -np.inf)  # when the grace period of each interval began
-        for i in range(len(codes)):
-            if grace_from is None:
-                back = i >= 2 and codes[i - 1] == offline and codes[i - 2] == codes[i]
-                since[i] = since[i - 2] if back else starts[i]
-            elif i >= 1 and codes[i - 1] == grace_code:
-                since[i] = starts[i]
-            elif i >= 1 and codes[i - 1] != offline:
-                since[i] = since[i - 1]  # e.g. OPERATIONAL -> STOPPED -> PRE-OPERATIONAL
-        rows = sel[order[bounds[g]:bounds[g + 1]]]  # in file order
-        ts = cand.ts[rows]
-        iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
-        bad = is_one_of(codes[iv], wanted)
-        bad &= ~((ts - since[iv]) <= grace_s + EPS)
-        if unproven and m.unproven_spans:
-            spans = np.asarray(m.unproven_spans, np.float64)
-            span = np.searchsorted(spans[:, 0], ts, side="right") - 1
-            bad &= ~((span >= 0) & (ts <= spans[np.maximum(span, 0), 1] + EPS))
-        for j in np.flatnonzero(bad).tolist():
-            row = rows[j]
-            k = (key, int(iv[j]))
-            run = found.get(k)
-            if run is None:
-                found[k] = _Run(float(cand.ts[row]), int(cand.idx[row]), int(cand.line[row]),
-                                int(cand.can_id[row]), int(cand.kind[row]), 1)
-            else:
-                run.count += 1
-    return [(by_key[key], iv, run) for (key, iv), run in sorted(
-        found.items(), key=lambda kv: kv[1].idx)]
+    uniq, count = np.unique(keys[order], return_counts=True)
+    found = [by_key.get(k) for k in uniq.tolist()]
+    nodes = [m for m in found if m is not None]
+    if not nodes:
+        return []
+    known = np.asarray([m is not None for m in found])
+    mine = known[np.repeat(np.arange(len(uniq)), count)]  # rows of a node in the model
+    group = np.repeat(np.cumsum(known) - 1, count)[mine]  # its position in `nodes`
+    rows = sel[order][mine]  # node after node, each in file order
+    ts = cand.ts[rows]
+    ivs = _Intervals([m.intervals.start for m in nodes], [m.intervals.state for m in nodes])
+    since = ivs.grace_since(STATE_INDEX[grace_from] if grace_from else None)
+    iv = _last_at_or_before(ivs.node, ivs.start, group, ts)
+    iv = np.where(iv >= 0, iv, ivs.first[group])  # before the first interval: the first
+    bad = is_one_of(ivs.state[iv], [STATE_INDEX[s] for s in states])
+    bad &= ~((ts - since[iv]) <= grace_s + EPS)
+    if unproven:
+        bad &= ~_unproven(nodes, group, ts)
+    hit = np.flatnonzero(bad)
+    if not hit.size:
+        return []
+    # one run per node and interval: its first frame in file order, and how many
+    hit = hit[np.argsort(rows[hit], kind="stable")]
+    runs, at, size = np.unique(iv[hit], return_index=True, return_counts=True)
+    heads = rows[hit[at]]
+    out = []
+    for r in np.argsort(cand.idx[heads], kind="stable").tolist():
+        row, g = int(heads[r]), int(runs[r])
+        m = nodes[int(ivs.node[g])]
+        out.append((m, g - int(ivs.first[ivs.node[g]]), _Run(
+            float(cand.ts[row]), int(cand.idx[row]), int(cand.line[row]),
+            int(cand.can_id[row]), int(cand.kind[row]), int(size[r]))))
+    return out
+
+
+class _Intervals:
+    """Several nodes' state intervals as one set of columns, node after node: `node`
+    (the node's position in the list), `first` (per node, its first row), `local`
+    (each row's position within its node)."""
+
+    def __init__(self, starts: list[np.ndarray], states: list[np.ndarray]) -> None:
+        lengths = np.asarray([len(s) for s in starts], np.int64)
+        self.start = np.concatenate(starts).astype(np.float64)
+        self.state = np.concatenate(states).astype(np.int8)
+        self.node = np.repeat(np.arange(len(starts)), lengths)
+        self.first = np.cumsum(lengths) - lengths
+        self.local = np.arange(len(self.start)) - self.first[self.node]
+
+    def grace_since(self, grace_code: int | None) -> np.ndarray:
+        """When the grace period of each interval began: with `grace_code`, the start of
+        the interval after the last one in that state, carried over the intervals after
+        it but OFFLINE ones (-inf: none); without, the interval's own start, or that of
+        the interval two back when the node returns from OFFLINE to its state there."""
+        prev = np.concatenate([[-1], self.state[:-1]]).astype(np.int16)
+        offline = STATE_INDEX[OFFLINE]
+        rows = np.arange(len(self.start))
+        if grace_code is not None:
+            sets = (self.local >= 1) & (prev == grace_code)
+            keeps = (self.local >= 1) & ~sets & (prev != offline)  # carried from the one before
+            root = np.maximum.accumulate(np.where(keeps, -1, rows))
+            since: np.ndarray = np.where(sets[root], self.start[root], -np.inf)
+            return since
+        two_back = np.concatenate([[-1, -1], self.state[:-2]]).astype(np.int16)[:len(rows)]
+        back = (self.local >= 2) & (prev == offline) & (two_back == self.state)
+        root = rows.copy()
+        for parity in (0, 1):  # a chain of returns steps back two intervals at a time
+            chain = rows[parity::2]
+            root[parity::2] = np.maximum.accumulate(np.where(back[chain], -1, chain))
+        since = self.start[root]
+        return since
+
+
+def _last_at_or_before(g_node: np.ndarray, g_at: np.ndarray, q_node: np.ndarray,
+                       q_at: np.ndarray) -> np.ndarray:
+    """Per query (node, time), the last row of columns sorted by node then time with
+    the same node and a time at or before it (-1: none): one merge for every node, as
+    `np.searchsorted(..., side="right") - 1` would find node by node."""
+    n = len(g_at)
+    order = np.lexsort((np.concatenate([np.zeros(n, np.int8), np.ones(len(q_at), np.int8)]),
+                        np.concatenate([g_at, q_at]), np.concatenate([g_node, q_node])))
+    last = np.maximum.accumulate(np.where(order < n, order, -1))
+    query = order >= n
+    out = np.empty(len(q_at), np.int64)
+    out[order[query] - n] = last[query]
+    same: np.ndarray = (out >= 0) & (g_node[np.maximum(out, 0)] == q_node)
+    return np.where(same, out, -1)
+
+
+def _unproven(nodes: list[NodeModel], group: np.ndarray, ts: np.ndarray) -> np.ndarray:
+    """Per frame (of node `nodes[group]` at `ts`), whether it falls in an unproven
+    span of its node (the last span starting at or before it, up to its end)."""
+    spans = [np.asarray(m.unproven_spans, np.float64).reshape(-1, 2) for m in nodes]
+    node = np.repeat(np.arange(len(nodes)), [len(s) for s in spans])
+    if not len(node):
+        return np.zeros(len(ts), bool)
+    flat = np.concatenate(spans)
+    lo, hi = flat[:, 0], flat[:, 1]
+    # span starts out of time order (timestamps that go back): that node as before
+    unsorted = np.unique(node[1:][(node[1:] == node[:-1]) & (lo[1:] < lo[:-1])])
+    sorted_rows = ~is_one_of(node, unsorted) if unsorted.size else np.ones(len(node), bool)
+    k = _last_at_or_before(node[sorted_rows], lo[sorted_rows], group, ts)
+    k = np.where(k >= 0, np.flatnonzero(sorted_rows)[np.maximum(k, 0)], -1)
+    for g in unsorted.tolist():
+        mine = np.flatnonzero(group == g)
+        span = np.searchsorted(spans[g][:, 0], ts[mine], side="right") - 1
+        first = int(np.flatnonzero(node == g)[0])
+        k[mine] = np.where(span >= 0, first + span, -1)
+    inside: np.ndarray = (k >= 0) & (ts <= hi[np.maximum(k, 0)] + EPS)
+    return inside
 
 
 @input_rule("S001", "pdo-while-not-operational", "error",
@@ -221,6 +292,8 @@ def command_not_obeyed(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fo
     """
     obey = p["obey_ms"] / 1000.0
     cmds = m.commands
+    if not len(cmds):
+        return
     # the master's own broadcasts are applied only where it obeyed them: never a finding
     todo = np.flatnonzero(~cmds.is_reset & ~is_one_of(cmds.idx, m.own_command_idx))
     if not todo.size:  # positions, not objects: there may be a million commands
@@ -317,6 +390,9 @@ def unexplained_state_change(m: NodeModel, ctx: NodeContext, p: Params) -> Itera
     """
     if ctx.master is not None and m.node == ctx.master.node:
         return  # a master starts and stops itself (CiA 302): that is its job
+    k = m.kind_counts()
+    if k[HEARTBEAT] + k[GUARD] < 2:  # a change needs two reports
+        return
     ec = m.ec
     # heartbeats and guarding responses with a CiA 301 state; a boot-up starts anew
     pos = ec.where(BOOTUP, HEARTBEAT, GUARD)

@@ -37,7 +37,7 @@ import uuid
 from collections.abc import Iterable
 from typing import Any
 
-from nmtcheck.fleet.storage import filesystem, is_local
+from nmtcheck.fleet.storage import LocalFS, filesystem, is_local
 
 SCHEMA_VERSION = 1
 MARKER = "_nmtcheck_dataset.json"
@@ -316,7 +316,8 @@ class Dataset:
             empty = full.empty_table()
             return empty.select(cols) if cols else empty
         part = ds.partitioning(pa.schema([pa.field("date", pa.string())]), flavor="hive")
-        dataset = ds.dataset(files, schema=full, filesystem=self.fs, format="parquet",
+        fs = None if isinstance(self.fs, LocalFS) else self.fs  # pyarrow's own local files
+        dataset = ds.dataset(files, schema=full, filesystem=fs, format="parquet",
                              partitioning=part, partition_base_dir=self.path(table))
         return dataset.to_table(columns=cols)
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from nmtcheck.errors import UsageError
+from nmtcheck.fleet.prestart import local_context
 
 ALLOWED_FAILURES = 2  # a task on a worker that died is retried this many times
 MIN_TICK_S = 0.1  # a Dask worker's event loop waking more often than this slows a check
@@ -96,6 +97,9 @@ def watch_driver(pid: int) -> threading.Thread:
 def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None = None
                  ) -> None:
     global _started
+    from nmtcheck.fleet.trace import mark
+
+    mark("worker")
     _started = queue
     if driver is not None:
         watch_driver(driver)
@@ -110,9 +114,14 @@ def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None 
 
 
 def _run(key: Hashable, fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
+    from nmtcheck.fleet.trace import mark
+
+    mark("task_start", key=repr(key))
     if _started is not None:
         _started.put((key, os.getpid()))  # SimpleQueue: written before the work, unbuffered
-    return fn(*args)
+    out = fn(*args)
+    mark("task_end", key=repr(key))
+    return out
 
 
 class ResilientPool:
@@ -232,26 +241,12 @@ class ResilientPool:
             self._pool = None
 
 
-def _local_context(start: bool = False) -> Any:
-    """The local pool's start method: a fork server that has imported what a task needs
-    (nmtcheck.fleet.preload), so that each worker is forked from it ready to check; `start`
-    starts that server now, in the background (its imports overlap the driver's work)."""
-    if "forkserver" not in multiprocessing.get_all_start_methods():  # Windows
-        return multiprocessing.get_context("spawn")
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["nmtcheck.fleet.preload"])
-    if start:
-        from multiprocessing import forkserver
-
-        forkserver.ensure_running()  # returns once spawned; the server imports meanwhile
-    return ctx
-
-
-def warm_up(spec: str) -> None:
+def warm_up(spec: str, remote: bool = False) -> None:
     """Called as a run begins: start what the executor `spec` will need and can start
-    without a worker (the local pool's fork server, 0.3 s of imports)."""
+    without a worker (the local pool's fork server, 0.2 s of imports), unless
+    prestart has already started it; `remote`: the run reads or writes URLs (fsspec)."""
     if spec.partition(":")[0] == "local":
-        _local_context(start=True)
+        local_context(start=True, remote=remote)
 
 
 class LocalExecutor:
@@ -262,7 +257,7 @@ class LocalExecutor:
     def __init__(self, workers: int | None = None) -> None:
         self.slots = workers or os.cpu_count() or 1
         self.name = f"local:{self.slots}"
-        self._pool = ResilientPool(self.slots, mp_context=_local_context())
+        self._pool = ResilientPool(self.slots, mp_context=local_context())
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
         self._pool.submit(key, fn, *args)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from nmtcheck.fleet.storage import FileInfo
+from nmtcheck.fleet.trace import mark
 
 if TYPE_CHECKING:
     from nmtcheck.fleet.executors import Executor
@@ -147,6 +148,7 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
               channel: str | None = None, reader_options: dict[str, Any] | None = None,
               max_findings: int = 10000) -> FleetOutcome:
     """Check every log `opts` names into the results dataset; the counts over the fleet."""
+    mark("run_fleet")
     from nmtcheck.fleet.dataset import Dataset
     from nmtcheck.fleet.storage import PathPattern, absolute, check_exists, filesystem
 
@@ -154,8 +156,11 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     cpu = time.process_time()
     PathPattern(opts.path_pattern)  # a bad pattern is a usage error before any work
     from nmtcheck.fleet.executors import warm_up
+    from nmtcheck.fleet.prestart import is_remote
 
-    warm_up(opts.executor)  # the local pool's fork server imports while the driver lists
+    remote = any(is_remote(u) for u in [*opts.sources, opts.results, opts.manifest or ""])
+    warm_up(opts.executor, remote)  # the local pool's fork server imports while the driver lists
+    mark("warm_up")
     reader_options = reader_options or {}
     digest = profile_digest(profile, rule_codes, network, input_format, strict, channel,
                             reader_options, max_findings)
@@ -166,7 +171,9 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
     opts.results = absolute(opts.results)  # the workers' working directory is another
     ds = Dataset(opts.results, opts.storage_options)
     ds.ensure()
+    mark("ensure")
     lock = ds.lock()  # one run at a time: held until this process ends
+    mark("lock")
     try:
         out = _locked_run(ds, opts, cfg_args=(profile, rule_codes, network, input_format,
                                              strict, channel, reader_options, max_findings),
@@ -175,6 +182,7 @@ def run_fleet(opts: FleetOptions, profile: Any, rule_codes: list[str], network: 
         if lock is not None:
             lock.close()
     out.driver_cpu = time.process_time() - cpu
+    mark("run_end")
     return out
 
 
@@ -188,6 +196,7 @@ def _locked_run(ds: Any, opts: FleetOptions, cfg_args: tuple[Any, ...], digest: 
      max_findings) = cfg_args
     ds.remove_uncommitted()  # rows of batches an earlier run never committed
     done = {} if opts.force else ds.done(__version__, digest)
+    mark("skip_list")
     run_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(started)) + "-" + uuid.uuid4().hex[:8]
     cfg = TaskConfig(opts.results, opts.storage_options, profile, rule_codes, network,
                      input_format, strict, channel, reader_options, max_findings,
@@ -199,10 +208,12 @@ def _locked_run(ds: Any, opts: FleetOptions, cfg_args: tuple[Any, ...], digest: 
     dispatch = _Dispatch(opts, cfg, out, progress)
     try:
         dispatch.run(todo)
+        mark("drained")
     finally:
         progress.close()
         if dispatch.executor is not None:
             dispatch.executor.close()
+    mark("closed")
     totals = dispatch.totals
     for k, v in totals.status.items():
         out.status[k] = out.status.get(k, 0) + v
@@ -213,6 +224,7 @@ def _locked_run(ds: Any, opts: FleetOptions, cfg_args: tuple[Any, ...], digest: 
     out.seconds = time.time() - started
     if out.checked:
         _write_run(ds, out, opts, digest, __version__, totals)
+        mark("run_row")
     return out
 
 
@@ -294,7 +306,9 @@ class _Dispatch:
 
         if self.executor is None:
             started = time.perf_counter()
+            mark("listed_first")
             self.executor = make_executor(self.opts.executor)
+            mark("executor")
             self.out.start_seconds = time.perf_counter() - started
             self.out.executor = self.executor.name
             own = self.opts.executor.partition(":")[0] in ("local", "dask-local")
@@ -307,7 +321,9 @@ class _Dispatch:
         from nmtcheck.fleet.tasks import crashed_batch
 
         assert self.executor is not None
-        for key, result in self.executor.done():
+        results = self.executor.done()
+        mark("results", n=len(results))
+        for key, result in results:
             files = self.batches.pop(key)
             if isinstance(result, Crashed) and not self.alone:
                 self.quarantine.extend(files)

@@ -9,8 +9,10 @@ them; `--storage-option` refuses credential keys so that none travel in task arg
 
 from __future__ import annotations
 
+import fnmatch
 import os
 import re
+import stat
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -79,8 +81,12 @@ def _value(text: str) -> Any:
 
 
 def filesystem(url: str, storage_options: dict[str, Any] | None = None) -> tuple[Any, str]:
-    """The fsspec filesystem of `url` and the path within it. s3fs takes `endpoint_url` at the
-    top level (as --storage-option gives it) and inside `client_kwargs`."""
+    """The filesystem of `url` and the path within it: LocalFS for a local path given no
+    storage option, else fsspec's. s3fs takes `endpoint_url` at the top level (as
+    --storage-option gives it) and inside `client_kwargs`."""
+    if not storage_options and os.sep == "/" and is_local(url):
+        path = url[len("file://"):] if url.startswith("file://") else url
+        return LOCAL_FS, LocalFS.strip(path)
     import fsspec
     from fsspec.core import split_protocol
 
@@ -98,6 +104,130 @@ def filesystem(url: str, storage_options: dict[str, Any] | None = None) -> tuple
     return fs, path
 
 
+class LocalFS:
+    """The calls a fleet run makes on local paths, answered as fsspec's LocalFileSystem
+    answers them, without importing fsspec (issue 25): its import (asyncio, ssl,
+    importlib.metadata) cost the driver 40 ms of CPU per run, more than the rest of its
+    work on 8 logs, and the fork server as much before the first task. Globs follow
+    fsspec's rules (`*`, `?`, `[..]` within a folder, hidden names included, `**` a whole
+    folder level: zero or more folders); tests/test_fleet_overhead.py compares the two."""
+
+    local = True
+
+    @staticmethod
+    def strip(path: str) -> str:
+        """As fsspec's LocalFileSystem._strip_protocol: absolute, no trailing slash."""
+        if path.startswith("~"):
+            path = os.path.expanduser(path)
+        path = os.path.abspath(path) if path else os.getcwd()
+        return path.rstrip("/") or "/"
+
+    def exists(self, path: str) -> bool:
+        return os.path.exists(path)
+
+    def isfile(self, path: str) -> bool:
+        return os.path.isfile(path)
+
+    def info(self, path: str) -> dict[str, Any]:
+        """A path named as such: a link is described by its target."""
+        out = os.stat(path, follow_symlinks=False)
+        link = stat.S_ISLNK(out.st_mode)
+        if link:
+            out = os.stat(path, follow_symlinks=True)
+        kind = ("directory" if stat.S_ISDIR(out.st_mode) else
+                "file" if stat.S_ISREG(out.st_mode) else "other")
+        return _entry(path, out, kind, out.st_size, link)
+
+    def open(self, path: str, mode: str = "rb", encoding: str | None = None) -> Any:
+        return open(path, mode, encoding=encoding)
+
+    def makedirs(self, path: str, exist_ok: bool = False) -> None:
+        os.makedirs(path, exist_ok=exist_ok)
+
+    def rm(self, path: str) -> None:
+        os.remove(path)
+
+    def find(self, path: str) -> list[str]:
+        """Everything below `path` but its folders, sorted (links are not followed)."""
+        return sorted(p for p, e in self._walk(path.rstrip("/") or "/", None)
+                      if e["type"] != "directory")
+
+    def glob(self, pattern: str, detail: bool = True) -> dict[str, dict[str, Any]]:
+        """The paths `pattern` matches (files, folders, links), with their info, sorted."""
+        pattern = self.strip(pattern)
+        parts = pattern.split("/")
+        if any("**" in p and p != "**" for p in parts):
+            raise ValueError("Invalid pattern: '**' can only be an entire path component")
+        first = next(i for i, p in enumerate(parts) if _has_magic(p))
+        root = "/".join(parts[:first]) or "/"
+        rest = parts[first:]
+        base = len(root.rstrip("/")) + 1
+        found = {p: e for p, e in self._walk(root, None if "**" in rest else len(rest))
+                 if _glob_match(rest, p[base:].split("/"))}
+        if rest == ["**"] and os.path.isdir(root):  # `root/` matches `root/**` in fsspec
+            found[root] = self.info(root)
+        return dict(sorted(found.items()))
+
+    def _walk(self, root: str, depth: int | None) -> Iterator[tuple[str, dict[str, Any]]]:
+        """(path, info) of everything below `root`, `depth` levels down at most; as
+        fsspec lists a folder: a link is described by itself (its size: its target's)
+        and never entered."""
+        todo = [(root, 1)]
+        while todo:
+            folder, level = todo.pop()
+            try:
+                it = os.scandir(folder)
+            except OSError:  # not a folder, gone, unreadable: nothing below it
+                continue
+            with it:
+                for d in it:
+                    try:
+                        info = _dir_entry(d)
+                    except FileNotFoundError:
+                        continue
+                    yield info["name"], info
+                    if info["type"] == "directory" and (depth is None or level < depth):
+                        todo.append((info["name"], level + 1))
+
+
+def _dir_entry(d: os.DirEntry[str]) -> dict[str, Any]:
+    out = d.stat(follow_symlinks=False)
+    link = d.is_symlink()
+    kind = ("directory" if d.is_dir(follow_symlinks=False) else
+            "file" if d.is_file(follow_symlinks=False) else "other")
+    size = out.st_size
+    if link:
+        try:
+            size = d.stat(follow_symlinks=True).st_size
+        except OSError:
+            size = 0
+    return _entry(d.path, out, kind, size, link)
+
+
+def _entry(path: str, out: os.stat_result, kind: str, size: int, link: bool
+           ) -> dict[str, Any]:
+    return {"name": path, "size": size, "type": kind,
+            "created": getattr(out, "st_birthtime", out.st_ctime), "islink": link,
+            "mtime": out.st_mtime}
+
+
+def _glob_match(pattern: list[str], parts: list[str]) -> bool:
+    """fsspec's glob on path segments: `**` takes zero or more segments (any number at
+    the end), every other segment matches one (fnmatch)."""
+    if not pattern:
+        return not parts
+    head = pattern[0]
+    if head == "**":
+        if len(pattern) == 1:
+            return True
+        return any(_glob_match(pattern[1:], parts[i:]) for i in range(len(parts)))
+    return bool(parts) and fnmatch.fnmatchcase(parts[0], head) and _glob_match(
+        pattern[1:], parts[1:])
+
+
+LOCAL_FS = LocalFS()
+
+
 def absolute(url: str) -> str:
     """A local path or file:// URL made absolute; other URLs as they are."""
     if not is_local(url):
@@ -108,10 +238,19 @@ def absolute(url: str) -> str:
 
 
 def is_local(url: str) -> bool:
-    from fsspec.core import split_protocol
+    return _protocol(url) in (None, "file", "local")
 
-    protocol, _ = split_protocol(url)
-    return protocol in (None, "file", "local")
+
+def _protocol(url: str) -> str | None:
+    """The URL's protocol as fsspec.core.split_protocol finds it (without importing fsspec:
+    a local run never does)."""
+    if "://" in url:
+        protocol = url.split("://", 1)[0]
+        if len(protocol) > 1:  # not a Windows drive
+            return protocol
+    if url.startswith("data:"):
+        return "data"
+    return None
 
 
 def _info(fs: Any, url: str, entry: dict[str, Any]) -> FileInfo:

@@ -120,10 +120,14 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
             row["seconds"] = round(time.monotonic() - started, 6)
             rows["inputs"].append(row)
             _count(counts, fi, row)
+    from nmtcheck.fleet.trace import mark
+
+    mark("checked")
     ds = Dataset(cfg.results, cfg.storage_options)
     name = f"part-{bid}"
     for table in ("findings", "node_stats", "boot", "inputs"):  # inputs last: the commit record
         ds.write(table, name, rows[table])
+    mark("written")
     return counts
 
 
@@ -308,14 +312,20 @@ def node_rows(res: Any, key: dict[str, Any], date: str,
             in_state[STATE_COLUMNS[STATES[code]]] += total
         a, b = m.heartbeat_pairs()
         gaps = m.ec.ts[b] - m.ec.ts[a]
+        starts = m.ec.ts[a]
+        runs = m.ec.runs
+        if runs is not None:  # a dropped run's pair: its largest interval, where it began
+            r = runs.at_rows(b)
+            gaps[r >= 0], starts[r >= 0] = runs.gmax[r[r >= 0]], runs.gmax_at[r[r >= 0]]
         hb: dict[str, float | None] = dict.fromkeys(
             ("hb_p50_ms", "hb_p95_ms", "hb_max_ms", "worst_gap_ms", "worst_gap_at"))
         if len(gaps):
+            counted = m.heartbeat_gaps()
             worst = int(np.argmax(gaps))
-            hb.update(hb_p50_ms=float(np.percentile(gaps, 50)) * 1e3,
-                      hb_p95_ms=float(np.percentile(gaps, 95)) * 1e3,
+            hb.update(hb_p50_ms=counted.percentile(50) * 1e3,
+                      hb_p95_ms=counted.percentile(95) * 1e3,
                       hb_max_ms=float(gaps[worst]) * 1e3, worst_gap_ms=float(gaps[worst]) * 1e3,
-                      worst_gap_at=float(m.ec.ts[a[worst]]))
+                      worst_gap_at=float(starts[worst]))
         sev = by_node.get((m.channel, m.node), {})
         out.append({**key, "channel": m.channel, "node": m.node, "first_seen": m.first_show_ts,
                     "last_seen": m.last_seen,

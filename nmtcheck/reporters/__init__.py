@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import gc
 import importlib
 import os
-from collections.abc import Callable, Iterable
-from typing import cast
+from collections.abc import Callable, Iterable, Iterator
+from typing import TypeVar, cast
 
 from nmtcheck.engine import InputResult
 from nmtcheck.errors import UsageError
 
+_T = TypeVar("_T")
 Renderer = Callable[[list[InputResult], dict[str, object]], str]
 Streamer = Callable[[list[InputResult], dict[str, object]], Iterable[str]]
 # format name -> module in this package (imported only when the format is used)
@@ -45,8 +47,29 @@ def streamer(name: str) -> Streamer:
     module = importlib.import_module(render.__module__)
     stream = getattr(module, "stream", None)
     if stream is not None:
-        return cast(Streamer, stream)
-    return lambda results, options: [render(results, options)]
+        return lambda results, options: _paused_stream(cast(Streamer, stream)(results, options))
+    return lambda results, options: [_paused(lambda: render(results, options))]
+
+
+def _paused(make: Callable[[], _T]) -> _T:
+    """`make()` with the cyclic garbage collector paused: a report of tens of thousands
+    of nodes makes rows of short-lived objects, none in a cycle, and the collector's
+    passes over the long-lived model in between free nothing (a sixth of the text
+    report's time at 40,000 channels)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        return make()
+    finally:
+        if was:
+            gc.enable()
+
+
+def _paused_stream(pieces: Iterable[str]) -> Iterator[str]:
+    """Each piece made as in `_paused`; the collector runs while one is written."""
+    it = iter(pieces)
+    while (piece := _paused(lambda: next(it, None))) is not None:
+        yield piece
 
 
 def statistics_renderer(name: str) -> Renderer:

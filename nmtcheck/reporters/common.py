@@ -13,6 +13,7 @@ import numpy as np
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import SEVERITIES, Rule, fails
 from nmtcheck.engine import Finding, InputResult, summary
+from nmtcheck.gaps import Gaps
 from nmtcheck.model import ChannelModel, NodeModel
 from nmtcheck.safe_text import escape_controls, escape_matching
 
@@ -238,37 +239,38 @@ def group_findings(findings: Iterable[Finding]) -> list[FindingGroup]:
 
 @dataclass
 class HeartbeatStats:
-    """Heartbeat intervals of one node in seconds (no interval across a boot-up or reset)."""
+    """Heartbeat intervals of one node in seconds (no interval across a boot-up or reset);
+    a long log's dropped runs count as their intervals (`gaps.Gaps`)."""
 
-    intervals: np.ndarray
+    intervals: Gaps
 
     @property
     def count(self) -> int:
-        return len(self.intervals)
+        return self.intervals.count
 
     @property
     def minimum(self) -> float | None:
-        return float(self.intervals.min()) if self.count else None
+        return self.intervals.minimum() if self.count else None
 
     @property
     def median(self) -> float | None:
-        return float(np.median(self.intervals)) if self.count else None
+        return self.intervals.median() if self.count else None
 
     @property
     def maximum(self) -> float | None:
-        return float(self.intervals.max()) if self.count else None
+        return self.intervals.maximum() if self.count else None
 
     @property
     def jitter(self) -> float | None:
         """Population standard deviation: how far a typical interval strays from the mean."""
-        return float(np.std(self.intervals)) if self.count > 1 else None
+        return self.intervals.std() if self.count > 1 else None
 
 
 def heartbeat_stats(m: NodeModel) -> HeartbeatStats:
     """The same intervals the timeline measures the period from (SPEC §2)."""
     if m.order_only:  # no timestamps: no period or gap was measured (SPEC §1)
-        return HeartbeatStats(np.zeros(0))
-    return HeartbeatStats(m.heartbeat_intervals())
+        return HeartbeatStats(Gaps(np.zeros(0)))
+    return HeartbeatStats(m.heartbeat_gaps())
 
 
 @dataclass

@@ -24,6 +24,7 @@ from markupsafe import Markup
 from nmtcheck import __version__, boot_report
 from nmtcheck.boot import LETTERS
 from nmtcheck.engine import Finding, InputResult
+from nmtcheck.gaps import Gaps
 from nmtcheck.model import NodeModel
 from nmtcheck.nmt import HEARTBEAT, STATES
 from nmtcheck.nmt import SOURCES as TIMELINE_SOURCES
@@ -239,28 +240,32 @@ def _boot_views(res: InputResult, nodes: list[dict[str, Any]]) -> list[dict[str,
             for name, cb in b.channels.items()]
 
 
-def _histogram(intervals: np.ndarray) -> dict[str, Any] | None:
+def _histogram(intervals: Gaps) -> dict[str, Any] | None:
     """Bin heartbeat intervals for a small inline SVG bar chart (ms on the x axis).
 
     Gaps longer than twice the median (a lost heartbeat) would squash every normal
     interval into one bar: they are counted in a separate overflow bar instead.
     """
-    if not len(intervals):
+    if not intervals.count:
         return None
-    lo = float(intervals.min())
-    limit = 2 * float(np.median(intervals))
-    hi = min(float(intervals.max()), limit)
-    normal = intervals[intervals <= hi]
-    overflow = len(intervals) - len(normal)
+    values = intervals.values
+    counts = (np.ones(len(values), np.int64) if intervals.counts is None
+              else intervals.counts)
+    lo = intervals.minimum()
+    limit = 2 * intervals.median()
+    hi = min(intervals.maximum(), limit)
+    sel = values <= hi
+    normal, weight = values[sel], counts[sel]
+    overflow = intervals.count - int(weight.sum())
     span = hi - lo
     nbins = HISTOGRAM_BINS if span > 1e-9 else 1
     where = (np.zeros(len(normal), np.int64) if span <= 1e-9
              else np.minimum(((normal - lo) / span * nbins).astype(np.int64), nbins - 1))
-    bins = np.bincount(where, minlength=nbins).tolist()
+    bins = np.bincount(where, weights=weight, minlength=nbins).astype(np.int64).tolist()
     peak = max(*bins, overflow)
     return {"lo_ms": lo * 1000, "hi_ms": hi * 1000, "bins": bins, "peak": peak,
             "heights": [b / peak for b in bins], "overflow": overflow,
-            "overflow_height": overflow / peak, "max_ms": float(intervals.max()) * 1000}
+            "overflow_height": overflow / peak, "max_ms": intervals.maximum() * 1000}
 
 
 def _node_view(entry: dict[str, Any], m: NodeModel) -> dict[str, Any]:

@@ -1,0 +1,360 @@
+"""Error-control frames of a very long log, compacted so that memory stays bounded.
+
+A node's heartbeats are the one NMT stream as dense as its period: a field log of days
+holds hundreds of millions. Beyond `Compaction.above` rows, the decoder's spool of
+error-control rows (on disk) is read back in chunks, and the interior of each steady
+run of heartbeats is dropped: plain heartbeats (one data byte, a CiA 301 state, no
+remote request) that report the same state as every frame within `margin` frames on
+either side, whose intervals all lie within `band` of the node's median interval in
+the chunk, and that are neither within `margin` frames of an NMT frame or SDO frame of
+the channel nor within `protect_s` after one. What a rule or report can tell apart
+stays: state changes, boot-ups, requests, odd frames, everything near a command or a
+configuration write, every irregular interval with its neighbours.
+
+Each dropped run leaves a `GapRuns` row on the kept frame after it: how many frames it
+held, its first, smallest and largest interval and where the largest began, and its
+intervals' exact value counts, merged per span between events (so a span of a
+steady producer costs as many entries as it has distinct intervals, not frames). The
+interval statistics (`gaps.Gaps`) read those counts; H001 and H002 cannot fire inside a
+run; `validate` checks after the timeline that each run lies inside every limit the
+rules apply (timeout, early limit, producer-time tolerance, one segment) and names the
+nodes whose runs do not, which are then read back whole from the spool (`restore`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from nmtcheck.decode import ColumnSpool
+    from nmtcheck.model import InputModel
+
+_STATES = (0x04, 0x05, 0x7F)
+EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class Compaction:
+    """When and how error-control rows are compacted."""
+
+    above: int = 2_000_000  # rows: a log with fewer is kept whole (no summary anywhere)
+    chunk: int = 1 << 20  # rows read back from the spool at a time
+    margin: int = 8  # frames kept on either side of anything a rule looks at
+    band: float = 0.05  # intervals within this fraction of the chunk's median
+    protect_s: float = 1.0  # frames this long after an NMT or SDO frame are kept
+    min_run: int = 32  # shorter runs are kept: a run's summary costs as much as ~12 rows
+
+
+SETTINGS = Compaction()  # the tests lower `above` and `chunk` to compact small logs
+
+
+@dataclass
+class GapRuns:
+    """One node's dropped runs of heartbeats, in file order.
+
+    Run r lies between the node's kept rows `pos[r] - 1` and `pos[r]`: `n[r]` frames were
+    dropped there, so `n[r] + 1` intervals; their value counts are those of span
+    `span[r]` (shared by the runs of one span, which no event divides)."""
+
+    pos: np.ndarray  # int64: the kept row after each run
+    n: np.ndarray  # int64
+    first: np.ndarray  # first interval of the run
+    gmin: np.ndarray
+    gmax: np.ndarray
+    gmax_at: np.ndarray  # where the largest interval began
+    span: np.ndarray  # int64 index into span_values / span_counts
+    span_values: list[np.ndarray] = field(default_factory=list)
+    span_counts: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def dropped(self) -> int:
+        return int(self.n.sum())
+
+    def hists(self, runs: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The value counts of the spans these runs (indices) belong to, each span once."""
+        return [(self.span_values[s], self.span_counts[s])
+                for s in np.unique(self.span[runs]).tolist()]
+
+    def at_rows(self, rows: np.ndarray) -> np.ndarray:
+        """Per kept row, the run that ends there (-1: none)."""
+        k = np.searchsorted(self.pos, rows)
+        kk = np.minimum(k, max(len(self.pos) - 1, 0))
+        hit = (k < len(self.pos)) & (self.pos[kk] == rows) if len(self.pos) else k < 0
+        return np.where(hit, kk, -1)
+
+
+class _Node:
+    """Per node key, what one chunk hands the next."""
+
+    def __init__(self) -> None:
+        self.tail: dict[str, np.ndarray] | None = None  # last rows (context + undecided)
+        self.tail_odd = np.zeros(0, bool)  # per tail row: it breaks a steady run
+        self.odd_base = 0  # rows that break a run before the tail's first row
+        self.undecided = 0  # how many rows at the end of `tail` are not yet decided
+        self.kept: list[dict[str, np.ndarray]] = []
+        self.kept_rows = 0
+        self.runs: list[np.ndarray] = []  # rows of (pos, n, first, gmin, gmax, gmax_at, span)
+        self.spans: dict[tuple[int, int], int] = {}
+        self.span_parts: list[list[tuple[np.ndarray, np.ndarray]]] = []
+
+
+def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray
+                       ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per channel code, the file indices (sorted) and times of its NMT and SDO frames."""
+    chan = np.concatenate([nmt["chan"].astype(np.int64), events["chan"].astype(np.int64)])
+    idx = np.concatenate([nmt["idx"], events["idx"]])
+    ts = np.concatenate([nmt["ts"], events["ts"]])
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for c in np.unique(chan).tolist():
+        sel = np.flatnonzero(chan == c)
+        order = sel[np.argsort(idx[sel], kind="stable")]
+        out[c] = (idx[order], ts[order])
+    return out
+
+
+def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
+            settings: Compaction) -> tuple[dict[str, np.ndarray], dict[int, GapRuns]]:
+    """The spooled error-control rows, grouped by node key as the decoder groups them,
+    with the interior of steady heartbeat runs dropped; and each node's runs."""
+    by_chan = _events_by_channel(nmt, events)
+    nodes: dict[int, _Node] = {}
+    names = list(spool.dtypes)
+    for chunk in spool.chunks(settings.chunk):
+        order = np.argsort(chunk["key"], kind="stable")
+        keys = chunk["key"][order]
+        cut = np.flatnonzero(np.diff(keys)) + 1
+        for lo, hi in zip(np.concatenate([[0], cut]).tolist(),
+                          np.concatenate([cut, [len(keys)]]).tolist(), strict=True):
+            key = int(keys[lo])
+            rows = order[lo:hi]
+            node = nodes.setdefault(key, _Node())
+            _chunk(node, {name: chunk[name][rows] for name in names},
+                   by_chan.get(key // 128), settings, final=False)
+    for key, node in nodes.items():
+        if node.tail is not None:
+            _chunk(node, {name: node.tail[name][:0] for name in names},
+                   by_chan.get(key // 128), settings, final=True)
+    cols: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    runs: dict[int, GapRuns] = {}
+    for key in sorted(nodes):
+        node = nodes[key]
+        for part in node.kept:
+            for name in names:
+                cols[name].append(part[name])
+        if node.runs:
+            runs[key] = _gap_runs(node)
+    dtypes = spool.dtypes
+    return ({name: np.concatenate(parts) if parts else np.zeros(0, dtypes[name])
+             for name, parts in cols.items()}, runs)
+
+
+def _chunk(node: _Node, new: dict[str, np.ndarray],
+           events: tuple[np.ndarray, np.ndarray] | None, s: Compaction, final: bool) -> None:
+    """Decide the rows of one node in one chunk (with the previous chunk's tail in
+    front); the last rows wait for the next chunk unless this is the last."""
+    if node.tail is not None:
+        rows = {name: np.concatenate([node.tail[name], col]) for name, col in new.items()}
+        start = len(node.tail["ts"]) - node.undecided
+        odd = np.concatenate([node.tail_odd, ~_plain_same(rows)[len(node.tail["ts"]):]])
+    else:
+        rows, start = new, 0
+        odd = ~_plain_same(rows)
+    n = len(rows["ts"])
+    k = s.margin
+    stop = n if final else max(n - 2 * k, start)  # rows [start, stop) are decided now
+    before = (np.searchsorted(events[0], rows["idx"]) if events is not None
+              and len(events[0]) else np.zeros(n, np.int64))  # channel events before a row
+    odd_upto = node.odd_base + np.cumsum(odd)
+    if stop > start:
+        good = _good(rows, events, s)
+        drop = np.zeros(n, bool)
+        # a row may go if every row within `margin` of it is good and no event lies there
+        bad = np.concatenate([[0], np.cumsum(~good)])
+        i = np.arange(n)
+        lo, hi = i - k, i + k
+        inside = (lo >= 0) & (hi < n)
+        lo_c, hi_c = np.clip(lo, 0, n - 1), np.clip(hi, 0, n - 1)
+        quiet = inside & (bad[hi_c + 1] - bad[lo_c] == 0) & (before[lo_c] == before[hi_c])
+        drop[start:stop] = quiet[start:stop]
+        if not final:
+            drop[stop - 1] = False  # runs end inside a chunk: its last decided row stays
+        _keep_short_runs(drop, s.min_run)
+        _emit(node, rows, start, stop, drop, before, odd_upto)
+    keep_from = max(stop - (2 * k + 2), 0)  # context for the next chunk's windows
+    node.odd_base = int(odd_upto[keep_from - 1]) if keep_from else node.odd_base
+    node.tail = {name: col[keep_from:] for name, col in rows.items()}
+    node.tail_odd = odd[keep_from:]
+    node.undecided = n - stop
+
+
+def _keep_short_runs(drop: np.ndarray, min_run: int) -> None:
+    """Runs of fewer than `min_run` dropped rows stay (their summary would cost more)."""
+    if min_run <= 1 or not drop.any():
+        return
+    edges = np.diff(np.concatenate([[0], drop.astype(np.int8), [0]]))
+    s_runs, e_runs = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    short = e_runs - s_runs < min_run
+    if short.any():
+        mark = np.zeros(len(drop) + 1, np.int64)
+        np.add.at(mark, s_runs[short], 1)
+        np.add.at(mark, e_runs[short], -1)
+        drop &= np.cumsum(mark[:-1]) == 0
+
+
+def _good(rows: dict[str, np.ndarray], events: tuple[np.ndarray, np.ndarray] | None,
+          s: Compaction) -> np.ndarray:
+    """Rows that may be part of a steady run: plain heartbeats reporting the state of the
+    row before them, an interval in band, not just after an NMT or SDO frame."""
+    ts = rows["ts"]
+    good = _plain_same(rows)
+    good[0] = False
+    gap = np.diff(ts, prepend=np.nan)
+    plain = good[1:]
+    ref = np.median(gap[1:][plain]) if np.count_nonzero(plain) else np.nan
+    with np.errstate(invalid="ignore"):
+        good &= (gap > 0) & (np.abs(gap - ref) <= s.band * ref)
+    if events is not None and len(events[0]):
+        k = np.searchsorted(events[0], rows["idx"]) - 1
+        has = k >= 0
+        since = ts - events[1][np.maximum(k, 0)]
+        good &= ~(has & (since <= s.protect_s + EPS))
+    return good
+
+
+def _emit(node: _Node, rows: dict[str, np.ndarray], start: int, stop: int, drop: np.ndarray,
+          before: np.ndarray, odd_upto: np.ndarray) -> None:
+    """Keep the decided rows that stay, and summarise each run of dropped ones."""
+    ts = rows["ts"]
+    keep = np.flatnonzero(~drop[start:stop]) + start
+    first_kept = node.kept_rows  # the node's kept rows so far
+    node.kept.append({name: col[keep] for name, col in rows.items()})
+    node.kept_rows += len(keep)
+    edges = np.diff(np.concatenate([[0], drop.astype(np.int8), [0]]))
+    s_runs, e_runs = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # [s, e)
+    for s_, e_ in zip(s_runs.tolist(), e_runs.tolist(), strict=True):
+        gaps = np.diff(ts[s_ - 1:e_ + 1])  # from the kept row before to the kept row after
+        j = int(np.argmax(gaps))
+        b_pos = first_kept + int(np.searchsorted(keep, e_))  # e_ is the kept row after
+        span_key = (int(before[s_]), int(odd_upto[s_]))
+        span = node.spans.get(span_key)
+        if span is None:
+            span = node.spans[span_key] = len(node.span_parts)
+            node.span_parts.append([])
+        parts = node.span_parts[span]
+        parts.append(np.unique(gaps, return_counts=True))
+        if len(parts) > 16:
+            node.span_parts[span] = [_merge(parts)]
+        node.runs.append(np.asarray([b_pos, e_ - s_, gaps[0], gaps.min(), gaps.max(),
+                                     ts[s_ - 1 + j], span], np.float64))
+
+
+def _plain_same(rows: dict[str, np.ndarray]) -> np.ndarray:
+    """Plain heartbeats (one data byte, a CiA 301 state) reporting the row before's state."""
+    value = rows["value"]
+    ok: np.ndarray = ~rows["rtr"] & (rows["dlc"] == 1)
+    ok &= (value == _STATES[0]) | (value == _STATES[1]) | (value == _STATES[2])
+    ok[1:] &= value[1:] == value[:-1]
+    return ok
+
+
+def _merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    values = np.concatenate([v for v, _ in parts])
+    counts = np.concatenate([c for _, c in parts]).astype(np.int64)
+    uniq, inverse = np.unique(values, return_inverse=True)
+    return uniq, np.bincount(inverse, weights=counts, minlength=len(uniq)).astype(np.int64)
+
+
+def _gap_runs(node: _Node) -> GapRuns:
+    r = np.vstack(node.runs)
+    spans = [_merge(p) for p in node.span_parts]
+    return GapRuns(r[:, 0].astype(np.int64), r[:, 1].astype(np.int64), r[:, 2], r[:, 3],
+                   r[:, 4], r[:, 5], r[:, 6].astype(np.int64),
+                   [v for v, _ in spans], [c for _, c in spans])
+
+
+def restore(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, GapRuns],
+            keys: set[int], chunk: int) -> tuple[dict[str, np.ndarray], dict[int, GapRuns]]:
+    """The columns with every row of these node keys read back from the spool (their runs
+    gone): for nodes whose runs a rule limit cuts through."""
+    keep = ~np.isin(cols["key"], list(keys))
+    parts: dict[str, list[np.ndarray]] = {name: [col[keep]] for name, col in cols.items()}
+    wanted = np.asarray(sorted(keys), np.int64)
+    for c in spool.chunks(chunk):
+        sel = np.flatnonzero(np.isin(c["key"], wanted))
+        for name in parts:
+            parts[name].append(c[name][sel])
+    joined = {name: np.concatenate(p) for name, p in parts.items()}
+    order = np.argsort(joined["key"], kind="stable")  # restored rows after kept: by idx
+    out = {name: col[order] for name, col in joined.items()}
+    # within a key the restored rows are in file order already; kept rows of other keys too
+    return out, {k: r for k, r in runs.items() if k not in keys}
+
+
+def unsafe_nodes(model: InputModel, tolerance: float) -> set[int]:
+    """Node keys whose dropped runs a rule could tell apart: a run that reaches an early
+    or timeout limit, leaves the producer-time tolerance, crosses a segment bound or
+    a change of configuration, or a node that is guarded (requests and responses are
+    told apart frame by frame)."""
+    from nmtcheck.nmt import GUARD, HEARTBEAT, REQUEST
+
+    bad: set[int] = set()
+    factor_t, factor_e = model.timeline.timeout_factor, model.timeline.early_factor
+    for m in model.nodes():
+        runs = m.ec.runs
+        if runs is None or not len(runs.pos):
+            continue
+        ec = m.ec
+        a_pos, b_pos = runs.pos - 1, runs.pos
+        if (ec.count(REQUEST) or ec.count(GUARD)
+                or not bool((ec.kind[a_pos] == HEARTBEAT).all())
+                or not bool((ec.kind[b_pos] == HEARTBEAT).all())):
+            bad.add(m.key)
+            continue
+        ta, tb = ec.ts[a_pos], ec.ts[b_pos]
+        with np.errstate(invalid="ignore"):
+            lim_a = m.hb_timeouts_at(ta, factor_t)
+            lim_b = m.hb_timeouts_at(tb, factor_t)
+            per_a, per_b = m.periods_at(ta), m.periods_at(tb)
+            hb_a = m.config_series(ta, lambda cfg: cfg.heartbeat_ms)
+            hb_b = m.config_series(tb, lambda cfg: cfg.heartbeat_ms)
+            same = ((lim_a == lim_b) | (np.isnan(lim_a) & np.isnan(lim_b)))
+            same &= (per_a == per_b) | (np.isnan(per_a) & np.isnan(per_b))
+            same &= (hb_a == hb_b) | (np.isnan(hb_a) & np.isnan(hb_b))
+            ok = same & ~(runs.gmax > lim_a + EPS)
+            ok &= ~(runs.gmin < factor_e * per_a - EPS)
+            conf = hb_a > 0
+            c = hb_a / 1000.0
+            ok &= ~conf | ((runs.gmax <= c * (1 + tolerance) + EPS)
+                           & (runs.gmin >= c * (1 - tolerance) - EPS))
+            seg = m.seg_bounds
+            seg_a = np.searchsorted(seg, ta, side="right")
+            ok &= seg_a == np.searchsorted(seg, tb, side="right")
+        # the runs of one span share their value counts: with timestamps that go backwards
+        # a bound's time may fall between two of them although its frame does not
+        if not bool(ok.all()) or not all(_one_per_span(runs.span, x)
+                                          for x in (seg_a, hb_a, lim_a, per_a)):
+            bad.add(m.key)
+    return bad
+
+
+def _one_per_span(span: np.ndarray, values: np.ndarray) -> bool:
+    """Whether every span's runs have one value (NaN counts as a value)."""
+    v = np.where(np.isnan(values), np.inf, values) if values.dtype.kind == "f" else values
+    order = np.lexsort((v, span))
+    s, v = span[order], v[order]
+    return not bool(((s[1:] == s[:-1]) & (v[1:] != v[:-1])).any())
+
+
+def expanded(ts: np.ndarray, runs: GapRuns, lo: float, hi: float) -> Iterator[np.ndarray]:
+    """Stand-in times inside each run that overlaps [lo, hi], spaced by its largest
+    interval: no silence longer than that can hide in a run (for the causes' bus
+    silence)."""
+    for r in np.flatnonzero((ts[runs.pos - 1] < hi) & (ts[runs.pos] > lo)).tolist():
+        a, b = float(ts[runs.pos[r] - 1]), float(ts[runs.pos[r]])
+        step = float(runs.gmax[r])
+        if step > 0:
+            yield np.arange(max(a, lo - step), min(b, hi + step), step)

@@ -1,0 +1,95 @@
+"""The local pool's fork server, started as early as a fleet run can be recognised (issue 25).
+
+The fork server imports what a task needs (nmtcheck.fleet.preload: 0.2 s of CPU) before it
+can fork the first worker. Started when the driver reaches run_fleet, that import came
+after the command line's own imports (0.16 s) and was waited for, serially. Imported by
+nmtcheck/cli.py before its heavy imports, this module looks at the command line and, for
+`nmtcheck check ... --results DS` with a local executor, starts the server at once: its
+imports then run on another core while the driver imports, parses and lists. Anything it
+cannot recognise it leaves to run_fleet (warm_up), which starts the server if needed.
+Only the standard library here: the module is imported by every `nmtcheck` command.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any
+
+PRELOAD = "nmtcheck.fleet.preload"
+PRELOAD_REMOTE = "fsspec"  # local files and datasets do without it (storage.LocalFS)
+
+
+def local_context(start: bool = False, remote: bool = False) -> Any:
+    """The local pool's start method: a fork server that has imported what a task needs
+    (nmtcheck.fleet.preload, and fsspec for a run with `remote` URLs), so that each worker
+    is forked from it ready to check; `start` starts that server now, in the background
+    (its imports overlap the driver's work). The first start decides what is preloaded."""
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():  # Windows
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload([PRELOAD, PRELOAD_REMOTE] if remote else [PRELOAD])
+    if start:
+        from multiprocessing import forkserver
+
+        forkserver.ensure_running()  # returns once spawned; the server imports meanwhile
+    return ctx
+
+
+def is_command(argv0: str) -> bool:
+    """This process is the `nmtcheck` command (the console script or `python -m nmtcheck`),
+    not a program or test that imports nmtcheck."""
+    name = os.path.basename(argv0)
+    return name == "nmtcheck" or (name == "__main__.py"
+                                  and os.path.basename(os.path.dirname(argv0)) == "nmtcheck")
+
+
+def is_remote(url: str) -> bool:
+    """A URL with a protocol other than file:// (storage.is_local's answer, cheaper)."""
+    protocol, sep, _ = url.partition("://")
+    return bool(sep) and len(protocol) > 1 and protocol not in ("file", "local")
+
+
+def local_fleet_run(args: list[str]) -> bool:
+    """`args` (the command line after the program) ask for a fleet run on the local pool:
+    `check` with --results, and no --executor or a local[:N] one."""
+    while args and args[0] == "--debug":  # the group's only option
+        args = args[1:]
+    if not args or args[0] != "check":
+        return False
+    results = False
+    executor = "local"
+    it = iter(args[1:])
+    for arg in it:
+        if arg == "--":
+            break
+        name, eq, value = arg.partition("=")
+        if name == "--results":
+            results = True
+            if not eq:
+                next(it, None)
+        elif name == "--executor":
+            executor = value if eq else next(it, "")
+    return results and executor.partition(":")[0] == "local"
+
+
+def prestart(argv: list[str] | None = None) -> bool:
+    """Start the fork server now if this process is `nmtcheck check --results ...` on the
+    local pool; whether it did. Never fails the command: run_fleet starts it otherwise."""
+    argv = sys.argv if argv is None else argv
+    if not argv or not is_command(argv[0]) or not local_fleet_run(list(argv[1:])):
+        return False
+    try:
+        local_context(start=True, remote=any(is_remote(a.partition("=")[2] or a)
+                                             for a in argv[1:]))
+    except Exception:  # noqa: BLE001 - an optimisation only: the run starts it again or says why
+        return False
+    from nmtcheck.fleet.trace import mark
+
+    mark("prestart")
+    return True
+
+
+prestart()

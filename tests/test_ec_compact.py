@@ -1,0 +1,253 @@
+"""Long logs keep steady heartbeat runs as summaries (`ec_compact`, issue 24): every
+report is the same as without them.
+
+The compaction starts above 2 M error-control rows; here it is forced on small logs
+(`SETTINGS.above = 0`, small chunks) and each report is compared with the uncompacted
+check of the same log: every recorded sample (with and without its network file), and
+generated logs where a steady run crosses a rule's limit, so that the node must be read
+back whole.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO
+
+from nmtcheck import ec_compact
+from nmtcheck.decode import ColumnSpool
+from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.fleet.tasks import node_rows
+from nmtcheck.gaps import Gaps
+from nmtcheck.network import load_network
+from nmtcheck.profiles import load_profile
+from nmtcheck.reporters import renderer
+
+FORCED = ec_compact.Compaction(above=0, chunk=53, margin=8, protect_s=1.0, min_run=1)
+TIGHT = ec_compact.Compaction(above=0, chunk=31, margin=4, protect_s=0.0, min_run=1)
+OPTIONS: dict[str, object] = {"fail_on": "error", "quiet": False,
+                              "config": {"file": None, "profile": "default", "overrides": []}}
+DATE = re.compile(r"\d{4}-\d\d-\d\dT[0-9:.]+(Z|[+-]\d\d:\d\d)?")
+
+
+@pytest.fixture
+def settings(monkeypatch: pytest.MonkeyPatch) -> Iterator[pytest.MonkeyPatch]:
+    """Restores the default settings after a test that changes them."""
+    monkeypatch.setattr(ec_compact, "SETTINGS", ec_compact.Compaction())
+    yield monkeypatch
+
+
+def _check(path: Path, network: Path | None, compaction: ec_compact.Compaction,
+           mp: pytest.MonkeyPatch) -> InputResult:
+    mp.setattr(ec_compact, "SETTINGS", compaction)
+    profile = load_profile("default")
+    return check_input(str(path), 0, profile, select_rules(profile, [], []),
+                       network=load_network(str(network)) if network else None)
+
+
+def _reports(res: InputResult) -> dict[str, str]:
+    return {fmt: DATE.sub("<DATE>", renderer(fmt)([res], OPTIONS)) for fmt in ("json", "text")}
+
+
+def _dropped(res: InputResult) -> int:
+    return sum(r.dropped for r in res.model.decoded.ec_runs.values())
+
+
+# -- the multiset ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed", range(20))
+def test_counted_statistics_equal_numpy_on_the_expanded_values(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    plain = rng.choice([0.1, 0.1000002, 0.0999998, 0.2, 0.05], size=rng.integers(0, 30))
+    hists = []
+    for _ in range(rng.integers(1, 4)):
+        vals = np.unique(rng.normal(0.1, 0.003, rng.integers(1, 9)))
+        hists.append((vals, rng.integers(1, 500, len(vals))))
+    gaps = Gaps.join(plain, hists)
+    expanded = np.concatenate([plain, *(np.repeat(v, c) for v, c in hists)])
+    assert gaps.count == len(expanded)
+    assert gaps.minimum() == expanded.min() and gaps.maximum() == expanded.max()
+    assert gaps.median() == np.median(expanded)
+    for q in (50, 95, 0, 100, 37.5):
+        assert gaps.percentile(q) == np.percentile(expanded, q)
+    assert gaps.std() == pytest.approx(np.std(expanded), rel=1e-9, abs=1e-15)
+
+
+def test_plain_intervals_are_numpys_own() -> None:
+    values = np.asarray([0.3, 0.1, 0.2, 0.1])
+    gaps = Gaps(values)
+    assert (gaps.median(), gaps.percentile(95), gaps.std()) == (
+        np.median(values), np.percentile(values, 95), np.std(values))
+
+
+# -- every recorded sample ------------------------------------------------------------------
+
+def _samples() -> list[tuple[Path, Path | None]]:
+    cases: list[tuple[Path, Path | None]] = []
+    for log in sorted((REPO / "samples").rglob("*.log")):
+        cases.append((log, None))
+        net = log.parent / "network.toml"
+        if net.exists():
+            cases.append((log, net))
+    return cases
+
+
+def test_every_sample_report_is_the_same_compacted(settings: pytest.MonkeyPatch) -> None:
+    dropped = 0
+    for log, net in _samples():
+        whole = _reports(_check(log, net, ec_compact.Compaction(), settings))
+        for compaction in (FORCED, TIGHT):
+            res = _check(log, net, compaction, settings)
+            dropped += _dropped(res)
+            assert _reports(res) == whole, (log, net, compaction)
+    assert dropped > 5000  # the comparison compared something: runs were dropped
+
+
+# -- generated long logs --------------------------------------------------------------------
+
+def _write(path: Path, frames: list[tuple[float, int, str]]) -> Path:
+    frames.sort()
+    path.write_text("".join(f"({1_700_000_000 + t:.6f}) can0 {cid:03X}#{data}\n"
+                            for t, cid, data in frames))
+    return path
+
+
+def _heartbeats(node: int, t0: float, t1: float, period: float, jitter: float = 0.0,
+                seed: int = 0, state: str = "05") -> list[tuple[float, int, str]]:
+    rng = np.random.default_rng(seed + node)
+    n = int((t1 - t0) / period)
+    ts = t0 + np.arange(n) * period + rng.uniform(-jitter, jitter, n)
+    return [(round(float(t), 6), 0x700 + node, state) for t in ts]
+
+
+def _network(path: Path, nodes: dict[int, int]) -> Path:
+    path.write_text("".join(f"[nodes.{n}]\nheartbeat_ms = {ms}\n\n" for n, ms in nodes.items()))
+    return path
+
+
+def test_a_long_steady_log_keeps_a_few_rows_and_the_same_report(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    frames = [(0.0, 0x700 + n, "00") for n in (2, 3, 4)]
+    for n in (2, 3, 4):
+        frames += _heartbeats(n, 0.01 * n, 60.0, 0.1, jitter=0.002, seed=n)
+    frames = [f for f in frames if not (f[1] == 0x703 and 30.0 < f[0] < 30.5)]  # lost
+    frames = [(t, c, "04" if c == 0x704 and t > 45.0 else d) for t, c, d in frames]
+    frames += [(45.0, 0x000, "0204")]  # stop node 4: its next heartbeats say 04h
+    log = _write(tmp_path / "steady.log", frames)
+    whole = _check(log, None, ec_compact.Compaction(), settings)
+    # the defaults but for the threshold: runs shorter than 32 frames are kept
+    default = _check(log, None, ec_compact.Compaction(above=0), settings)
+    assert _reports(default) == _reports(whole)
+    runs = default.model.decoded.ec_runs
+    assert runs and all(bool((r.n >= 32).all()) for r in runs.values())
+    assert len(default.model.decoded.ec["ts"]) < len(frames) / 10
+    res = _check(log, None, FORCED, settings)
+    assert _reports(res) == _reports(whole)
+    assert [f.rule for f in res.findings] == ["H001"]
+    rows = len(res.model.decoded.ec["ts"])
+    assert rows < len(frames) / 5  # most rows are dropped, with their intervals counted
+    for m, w in zip(res.model.nodes(), whole.model.nodes(), strict=True):
+        assert m.ec.count(2) == w.ec.count(2)  # heartbeats, the dropped ones included
+    key = {"input_id": "x"}
+    assert node_rows(res, key, "d", {}) == node_rows(whole, key, "d", {})
+    html = renderer("html")
+    assert DATE.sub("", html([res], OPTIONS)) == DATE.sub("", html([whole], OPTIONS))
+
+
+@pytest.mark.parametrize("period, rules", [
+    (0.12, ["H003"]),  # steady 20 % slower than 1017h: every run leaves the tolerance
+    (0.16, ["H001"]),  # steady beyond the timeout: a finding per gap
+    (0.04, ["H002"]),  # steady far too early
+])
+def test_a_run_a_limit_cuts_is_read_back_whole(
+        tmp_path: Path, settings: pytest.MonkeyPatch, period: float, rules: list[str]) -> None:
+    frames = [(0.0, 0x702, "00"), (0.0, 0x703, "00")]
+    frames += _heartbeats(2, 0.01, 20.0, 0.1, jitter=0.001)
+    frames += _heartbeats(3, 0.02, 20.0, period, jitter=0.0005)
+    log = _write(tmp_path / "slow.log", frames)
+    net = _network(tmp_path / "network.toml", {2: 100, 3: 100})
+    whole = _check(log, net, ec_compact.Compaction(), settings)
+    restored: list[set[int]] = []
+    real_restore = ec_compact.restore
+
+    def spy(spool: ColumnSpool, cols: dict[str, np.ndarray],
+            runs: dict[int, ec_compact.GapRuns], keys: set[int], chunk: int) -> tuple[
+                dict[str, np.ndarray], dict[int, ec_compact.GapRuns]]:
+        restored.append(set(keys))
+        return real_restore(spool, cols, runs, keys, chunk)
+
+    settings.setattr(ec_compact, "restore", spy)
+    res = _check(log, net, FORCED, settings)
+    assert restored == [{3}]  # node 3 was compacted, then read back whole
+    assert _reports(res) == _reports(whole)
+    assert set(rules) <= {f.rule for f in res.findings}
+    assert {f.node for f in res.findings} == {3}
+    runs = res.model.decoded.ec_runs  # keys: channel code 0, so the node-IDs
+    assert 3 not in runs and 2 in runs  # node 3 read back whole, node 2 still compacted
+
+
+def test_a_short_log_is_not_compacted_by_default(settings: pytest.MonkeyPatch) -> None:
+    res = _check(REPO / "samples" / "lely" / "healthy.log", None, ec_compact.Compaction(),
+                 settings)
+    assert res.model.decoded.ec_runs == {} and res.model.decoded.ec_spool is None
+
+
+def test_two_channels_and_a_timeless_log_give_the_same_reports(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    lines = []
+    for chan in ("can0", "can1"):
+        frames = [(0.0, 0x702, "00")] + _heartbeats(2, 0.01, 30.0, 0.1, jitter=0.001)
+        if chan == "can1":  # reset node 2 on can1 only: its boot-up answers
+            frames += [(15.0, 0x000, "8102"), (15.2, 0x702, "00")]
+        lines += [(t, chan, c, d) for t, c, d in frames]
+    lines.sort()
+    two = tmp_path / "two.log"
+    two.write_text("".join(f"({1_700_000_000 + t:.6f}) {ch} {c:03X}#{d}\n"
+                           for t, ch, c, d in lines))
+    timeless = tmp_path / "timeless.log"  # pasted without timestamps: file order only
+    timeless.write_text("".join(f"{ch} {c:03X}#{d}\n" for _t, ch, c, d in lines))
+    for log in (two, timeless):
+        whole = _check(log, None, ec_compact.Compaction(), settings)
+        res = _check(log, None, FORCED, settings)
+        assert _reports(res) == _reports(whole), log.name
+    assert _dropped(_check(two, None, FORCED, settings)) > 400
+
+
+def test_timestamps_that_go_backwards_give_the_same_report(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    frames = [(0.0, 0x702, "00"), (0.0, 0x703, "00")] + _heartbeats(
+        2, 0.01, 20.0, 0.1, jitter=0.001) + _heartbeats(3, 0.02, 20.0, 0.1, jitter=0.001)
+    frames += [(10.0, 0x000, "8103"), (10.1, 0x703, "00")]  # node 3 reset, boots
+    log = _write(tmp_path / "back.log", frames)
+    lines = log.read_text().splitlines(keepends=True)
+    # frames out of place: the reset and node 3's boot-up written 60 frames late, and one
+    # heartbeat early: time goes back (I005), bounds fall between runs of one span
+    moved = [ln for ln in lines if "#8103" in ln or " 703#00" in ln][1:]
+    lines = [ln for ln in lines if ln not in moved]
+    at = next(i for i, ln in enumerate(lines) if float(ln[1:ln.index(")")]) > 1_700_000_010.2)
+    lines[at + 60:at + 60] = moved
+    lines.insert(100, lines[150])
+    log.write_text("".join(lines))
+    whole = _check(log, None, ec_compact.Compaction(), settings)
+    res = _check(log, None, FORCED, settings)
+    assert "I005" in {f.rule for f in res.findings}
+    assert _dropped(res) > 100 and _reports(res) == _reports(whole)
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_full_temporary_disk_is_one_line_naming_tmpdir() -> None:
+    from nmtcheck.decode import write_spill
+    from nmtcheck.errors import NmtcheckError
+
+    with open("/dev/full", "ab") as f, pytest.raises(NmtcheckError, match="set TMPDIR"):
+        write_spill(np.zeros(1 << 16), f, "/tmp/nmtcheck-x")
+
+
+def test_short_runs_are_kept() -> None:
+    drop = np.asarray([0, 1, 1, 0, 1, 1, 1, 1, 0, 1], bool)
+    ec_compact._keep_short_runs(drop, 3)
+    assert drop.astype(int).tolist() == [0, 0, 0, 0, 1, 1, 1, 1, 0, 0]

@@ -1,0 +1,235 @@
+"""Issue 25, a fleet run's fixed cost: local files without fsspec (storage.LocalFS answers as
+fsspec's LocalFileSystem does), the fork server started by the command line before its own
+imports (fleet/prestart.py), and what that must not break: processes left behind, the
+phase trace the scaling bench reads."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import SAMPLES
+
+pytest.importorskip("pyarrow")
+fsspec = pytest.importorskip("fsspec")
+
+from nmtcheck.fleet import prestart  # noqa: E402
+from nmtcheck.fleet.storage import LocalFS, expand, filesystem, is_local  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+LINUX = sys.platform.startswith("linux")
+
+
+def tree(root: Path) -> Path:
+    """Logs in nested folders, hidden names, a name with a space and brackets, a linked
+    folder, an empty folder."""
+    for rel in ("a.log", "b.LOG", ".hidden.log", "x1.log", "x22.log", "dev 1/s [1]/c.log",
+                "DEV0/0001/a.log", "DEV0/0001/b.mf4", "DEV0/0002/deep/er/z.log",
+                "DEV1/.cache/h.log", "DEV1/0001/a.log", "DEV2/a.log"):
+        p = root / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"(1.0) can0 701#05\n" * (len(rel) + 1))
+    (root / "empty").mkdir()
+    if LINUX:
+        (root / "linked").symlink_to(root / "DEV1", target_is_directory=True)
+    return root
+
+
+PATTERNS = ["*.log", "*", "**", "**/*.log", "*/*.log", "*/*/*.log", "DEV0/**", "DEV0/**/*.log",
+            "**/0001/*.log", "DEV?/0001/*", "DEV[01]/*/a.log", "DEV[!0]/**", "x?.log",
+            "x*.log", "dev 1/s [[]1]/*.log", "*/.cache/*", ".*", "**/er/*", "nothing/*.log",
+            "linked/**/*.log", "[a-b].*"]
+
+
+@pytest.mark.parametrize("pattern", PATTERNS)
+def test_local_glob_matches_fsspec(tmp_path: Path, pattern: str) -> None:
+    root = tree(tmp_path / "t")
+    ours = LocalFS().glob(f"{root}/{pattern}", detail=True)
+    theirs = fsspec.filesystem("file").glob(f"{root}/{pattern}", detail=True)
+    assert list(ours) == list(theirs)
+    keys = ("name", "size", "type", "mtime", "created", "islink")
+    assert [[d[k] for k in keys] for d in ours.values()] == \
+        [[d[k] for k in keys] for d in theirs.values()]
+    assert pattern == "nothing/*.log" or ours  # every other pattern matches something here
+
+
+def test_local_find_info_and_bad_patterns_as_fsspec(tmp_path: Path) -> None:
+    root = tree(tmp_path / "t")
+    ours, theirs = LocalFS(), fsspec.filesystem("file")
+    assert ours.find(str(root)) == sorted(theirs.find(str(root)))
+    for rel in ("a.log", "DEV0", "linked" if LINUX else "DEV1"):
+        mine, ref = ours.info(f"{root}/{rel}"), theirs.info(f"{root}/{rel}")
+        assert {k: mine[k] for k in mine} == {k: ref[k] for k in mine}
+    with pytest.raises(FileNotFoundError):
+        ours.info(f"{root}/missing.log")
+    for bad in ("a**.log", "**b/*.log"):
+        with pytest.raises(ValueError, match="entire path component"):
+            theirs.glob(f"{root}/{bad}")
+        with pytest.raises(ValueError, match="entire path component"):
+            ours.glob(f"{root}/{bad}")
+
+
+def test_local_paths_take_localfs_and_urls_fsspec(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                                   ) -> None:
+    from fsspec.core import split_protocol
+
+    monkeypatch.chdir(tmp_path)
+    for url in ("logs/a.log", "/abs/x", "file:///abs/x", "local:///x", "s3://b/k", "gs://b",
+                "simplecache::s3://b/k", "data:text/plain,x", "C://x", "memory://x"):
+        assert is_local(url) == (split_protocol(url)[0] in (None, "file", "local")), url
+    fs, path = filesystem("results")
+    assert isinstance(fs, LocalFS) and path == str(tmp_path / "results")
+    fs, path = filesystem(f"file://{tmp_path}/results/")
+    assert isinstance(fs, LocalFS) and path == str(tmp_path / "results")
+    fs, _ = filesystem("results", {"auto_mkdir": True})  # options: fsspec's, as before
+    assert not isinstance(fs, LocalFS)
+    fs, _ = filesystem("memory://results")
+    assert not isinstance(fs, LocalFS)
+
+
+def test_expand_lists_local_logs_as_fsspec_did(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                               ) -> None:
+    """The listing a run checks (and the fingerprints its re-runs compare) is the same with
+    LocalFS as with fsspec's local filesystem."""
+    from nmtcheck.fleet import storage
+
+    root = tree(tmp_path / "t")
+    monkeypatch.chdir(tmp_path)
+    sources = ["t/**/*.log", f"file://{root}/DEV0/**", str(root / "a.log")]
+    ours = list(expand(sources, None, None))
+
+    def fsspec_only(url: str, options: object = None) -> object:
+        return fsspec.core.url_to_fs(url, **(options or {}))  # type: ignore[arg-type]
+
+    monkeypatch.setattr(storage, "filesystem", fsspec_only)
+    theirs = list(expand(sources, None, None))
+    assert ours == theirs and len(ours) > 10
+    assert all(fi.fingerprint.startswith("size:") for fi in ours)
+
+
+@pytest.mark.parametrize(("args", "fleet"), [
+    (["check", "l/*.log", "--results", "ds"], True),
+    (["--debug", "check", "l/*.log", "--results=ds", "-j", "2"], True),
+    (["check", "--executor", "local:2", "l", "--results", "ds"], True),
+    (["check", "--executor=local", "--results", "s3://b/ds", "s3://b/*.log"], True),
+    (["check", "l/*.log"], False),  # no dataset: `-j` forks from the CLI itself
+    (["check", "l/*.log", "--results", "ds", "--executor", "dask-local:2"], False),
+    (["check", "l/*.log", "--results", "ds", "--executor=dask://h:1"], False),
+    (["check", "--", "--results"], False),  # a log of that name
+    (["timeline", "--results", "ds"], False),
+    ([], False),
+])
+def test_prestart_recognises_local_fleet_runs_only(args: list[str], fleet: bool) -> None:
+    assert prestart.local_fleet_run(args) is fleet
+
+
+def test_prestart_only_in_the_nmtcheck_command() -> None:
+    assert prestart.is_command("/venv/bin/nmtcheck")
+    assert prestart.is_command("/src/nmtcheck/__main__.py")
+    assert not prestart.is_command("/venv/bin/pytest")
+    assert not prestart.is_command("/src/other/__main__.py")
+    assert not prestart.prestart(["/venv/bin/pytest", "check", "x", "--results", "ds"])
+    assert prestart.is_remote("s3://b/k") and not prestart.is_remote("file:///x")
+    assert not prestart.is_remote("logs/a.log") and not prestart.is_remote("C://x")
+
+
+def _fleet_logs(tmp_path: Path) -> None:
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("healthy.log", "heartbeat_loss.log", "guard_toggle.log"):
+        shutil.copy(SAMPLES / name, logs / name)
+
+
+def _trace(tmp_path: Path, *cmd: str
+           ) -> tuple[subprocess.CompletedProcess[str], list[dict[str, Any]]]:
+    path = tmp_path / "trace.jsonl"
+    path.unlink(missing_ok=True)
+    res = subprocess.run([sys.executable, *cmd], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=300, env={**ENV, "NMTCHECK_FLEET_TRACE": str(path)})
+    marks = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    return res, marks
+
+
+@pytest.mark.skipif(not LINUX, reason="the fork server is POSIX")
+def test_the_command_starts_the_fork_server_before_its_imports_and_traces_each_phase(
+        tmp_path: Path) -> None:
+    _fleet_logs(tmp_path)
+    args = ("check", "logs/*.log", "--results", "ds", "--executor", "local:2", "-q")
+    res, marks = _trace(tmp_path, "-m", "nmtcheck", *args)
+    assert res.returncode == 1, res.stderr  # findings in heartbeat_loss.log
+    driver = [m["phase"] for m in marks if m["phase"] in ("prestart", "cli", "run_fleet")]
+    assert driver == ["prestart", "cli", "run_fleet"]  # one process: in this order
+    phases = {m["phase"] for m in marks}
+    assert {"preload", "worker", "task_start", "checked", "written", "task_end", "results",
+            "drained", "closed", "run_row", "run_end"} <= phases
+    [server] = {m["pid"] for m in marks if m["phase"] == "preload"}
+    workers = {m["pid"] for m in marks if m["phase"] == "worker"}
+    assert server not in workers and len(workers) <= 2
+    # not the command (a program calling the CLI): the run starts the server itself
+    res, marks = _trace(tmp_path, "-c", "from nmtcheck.cli import main; main()", *args,
+                        "--force")
+    assert res.returncode == 1, res.stderr
+    assert "prestart" not in {m["phase"] for m in marks}
+    assert {"preload", "task_start", "run_end"} <= {m["phase"] for m in marks}
+
+
+@pytest.mark.skipif(not LINUX, reason="the fork server is POSIX")
+def test_a_local_run_imports_fsspec_nowhere_a_storage_option_brings_it_back(
+        tmp_path: Path) -> None:
+    _fleet_logs(tmp_path)
+    cmd = [sys.executable, "-X", "importtime", "-m", "nmtcheck", "check", "logs/*.log",
+           "--results", "ds", "--executor", "local:2", "-q"]
+    # -X importtime is passed on to the fork server (and so to its workers): every process
+    # of the run writes its imports to this stderr
+    res = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         env=ENV)
+    assert res.returncode == 1, res.stderr[-2000:]
+    assert "| nmtcheck.fleet.preload" in res.stderr  # the workers' imports are in there
+    assert "fsspec" not in res.stderr
+    rerun = subprocess.run([*cmd, "--storage-option", "auto_mkdir=true"], cwd=tmp_path,
+                           capture_output=True, text=True, timeout=300, env=ENV)
+    assert rerun.returncode == 1, rerun.stderr[-2000:]
+    assert "| fsspec" in rerun.stderr
+    assert "0 checked" in rerun.stdout or "3 already in the results" in rerun.stdout
+
+
+def _session(sid: int) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()
+            if int(fields[3]) == sid and fields[0] != "Z":
+                out.append(int(entry))
+    return out
+
+
+@pytest.mark.skipif(not LINUX, reason="reads /proc")
+def test_a_run_refused_after_the_fork_server_started_leaves_no_process(tmp_path: Path) -> None:
+    """prestart starts the fork server before the command line is even parsed: a run
+    that then ends with a usage error must not leave it (or its tracker) behind."""
+    proc = subprocess.Popen([sys.executable, "-m", "nmtcheck", "check", "nothing/*.log",
+                             "--results", "ds", "--isolated"], cwd=tmp_path, env=ENV,
+                            start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        _out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 2 and "no log file matches" in err, err
+        deadline = time.monotonic() + 20
+        while _session(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _session(proc.pid)
+    finally:
+        for pid in _session(proc.pid):
+            os.kill(pid, 9)

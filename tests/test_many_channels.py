@@ -1,0 +1,308 @@
+"""Logs of many channels and many small nodes (issue 24 item 2).
+
+A node of a frame or two costs the same fixed work in every stage, so the timeline, the
+rules and the boot stage take shortcuts for the common trivial node and match every
+node at once where they can (S001-S003). These tests pin each shortcut to the full path
+it stands for, on random logs of many channels, and the whole check of 40,000 channels
+(bench/pathological.py `channels`) to its verdicts and to linear time.
+"""
+
+from __future__ import annotations
+
+import gc
+import random
+import time
+from dataclasses import astuple
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import Checker
+
+from nmtcheck import boot, timeline
+from nmtcheck.checks import state
+from nmtcheck.decode import KIND_EMCY, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.errors import UsageError
+from nmtcheck.model import InputModel, NodeConfig, NodeModel
+from nmtcheck.nmt import EPS, OFFLINE, OPERATIONAL, PRE_OPERATIONAL, STATE_INDEX, STOPPED
+from nmtcheck.node_events import EmcyTable, SdoEventTable, WriteTable
+from nmtcheck.profiles import load_profile
+from nmtcheck.reporters import streamer
+from nmtcheck.sdo_transfers import SdoSpool
+from nmtcheck.tables import CommandTable, EcTable, IntervalTable, NmtTable, shared_empty
+
+
+def channels_log(channels: int) -> str:
+    """bench/pathological.py's `channels` shape: on every channel a boot-up of node 5,
+    then, 40 ms x channels later, a TPDO of node 5."""
+    return "".join(f"({1_700_000_000 + i / 1000:.6f}) c{i % channels} "
+                   f"{'705#00' if i < channels else '185#01'}\n" for i in range(2 * channels))
+
+
+def random_log(rng: random.Random, channels: int = 30, frames: int = 1500) -> str:
+    """Several channels of a few nodes each: boot-ups, heartbeats of every state (and
+    silences long enough for a timeout), NMT commands direct and broadcast, TPDOs,
+    RPDOs, SDO responses and EMCYs, sometimes with the time going back."""
+    lines = []
+    t = 1_700_000_000.0
+    for _ in range(frames):
+        t += rng.choice((0.001, 0.003, 0.05, 0.2, 0.5, 2.5)) if rng.random() > 0.02 else -0.3
+        ch = f"c{rng.randrange(channels)}"
+        n = rng.randint(1, 4)
+        r = rng.random()
+        if r < 0.12:
+            frame = f"{0x700 + n:03X}#00"
+        elif r < 0.45:
+            frame = f"{0x700 + n:03X}#{rng.choice(('05', '7F', '04', '05', '85')):s}"
+        elif r < 0.55:
+            cs = rng.choice(("01", "02", "80", "81", "82"))
+            frame = f"000#{cs}{rng.choice((0, n, n)):02X}"
+        elif r < 0.75:
+            frame = f"{0x180 + n:03X}#01"
+        elif r < 0.85:
+            frame = f"{0x200 + n:03X}#02"
+        elif r < 0.93:
+            frame = f"{0x580 + n:03X}#4B00100000000000"
+        else:
+            frame = f"{0x080 + n:03X}#0010010000000000"
+        lines.append(f"({t:.6f}) {ch} {frame}\n")
+    return "".join(lines)
+
+
+def _reference_scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
+                    grace_s: float, grace_from: str | None, unproven: bool = False
+                    ) -> list[tuple[NodeModel, int, state._Run]]:
+    """`state._scan` as it was, node by node (the seventh session's code)."""
+    by_key = {m.key: m for cm in model.channels for m in cm.nodes.values()}
+    offline = STATE_INDEX[OFFLINE]
+    grace_code = STATE_INDEX[grace_from] if grace_from else -2
+    wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
+    found: dict[tuple[int, int], state._Run] = {}
+    cand = model.sent_while(state._CHECKED_STATES)
+    sel = np.flatnonzero(np.isin(cand.kind, kinds))
+    keys = cand.key[sel]
+    order = np.argsort(keys, kind="stable")
+    uniq, first = np.unique(keys[order], return_index=True)
+    bounds = np.append(first, len(order))
+    for g, key in enumerate(uniq.tolist()):
+        m = by_key.get(key)
+        if m is None:
+            continue
+        starts = m.interval_starts()
+        codes = m.intervals.state
+        since = np.full(len(codes), -np.inf)
+        for i in range(len(codes)):
+            if grace_from is None:
+                back = i >= 2 and codes[i - 1] == offline and codes[i - 2] == codes[i]
+                since[i] = since[i - 2] if back else starts[i]
+            elif i >= 1 and codes[i - 1] == grace_code:
+                since[i] = starts[i]
+            elif i >= 1 and codes[i - 1] != offline:
+                since[i] = since[i - 1]
+        rows = sel[order[bounds[g]:bounds[g + 1]]]
+        ts = cand.ts[rows]
+        iv = np.maximum(np.searchsorted(starts, ts, side="right") - 1, 0)
+        bad = np.isin(codes[iv], wanted)
+        bad &= ~((ts - since[iv]) <= grace_s + EPS)
+        if unproven and m.unproven_spans:
+            spans = np.asarray(m.unproven_spans, np.float64)
+            span = np.searchsorted(spans[:, 0], ts, side="right") - 1
+            bad &= ~((span >= 0) & (ts <= spans[np.maximum(span, 0), 1] + EPS))
+        for j in np.flatnonzero(bad).tolist():
+            row = rows[j]
+            k = (key, int(iv[j]))
+            run = found.get(k)
+            if run is None:
+                found[k] = state._Run(float(cand.ts[row]), int(cand.idx[row]),
+                                      int(cand.line[row]), int(cand.can_id[row]),
+                                      int(cand.kind[row]), 1)
+            else:
+                run.count += 1
+    return [(by_key[key], iv, run) for (key, iv), run in sorted(
+        found.items(), key=lambda kv: kv[1].idx)]
+
+
+SCANS = [  # S001, S002, S003 as the rules call `_scan`, and with other grace periods
+    ((KIND_TPDO,), (PRE_OPERATIONAL, STOPPED), 0.005, OPERATIONAL, True),
+    ((KIND_TPDO,), (PRE_OPERATIONAL, STOPPED), 0.3, OPERATIONAL, False),
+    ((KIND_RPDO,), (PRE_OPERATIONAL, STOPPED), 0.0, None, False),
+    ((KIND_SDO_TX, KIND_EMCY), (STOPPED,), 0.005, None, False),
+    ((KIND_SDO_TX, KIND_EMCY, KIND_TPDO), (STOPPED, PRE_OPERATIONAL), 0.6, None, True),
+]
+
+
+def _runs(found: list[tuple[NodeModel, int, state._Run]]) -> list[tuple[object, ...]]:
+    return [(m.key, iv, astuple(run)) for m, iv, run in found]
+
+
+def test_scan_matches_the_node_by_node_walk(checker: Checker) -> None:
+    """S001-S003 match every node's intervals at once; on random logs of 30 channels the
+    runs they find (node, interval, first frame, count, in file order) are the walk's,
+    with some found and some nodes silent in each."""
+    hits = silent = 0
+    for seed in range(8):
+        model = checker.run(random_log(random.Random(seed))).model
+        for args in SCANS:
+            got, want = _runs(state._scan(model, *args)), _runs(_reference_scan(model, *args))
+            assert got == want, (seed, args)
+            hits += len(got)
+            silent += sum(1 for m in model.nodes()) - len({k for k, _, _ in got})
+    assert hits > 100 and silent > 100, (hits, silent)
+
+
+def test_grace_since_matches_the_walk_on_every_interval_pattern() -> None:
+    """The grace periods' starts, found for all nodes at once, on random state sequences
+    rich in OFFLINE returns (the walk's chains of two steps back)."""
+    rng = random.Random(1)
+    pool = [STATE_INDEX[s] for s in (OFFLINE, OPERATIONAL, PRE_OPERATIONAL, STOPPED)]
+    starts, states = [], []
+    for _ in range(300):
+        n = rng.randint(1, 9)
+        starts.append(np.cumsum(np.asarray([rng.random() for _ in range(n)])))
+        states.append(np.asarray([rng.choice(pool) for _ in range(n)], np.int8))
+    ivs = state._Intervals(starts, states)
+    for grace in (None, *pool):
+        got = ivs.grace_since(grace)
+        want = []
+        for st, codes in zip(starts, states, strict=True):
+            since = np.full(len(codes), -np.inf)
+            for i in range(len(codes)):
+                if grace is None:
+                    back = i >= 2 and codes[i - 1] == pool[0] and codes[i - 2] == codes[i]
+                    since[i] = since[i - 2] if back else st[i]
+                elif i >= 1 and codes[i - 1] == grace:
+                    since[i] = st[i]
+                elif i >= 1 and codes[i - 1] != pool[0]:
+                    since[i] = since[i - 1]
+            want.append(since)
+        assert np.array_equal(got, np.concatenate(want)), grace
+
+
+def _trivial_nodes(res: InputResult) -> list[NodeModel]:
+    return [m for m in res.model.nodes() if timeline._only_bootups(m)]
+
+
+def test_trivial_node_shortcuts_match_the_full_paths(checker: Checker) -> None:
+    """A node of boot-ups only: its intervals, unproven spans, measured period and
+    heartbeat pairs are what the full paths give (the walk, the self-start search, the
+    segment medians), on random logs and on the many-channels shape."""
+    logs = [random_log(random.Random(seed), channels=60, frames=400) for seed in range(6)]
+    trivial = 0
+    for text in [*logs, channels_log(50)]:
+        res = checker.run(text)
+        start, end, obey = res.model.start, res.model.end, res.model.timeline.obey_s
+        for m in _trivial_nodes(res):
+            trivial += 1
+            full = timeline._intervals(m, start, end, obey)
+            for name in ("start", "end", "state", "source"):
+                assert np.array_equal(getattr(m.intervals, name), getattr(full, name))
+            spans = m.unproven_spans
+            assert not timeline._self_start_queries(m, end) and m.unproven_spans == spans
+            a, b = m.heartbeat_pairs()
+            assert not len(a) and not len(b) and m.heartbeat_gaps().count == 0
+            bounds, medians = timeline._segment_medians(m)
+            assert np.array_equal(bounds, m.seg_bounds) and np.array_equal(
+                medians, m.seg_median, equal_nan=True) and m.median_s is None
+    assert trivial > 60, trivial
+
+
+def test_a_tpdo_after_a_lone_boot_up_is_no_s001_but_after_pre_operational_it_is(
+        checker: Checker) -> None:
+    """Many channels: where a boot-up alone precedes the TPDO nothing shows the node did
+    not start itself (silent); where a heartbeat says PRE-OPERATIONAL first, S001 fires,
+    on exactly those channels."""
+    lines = []
+    for c in range(200):
+        lines.append(f"(1700000000.{c:06d}) c{c} 705#00\n")
+        if c % 3 == 0:
+            lines.append(f"(1700000001.{c:06d}) c{c} 705#7F\n")
+        lines.append(f"(1700000002.{c:06d}) c{c} 185#01\n")
+    res = checker.run("".join(lines), select="S001")
+    assert sorted(str(f.channel) for f in res.findings) == sorted(
+        f"c{c}" for c in range(0, 200, 3))
+    assert all(f.node == 5 and f.rule == "S001" for f in res.findings)
+
+
+def test_forty_thousand_channels_are_checked_in_seconds(checker: Checker) -> None:
+    """The bench's 40,000 channels: every node PRE-OPERATIONAL from its boot-up, nothing
+    found, in linear time (2,000 channels for scale; 158 s at issue 24, 18 s before this
+    change on a shared 2-core machine, about 4 s after)."""
+    took = {}
+    for channels in (2_000, 40_000):
+        text = channels_log(channels)
+        began = time.perf_counter()
+        res = checker.run(text)
+        took[channels] = time.perf_counter() - began
+        nodes = list(res.model.nodes())
+        assert len(nodes) == channels and not res.findings
+        assert {(m.channel, m.node) for m in nodes} == {(f"c{c}", 5) for c in range(channels)}
+        # c0's boot-up is the trace's first frame: no UNKNOWN before it
+        assert [iv.state for iv in nodes[0].intervals] == ["PRE-OPERATIONAL"]
+        for m in nodes[1:50]:
+            assert [iv.state for iv in m.intervals] == ["UNKNOWN", "PRE-OPERATIONAL"]
+            assert m.unproven_spans and m.period_source == "none"
+    assert took[40_000] < 30 * max(took[2_000], 0.1) and took[40_000] < 60, took
+
+
+def test_the_boot_stage_lists_the_sdo_servers_once(checker: Checker,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each channel's SDO servers are found in one pass, not one listing per channel
+    (quadratic at 40,000 channels); each channel's node still gets its boot report."""
+    calls = []
+    listing = SdoSpool.servers
+
+    def counted(self: SdoSpool) -> list[int]:
+        calls.append(1)
+        return listing(self)
+
+    monkeypatch.setattr(SdoSpool, "servers", counted)
+    text = "".join(f"(1700000000.{c:06d}) c{c} 705#00\n(1700000000.{c + 500:06d}) c{c} "
+                   f"585#4300100000000000\n" for c in range(300))
+    res = checker.run(text)
+    assert len(calls) == 1
+    assert res.boot is not None
+    assert {key for key in res.boot.nodes} == {(f"c{c}", 5) for c in range(300)}
+
+
+def test_the_collector_runs_again_after_a_check_and_a_report(checker: Checker,
+                                                            tmp_path: Path) -> None:
+    """The checks and the reports pause the cyclic garbage collector while they make the
+    model's objects, and leave it as they found it, also when a check fails."""
+    assert gc.isenabled()
+    res = checker.run(channels_log(20))
+    assert gc.isenabled()
+    assert "".join(streamer("json")([res], {})).startswith("{")
+    assert "c19/5" in "".join(streamer("text")([res], {}))
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        checker.run(channels_log(20))
+        "".join(streamer("json")([res], {}))
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    log = tmp_path / "few.log"
+    log.write_text(channels_log(5))
+    profile = load_profile("default")
+    with pytest.raises(UsageError, match="--channel nope"):
+        check_input(str(log), 0, profile, select_rules(profile, [], []), channel="nope")
+    assert gc.isenabled()
+
+
+def test_shared_empty_tables_stay_empty(checker: Checker) -> None:
+    """Nodes without a table of their own share one empty table per kind; after checks
+    of random logs of many channels every shared one is still empty and unchanged."""
+    for seed in range(3):
+        checker.run(random_log(random.Random(seed), channels=40, frames=600))
+    for cls in (EcTable, CommandTable, IntervalTable, NmtTable, WriteTable, EmcyTable,
+                SdoEventTable):
+        table: Any = shared_empty(cls)
+        assert len(table) == 0
+        for name, value in vars(table).items():
+            if isinstance(value, np.ndarray):
+                assert value.size == 0, (cls, name)
+    assert shared_empty(EcTable).runs is None
+    assert NodeConfig() == timeline._NO_CONFIG
+    assert boot.Spans.empty().last_step == [] and boot.Spans.empty() is not boot.Spans.empty()
