@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from nmtcheck import emcy
-from nmtcheck.decode import frame_time_lines, key_rows
+from nmtcheck.decode import key_rows
 from nmtcheck.ec_compact import expanded
 from nmtcheck.nmt import BOOTUP, EPS, REQUEST
 
@@ -265,45 +265,10 @@ class _Ctx:
         return out
 
     def _drop_positions(self) -> dict[str, np.ndarray]:
-        """Each drop record's moment: the frame its reader placed it at (BLF, CLX000), at
-        the time the record gives (else that frame's), or else the first frame after its
-        line (candump `DROPCOUNT`); one pass over the frame times for all of them."""
-        if self._drops is not None:
-            return self._drops
-        drops = getattr(self.res.stats, "drops", None) or []
-        lines = np.asarray([d[0] for d in drops], np.int64)
-        counts = np.asarray([d[1] for d in drops], np.int64)
-        given = np.asarray([d[2] if len(d) > 2 and d[2] is not None else -1 for d in drops],
-                           np.int64)
-        at = np.asarray([d[3] if len(d) > 3 and d[3] is not None else np.nan for d in drops],
-                        np.float64)
-        ts = np.full(len(lines), np.nan)
-        idx = np.full(len(lines), -1, np.int64)
-        placed = given >= 0
-        todo = ~placed & (lines > 0)
-        find = placed.copy()  # the reader's frames: that they exist, and their times
-        if todo.any() or find.any():
-            for chunk in self.model.decoded.frame_times:
-                t = chunk["ts"]
-                if not len(t) or not (todo.any() or find.any()):
-                    continue
-                base = int(chunk["base"][0])
-                if todo.any():
-                    fl = frame_time_lines(chunk)
-                    pos = np.searchsorted(fl, lines, side="right")
-                    hit = todo & (pos < len(t))
-                    ts[hit] = t[pos[hit]]
-                    idx[hit] = base + pos[hit]
-                    todo &= ~hit
-                rel = given - base
-                hit = find & (rel >= 0) & (rel < len(t))
-                ts[hit] = t[rel[hit]]
-                idx[hit] = given[hit]
-                find &= ~hit
-        ts = np.where(placed & ~np.isnan(at), at, ts)
-        keep = idx >= 0
-        self._drops = {"ts": ts[keep], "idx": idx[keep], "line": lines[keep],
-                       "count": counts[keep]}
+        """Each drop record's moment (`Decoded.drop_moments`), found once."""
+        if self._drops is None:
+            self._drops = self.model.decoded.drop_moments(
+                getattr(self.res.stats, "drops", None) or [])
         return self._drops
 
     def _silence(self, cm: Any, m: Any, windows: list[tuple[float, float]]

@@ -24,9 +24,9 @@ from __future__ import annotations
 import os
 import signal
 import tempfile
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import BinaryIO, NamedTuple
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -338,6 +338,45 @@ class Decoded:
             return
         self.ec, self.ec_runs = ec_compact.restore(self.ec_spool, self.ec, self.ec_runs, keys,
                                                    ec_compact.SETTINGS.chunk)
+
+    def drop_moments(self, drops: Sequence[tuple[Any, ...]]) -> dict[str, np.ndarray]:
+        """Each logger drop record's moment (`InputStats.drops`: line, lost, frame, ts), as
+        columns ts, idx, line, count: the frame its reader placed it at (BLF, CL2000), at
+        the time the record gives (else that frame's), or else the first frame after its
+        line (candump `DROPCOUNT`); one pass over the frame times for all of them. A
+        record with no frame after it is left out."""
+        lines = np.asarray([d[0] for d in drops], np.int64)
+        counts = np.asarray([d[1] for d in drops], np.int64)
+        given = np.asarray([d[2] if len(d) > 2 and d[2] is not None else -1 for d in drops],
+                           np.int64)
+        at = np.asarray([d[3] if len(d) > 3 and d[3] is not None else np.nan for d in drops],
+                        np.float64)
+        ts = np.full(len(lines), np.nan)
+        idx = np.full(len(lines), -1, np.int64)
+        placed = given >= 0
+        todo = ~placed & (lines > 0)
+        find = placed.copy()  # the reader's frames: that they exist, and their times
+        if todo.any() or find.any():
+            for chunk in self.frame_times:
+                t = chunk["ts"]
+                if not len(t) or not (todo.any() or find.any()):
+                    continue
+                base = int(chunk["base"][0])
+                if todo.any():
+                    fl = frame_time_lines(chunk)
+                    pos = np.searchsorted(fl, lines, side="right")
+                    hit = todo & (pos < len(t))
+                    ts[hit] = t[pos[hit]]
+                    idx[hit] = base + pos[hit]
+                    todo &= ~hit
+                rel = given - base
+                hit = find & (rel >= 0) & (rel < len(t))
+                ts[hit] = t[rel[hit]]
+                idx[hit] = given[hit]
+                find &= ~hit
+        ts = np.where(placed & ~np.isnan(at), at, ts)
+        keep = idx >= 0
+        return {"ts": ts[keep], "idx": idx[keep], "line": lines[keep], "count": counts[keep]}
 
     def first_frame_at_or_after(self, moments: list[float]) -> list[FrameAt | None]:
         """(frame index, line) of the first frame whose time is >= each moment."""

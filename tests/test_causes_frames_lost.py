@@ -55,7 +55,11 @@ def test_dropcount_inside_the_gap_is_a_cause(checker: Checker) -> None:
         1795299775.790898, 75, 76, 17, None, None)
     assert c["text"].startswith("the logger reported 17 frame(s) lost (1 DROPCOUNT record(s))")
     assert res.stats.dropped == 17 and res.stats.drops == [Drop(76, 17, None, None)]
-    assert any(r.rule == "I004" for r in res.findings)  # the input finding stays as it was
+    # the input finding sits at the same moment (SPEC: "the first such moment")
+    [i004] = [r for r in res.findings if r.rule == "I004"]
+    assert (i004.time, i004.frame_index, i004.line) == (1795299775.790898, 75, 76)
+    assert i004.message.startswith("the logger reported 17 frames lost in 1 DROPCOUNT "
+                                   "record, the first before frame 75 (the record at line 76)")
     # text: an indented cause line under the finding
     out = text.render([res], {})
     start = res.stats.start or 0.0
@@ -129,7 +133,9 @@ def test_blf_data_lost_inside_the_gap_is_a_cause(tmp_path: Path) -> None:
     # at the object's time; the frame to open is the one after it; a BLF has no lines
     assert (c["time"], c["frame_index"], c["line"], c["count"], c["end"], c["node"]) == (
         1795299775.78, 75, None, 17, None, None)
-    assert any(r.rule == "I004" for r in res.findings)
+    [i004] = [r for r in res.findings if r.rule == "I004"]
+    assert (i004.time, i004.frame_index, i004.line) == (1795299775.78, 75, None)
+    assert "in 1 BLF data-lost record, the first before frame 75;" in i004.message
 
 
 def test_blf_data_lost_outside_the_window_is_no_cause(tmp_path: Path) -> None:
@@ -213,6 +219,17 @@ def test_clx000_lost_inside_the_gap_is_a_cause(tmp_path: Path) -> None:
     [c] = lost(h001_of(res))
     assert (c["time"], c["frame_index"], c["line"], c["count"]) == (
         1795299775.791, 75, CL_FIRST_LINE + 75, 9)
+    [i004] = [r for r in res.findings if r.rule == "I004"]  # at the same moment
+    assert (i004.time, i004.frame_index, i004.line) == (1795299775.791, 75, CL_FIRST_LINE + 75)
+    assert "9 frames lost in 1 CL2000 Lost record" in i004.message
+
+
+def test_i004_is_at_the_first_of_several_losses(tmp_path: Path) -> None:
+    res = check(clx000(tmp_path / "two.txt", {160: 2, 40: 3}))
+    [i004] = [r for r in res.findings if r.rule == "I004"]
+    assert (i004.frame_index, i004.line) == (40, CL_FIRST_LINE + 40)
+    assert i004.message.startswith("the logger reported 5 frames lost in 2 CL2000 Lost "
+                                   "records, the first before frame 40")
 
 
 def test_clx000_lost_outside_the_window_is_no_cause(tmp_path: Path) -> None:

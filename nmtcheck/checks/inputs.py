@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
+
 from nmtcheck.checks.base import Param, Problem, input_rule
 from nmtcheck.model import InputModel
 from nmtcheck.readers import TEXT_FORMATS, InputStats
@@ -182,8 +184,10 @@ def frames_lost(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
     **What it checks.** The log says that the logger lost frames: candump
     `DROPCOUNT`, BLF data-lost events, CANedge/CL2000 `Lost` counts. One finding
-    per input with the total count. The readers do not keep the moment of the
-    first loss, so the finding sits at the input's first frame.
+    per input with the total count, at the first loss: where the logger's record
+    says it happened (BLF, CL2000), else at the first frame after the record
+    (`DROPCOUNT`); at the input's first frame where no record places it (frames a
+    live monitor could not keep up with).
 
     **Why it matters.** A heartbeat gap, a missing boot-up or an unanswered
     guarding request in that window may be the logger's loss, not the network's:
@@ -195,10 +199,22 @@ def frames_lost(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     stats = model.stats
     if stats is None or not stats.dropped:
         return
-    ts, idx, line = _first_frame(model)
-    yield Problem(None, None, ts, f"the logger reported {_plural(stats.dropped, 'frame')} "
-                  "lost (the moment of the first loss is not recorded: the finding is at the "
-                  "first frame); timing findings may be the logger's", idx, line)
+    lost = _plural(stats.dropped, "frame")
+    placed = model.decoded.drop_moments(stats.drops)
+    if not len(placed["ts"]):
+        ts, idx, line = _first_frame(model)
+        yield Problem(None, None, ts, f"the logger reported {lost} lost (the moment of the "
+                      "first loss is not recorded: the finding is at the first frame); "
+                      "timing findings may be the logger's", idx, line)
+        return
+    first = int(np.lexsort((placed["idx"], placed["ts"]))[0])
+    ts, idx, line = (float(placed["ts"][first]), int(placed["idx"][first]),
+                     int(placed["line"][first]))
+    records = _plural(len(stats.drops), f"{stats.drop_record} record")
+    where = f" (the record at line {line})" if line and stats.format in TEXT_FORMATS else ""
+    yield Problem(None, None, ts, f"the logger reported {lost} lost in {records}, the first "
+                  f"before frame {idx}{where}; timing findings around it may be the "
+                  "logger's", idx, line or None)
 
 
 @input_rule("I005", "timestamps-backwards", "warning", exempt_from_unknown=True, scope="input")
