@@ -9,11 +9,12 @@ columns, kept in `tables.py` (NMT, commands, error control, intervals) and
 
 from __future__ import annotations
 
+import bisect
 import heapq
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -137,6 +138,18 @@ _ERROR_CONTROL_OBJECTS = {0x1017: "heartbeat_ms", 0x100C: "guard_time_ms",
                           0x100D: "life_time_factor"}
 
 
+class SmallEc(NamedTuple):
+    """A small node's error-control frames (boot-ups and heartbeats only, no command, no
+    SDO write, no dropped run) as Python lists, in file order: a log of many channels
+    has tens of thousands of such nodes, and each numpy set-up costs more than the walk
+    over a few Python numbers."""
+
+    ts: list[float]
+    kind: list[int]
+    value: list[int]
+    idx: list[int]
+
+
 @dataclass
 class NodeModel:
     """Everything known about one node on one channel."""
@@ -178,6 +191,9 @@ class NodeModel:
         default=None, init=False, repr=False, compare=False)
     _kinds: tuple[np.ndarray, list[int]] | None = field(  # kind_counts(), likewise
         default=None, init=False, repr=False, compare=False)
+    # a small plain node's frames as Python lists (`timeline._small`): the heartbeat
+    # stages and rules take their per-node shortcuts on them; None: the numpy paths
+    small: SmallEc | None = field(default=None, repr=False, compare=False)
 
     def config_at(self, ts: float) -> NodeConfig:
         """The configuration in force at `ts`: files, then SDO writes confirmed before it."""
@@ -273,7 +289,7 @@ class NodeModel:
         it is evaluated once per stretch between those moments.
         """
         if not len(self.writes) and not len(self.consumer_writes):  # the files' values only
-            value = get(next(self._configs_at([-np.inf])))
+            value = get(self._base_config)  # what `_configs_at` yields without writes
             return np.full(np.shape(times), np.nan if value is None else value, np.float64)
         moments = [t.ts for t in (self.writes, self.consumer_writes)] + [
             t.until[np.isfinite(t.until)] for t in (self.writes, self.consumer_writes)]
@@ -293,6 +309,12 @@ class NodeModel:
         if self.kind_counts()[HEARTBEAT] < 2:  # no pair (most nodes of many channels)
             self._pairs = (kind, (_NO_IDX, _NO_IDX))
             return _NO_IDX, _NO_IDX
+        if self.small is not None:  # no command: consecutive heartbeats, from the lists
+            k = self.small.kind
+            first = [i for i in range(len(k) - 1) if k[i] == k[i + 1] == HEARTBEAT]
+            a = np.asarray(first, np.int64)
+            self._pairs = (kind, (a, a + 1))
+            return a, a + 1
         pos = np.flatnonzero((kind == HEARTBEAT) | (kind == BOOTUP))
         a, b = pos[:-1], pos[1:]
         ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
@@ -371,6 +393,12 @@ class NodeModel:
         fallback = self.median_s if self.median_s and self.median_s > 0 else np.nan
         seg = self.seg_median[np.searchsorted(self.seg_bounds, times, side="right")]
         return np.where(seg > 0, seg, fallback)
+
+    def measured_period_at(self, t: float) -> float:
+        """`measured_periods_at` for one time, in Python numbers (the small nodes' paths)."""
+        fallback = self.median_s if self.median_s and self.median_s > 0 else np.nan
+        seg = float(self.seg_median[bisect.bisect_right(self.seg_bounds.tolist(), t)])
+        return seg if seg > 0 else fallback
 
     def hb_timeouts_at(self, times: np.ndarray, timeout_factor: float) -> np.ndarray:
         """`hb_timeout` at each time, the measured period being the segment's (NaN where

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import bisect
 from array import array
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -30,6 +30,7 @@ from nmtcheck.model import (
     NmtTable,
     NodeConfig,
     NodeModel,
+    SmallEc,
     TimelineParams,
     Timeout,
     reset_cs,
@@ -161,6 +162,7 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
                 for n, m in nodes.items()}  # SDO-written values
     write_validity(nodes)
     for n, m in nodes.items():
+        m.small = _small(m, params)
         _find_period(m)
         if requests[n]:  # without requests the second pass classifies alike
             _classify(m, params, with_period=True)
@@ -616,7 +618,9 @@ def _find_period(m: NodeModel) -> None:
 
     The median is kept apart too: it is the period where 1017h = 0 is in force.
     """
-    if m.kind_counts()[HEARTBEAT] < 2 and m.ec.runs is None:
+    if m.small is not None and m.kind_counts()[HEARTBEAT] >= 2:
+        m.median_s, m.seg_bounds, m.seg_median = _small_period(m.small)
+    elif m.kind_counts()[HEARTBEAT] < 2 and m.ec.runs is None:
         # no interval at all (most nodes of a log of many channels): what the two below
         # find of none, without their set-up
         m.median_s = None
@@ -635,6 +639,53 @@ def _find_period(m: NodeModel) -> None:
 
 _NO_SEGMENTS, _ONE_NAN = np.zeros(0), np.full(1, np.nan)  # read only: shared by nodes
 _NO_SEGMENTS.flags.writeable = _ONE_NAN.flags.writeable = False
+
+
+SMALL_NODE_FRAMES = 32  # a node of at most this many frames may take the list paths
+
+
+def _small(m: NodeModel, params: TimelineParams) -> SmallEc | None:
+    """N's frames as lists when N is a small plain node: a few boot-ups and heartbeats,
+    no request, guarding response or malformed frame, no command, no SDO write, no
+    dropped run, timestamps. The heartbeat stages (`_small_period`,
+    `_small_heartbeat_timeouts`, `_small_self_start`, `_small_steps`) and rules then
+    walk a few Python numbers instead of setting up numpy per node; each computes what
+    its numpy path does (tests/test_many_channels.py compares them)."""
+    ec = m.ec
+    if (params.order_only or ec.runs is not None or not 0 < len(ec) <= SMALL_NODE_FRAMES
+            or len(m.commands) or len(m.writes) or len(m.consumer_writes)):
+        return None
+    k = m.kind_counts()
+    if k[REQUEST] or k[GUARD] or k[MALFORMED] or not k[HEARTBEAT]:
+        return None
+    return SmallEc(ec.ts.tolist(), ec.kind.tolist(), ec.value.tolist(), ec.idx.tolist())
+
+
+def _small_period(s: SmallEc) -> tuple[float | None, np.ndarray, np.ndarray]:
+    """`_find_period`'s median and `_segment_medians` for a small node: its pairs are
+    consecutive heartbeats (no command), its segment bounds its boot-ups' times."""
+    ts, kind = s.ts, s.kind
+    pairs = [(ts[i], ts[i + 1]) for i in range(len(ts) - 1)
+             if kind[i] == HEARTBEAT and kind[i + 1] == HEARTBEAT]
+    if not pairs:
+        return None, _NO_SEGMENTS, _ONE_NAN
+    median = _list_median(sorted(b - a for a, b in pairs))
+    bounds = sorted({t for t, k in zip(ts, kind, strict=True) if k == BOOTUP})
+    medians = [np.nan] * (len(bounds) + 1)
+    per_seg: dict[int, list[float]] = {}
+    for a, b in pairs:
+        seg = bisect.bisect_right(bounds, a)
+        if seg == bisect.bisect_right(bounds, b):  # a pair across a bound belongs to none
+            per_seg.setdefault(seg, []).append(b - a)
+    for seg, gaps in per_seg.items():
+        medians[seg] = _list_median(sorted(gaps))
+    return median, np.asarray(bounds, np.float64), np.asarray(medians, np.float64)
+
+
+def _list_median(gaps: list[float]) -> float:
+    """numpy's median of sorted values: the middle one, or the mean of the two."""
+    n = len(gaps)
+    return (gaps[(n - 1) // 2] + gaps[n // 2]) / 2.0
 
 
 def _segment_medians(m: NodeModel) -> tuple[np.ndarray, np.ndarray]:
@@ -683,6 +734,9 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
     a timeout that expired before a reset or a 0 write still counts.
     """
     if not m.is_producer:
+        return
+    if m.small is not None:
+        _small_heartbeat_timeouts(m, m.small, params, end)
         return
     ec = m.ec
     pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
@@ -735,6 +789,30 @@ def _heartbeat_timeouts(m: NodeModel, params: TimelineParams, end: float) -> Non
         start = float(ts[g])
         m.timeouts.append(Timeout("H001", start + lim, start, int(idx[g]), lim,
                                   u - start if c else None))
+
+
+def _small_heartbeat_timeouts(m: NodeModel, s: SmallEc, params: TimelineParams,
+                              end: float) -> None:
+    """`_heartbeat_timeouts` for a small node: no command and no write, so every frame
+    ends a gap, each heartbeat opens one (none while 1017h = 0 is configured) and the
+    configuration is the files' throughout."""
+    cfg = m.config
+    hb = np.nan if cfg.heartbeat_ms is None else float(cfg.heartbeat_ms)
+    if hb == 0:  # no gap opens, and none would have a limit
+        return
+    cons = float(cfg.consumer_timeout_ms or np.nan)
+    ts, kind = s.ts, s.kind
+    last = len(ts) - 1
+    for i, k in enumerate(kind):
+        if k != HEARTBEAT:
+            continue
+        at = ts[i]
+        period = hb / 1000.0 if hb > 0 else m.measured_period_at(at)
+        limit = cons / 1000.0 if cons > 0 else params.timeout_factor * period
+        until = ts[i + 1] if i < last else end
+        if limit > 0 and until - at > limit + EPS:
+            m.timeouts.append(Timeout("H001", at + limit, at, s.idx[i], limit,
+                                      until - at if i < last else None))
 
 
 def _timed_from(start: np.ndarray, by_heartbeat: np.ndarray, req: np.ndarray,
@@ -841,7 +919,8 @@ def _self_starts(decoded: Decoded, nodes: list[NodeModel], end: float) -> None:
         if not counts[HEARTBEAT] and not counts[GUARD] and not len(m.commands):
             m.unproven_spans = _unproven_bootups(m, end)  # most nodes of many channels
             continue
-        queries.extend(_self_start_queries(m, end))
+        queries.extend(_self_start_queries(m, end) if m.small is None
+                       else _small_self_start(m, m.small, end))
     if not queries:
         return
     found = decoded.first_node_frame_after(
@@ -885,6 +964,28 @@ def _self_start_queries(m: NodeModel, end: float) -> list[tuple[NodeModel, int, 
         strict=True)]
     return [(m, int(boots[i]), int(b_idx[i]), int(msg_idx[i]))
             for i in np.flatnonzero(started).tolist()]
+
+
+def _small_self_start(m: NodeModel, s: SmallEc, end: float
+                      ) -> list[tuple[NodeModel, int, int, int]]:
+    """`_self_start_queries` for a small node (no command): after each boot-up, its first
+    heartbeat with a CiA 301 state before the next boot-up decides; none: unproven."""
+    never = np.iinfo(np.int64).max
+    ts, kind, value, idx = s.ts, s.kind, s.value, s.idx
+    boots = [i for i, k in enumerate(kind) if k == BOOTUP]
+    queries, spans = [], []
+    for j, p in enumerate(boots):
+        nxt = boots[j + 1] if j + 1 < len(boots) else len(kind)
+        msg = next((q for q in range(p + 1, len(kind)) if kind[q] == HEARTBEAT
+                    and _CODE_STATE_LIST[value[q] & 0x7F] >= 0), -1)
+        msg_idx = idx[msg] if msg >= 0 else never
+        if msg_idx < (idx[nxt] if nxt < len(kind) else never):
+            if _CODE_STATE_LIST[value[msg] & 0x7F] == _OPERATIONAL:
+                queries.append((m, p, idx[p], msg_idx))
+        else:
+            spans.append((ts[p], min(ts[nxt], end) if nxt < len(kind) else end))
+    m.unproven_spans = spans
+    return queries
 
 
 def _unproven_bootups(m: NodeModel, end: float) -> list[tuple[float, float]]:
@@ -932,6 +1033,10 @@ def _evidence(m: NodeModel, windows: list[tuple[float, float]]) -> np.ndarray:
 _CODE_STATE = np.full(128, -1, np.int8)  # state index a code (data byte & 7Fh) reports
 for _code, _state in STATE_OF_CODE.items():
     _CODE_STATE[_code] = STATE_INDEX[_state]
+_CODE_STATE_LIST: list[int] = _CODE_STATE.tolist()
+_STATE_OF_BYTE_LIST: list[int] = _STATE_OF_BYTE.tolist()
+_PRE_OP = STATE_INDEX[PRE_OPERATIONAL]
+_OPERATIONAL = STATE_INDEX[OPERATIONAL]
 _EC_SOURCE = {BOOTUP: SOURCE_INDEX["bootup"], HEARTBEAT: SOURCE_INDEX["heartbeat"],
               GUARD: SOURCE_INDEX["guarding"]}
 _EV_TIMEOUT, _EV_EC, _EV_BACK = 0, 1, 2  # order of steps at one moment; commands are 1 too
@@ -980,6 +1085,42 @@ def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, i
     yield from _in_chunks(ts, what, ref, steps)
 
 
+def _small_steps(m: NodeModel, s: SmallEc) -> list[tuple[float, int, int]]:
+    """`_interval_steps` for a small node (no command, no request): its evidence (the
+    first frame, each change of the reported state, every boot-up, and around each
+    timeout's moment and end the frames within and the first one after), its
+    timeouts, their ends and its self-starts, sorted as the numpy path sorts them."""
+    ts, kind, value, idx = s.ts, s.kind, s.value, s.idx
+    pos = sorted(range(len(ts)), key=lambda p: (ts[p], idx[p]))
+    sts = [ts[p] for p in pos]
+    keep = [False] * len(pos)
+    prev = None
+    for j, p in enumerate(pos):
+        target = _PRE_OP if kind[p] == BOOTUP else _STATE_OF_BYTE_LIST[value[p]]
+        keep[j] = j == 0 or target != prev or kind[p] == BOOTUP
+        prev = target
+    marks = [t.moment for t in m.timeouts] + [
+        t.ended_by for t in m.timeouts if t.ended_by is not None]
+    for t in marks:  # a window [t, t]: the frames at t, and the first one after
+        lo = bisect.bisect_left(sts, t)
+        hi = min(bisect.bisect_right(sts, t + EPS), len(pos) - 1)
+        for j in range(lo, hi + 1):
+            keep[j] = True
+    evidence = [p for j, p in enumerate(pos) if keep[j]]
+    if not m.timeouts and not m.self_starts:
+        return [(ts[p], _EV_EC, p) for p in evidence]
+    # (time, order at one moment, file position, what, reference), then stable by the
+    # first three as `_interval_steps`' lexsort
+    rows: list[tuple[float, int, int, int, int]] = [
+        (ts[p], 1, idx[p], _EV_EC, p) for p in evidence]
+    rows += [(t.moment, 0, -1, _EV_TIMEOUT, i) for i, t in enumerate(m.timeouts)]
+    rows += [(t.ended_by, 2, -1, _EV_BACK, i) for i, t in enumerate(m.timeouts)
+             if t.ended_by is not None]
+    rows += [(t, 1, i, _EV_CMD, j) for j, (t, i) in enumerate(m.self_starts)]
+    rows.sort(key=lambda r: (r[0], r[1], r[2]))
+    return [(r[0], r[3], r[4]) for r in rows]
+
+
 def _in_chunks(ts: np.ndarray, what: np.ndarray, ref: np.ndarray, steps: np.ndarray
                ) -> Iterator[tuple[float, int, int]]:
     """The rows `steps` of the step columns, in that order, as Python numbers a chunk at
@@ -987,6 +1128,17 @@ def _in_chunks(ts: np.ndarray, what: np.ndarray, ref: np.ndarray, steps: np.ndar
     for lo in range(0, len(steps), STEP_CHUNK):
         part = steps[lo:lo + STEP_CHUNK]
         yield from zip(ts[part].tolist(), what[part].tolist(), ref[part].tolist(), strict=True)
+
+
+def _walk_inputs(m: NodeModel, obey_s: float) -> tuple[
+        Iterable[tuple[float, int, int]], array[int] | list[int], array[int] | list[int]]:
+    """The steps of `_intervals`' walk, and each frame's kind and reported state."""
+    if m.small is not None:  # a few frames, no command: lists
+        return (_small_steps(m, m.small), m.small.kind,
+                [_CODE_STATE_LIST[v & 0x7F] for v in m.small.value])
+    # compact arrays, not lists: one entry per frame, read one at a time
+    return (_interval_steps(m, obey_s), array("b", m.ec.kind.astype(np.int8).tobytes()),
+            array("b", _CODE_STATE[m.ec.value & 0x7F].tobytes()))
 
 
 def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> IntervalTable:
@@ -998,10 +1150,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     floats, never objects: a node may change state on every heartbeat.
     """
     ec, cmds = m.ec, m.commands
-    steps = _interval_steps(m, obey_s)
-    # compact arrays, not lists: one entry per frame, read one at a time
-    kind = array("b", ec.kind.astype(np.int8).tobytes())
-    code_state = array("b", _CODE_STATE[ec.value & 0x7F].tobytes())
+    steps, kind, code_state = _walk_inputs(m, obey_s)
     # per command, then per self-start (SPEC §2): the state it sets and the source
     cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()] + [
         STATE_INDEX[OPERATIONAL]] * len(m.self_starts)

@@ -306,3 +306,63 @@ def test_shared_empty_tables_stay_empty(checker: Checker) -> None:
     assert shared_empty(EcTable).runs is None
     assert NodeConfig() == timeline._NO_CONFIG
     assert boot.Spans.empty().last_step == [] and boot.Spans.empty() is not boot.Spans.empty()
+
+
+def heartbeat_log(rng: random.Random, channels: int = 40) -> str:
+    """Many channels of a node or three that boot and send a handful of heartbeats:
+    steady, early, late (a timeout), of changing, unknown or reserved-bit states, a
+    malformed frame, a request or a command now and then (those nodes take the numpy
+    paths), sometimes boot-ups again and the time going back."""
+    lines = []
+    for c in range(channels):
+        for n in rng.sample(range(1, 6), rng.randint(1, 3)):
+            t = 1_700_000_000.0 + rng.random()
+            frames = [(t, f"{0x700 + n:03X}#00")] if rng.random() < 0.8 else []
+            for _ in range(rng.randint(1, 8)):
+                t += rng.choice((0.1, 0.1, 0.1, 0.1, 0.03, 0.4, 0.0))
+                r = rng.random()
+                code = rng.choice(("05", "05", "05", "7F", "04", "85", "02"))
+                frame = (f"{0x700 + n:03X}#00" if r < 0.08 else f"{0x700 + n:03X}#0500"
+                         if r < 0.1 else f"{0x700 + n:03X}#R" if r < 0.12
+                         else f"000#01{n:02X}" if r < 0.14 else f"{0x180 + n:03X}#01"
+                         if r < 0.2 else f"{0x700 + n:03X}#{code}")
+                frames.append((t - 0.3 if rng.random() < 0.02 else t, frame))
+            lines += [f"({ts:.6f}) c{c} {f}\n" for ts, f in frames]
+    lines.sort(key=lambda line: float(line[1:line.index(")")]))
+    return "".join(lines)
+
+
+def _node_state(m: NodeModel) -> tuple[object, ...]:
+    iv = m.intervals
+    return (m.key, m.median_s, m.period_s, m.period_source, m.seg_bounds.tolist(),
+            [None if v != v else v for v in m.seg_median.tolist()],  # NaN: None
+            [astuple(t) for t in m.timeouts], m.self_starts, m.unproven_spans,
+            m.ec.stale.tolist(), iv.start.tolist(), iv.end.tolist(), iv.state.tolist(),
+            iv.source.tolist())
+
+
+def test_small_node_lists_match_the_numpy_paths(checker: Checker,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """A small plain node (a boot-up and a few heartbeats, `timeline._small`): its period,
+    segment medians, H001 timeouts, self-starts, unproven spans, intervals and every
+    finding (H002, H003, C003, C004, S005 return early from the lists) are the numpy
+    paths', on random logs of many channels, with findings fired and nodes silent."""
+    network = "[nodes.2]\nheartbeat_ms = 100\n[nodes.3]\nheartbeat_ms = 250\n"
+    small = fired = 0
+    codes: set[str] = set()
+    for seed in range(10):
+        text = heartbeat_log(random.Random(seed))
+        for net in (None, network):
+            fast = checker.run(text, network=net)
+            with monkeypatch.context() as mp:
+                mp.setattr(timeline, "SMALL_NODE_FRAMES", 0)  # every node the numpy way
+                full = checker.run(text, network=net)
+            assert not any(m.small for m in full.model.nodes())
+            small += sum(1 for m in fast.model.nodes() if m.small is not None)
+            assert [_node_state(m) for m in fast.model.nodes()] == [
+                _node_state(m) for m in full.model.nodes()], seed
+            assert [astuple(f) for f in fast.findings] == [astuple(f) for f in full.findings]
+            fired += len(fast.findings)
+            codes |= {f.rule for f in fast.findings}
+    assert small > 300 and fired > 100, (small, fired)
+    assert {"H001", "H002", "H003", "C003", "C004", "S005", "S001"} <= codes, codes

@@ -162,7 +162,9 @@ def test_i004_dropcount(checker: Checker) -> None:
     res = checker.run(text)
     assert input_findings(res) == [("I004", None, None)]
     (f,) = [f for f in res.findings if f.rule == "I004"]
-    assert "7 frames lost" in f.message and f.frame_index == 0  # the moment is not recorded
+    # at the first frame after the record (line 11), which names it
+    assert "7 frames lost in 1 DROPCOUNT record" in f.message
+    assert (f.frame_index, f.line) == (10, 11) and "(the record at line 11)" in f.message
 
 
 def test_i004_silent_without_loss(checker: Checker) -> None:

@@ -189,6 +189,8 @@ def malformed_error_control(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
     k = m.kind_counts()
     if not k[MALFORMED] and not k[HEARTBEAT]:
         return
+    if m.small is not None and not any(v & 0x80 for v in m.small.value):
+        return  # a small node (no malformed frame): no heartbeat with bit 7 set
     for f, n in _ec_runs(m, _malformed):
         why = (f"DLC {f.dlc} (must be 1)" if f.kind == "malformed"
                else f"heartbeat {f.value:02X}h has the reserved bit 7 set")
@@ -216,6 +218,10 @@ def unknown_nmt_state(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
     """
     k = m.kind_counts()
     if not k[HEARTBEAT] and not k[GUARD]:
+        return
+    if m.small is not None and all(  # a small node: boot-ups and known states only
+            k == BOOTUP or (v & 0x7F) in STATE_OF_CODE
+            for k, v in zip(m.small.kind, m.small.value, strict=True)):
         return
     for f, n in _ec_runs(m, _unknown_state):
         yield f.ts, f"node {m.node} reports unknown NMT state {f.code:02X}h{count_note(n)}", f

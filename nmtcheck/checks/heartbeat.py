@@ -7,7 +7,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
-from nmtcheck.model import NodeModel
+from nmtcheck.model import NodeModel, SmallEc
 from nmtcheck.nmt import (
     BOOTUP,
     EPS,
@@ -84,6 +84,8 @@ def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[F
     if m.kind_counts()[HEARTBEAT] < 2:  # no pair (most nodes of a log of many channels)
         return
     factor = p["early_factor"]
+    if m.small is not None and not _small_early(m, m.small, factor):
+        return
     ec = m.ec
     pos = ec.where(HEARTBEAT, BOOTUP)
     a, b = pos[:-1], pos[1:]
@@ -111,6 +113,21 @@ def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[F
                f"{count_note(int(n), 'heartbeats')}", f)
 
 
+def _small_early(m: NodeModel, s: SmallEc, factor: float) -> bool:
+    """Whether a small node (`timeline._small`: no command, no write) has a pair H002
+    finds early, as its numpy path decides it (the findings are that path's)."""
+    hb = m.config.heartbeat_ms
+    ts, kind, value = s.ts, s.kind, s.value
+    for i in range(len(ts) - 1):
+        if kind[i] != HEARTBEAT or kind[i + 1] != HEARTBEAT or (
+                value[i] & 0x7F) != (value[i + 1] & 0x7F):
+            continue
+        period = hb / 1000.0 if hb is not None and hb > 0 else m.measured_period_at(ts[i])
+        if period > 0 and ts[i + 1] - ts[i] < factor * period - EPS:
+            return True
+    return False
+
+
 @rule("H003", "heartbeat-period-mismatch", "warning",
       Param("tolerance", float, "allowed relative difference of the median interval", 0.1))
 def heartbeat_period_mismatch(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
@@ -133,6 +150,8 @@ def heartbeat_period_mismatch(m: NodeModel, ctx: NodeContext, p: Params) -> Iter
     500 ms afterwards.
     """
     tolerance = p["tolerance"]
+    if m.small is not None and not (m.config.heartbeat_ms or 0) > 0:
+        return  # a small node (no write) with no producer time from files
     a, b = m.heartbeat_pairs()
     if not a.size:
         return

@@ -47,6 +47,7 @@ from nmtcheck.nmt import (
 _STATE_OF_CODE = np.full(128, -1, np.int8)  # state index of a 7-bit state code, -1 if none
 for _code, _state in STATE_OF_CODE.items():
     _STATE_OF_CODE[_code] = STATE_INDEX[_state]
+_STATE_LIST: list[int] = _STATE_OF_CODE.tolist()
 _COMMAND_STATE = np.zeros(256, np.int8)  # state index a command specifier commands
 for _cs, _state in COMMAND_STATE.items():
     _COMMAND_STATE[_cs] = STATE_INDEX[_state]
@@ -393,6 +394,9 @@ def unexplained_state_change(m: NodeModel, ctx: NodeContext, p: Params) -> Itera
     k = m.kind_counts()
     if k[HEARTBEAT] + k[GUARD] < 2:  # a change needs two reports
         return
+    if m.small is not None and len({_STATE_LIST[v & 0x7F] for k, v in zip(
+            m.small.kind, m.small.value, strict=True) if k != BOOTUP} - {-1}) < 2:
+        return  # a small node whose heartbeats report one state: no change
     ec = m.ec
     # heartbeats and guarding responses with a CiA 301 state; a boot-up starts anew
     pos = ec.where(BOOTUP, HEARTBEAT, GUARD)
