@@ -25,6 +25,8 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
 - channels (issue 24): N/2 interfaces `c0`, `c1`, ... of two frames each (a heartbeat
   705#00, then a TPDO 185#01 of node 5 on every interface), 1 ms apart: the channel
   dimension (40,000 channels at N = 80,000);
+- chanbeats: N/4 interfaces of a boot-up 705#00 and three heartbeats 705#05, 100 ms
+  apart (40,000 channels at N = 160,000): channels whose node sends heartbeats;
 - canids: every 11-bit CAN-ID 000h..7FFh in turn, one data byte, 100 us apart: the
   CAN-ID dimension (NMT, SYNC, EMCY, PDOs, SDOs, heartbeats of every node 1..127);
 - extended: 29-bit J1939 frames (18FEF100h + source address, 8 bytes) with one
@@ -68,7 +70,7 @@ from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
 KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts",
-         "channels", "canids", "extended", "errorframes", "boots", "bootfail")
+         "channels", "chanbeats", "canids", "extended", "errorframes", "boots", "bootfail")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -229,6 +231,16 @@ def channels_lines(n: int) -> Iterator[bytes]:
             for i in range(a, min(n, a + CHUNK_FRAMES))).encode()
 
 
+def chanbeats_lines(n: int) -> Iterator[bytes]:
+    """N/4 interfaces: a boot-up of node 5 on each, then three heartbeats, 100 ms apart."""
+    q = max(n // 4, 1)
+    for a in range(0, n, CHUNK_FRAMES):
+        yield "".join(
+            f"({1_700_000_000 + (i // q) / 10 + (i % q) / 1_000_000:.6f}) c{i % q} "
+            f"705#{'00' if i < q else '05'}\n"
+            for i in range(a, min(n, a + CHUNK_FRAMES))).encode()
+
+
 def canids_lines(n: int) -> Iterator[bytes]:
     """Every 11-bit CAN-ID in turn, one data byte, 100 us apart."""
     for a in range(0, n, CHUNK_FRAMES):
@@ -245,7 +257,7 @@ def _wide_lines(n: int, ident: Callable[[int], str]) -> Iterator[bytes]:
 
 
 TEXT_MAKERS: dict[str, Callable[[int], Iterator[bytes]]] = {
-    "channels": channels_lines, "canids": canids_lines,
+    "channels": channels_lines, "chanbeats": chanbeats_lines, "canids": canids_lines,
     "extended": lambda n: _wide_lines(n, lambda i: f"{0x18FEF100 + i % 256:08X}#"
                                                    f"{i % 4096:04X}00000000FFFF"),
     "errorframes": lambda n: _wide_lines(n, lambda i: "20000004#0000080000000000"),
