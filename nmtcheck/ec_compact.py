@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from nmtcheck.nmt import GUARD, HEARTBEAT, REQUEST
+
 if TYPE_CHECKING:
     from nmtcheck.decode import ColumnSpool
     from nmtcheck.model import InputModel
@@ -104,16 +106,17 @@ class _Node:
 
 def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray
                        ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per channel code, the file indices (sorted) and times of its NMT and SDO frames."""
+    """Per channel code, the file indices (sorted) and times of its NMT and SDO frames:
+    one sort for all channels (a log may have tens of thousands)."""
     chan = np.concatenate([nmt["chan"].astype(np.int64), events["chan"].astype(np.int64)])
     idx = np.concatenate([nmt["idx"], events["idx"]])
     ts = np.concatenate([nmt["ts"], events["ts"]])
-    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for c in np.unique(chan).tolist():
-        sel = np.flatnonzero(chan == c)
-        order = sel[np.argsort(idx[sel], kind="stable")]
-        out[c] = (idx[order], ts[order])
-    return out
+    order = np.lexsort((idx, chan))
+    chan, idx, ts = chan[order], idx[order], ts[order]
+    codes, first = np.unique(chan, return_index=True)
+    bounds = np.append(first, len(chan)).tolist()
+    return {c: (idx[bounds[k]:bounds[k + 1]], ts[bounds[k]:bounds[k + 1]])
+            for k, c in enumerate(codes.tolist())}
 
 
 def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
@@ -159,10 +162,12 @@ def _chunk(node: _Node, new: dict[str, np.ndarray],
     if node.tail is not None:
         rows = {name: np.concatenate([node.tail[name], col]) for name, col in new.items()}
         start = len(node.tail["ts"]) - node.undecided
-        odd = np.concatenate([node.tail_odd, ~_plain_same(rows)[len(node.tail["ts"]):]])
+        same = _plain_same(rows)
+        odd = np.concatenate([node.tail_odd, ~same[len(node.tail["ts"]):]])
     else:
         rows, start = new, 0
-        odd = ~_plain_same(rows)
+        same = _plain_same(rows)
+        odd = ~same
     n = len(rows["ts"])
     k = s.margin
     stop = n if final else max(n - 2 * k, start)  # rows [start, stop) are decided now
@@ -170,7 +175,7 @@ def _chunk(node: _Node, new: dict[str, np.ndarray],
               and len(events[0]) else np.zeros(n, np.int64))  # channel events before a row
     odd_upto = node.odd_base + np.cumsum(odd)
     if stop > start:
-        good = _good(rows, events, s)
+        good = _good(rows, same, events, s)
         drop = np.zeros(n, bool)
         # a row may go if every row within `margin` of it is good and no event lies there
         bad = np.concatenate([[0], np.cumsum(~good)])
@@ -205,12 +210,12 @@ def _keep_short_runs(drop: np.ndarray, min_run: int) -> None:
         drop &= np.cumsum(mark[:-1]) == 0
 
 
-def _good(rows: dict[str, np.ndarray], events: tuple[np.ndarray, np.ndarray] | None,
-          s: Compaction) -> np.ndarray:
+def _good(rows: dict[str, np.ndarray], same: np.ndarray,
+          events: tuple[np.ndarray, np.ndarray] | None, s: Compaction) -> np.ndarray:
     """Rows that may be part of a steady run: plain heartbeats reporting the state of the
-    row before them, an interval in band, not just after an NMT or SDO frame."""
+    row before them (`same`), an interval in band, not just after an NMT or SDO frame."""
     ts = rows["ts"]
-    good = _plain_same(rows)
+    good: np.ndarray = same.copy()
     good[0] = False
     gap = np.diff(ts, prepend=np.nan)
     plain = good[1:]
@@ -299,8 +304,6 @@ def unsafe_nodes(model: InputModel, tolerance: float) -> set[int]:
     or timeout limit, leaves the producer-time tolerance, crosses a segment bound or
     a change of configuration, or a node that is guarded (requests and responses are
     told apart frame by frame)."""
-    from nmtcheck.nmt import GUARD, HEARTBEAT, REQUEST
-
     bad: set[int] = set()
     factor_t, factor_e = model.timeline.timeout_factor, model.timeline.early_factor
     for m in model.nodes():
