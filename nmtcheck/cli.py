@@ -9,6 +9,12 @@ input error (one line on stderr, never a traceback unless --debug).
 
 from __future__ import annotations
 
+# First of all: `check --results` starts the fleet's fork server here, so that its imports
+# run beside this module's (issue 25; does nothing for any other command). It also asks
+# numpy's BLAS for one thread, which only works before numpy is imported.
+import nmtcheck.fleet.prestart  # noqa: F401
+
+# isort: split
 import contextlib
 import csv
 import glob
@@ -24,11 +30,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-# first of nmtcheck's modules: `check --results` starts the fleet's fork server here, so that
-# its imports run beside this module's (issue 25; does nothing for any other command)
-import nmtcheck.fleet.prestart  # noqa: F401
-
-# isort: split
 import click
 
 from nmtcheck import __version__

@@ -233,3 +233,68 @@ def test_a_run_refused_after_the_fork_server_started_leaves_no_process(tmp_path:
     finally:
         for pid in _session(proc.pid):
             os.kill(pid, 9)
+
+
+BLAS_PROBE = ("import os, sys; sys.argv[0] = {argv0!r}; import nmtcheck.cli; "
+              "print(os.environ.get('OPENBLAS_NUM_THREADS'), "
+              "getattr(sys.modules['__main__'].__spec__, 'name', None))")
+
+
+@pytest.mark.parametrize(("argv0", "given", "expected"), [
+    ("/venv/bin/nmtcheck", None, "1 nmtcheck.__main__"),
+    ("/venv/bin/nmtcheck", "3", "3 nmtcheck.__main__"),  # the user's choice stands
+    ("/venv/bin/program", None, "None None"),  # a program that imports nmtcheck: untouched
+])
+def test_the_command_asks_for_one_blas_thread_and_runs_as_a_module(
+        argv0: str, given: str | None, expected: str) -> None:
+    env = {k: v for k, v in ENV.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    res = subprocess.run([sys.executable, "-c", BLAS_PROBE.format(argv0=argv0)],
+                         capture_output=True, text=True, timeout=120, env=env)
+    assert res.stdout.split() == expected.split(), res.stderr
+
+
+@pytest.mark.skipif(not LINUX, reason="the fork server is POSIX")
+def test_the_fork_server_has_one_blas_thread_and_the_program_keeps_its_environment() -> None:
+    # numpy's OpenBLAS spins a thread per CPU for ~0.1 s of CPU at import: taken from the
+    # workers beside it. A program running a fleet keeps its own environment.
+    code = ("import os; from concurrent.futures import ProcessPoolExecutor; "
+            "from nmtcheck.fleet.prestart import local_context; "
+            "ctx = local_context(start=True); "
+            "ex = ProcessPoolExecutor(1, mp_context=ctx); "
+            "print(ex.submit(os.getenv, 'OPENBLAS_NUM_THREADS').result(), "
+            "os.environ.get('OPENBLAS_NUM_THREADS')); ex.shutdown()")
+    env = {k: v for k, v in ENV.items() if k != "OPENBLAS_NUM_THREADS"}
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert res.stdout.split() == ["1", "None"], res.stderr
+
+
+CONSOLE_SCRIPT = """\
+import re
+import sys
+from nmtcheck.cli import main
+if __name__ == "__main__":
+    sys.argv[0] = re.sub(r"(-script\\.pyw|\\.exe)?$", "", sys.argv[0])
+    sys.exit(main())
+"""
+
+
+@pytest.mark.skipif(not LINUX, reason="the fork server is POSIX")
+def test_workers_of_the_console_script_do_not_import_the_command_line_again(
+        tmp_path: Path) -> None:
+    # pip's console script runs as a __main__ without a spec; multiprocessing re-ran it in
+    # every worker (importing click and the CLI: 30 ms each) until prestart gave it one
+    _fleet_logs(tmp_path)
+    script = tmp_path / "bin" / "nmtcheck"
+    script.parent.mkdir()
+    script.write_text(CONSOLE_SCRIPT)
+    cmd = [sys.executable, "-X", "importtime", str(script), "check", "logs/*.log",
+           "--results", "ds", "--executor", "local:2", "-q"]
+    res = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         env=ENV)
+    assert res.returncode == 1, res.stderr[-2000:]
+    imports = res.stderr.splitlines()
+    assert sum(line.endswith("| nmtcheck.fleet.preload") for line in imports) == 1  # server
+    assert sum(line.endswith("| nmtcheck.cli") for line in imports) == 1  # the driver only
