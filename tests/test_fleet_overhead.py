@@ -298,3 +298,20 @@ def test_workers_of_the_console_script_do_not_import_the_command_line_again(
     imports = res.stderr.splitlines()
     assert sum(line.endswith("| nmtcheck.fleet.preload") for line in imports) == 1  # server
     assert sum(line.endswith("| nmtcheck.cli") for line in imports) == 1  # the driver only
+
+
+@pytest.mark.skipif(not LINUX, reason="the fork server is POSIX")
+def test_the_fork_server_alone_ends_without_tearing_down_its_modules() -> None:
+    # the server's copy of stderr held a caller that captures output 40 ms past the
+    # driver's end while numpy and pyarrow were torn down
+    ctx = prestart.local_context()
+    from multiprocessing import forkserver
+
+    assert forkserver._forkserver._preload_modules[-1] == prestart.SERVER_EXIT  # type: ignore[attr-defined]
+    assert prestart.SERVER_EXIT not in sys.modules  # never in a process that checks
+    code = ("import atexit; atexit.register(print, 'torn down'); "
+            "import nmtcheck.fleet.server_exit; raise SystemExit(3)")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60, env=ENV)
+    assert (res.returncode, res.stdout, res.stderr) == (0, "", "")
+    assert ctx.get_start_method() == "forkserver"

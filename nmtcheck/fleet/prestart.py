@@ -20,6 +20,7 @@ from typing import Any
 
 PRELOAD = "nmtcheck.fleet.preload"
 PRELOAD_REMOTE = "fsspec"  # local files and datasets do without it (storage.LocalFS)
+SERVER_EXIT = "nmtcheck.fleet.server_exit"  # last: the server ends at once (server_exit.py)
 # numpy's OpenBLAS starts a thread per CPU as numpy is imported, and each spins for about
 # 0.1 s of CPU before it sleeps: measured, 0.16 s of CPU to import numpy against 0.07 s
 # with one BLAS thread. nmtcheck never multiplies matrices, so that CPU is taken from the
@@ -61,7 +62,8 @@ def local_context(start: bool = False, remote: bool = False) -> Any:
     if "forkserver" not in multiprocessing.get_all_start_methods():  # Windows
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload([PRELOAD, PRELOAD_REMOTE] if remote else [PRELOAD])
+    ctx.set_forkserver_preload([PRELOAD, PRELOAD_REMOTE, SERVER_EXIT] if remote
+                               else [PRELOAD, SERVER_EXIT])
     if start:
         _start_server()
     return ctx
