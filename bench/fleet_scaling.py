@@ -47,8 +47,7 @@ LOOP = "s = 0\nfor i in range({n}):\n    s += i * i\n"
 # pickles per batch (sizes measured after the run's own timing, so not counted in it).
 FLEET_WRAPPER = r"""
 import sys
-sys.argv[0] = "nmtcheck"  # as the command: fleet/prestart.py starts the fork server now
-import nmtcheck.fleet.prestart
+import nmtcheck.fleet.prestart  # as the command (this script is named nmtcheck) does first
 import json, os, pickle, time
 from nmtcheck.fleet import run as fleet_run
 from nmtcheck.fleet import tasks as fleet_tasks
@@ -156,7 +155,13 @@ def ceiling(workers: int, iterations: int) -> dict[str, float]:
 
 
 def fleet_cmd(logs_glob: str, results: Path, executor: str) -> list[str]:
-    return [PY, "-c", FLEET_WRAPPER, "check", logs_glob, "--results", str(results),
+    """The fleet run as a user starts it: FLEET_WRAPPER as a script named `nmtcheck`, as
+    pip's console script runs (a __main__ with a file, which multiprocessing treats apart
+    from `python -c` and `python -m`), so its workers start as the command's do."""
+    script = results.parent / "bin" / "nmtcheck"
+    script.parent.mkdir(parents=True, exist_ok=True)
+    script.write_text(FLEET_WRAPPER)
+    return [PY, str(script), "check", logs_glob, "--results", str(results),
             "--executor", executor, "--force", "-q", "--isolated"]
 
 
