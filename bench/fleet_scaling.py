@@ -214,6 +214,8 @@ def phases(marks: list[dict[str, Any]], launched: float, wall: float) -> dict[st
     cpu = {k: m["cpu"] for k, m in driver.items()}
     return {"at": at, "writes_s": writes, "worker_span_s": busy,
             "driver_cpu_run_s": cpu.get("run_end", 0) - cpu.get("run_fleet", 0),
+            # from the executor made (a Dask cluster started) to the run's end: per log
+            "driver_cpu_after_start_s": cpu.get("run_end", 0) - cpu.get("executor", 0),
             "driver_cpu_to_cli_s": cpu.get("cli")}
 
 
@@ -430,6 +432,8 @@ def summarise(m: dict[str, Any]) -> dict[str, Any]:
         drivers[name] = {
             "driver_cpu_s": st["driver_cpu"], "driver_cpu_per_log_s": st["driver_cpu"] / files,
             "driver_cpu_per_log_of_check": st["driver_cpu"] / files / per_log,
+            "driver_cpu_after_start_per_log_s": min(
+                r["phases"]["driver_cpu_after_start_s"] for r in runs) / files,
             "sent_bytes_per_log": st["sent"] / files, "received_bytes_per_log":
                 st["received"] / files, "batches": st["batches"],
             "start_seconds": st["start_seconds"]}
@@ -451,7 +455,9 @@ def summarise(m: dict[str, Any]) -> dict[str, Any]:
     for name, d in drivers.items():
         print(f"driver of {name}: {d['driver_cpu_s']:.3f} s CPU in the run = "
               f"{1e3 * d['driver_cpu_per_log_s']:.1f} ms per log "
-              f"({100 * d['driver_cpu_per_log_of_check']:.1f} % of a log's check); pickles "
+              f"({100 * d['driver_cpu_per_log_of_check']:.1f} % of a log's check), "
+              f"{1e3 * d['driver_cpu_after_start_per_log_s']:.1f} ms once its executor ran "
+              f"({100 * d['driver_cpu_after_start_per_log_s'] / per_log:.1f} %); pickles "
               f"{d['sent_bytes_per_log'] / 1e3:.1f} kB out, {d['received_bytes_per_log']:.0f} B "
               f"back per log; {d['batches']} batches")
     return {
