@@ -167,11 +167,15 @@ def test_a_dataset_beside_or_above_the_logs_checks_them(tmp_path: Path) -> None:
 def test_a_log_that_kills_its_worker_is_retried_then_crashed(tmp_path: Path) -> None:
     root = fleet_dir(tmp_path)
     shutil.copy(SAMPLES / "healthy.log", root / "CRASHME.log")
+    temp = tmp_path / "temp"
+    temp.mkdir()
     res = cli("check", "logs/**/*.log", "--results", "results", "--isolated",
                    "--executor", "local:2", cwd=tmp_path,
-                   env={"NMTCHECK_TEST_CRASH": "CRASHME"})
+                   env={"NMTCHECK_TEST_CRASH": "CRASHME", "TMPDIR": str(temp)})
     assert "5 checked" in res.stdout and "crashed 1" in res.stdout, res.stdout + res.stderr
     assert res.returncode == 2  # a log that could not be checked never passes
+    # local logs are read where they are: the dead workers leave no fetch directory
+    assert [p.name for p in temp.iterdir() if p.name.startswith("nmtcheck-fleet-")] == []
 
     inputs = api.read_results(tmp_path / "results").inputs.set_index("url")
     crashed = inputs.loc[str(root / "CRASHME.log")]

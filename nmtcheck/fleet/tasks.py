@@ -9,6 +9,7 @@ executor already runs one task per core).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import tempfile
@@ -17,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from nmtcheck.fleet.storage import FileInfo, PathPattern, fetch_all, unsupported
+from nmtcheck.fleet.storage import FileInfo, PathPattern, fetch_all, is_local, unsupported
 
 # Test-only hook: a worker that checks a URL containing this text dies at once (os._exit),
 # as a segfaulting library or the OOM killer would end it. Tests of crash handling set it.
@@ -98,9 +99,13 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
                                              "boot": []}
     counts = BatchCounts()
     crash_on = os.environ.get(CRASH_ENV)
-    with tempfile.TemporaryDirectory(prefix="nmtcheck-fleet-") as tmp:
-        wanted = [fi.url for fi in files if unsupported(fi.url) is None]
-        local = fetch_all(wanted, Path(tmp), cfg.storage_options)
+    wanted = [fi.url for fi in files if unsupported(fi.url) is None]
+    # a directory only for fetched copies: local logs are read where they are (and a
+    # worker that dies leaves no empty directory behind)
+    fetching = any(not is_local(url) for url in wanted)
+    with (tempfile.TemporaryDirectory(prefix="nmtcheck-fleet-") if fetching
+          else contextlib.nullcontext(None)) as tmp:
+        local = fetch_all(wanted, Path(tmp or "."), cfg.storage_options)
         for fi, iid in zip(files, ids, strict=True):
             if crash_on and crash_on in fi.url:
                 os._exit(70)
@@ -115,7 +120,7 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
                 row.update(status="input_error", error=f"{fi.url}: {fetch_error}")
             else:
                 _check_one(path, fi, key, cfg, rules, row, rows)
-                if path.startswith(tmp):
+                if tmp is not None and not is_local(fi.url):
                     os.unlink(path)  # a fetched copy: free the disk as the batch goes on
             row["seconds"] = round(time.monotonic() - started, 6)
             rows["inputs"].append(row)
