@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -381,3 +382,31 @@ def test_a_field_twice_in_the_path_pattern_is_a_usage_error(tmp_path: Path) -> N
     res = cli("check", str(SAMPLES / "healthy.log"), "--results", "results", "--isolated",
               "--path-pattern", "{device}/{device}/{split}.log", cwd=tmp_path)
     assert_one_line_error(res, "--path-pattern", "{device} appears twice")
+
+
+def _spill_then(key: str) -> str:
+    """A task that leaves a temporary file, as a check spilling a long log does; "die"
+    ends its worker before it can clean up."""
+    fd, _path = tempfile.mkstemp(prefix="nmtcheck-spill-")
+    os.write(fd, b"x" * 4096)
+    if key == "die":
+        os._exit(9)
+    return tempfile.gettempdir()
+
+
+def test_what_a_dead_worker_spilled_goes_with_its_pool(tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch
+                                                        ) -> None:
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    pool = ResilientPool(2, allowed_failures=1)
+    for k in ("a", "die", "b"):
+        pool.submit(k, _spill_then, k)
+    got: dict[object, object] = {}
+    while pool.pending():
+        got.update(pool.done())
+    assert isinstance(got["die"], Crashed)
+    for k in ("a", "b"):  # the workers' temporary directory is the pool's, below TMPDIR
+        assert Path(str(got[k])).parent == tmp_path
+        assert Path(str(got[k])).name.startswith("nmtcheck-workers-")
+    pool.close()
+    assert list(tmp_path.iterdir()) == []  # the dead workers' files and the live ones' too

@@ -13,7 +13,9 @@ from __future__ import annotations
 import multiprocessing
 import os
 import select
+import shutil
 import signal
+import tempfile
 import threading
 import time
 import warnings
@@ -94,8 +96,8 @@ def watch_driver(pid: int) -> threading.Thread:
     return thread
 
 
-def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None = None
-                 ) -> None:
+def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None = None,
+                 tmpdir: str | None = None) -> None:
     global _started
     from nmtcheck.fleet.trace import mark
 
@@ -111,6 +113,8 @@ def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None 
     if environ is not None:  # the client's environment now, as a forked worker would have it
         os.environ.clear()
         os.environ.update(environ)
+    if tmpdir is not None:  # the pool's own: what a dead worker spilled goes with the pool
+        os.environ["TMPDIR"] = tempfile.tempdir = tmpdir
 
 
 def _run(key: Hashable, fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
@@ -141,16 +145,35 @@ class ResilientPool:
         self._failures: dict[Hashable, int] = {}
         self._ready: list[tuple[Hashable, Any]] = []
         self._dead_starts = 0
+        self._tmpdir: str | None = None
 
     def _ensure(self) -> ProcessPoolExecutor:
         if self._pool is None:
             self._queue = self._ctx.SimpleQueue()
             # a fork server's workers would have the environment of the fork server's start
             environ = None if self._ctx.get_start_method() == "fork" else dict(os.environ)
+            # The workers' temporary files (a long log's spilled columns, fetched objects)
+            # go below a directory of this pool's, removed once its workers have ended: a
+            # worker that dies (a crash, the OOM killer) cannot clean up after itself, and
+            # what it spilled can be 40 bytes per frame of its log.
+            try:
+                self._tmpdir = tempfile.mkdtemp(prefix="nmtcheck-workers-")
+            except OSError:  # no room, no rights: the workers' own spill says so, as before
+                self._tmpdir = None
             self._pool = ProcessPoolExecutor(self.workers, mp_context=self._ctx,
                                              initializer=_init_worker,
-                                             initargs=(self._queue, environ, os.getpid()))
+                                             initargs=(self._queue, environ, os.getpid(),
+                                                       self._tmpdir))
         return self._pool
+
+    def _shutdown(self) -> None:
+        """End this pool's workers, then remove what they left in their directory."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = None
+        if self._tmpdir is not None:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            self._tmpdir = None
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
         self._submit(key, fn, args)
@@ -230,15 +253,11 @@ class ResilientPool:
             self._submit(key, fn, args)
 
     def _restart(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-        self._pool = None
+        self._shutdown()
         self._started_keys()  # drop what the dead pool's workers wrote
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        self._shutdown()
 
 
 def warm_up(spec: str, remote: bool = False) -> None:
