@@ -49,17 +49,21 @@ def _const(n: int, text: bytes) -> tuple[np.ndarray, None]:
 
 
 def candump_lines(f: Frames) -> bytes:
-    """`(1700000000.123456) can0 181#0102030405060708` as `candump -l` writes it."""
+    """`(1700000000.123456) can0 181#0102030405060708` as `candump -l` writes it (a remote
+    request: `705#R`)."""
     n = len(f)
     sec, us = np.divmod(f.us, 10**6)
     hexd = _hex_bytes(f.data).reshape(n, 16)
     data_keep = np.arange(16)[None, :] < 2 * f.dlc[:, None].astype(np.int64)
+    rtr = np.zeros((n, 1), bool) if f.rtr is None else f.rtr.reshape(n, 1).astype(bool)
+    data_keep &= ~rtr
     ids = f.can_id.astype(np.int64)
     return _join([
         _const(n, b"("), (_digits(sec, 10), None), _const(n, b"."), (_digits(us, 6), None),
         _const(n, b") can0 "),
         (np.stack([HEX[(ids >> 8) & 15], HEX[(ids >> 4) & 15], HEX[ids & 15]], 1), None),
-        _const(n, b"#"), (hexd, data_keep), _const(n, b"\n"),
+        _const(n, b"#"), (hexd, data_keep), (np.full((n, 1), ord("R"), np.uint8), rtr),
+        _const(n, b"\n"),
     ])
 
 

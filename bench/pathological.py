@@ -34,7 +34,10 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
 - errorframes: error frames (`20000004#...`) with one heartbeat in five: likewise;
 - boots (issue 22): CiA 302-2 boot processes of 16 nodes in turn, every one ok;
 - bootfail (issue 22): the same, but each node refuses the 1017h download (SDO abort
-  06010002h, read-only): a failed process and a P003 finding per 8 frames.
+  06010002h, read-only): a failed process and a P003 finding per 8 frames;
+- guarded: node guarding of 16 nodes every 100 ms (remote request 700h+N, the answer
+  05h with its toggle bit alternating 2 ms later), nothing else: the error-control
+  stream that is still held per frame (issue 24's bound covers heartbeats).
 
 Then runs `NMTCHECK check LOG --format text` (stdout to /dev/null) with one report
 file per run (`-o report.json`, ... ; `text` alone writes none) through a small
@@ -70,7 +73,8 @@ from run import machine, parse_size  # noqa: E402
 from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
 KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts",
-         "channels", "chanbeats", "canids", "extended", "errorframes", "boots", "bootfail")
+         "channels", "chanbeats", "canids", "extended", "errorframes", "boots", "bootfail",
+         "guarded")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -203,10 +207,24 @@ def bootfail(i: np.ndarray) -> Frames:
     return boots(i, refuse=True)
 
 
+def guarded(i: np.ndarray) -> Frames:
+    """Node guarding of 16 nodes, each every 100 ms: the master's remote request 700h+N,
+    N's answer 2 ms later (05h, operational, its toggle bit alternating), nothing else."""
+    pair, answer = i // 2, i % 2 == 1
+    node = pair % 16 + 1
+    rnd = pair // 16
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = np.where(answer, 0x05 | ((rnd % 2) << 7), 0)
+    us = rnd * 100_000 + (node - 1) * 6_250 + np.where(answer, 2_000, 0)
+    f = _frames(i, us, 0x700 + node, np.where(answer, 1, 0), data)
+    f.rtr = ~answer
+    return f
+
+
 MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
     "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127,
     "emcy": emcy, "sdo": sdo, "aborts": aborts, "boots": boots,
-    "bootfail": bootfail}
+    "bootfail": bootfail, "guarded": guarded}
 
 
 def chunks(kind: str, n: int) -> Iterator[Frames]:

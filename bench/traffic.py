@@ -24,12 +24,13 @@ CHUNK_FRAMES = 500_000
 
 @dataclass
 class Frames:
-    """A run of generated frames (11-bit data frames only, like most CANopen buses)."""
+    """A run of generated frames (11-bit frames, like most CANopen buses)."""
 
     us: np.ndarray  # int64 epoch microseconds
     can_id: np.ndarray  # uint16
     dlc: np.ndarray  # uint8
     data: np.ndarray  # uint8 [n, 8], zero past dlc
+    rtr: np.ndarray | None = None  # bool: remote requests (no data); None: all data frames
 
     def __len__(self) -> int:
         return int(self.us.shape[0])

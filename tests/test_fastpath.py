@@ -92,6 +92,9 @@ def _candump_line(rnd: random.Random) -> str:
     cid = "".join(rnd.choice("0123456789abcdefABCDEF") for _ in range(rnd.choice((3, 3, 3, 8))))
     data = "".join(rnd.choice("0123456789abcdefABCDEF")
                    for _ in range(rnd.choice((0, 2, 4, 8, 16, 16, 15, 18))))
+    if rnd.random() < 0.2:  # a remote frame (node guarding), lengths good and bad
+        data = rnd.choice(("R", "R", "r", "R0", "R1", "R1", "R8", "R9", "RA", "R12", "R8_9",
+                           "R_", "RR"))
     suffix = rnd.choice(("", "", " R", " T", " X", "  R"))
     return f"({ts}) {iface} {cid}#{data}{suffix}"
 
@@ -223,3 +226,27 @@ def test_overlong_lines_are_one_skipped_record_each(tmp_path: Path,
     assert_same_reading(path, monkeypatch)
     stats, _ = _read(path, False, monkeypatch)
     assert (stats.frames, stats.skipped, stats.skipped_lines) == (6, 4, [4, 6, 8, 10])
+
+
+def test_remote_frames_take_the_fast_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                          ) -> None:
+    # node guarding: every other frame a remote request; line by line it took 4x as long
+    from nmtcheck.readers import candump
+
+    lines = [f"({1700000000 + i // 2}.{i % 2}00000) can0 70{i % 7 + 1}#"
+             + ("R" if i % 4 == 0 else "R1" if i % 4 == 2 else "05" if i % 8 < 4 else "85")
+             for i in range(2000)]
+    lines += ["(1700002000.000000) can0 1ABCDEF5#r", "(1700002000.100000) can1 123#R8"]
+    path = tmp_path / "guarding.log"
+    path.write_text("\n".join(lines) + "\n")
+    assert_same_reading(path, monkeypatch, "candump")
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise AssertionError(f"a line went to the per-line parser: {args[0]!r}")
+
+    monkeypatch.setattr(candump, "_parse_line", refuse)
+    batches = _read(path, False, monkeypatch, "candump")[1]
+    rtr = np.concatenate([b.rtr for b in batches])
+    dlc = np.concatenate([b.dlc for b in batches])
+    assert int(rtr.sum()) == 1002 and dlc[:4].tolist() == [0, 1, 1, 1]
+    assert dlc[-1] == 8 and bool(rtr[-1]) and bool(np.concatenate([b.ext for b in batches])[-2])

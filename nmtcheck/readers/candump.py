@@ -355,7 +355,7 @@ _U8 = _U64(8)
 _Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                  np.ndarray, np.ndarray]  # ok, ts, can_id, dlc, data (one word), name (two
 # words), name length, flags
-FLAG_EXT, FLAG_ERR = 1, 4  # BatchBuilder's flag bits
+FLAG_EXT, FLAG_RTR, FLAG_ERR = 1, 2, 4  # BatchBuilder's flag bits
 _ID_WIDE = 1 << 15  # in a block's shape key: the lines' CAN-IDs have 8 hex digits
 
 
@@ -474,6 +474,17 @@ def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, clo
         e = e - 2 * (flag & (buf[e - 2] == 0x20))
     data_at = id_at + id_len + 1
     hex_len = e - (s + data_at)
+    # A remote frame: `R` (or `r`), maybe its length digit 0..8 (node guarding, remote
+    # PDOs); a len8_dlc suffix (`R_9`) is left to `_parse_general`.
+    first = line.byte(data_at)
+    digit = line.byte(data_at + 1) - _U64(0x30)  # non-digits wrap around: > 8
+    remote = ((first == _U64(0x52)) | (first == _U64(0x72))) & (
+        (hex_len == 1) | ((hex_len == 2) & (digit <= _U64(8))))
+    dlc = hex_len // 2
+    if remote.any():
+        dlc = np.where(remote, np.where(hex_len == 2, digit.astype(np.int64), 0), dlc)
+        hex_len = np.where(remote, 0, hex_len)
+        flags = flags | np.where(remote, FLAG_RTR, 0).astype(np.uint8)
     ok &= (hex_len >= 0) & (hex_len <= 16) & (hex_len % 2 == 0)
     nib1, ok1 = hex_nibbles(fill_low(line.word(data_at), hex_len))
     ok &= ok1
@@ -482,7 +493,7 @@ def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, clo
         nib2, ok2 = hex_nibbles(fill_low(line.word(data_at + 8), hex_len - 8))
         ok &= ok2
         data |= pack_nibbles(nib2) << _U64(32)
-    return (ok, ts, can_id.astype(np.uint32), (hex_len // 2).astype(np.int16), data, names,
+    return (ok, ts, can_id.astype(np.uint32), dlc.astype(np.int16), data, names,
             np.full(s.size, name_len, np.int64), flags)
 
 
