@@ -575,11 +575,39 @@ def _heartbeat_disabled(m: NodeModel, kind: np.ndarray) -> np.ndarray:
 
 def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
                        periods: np.ndarray, disabled: np.ndarray) -> None:
-    """Where remote requests are pending, a data frame may be a guarding response: the
-    order matters, so this walks the frames (plain Python ints, no objects).
+    """Where remote requests are pending, a data frame may be a guarding response.
 
     `periods`: the heartbeat period in force at each frame (NaN: unknown).
-    """
+
+    A node that only answers guarding (the usual one) is classified with array operations:
+    a data frame answers the request right before it (no boot-up or other data frame
+    between) within the response timeout. That is the walk's answer wherever the walk's
+    other test (a node that also produced two heartbeats since its boot-up: the toggle
+    bit and the early limit decide) is not reached, and time does not go backwards (a
+    request a late heartbeat left pending could then be answered); else the walk decides."""
+    timeout = params.response_timeout_s + EPS
+    rel = np.flatnonzero((kind == REQUEST) | (kind == BOOTUP) | (kind == HEARTBEAT))
+    k = kind[rel]
+    ts = ec.ts[rel]
+    guard = np.zeros(len(rel), bool)
+    if len(rel) > 1:
+        guard[1:] = (k[1:] == HEARTBEAT) & (k[:-1] == REQUEST) & (ts[1:] - ts[:-1] <= timeout)
+    beat = (k == HEARTBEAT) & ~guard  # counted by the walk's hb_since_boot
+    before = np.cumsum(beat) - beat  # heartbeats before each row
+    at = np.arange(len(rel))
+    last_boot = np.maximum.accumulate(np.where(k == BOOTUP, at, -1))
+    since_boot = before - np.where(last_boot >= 0, before[np.maximum(last_boot, 0)], 0)
+    if not bool((guard & (since_boot >= 2) & ~disabled[rel]).any()) and not bool(
+            (np.diff(ts) < 0).any()):
+        kind[rel[guard]] = GUARD
+        return
+    _classify_guarding_walk(ec, kind, params, periods, disabled)
+
+
+def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParams,
+                            periods: np.ndarray, disabled: np.ndarray) -> None:
+    """`_classify_guarding` frame by frame, in order (plain Python ints, no objects): for
+    a node that answers guarding and produces heartbeats too."""
     pending: float | None = None  # ts of the pending request
     hb_since_boot = 0
     last_hb: float | None = None
@@ -838,6 +866,29 @@ def _timed_from(start: np.ndarray, by_heartbeat: np.ndarray, req: np.ndarray,
 
 def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
     """G002: runs of remote requests to N that got no guarding response in time."""
+    ec = m.ec
+    pos = ec.where(REQUEST, GUARD, BOOTUP)  # heartbeats play no part here
+    kind = ec.kind[pos]
+    # Only a request not answered by the frame after it can time out, and a response
+    # leaves nothing pending: the walk needs only the stretches from the response before
+    # such a request to the response after it (none in a node always answered).
+    unanswered = kind == REQUEST
+    unanswered[:-1] &= kind[1:] != GUARD
+    if not unanswered.any():
+        return
+    at = np.arange(len(kind))
+    last_guard = np.maximum.accumulate(np.where(kind == GUARD, at, -1))
+    next_guard = np.minimum.accumulate(np.where(kind == GUARD, at, len(kind))[::-1])[::-1]
+    walk = np.zeros(len(kind) + 1, np.int64)
+    bad = np.flatnonzero(unanswered)
+    np.add.at(walk, last_guard[bad] + 1, 1)
+    np.add.at(walk, np.minimum(next_guard[bad] + 1, len(kind)), -1)
+    _guard_walk(m, params, end, pos[np.cumsum(walk[:-1]) > 0])
+
+
+def _guard_walk(m: NodeModel, params: TimelineParams, end: float, pos: np.ndarray) -> None:
+    """`_guard_timeouts` over the node's requests, responses and boot-ups at `pos`, in
+    order (all of them, or stretches that each begin after a response)."""
     limit = params.response_timeout_s
     run: Timeout | None = None
     pending: tuple[float, int] | None = None  # ts, idx of the pending request
@@ -855,7 +906,6 @@ def _guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
             run.requests += 1
 
     ec = m.ec
-    pos = ec.where(REQUEST, GUARD, BOOTUP)  # heartbeats play no part here
     for k, ts, idx in zip(ec.kind[pos].tolist(), ec.ts[pos].tolist(), ec.idx[pos].tolist(),
                           strict=True):
         if k == REQUEST:

@@ -3,10 +3,17 @@ G003 (guard-interval-exceeded), G004 (guarding-with-heartbeat)."""
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
+import pytest
 from conftest import Checker, candump
 from traces import HEALTHY_NET, hb, healthy, profile
+
+from nmtcheck.model import TimelineParams
+from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, REQUEST
 
 
 def guard(node: int, t0: float, toggles: str, state: int = 0x7F, period: float = 0.1,
@@ -183,3 +190,101 @@ def test_g004_not_for_one_method_only(checker: Checker) -> None:
     assert checker.findings(candump(guarding), select="G004") == []
     assert checker.findings(candump(heartbeat), select="G004") == []
 
+
+
+def test_the_array_classification_of_guarding_is_the_walks(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """`_classify_guarding` answers with array operations where the walk's other test is
+    not reached; on random nodes (guarding, heartbeats, both, boot-ups, time going
+    backwards, 1017h = 0 in force) it gives the walk's kinds, frame for frame."""
+    from nmtcheck import timeline
+    from nmtcheck.nmt import MALFORMED
+
+    walk = timeline._classify_guarding_walk
+    walked: list[int] = []
+
+    def spy(*args: object) -> None:
+        walked.append(1)
+        walk(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(timeline, "_classify_guarding_walk", spy)
+    params = TimelineParams(response_timeout_s=0.05, early_factor=0.5)
+    fast = 0
+    for seed in range(1000):
+        rnd = random.Random(seed)
+        guarded = rnd.random() < 0.6
+        kinds: list[int] = []
+        ts: list[float] = []
+        t = 0.0
+        for _ in range(rnd.randrange(1, 8 if guarded else 40)):
+            if guarded:  # request, mostly an answer 1-60 ms later; now and then a boot-up
+                step = rnd.choices(((REQUEST, HEARTBEAT), (REQUEST,), (BOOTUP,),
+                                    (MALFORMED,), (REQUEST, HEARTBEAT, HEARTBEAT)),
+                                   (20, 2, 1, 1, 2))[0]
+            else:  # heartbeats and guarding mixed
+                step = (rnd.choices((REQUEST, HEARTBEAT, BOOTUP, MALFORMED), (4, 10, 1, 1))[0],)
+            for pick in step:
+                t += rnd.choice((0.001, 0.01, 0.04, 0.06, 0.1)) * (
+                    -0.5 if rnd.random() < 0.05 else 1)
+                kinds.append(pick)
+                ts.append(round(t, 6))
+        n = len(kinds)
+        kind = np.asarray(kinds, np.int8)
+        ec = SimpleNamespace(ts=np.asarray(ts), value=np.asarray(
+            [rnd.choice((0x05, 0x85, 0x7F, 0xFF, 0x04)) for _ in range(n)], np.uint8))
+        periods = np.full(n, rnd.choice((np.nan, 0.1, 0.05)))
+        disabled = np.asarray([rnd.random() < 0.05 for _ in range(n)])
+        a, b = kind.copy(), kind.copy()
+        before = len(walked)
+        timeline._classify_guarding(ec, a, params, periods, disabled)  # type: ignore[arg-type]
+        fast += len(walked) == before
+        walk(ec, b, params, periods, disabled)  # type: ignore[arg-type]
+        assert a.tolist() == b.tolist(), seed
+    assert 300 < fast < 900, fast  # both ways were taken, and agreed
+
+
+def _random_guarding(rnd: random.Random) -> tuple[SimpleNamespace, np.ndarray]:
+    """A node's error-control rows (requests, responses, boot-ups, heartbeats) as the
+    guarding stages see them, and reset commands between them (frame indices)."""
+    n = rnd.randrange(1, 40)
+    answered = rnd.random() < 0.5  # mostly answered at once: the stretches matter
+    kinds: list[int] = []
+    for _ in range(n):
+        if answered and kinds and kinds[-1] == REQUEST and rnd.random() < 0.9:
+            kinds.append(GUARD)
+        else:
+            kinds.append(rnd.choices((REQUEST, GUARD, BOOTUP, HEARTBEAT), (6, 4, 1, 1))[0])
+    n = len(kinds)
+    idx = np.cumsum([rnd.choice((1, 2, 3)) for _ in range(n)]) * 2  # even: resets odd
+    ts = np.cumsum([rnd.choice((0.002, 0.05, 0.1, 1.5)) for _ in range(n)])
+    kind = np.asarray(kinds, np.int8)
+    ec = SimpleNamespace(kind=kind, idx=idx, ts=ts, value=np.asarray(
+        [rnd.choice((0x05, 0x85, 0x7F, 0xFF)) for _ in range(n)], np.uint8),
+        where=lambda *ks: np.flatnonzero(np.isin(kind, ks)))
+    odd = range(1, int(idx[-1]) + 2, 2)
+    resets = np.asarray(sorted(rnd.sample(odd, min(len(odd), rnd.choice((0, 0, 1, 3))))),
+                        np.int64)
+    return ec, resets
+
+
+def test_guarding_timeouts_and_toggles_match_their_walks() -> None:
+    """G002's stretches and G001's array judgement give what walking every frame gives."""
+    from nmtcheck.checks.guarding import _toggle_errors, _toggle_errors_walk
+    from nmtcheck.timeline import _guard_timeouts, _guard_walk
+
+    params = TimelineParams(response_timeout_s=1.0)
+    timeouts = toggles = 0
+    for seed in range(1500):
+        rnd = random.Random(seed)
+        ec, resets = _random_guarding(rnd)
+        end = float(ec.ts[-1]) + rnd.choice((0.0, 0.5, 5.0))
+        fast, every = SimpleNamespace(ec=ec, timeouts=[]), SimpleNamespace(ec=ec, timeouts=[])
+        _guard_timeouts(fast, params, end)  # type: ignore[arg-type]
+        _guard_walk(every, params, end, ec.where(REQUEST, GUARD, BOOTUP))  # type: ignore[arg-type]
+        assert fast.timeouts == every.timeouts, seed
+        timeouts += bool(every.timeouts)
+        pos = ec.where(GUARD, BOOTUP)
+        got = _toggle_errors(ec, pos, resets)  # type: ignore[arg-type]
+        assert got == _toggle_errors_walk(ec, pos, resets.tolist()), seed  # type: ignore[arg-type]
+        toggles += bool(got)
+    assert 200 < timeouts < 1300 and 200 < toggles < 1300, (timeouts, toggles)
