@@ -294,9 +294,10 @@ class _Ctx:
         columns (no per-frame store is read in full)."""
         parts = [cm.nmt.ts[(cm.nmt.ts >= lo) & (cm.nmt.ts <= hi)]]
         parts += [o.ec.ts[(o.ec.ts >= lo) & (o.ec.ts <= hi)] for o in cm.nodes.values()]
-        for o in cm.nodes.values():  # a long log's dropped heartbeats: stand-ins
-            if o.ec.runs is not None:
-                parts += [t[(t >= lo) & (t <= hi)] for t in expanded(o.ec.ts, o.ec.runs, lo, hi)]
+        for o in cm.nodes.values():  # a long log's dropped heartbeats, exchanges: stand-ins
+            for runs in (o.ec.runs, o.ec.guard_runs):
+                if runs is not None:
+                    parts += [t[(t >= lo) & (t <= hi)] for t in expanded(o.ec.ts, runs, lo, hi)]
         for chunk in self.model.decoded.node_frames.reaching(lo):
             sel = ((chunk["key"] // 128) == cm.chan) & (chunk["ts"] >= lo) & (chunk["ts"] <= hi)
             parts.append(chunk["ts"][sel])

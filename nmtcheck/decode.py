@@ -315,6 +315,8 @@ class Decoded:
     # per node key, the steady heartbeat runs dropped from `ec` (a long log only)
     ec_runs: dict[int, ec_compact.GapRuns] = field(default_factory=dict)
     ec_spool: ColumnSpool | None = None  # every error-control row, when `ec` is compacted
+    # per node key, the steady guarding exchanges dropped from `ec` (a long log only)
+    ec_guard_runs: dict[int, ec_compact.GuardRuns] = field(default_factory=dict)
 
     def ec_rows(self, key: int) -> slice:
         """The rows of `ec` that belong to one node key."""
@@ -336,8 +338,9 @@ class Decoded:
         """Every error-control row of these node keys back in `ec`, their runs gone."""
         if self.ec_spool is None or not keys:
             return
-        self.ec, self.ec_runs = ec_compact.restore(self.ec_spool, self.ec, self.ec_runs, keys,
-                                                   ec_compact.SETTINGS.chunk)
+        self.ec, self.ec_runs, self.ec_guard_runs = ec_compact.restore(
+            self.ec_spool, self.ec, self.ec_runs, self.ec_guard_runs, keys,
+            ec_compact.SETTINGS.chunk)
 
     def drop_moments(self, drops: Sequence[tuple[Any, ...]]) -> dict[str, np.ndarray]:
         """Each logger drop record's moment (`InputStats.drops`: line, lost, frame, ts), as
@@ -761,15 +764,16 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     emcy_spool.close()
     settings = ec_compact.SETTINGS
     ec_runs: dict[int, ec_compact.GapRuns] = {}
+    guard_runs: dict[int, ec_compact.GuardRuns] = {}
     kept_spool: ColumnSpool | None = None
-    if len(ec_spool) > settings.above:  # a long log: steady heartbeat runs as summaries
-        ec_cols, ec_runs = ec_compact.compact(ec_spool, nmt_cols, events, settings)
+    if len(ec_spool) > settings.above:  # a long log: steady runs as summaries
+        ec_cols, ec_runs, guard_runs = ec_compact.compact(ec_spool, nmt_cols, events, settings)
         kept_spool = ec_spool  # read again if a run turns out to matter (`restore`)
     else:
         ec_cols = _grouped(ec_spool, EC_COLUMNS)
         ec_spool.close()
     return Decoded(events, nmt_cols, emcy_cols, ec_cols, frame_times, node_frames, restricted,
-                   first_tx, last_tx, standard, ec_runs, kept_spool)
+                   first_tx, last_tx, standard, ec_runs, kept_spool, guard_runs)
 
 
 def _grouped(spool: ColumnSpool, columns: dict[str, type]) -> dict[str, np.ndarray]:

@@ -19,6 +19,14 @@ interval statistics (`gaps.Gaps`) read those counts; H001 and H002 cannot fire i
 run; `validate` checks after the timeline that each run lies inside every limit the
 rules apply (timeout, early limit, producer-time tolerance, one segment) and names the
 nodes whose runs do not, which are then read back whole from the spool (`restore`).
+
+Node guarding is compacted the same way, by whole exchanges: a steady run of remote
+requests each answered by the node (the same state, the toggle bit alternating, at a
+steady interval) loses its interior, an even number of answers at a time, so that the
+answers kept on either side still alternate. Its `GuardRuns` row keeps what G002 and
+G003 judge (the longest wait for an answer, the longest interval between requests)
+and the longest silence (for the causes); `unsafe_nodes` reads back whole a node whose
+runs a limit cuts, or that produces heartbeats too.
 """
 
 from __future__ import annotations
@@ -89,6 +97,26 @@ class GapRuns:
         return np.where(hit, kk, -1)
 
 
+@dataclass
+class GuardRuns:
+    """One node's dropped runs of node guarding, in file order.
+
+    Run r lies between the node's kept rows `pos[r] - 1` (an answer) and `pos[r]` (a
+    request): `n[r]` frames were dropped there, half requests and half answers, the
+    answers an even number (the answer kept after the run has the toggle bit it had)."""
+
+    pos: np.ndarray  # int64: the kept row after each run
+    n: np.ndarray  # int64
+    gmax: np.ndarray  # largest interval between two frames, from the kept one before
+    gmax_at: np.ndarray  # where it began
+    request_gap: np.ndarray  # largest interval between two requests, kept ones around too
+    latency: np.ndarray  # longest wait of a dropped request for its answer
+
+    @property
+    def dropped(self) -> int:
+        return int(self.n.sum())
+
+
 class _Node:
     """Per node key, what one chunk hands the next."""
 
@@ -102,6 +130,7 @@ class _Node:
         self.runs: list[np.ndarray] = []  # rows of (pos, n, first, gmin, gmax, gmax_at, span)
         self.spans: dict[tuple[int, int], int] = {}
         self.span_parts: list[list[tuple[np.ndarray, np.ndarray]]] = []
+        self.guard_runs: list[np.ndarray] = []  # rows of GuardRuns' columns
 
 
 def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray
@@ -120,9 +149,11 @@ def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray
 
 
 def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
-            settings: Compaction) -> tuple[dict[str, np.ndarray], dict[int, GapRuns]]:
+            settings: Compaction
+            ) -> tuple[dict[str, np.ndarray], dict[int, GapRuns], dict[int, GuardRuns]]:
     """The spooled error-control rows, grouped by node key as the decoder groups them,
-    with the interior of steady heartbeat runs dropped; and each node's runs."""
+    with the interior of steady heartbeat and guarding runs dropped; and each node's
+    runs of either kind."""
     by_chan = _events_by_channel(nmt, events)
     nodes: dict[int, _Node] = {}
     names = list(spool.dtypes)
@@ -143,6 +174,7 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
                    by_chan.get(key // 128), settings, final=True)
     cols: dict[str, list[np.ndarray]] = {name: [] for name in names}
     runs: dict[int, GapRuns] = {}
+    guard_runs: dict[int, GuardRuns] = {}
     for key in sorted(nodes):
         node = nodes[key]
         for part in node.kept:
@@ -150,9 +182,13 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
                 cols[name].append(part[name])
         if node.runs:
             runs[key] = _gap_runs(node)
+        if node.guard_runs:
+            g = np.vstack(node.guard_runs)
+            guard_runs[key] = GuardRuns(g[:, 0].astype(np.int64), g[:, 1].astype(np.int64),
+                                        g[:, 2], g[:, 3], g[:, 4], g[:, 5])
     dtypes = spool.dtypes
     return ({name: np.concatenate(parts) if parts else np.zeros(0, dtypes[name])
-             for name, parts in cols.items()}, runs)
+             for name, parts in cols.items()}, runs, guard_runs)
 
 
 def _chunk(node: _Node, new: dict[str, np.ndarray],
@@ -175,25 +211,58 @@ def _chunk(node: _Node, new: dict[str, np.ndarray],
               and len(events[0]) else np.zeros(n, np.int64))  # channel events before a row
     odd_upto = node.odd_base + np.cumsum(odd)
     if stop > start:
-        good = _good(rows, same, events, s)
-        drop = np.zeros(n, bool)
-        # a row may go if every row within `margin` of it is good and no event lies there
-        bad = np.concatenate([[0], np.cumsum(~good)])
-        i = np.arange(n)
-        lo, hi = i - k, i + k
-        inside = (lo >= 0) & (hi < n)
-        lo_c, hi_c = np.clip(lo, 0, n - 1), np.clip(hi, 0, n - 1)
-        quiet = inside & (bad[hi_c + 1] - bad[lo_c] == 0) & (before[lo_c] == before[hi_c])
-        drop[start:stop] = quiet[start:stop]
-        if not final:
-            drop[stop - 1] = False  # runs end inside a chunk: its last decided row stays
+        drop = _droppable(_good(rows, same, events, s), before, k, start, stop, final)
         _keep_short_runs(drop, s.min_run)
-        _emit(node, rows, start, stop, drop, before, odd_upto)
+        guard = _droppable(_protected(_guard_good(rows, s), rows, events, s), before, k,
+                           start, stop, final)
+        _keep_short_runs(guard, s.min_run)
+        _whole_exchanges(guard, rows["rtr"], s.min_run)
+        _emit(node, rows, start, stop, drop, before, odd_upto, guard)
     keep_from = max(stop - (2 * k + 2), 0)  # context for the next chunk's windows
     node.odd_base = int(odd_upto[keep_from - 1]) if keep_from else node.odd_base
     node.tail = {name: col[keep_from:] for name, col in rows.items()}
     node.tail_odd = odd[keep_from:]
     node.undecided = n - stop
+
+
+def _droppable(good: np.ndarray, before: np.ndarray, k: int, start: int, stop: int,
+               final: bool) -> np.ndarray:
+    """Rows in [start, stop) that may go: every row within `k` of it is good and no
+    channel event lies among them (`before`: the channel's events before each row)."""
+    n = len(good)
+    drop = np.zeros(n, bool)
+    bad = np.concatenate([[0], np.cumsum(~good)])
+    i = np.arange(n)
+    lo, hi = i - k, i + k
+    inside = (lo >= 0) & (hi < n)
+    lo_c, hi_c = np.clip(lo, 0, n - 1), np.clip(hi, 0, n - 1)
+    quiet = inside & (bad[hi_c + 1] - bad[lo_c] == 0) & (before[lo_c] == before[hi_c])
+    drop[start:stop] = quiet[start:stop]
+    if not final:
+        drop[stop - 1] = False  # runs end inside a chunk: its last decided row stays
+    return drop
+
+
+def _runs_of(drop: np.ndarray) -> tuple[list[int], list[int]]:
+    """The runs of True in `drop` as [start, end) bounds."""
+    edges = np.diff(np.concatenate([[0], drop.astype(np.int8), [0]]))
+    return np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()
+
+
+def _whole_exchanges(drop: np.ndarray, rtr: np.ndarray, min_run: int) -> None:
+    """Trim each guarding run to whole exchanges (from a request to an answer) and an even
+    number of answers: the answers kept on either side then alternate as before."""
+    for s_, e_ in zip(*_runs_of(drop), strict=True):
+        a, b = s_, e_
+        if not rtr[a]:
+            a += 1
+        if b > a and rtr[b - 1]:
+            b -= 1
+        if (b - a) % 4:  # an odd number of answers: one exchange more stays
+            b -= 2
+        drop[s_:e_] = False
+        if b - a >= min_run:
+            drop[a:b] = True
 
 
 def _keep_short_runs(drop: np.ndarray, min_run: int) -> None:
@@ -222,6 +291,40 @@ def _good(rows: dict[str, np.ndarray], same: np.ndarray,
     ref = np.median(gap[1:][plain]) if np.count_nonzero(plain) else np.nan
     with np.errstate(invalid="ignore"):
         good &= (gap > 0) & (np.abs(gap - ref) <= s.band * ref)
+    return _protected(good, rows, events, s)
+
+
+def _guard_good(rows: dict[str, np.ndarray], s: Compaction) -> np.ndarray:
+    """Rows of a steady guarding exchange: a remote request between two answers, or an
+    answer (one byte, a CiA 301 state) between two requests that reports the state of
+    the answer before it with the other toggle bit; each at the interval of the rows of
+    its kind (request to request, answer to answer) within `band` of their median, time
+    going forward."""
+    rtr, ts = rows["rtr"], rows["ts"]
+    value = rows["value"].astype(np.int64)
+    n = len(ts)
+    answer = ~rtr & (rows["dlc"] == 1)
+    answer &= np.isin(value & 0x7F, _STATES)
+    good = np.zeros(n, bool)
+    if n < 3:
+        return good
+    good[1:-1] = (rtr[1:-1] & answer[:-2] & answer[2:]) | (answer[1:-1] & rtr[:-2] & rtr[2:])
+    good[2:] &= rtr[2:] | (answer[:-2] & ((value[2:] & 0x7F) == (value[:-2] & 0x7F))
+                           & (((value[2:] ^ value[:-2]) & 0x80) != 0))
+    good[:2] = False
+    gap2 = np.full(n, np.nan)
+    gap2[2:] = ts[2:] - ts[:-2]
+    ref = np.median(gap2[good]) if good.any() else np.nan
+    with np.errstate(invalid="ignore"):
+        good &= (gap2 > 0) & (np.abs(gap2 - ref) <= s.band * ref)
+        good[1:] &= ts[1:] >= ts[:-1]
+    return good
+
+
+def _protected(good: np.ndarray, rows: dict[str, np.ndarray],
+               events: tuple[np.ndarray, np.ndarray] | None, s: Compaction) -> np.ndarray:
+    """`good` less the rows within `protect_s` after an NMT or SDO frame of the channel."""
+    ts = rows["ts"]
     if events is not None and len(events[0]):
         k = np.searchsorted(events[0], rows["idx"]) - 1
         has = k >= 0
@@ -231,16 +334,22 @@ def _good(rows: dict[str, np.ndarray], same: np.ndarray,
 
 
 def _emit(node: _Node, rows: dict[str, np.ndarray], start: int, stop: int, drop: np.ndarray,
-          before: np.ndarray, odd_upto: np.ndarray) -> None:
-    """Keep the decided rows that stay, and summarise each run of dropped ones."""
+          before: np.ndarray, odd_upto: np.ndarray, guard: np.ndarray) -> None:
+    """Keep the decided rows that stay, and summarise each run of dropped ones (`drop`:
+    heartbeats, `guard`: guarding exchanges)."""
     ts = rows["ts"]
-    keep = np.flatnonzero(~drop[start:stop]) + start
+    keep = np.flatnonzero(~(drop | guard)[start:stop]) + start
     first_kept = node.kept_rows  # the node's kept rows so far
     node.kept.append({name: col[keep] for name, col in rows.items()})
     node.kept_rows += len(keep)
-    edges = np.diff(np.concatenate([[0], drop.astype(np.int8), [0]]))
-    s_runs, e_runs = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # [s, e)
-    for s_, e_ in zip(s_runs.tolist(), e_runs.tolist(), strict=True):
+    for s_, e_ in zip(*_runs_of(guard), strict=True):
+        gaps = np.diff(ts[s_ - 1:e_ + 1])  # from the kept answer before to the request after
+        j = int(np.argmax(gaps))
+        requests = ts[s_ - 2:e_ + 1:2]  # the kept request before, the dropped ones, the next
+        node.guard_runs.append(np.asarray([
+            first_kept + int(np.searchsorted(keep, e_)), e_ - s_, gaps.max(), ts[s_ - 1 + j],
+            np.diff(requests).max(), (ts[s_ + 1:e_:2] - ts[s_:e_:2]).max()], np.float64))
+    for s_, e_ in zip(*_runs_of(drop), strict=True):
         gaps = np.diff(ts[s_ - 1:e_ + 1])  # from the kept row before to the kept row after
         j = int(np.argmax(gaps))
         b_pos = first_kept + int(np.searchsorted(keep, e_))  # e_ is the kept row after
@@ -282,7 +391,8 @@ def _gap_runs(node: _Node) -> GapRuns:
 
 
 def restore(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, GapRuns],
-            keys: set[int], chunk: int) -> tuple[dict[str, np.ndarray], dict[int, GapRuns]]:
+            guard_runs: dict[int, GuardRuns], keys: set[int], chunk: int
+            ) -> tuple[dict[str, np.ndarray], dict[int, GapRuns], dict[int, GuardRuns]]:
     """The columns with every row of these node keys read back from the spool (their runs
     gone): for nodes whose runs a rule limit cuts through."""
     keep = ~np.isin(cols["key"], list(keys))
@@ -296,15 +406,16 @@ def restore(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, Gap
     order = np.argsort(joined["key"], kind="stable")  # restored rows after kept: by idx
     out = {name: col[order] for name, col in joined.items()}
     # within a key the restored rows are in file order already; kept rows of other keys too
-    return out, {k: r for k, r in runs.items() if k not in keys}
+    return (out, {k: r for k, r in runs.items() if k not in keys},
+            {k: r for k, r in guard_runs.items() if k not in keys})
 
 
 def unsafe_nodes(model: InputModel, tolerance: float) -> set[int]:
     """Node keys whose dropped runs a rule could tell apart: a run that reaches an early
     or timeout limit, leaves the producer-time tolerance, crosses a segment bound or
-    a change of configuration, or a node that is guarded (requests and responses are
-    told apart frame by frame)."""
-    bad: set[int] = set()
+    a change of configuration, or a node that is guarded too (requests and responses are
+    told apart frame by frame); and guarding runs that `_unsafe_guarding` names."""
+    bad: set[int] = _unsafe_guarding(model)
     factor_t, factor_e = model.timeline.timeout_factor, model.timeline.early_factor
     for m in model.nodes():
         runs = m.ec.runs
@@ -312,7 +423,7 @@ def unsafe_nodes(model: InputModel, tolerance: float) -> set[int]:
             continue
         ec = m.ec
         a_pos, b_pos = runs.pos - 1, runs.pos
-        if (ec.count(REQUEST) or ec.count(GUARD)
+        if (ec.count(REQUEST) or ec.count(GUARD) or ec.guard_runs is not None
                 or not bool((ec.kind[a_pos] == HEARTBEAT).all())
                 or not bool((ec.kind[b_pos] == HEARTBEAT).all())):
             bad.add(m.key)
@@ -344,6 +455,34 @@ def unsafe_nodes(model: InputModel, tolerance: float) -> set[int]:
     return bad
 
 
+def _unsafe_guarding(model: InputModel) -> set[int]:
+    """Node keys whose dropped guarding runs a rule could tell apart: a node that also
+    produces heartbeats (its answers are told from heartbeats by toggle bit and timing),
+    a run whose neighbours are not an answer before and a request after, whose longest
+    wait reaches the response timeout (G002), or whose longest interval between requests
+    exceeds the node life time, or that a change of guard time or life time factor
+    divides (G003)."""
+    bad: set[int] = set()
+    timeout = model.timeline.response_timeout_s
+    for m in model.nodes():
+        g = m.ec.guard_runs
+        if g is None or not len(g.pos):
+            continue
+        ec = m.ec
+        a, b = g.pos - 1, g.pos
+        life_a = m.config_series(ec.ts[a], lambda cfg: cfg.life_time_s)
+        life_b = m.config_series(ec.ts[b], lambda cfg: cfg.life_time_s)
+        with np.errstate(invalid="ignore"):
+            ok = (life_a == life_b) | (np.isnan(life_a) & np.isnan(life_b))
+            ok &= ~(g.request_gap > life_a + EPS)
+        if (m.kind_counts()[HEARTBEAT] or m.ec.runs is not None or not bool(ok.all())
+                or not bool((ec.kind[a] == GUARD).all())
+                or not bool((ec.kind[b] == REQUEST).all())
+                or bool((g.latency > timeout + EPS).any())):
+            bad.add(m.key)
+    return bad
+
+
 def _one_per_span(span: np.ndarray, values: np.ndarray) -> bool:
     """Whether every span's runs have one value (NaN counts as a value)."""
     v = np.where(np.isnan(values), np.inf, values) if values.dtype.kind == "f" else values
@@ -352,7 +491,8 @@ def _one_per_span(span: np.ndarray, values: np.ndarray) -> bool:
     return not bool(((s[1:] == s[:-1]) & (v[1:] != v[:-1])).any())
 
 
-def expanded(ts: np.ndarray, runs: GapRuns, lo: float, hi: float) -> Iterator[np.ndarray]:
+def expanded(ts: np.ndarray, runs: GapRuns | GuardRuns, lo: float, hi: float
+             ) -> Iterator[np.ndarray]:
     """Stand-in times inside each run that overlaps [lo, hi], spaced by its largest
     interval: no silence longer than that can hide in a run (for the causes' bus
     silence)."""

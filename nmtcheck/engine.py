@@ -199,10 +199,11 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         params = replace(timeline_params(profile), order_only=stats.order_only)
         masters = known_masters(network, stats.channels)
         model = build(decoded, stats.channels, start, end, params, configs, masters)
-        if decoded.ec_runs:  # a long log: a node whose dropped runs a limit cuts is read whole
-            tolerance = profile["H003"].params["tolerance"]
+        if decoded.ec_runs or decoded.ec_guard_runs:  # a long log: a node whose dropped
+            tolerance = profile["H003"].params["tolerance"]  # runs a limit cuts is read whole
             unsafe = unsafe_nodes(model, tolerance)
-            for keys in (unsafe, set(decoded.ec_runs)):  # then, if limits moved: every node
+            every = set(decoded.ec_runs) | set(decoded.ec_guard_runs)
+            for keys in (unsafe, every):  # then, if limits moved: every node
                 if not unsafe:
                     break
                 decoded.restore_ec(keys)

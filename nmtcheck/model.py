@@ -127,6 +127,14 @@ class NodeConfig:
     # this node's own 1016h entries from its device file: producer node -> consumer time (ms)
     consumes: dict[int, float] = field(default_factory=dict)
 
+    @property
+    def life_time_s(self) -> float | None:
+        """Node life time = guard time x life time factor (G003), None when either is
+        unknown or 0."""
+        if not self.guard_time_ms or not self.life_time_factor:
+            return None
+        return self.guard_time_ms * self.life_time_factor / 1000.0
+
 
 # a new node's defaults, shared (a log may have tens of thousands of nodes), read only
 _NO_BOUNDS, _NO_MEDIAN, _NO_IDX = np.zeros(0), np.full(1, np.nan), np.zeros(0, np.int64)

@@ -21,6 +21,7 @@ from nmtcheck.nmt import (
     COMMAND_NAMES,
     COMMAND_STATE,
     EC_KIND_NAMES,
+    GUARD,
     HEARTBEAT,
     MALFORMED,
     REQUEST,
@@ -31,7 +32,7 @@ from nmtcheck.nmt import (
 )
 
 if TYPE_CHECKING:
-    from nmtcheck.ec_compact import GapRuns
+    from nmtcheck.ec_compact import GapRuns, GuardRuns
 
 _NO_ROWS: dict[np.dtype[Any], np.ndarray] = {}  # per dtype: see column()
 _T = TypeVar("_T")
@@ -283,6 +284,7 @@ class EcTable:
         self.stale = np.zeros(len(self.ts), bool)
         # steady heartbeats dropped between rows (a long log only, `ec_compact`)
         self.runs: GapRuns | None = None
+        self.guard_runs: GuardRuns | None = None  # dropped guarding exchanges (ec_compact)
 
     @classmethod
     def empty(cls) -> EcTable:
@@ -329,6 +331,8 @@ class EcTable:
         n = int(np.count_nonzero(self.kind == kind))
         if kind == HEARTBEAT and self.runs is not None:
             n += self.runs.dropped
+        if kind in (REQUEST, GUARD) and self.guard_runs is not None:
+            n += self.guard_runs.dropped // 2
         return n
 
     @property

@@ -531,6 +531,9 @@ def _ec_tables(decoded: Decoded, chan: int, groups: list[tuple[int, slice]],
     if decoded.ec_runs:
         for n, table in tables.items():
             table.runs = decoded.ec_runs.get(node_key(chan, n))
+    if decoded.ec_guard_runs:
+        for n, table in tables.items():
+            table.guard_runs = decoded.ec_guard_runs.get(node_key(chan, n))
     return tables
 
 

@@ -174,11 +174,12 @@ def test_a_run_a_limit_cuts_is_read_back_whole(
     restored: list[set[int]] = []
     real_restore = ec_compact.restore
 
-    def spy(spool: ColumnSpool, cols: dict[str, np.ndarray],
-            runs: dict[int, ec_compact.GapRuns], keys: set[int], chunk: int) -> tuple[
-                dict[str, np.ndarray], dict[int, ec_compact.GapRuns]]:
+    def spy(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, ec_compact.GapRuns],
+            guard: dict[int, ec_compact.GuardRuns], keys: set[int], chunk: int
+            ) -> tuple[dict[str, np.ndarray], dict[int, ec_compact.GapRuns],
+                       dict[int, ec_compact.GuardRuns]]:
         restored.append(set(keys))
-        return real_restore(spool, cols, runs, keys, chunk)
+        return real_restore(spool, cols, runs, guard, keys, chunk)
 
     settings.setattr(ec_compact, "restore", spy)
     res = _check(log, net, FORCED, settings)
@@ -251,3 +252,89 @@ def test_short_runs_are_kept() -> None:
     drop = np.asarray([0, 1, 1, 0, 1, 1, 1, 1, 0, 1], bool)
     ec_compact._keep_short_runs(drop, 3)
     assert drop.astype(int).tolist() == [0, 0, 0, 0, 1, 1, 1, 1, 0, 0]
+
+
+# -- node guarding ----------------------------------------------------------------------------
+
+def _guarded(node: int, t0: float, t1: float, period: float, latency: float = 0.002,
+             jitter: float = 0.0, seed: int = 0, state: int = 0x05
+             ) -> list[tuple[float, int, str]]:
+    """The master's remote request to `node` every `period`, each answered `latency`
+    later with `state` and the toggle bit alternating from 0."""
+    rng = np.random.default_rng(seed + node)
+    n = int((t1 - t0) / period)
+    ts = t0 + np.arange(n) * period + rng.uniform(-jitter, jitter, n)
+    out = []
+    for i, t in enumerate(ts.tolist()):
+        out.append((round(t, 6), 0x700 + node, "R"))
+        out.append((round(t + latency, 6), 0x700 + node, f"{(i % 2) << 7 | state:02X}"))
+    return out
+
+
+def _guard_dropped(res: InputResult) -> int:
+    return sum(r.dropped for r in res.model.decoded.ec_guard_runs.values())
+
+
+def test_a_long_guarded_log_keeps_a_few_rows_and_the_same_report(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    frames = _guarded(2, 0.011, 60.0, 0.1, jitter=0.002, seed=2)
+    frames += _guarded(3, 0.023, 60.0, 0.1, latency=0.004, jitter=0.001, seed=3)
+    frames += _heartbeats(4, 0.05, 60.0, 0.1, jitter=0.002, seed=4)
+    # node 3 misses one answer (G002); node 2 repeats a toggle bit once (G001), then is
+    # stopped: its answers say 04h
+    lost = min(f for f in frames if f[1] == 0x703 and f[2] != "R" and f[0] > 30.0)
+    frames.remove(lost)
+    twice = sorted(f for f in frames if f[1] == 0x702 and f[2] != "R" and f[0] > 40.0)[:2]
+    frames.remove(twice[1])
+    frames.append((twice[1][0], 0x702, twice[0][2]))
+    frames = [(t, c, f"{int(d, 16) & 0x80 | 0x04:02X}" if c == 0x702 and d != "R"
+               and t > 45.0 else d) for t, c, d in frames]
+    frames += [(45.0, 0x000, "0202")]
+    log = _write(tmp_path / "guarded.log", frames)
+    whole = _check(log, None, ec_compact.Compaction(), settings)
+    assert sorted({f.rule for f in whole.findings}) == ["G001", "G002"]
+    for compaction in (FORCED, TIGHT, ec_compact.Compaction(above=0)):
+        res = _check(log, None, compaction, settings)
+        assert _reports(res) == _reports(whole), compaction
+        assert _guard_dropped(res) > len(frames) / 2
+        guard = res.model.decoded.ec_guard_runs
+        assert {k % 128 for k in guard} == {2, 3}  # node 4 beats: heartbeat runs of its own
+        assert all(bool((g.n % 4 == 0).all()) for g in guard.values())  # whole exchanges,
+        for m, w in zip(res.model.nodes(), whole.model.nodes(), strict=True):  # even answers
+            for kind in range(6):
+                assert m.ec.count(kind) == w.ec.count(kind), (m.node, kind)
+    # the settings as shipped (but the threshold): a few rows per node and run stay
+    assert len(res.model.decoded.ec["ts"]) < len(frames) / 10
+    key = {"input_id": "x"}
+    assert node_rows(res, key, "d", {}) == node_rows(whole, key, "d", {})
+    html = renderer("html")
+    assert DATE.sub("", html([res], OPTIONS)) == DATE.sub("", html([whole], OPTIONS))
+
+
+def test_a_guarded_node_a_limit_cuts_or_that_beats_too_is_read_back_whole(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    frames = _guarded(2, 0.011, 30.0, 0.1, jitter=0.001)
+    frames += _guarded(3, 0.023, 30.0, 0.35)  # requests 0.35 s apart, life time 0.3 s: G003
+    frames += _guarded(5, 0.037, 15.0, 0.1)  # answers guarding, then produces heartbeats:
+    frames += _heartbeats(5, 15.06, 30.0, 0.1)  # G004 (a run of each kind)
+    log = _write(tmp_path / "limits.log", frames)
+    net = tmp_path / "network.toml"
+    net.write_text("".join(f"[nodes.{n}]\nguard_time_ms = 100\nlife_time_factor = 3\n\n"
+                           for n in (2, 3)))
+    whole = _check(log, net, ec_compact.Compaction(), settings)
+    restored: list[set[int]] = []
+    real_restore = ec_compact.restore
+
+    def spy(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, ec_compact.GapRuns],
+            guard: dict[int, ec_compact.GuardRuns], keys: set[int], chunk: int
+            ) -> tuple[dict[str, np.ndarray], dict[int, ec_compact.GapRuns],
+                       dict[int, ec_compact.GuardRuns]]:
+        restored.append(set(keys))
+        return real_restore(spool, cols, runs, guard, keys, chunk)
+
+    settings.setattr(ec_compact, "restore", spy)
+    res = _check(log, net, FORCED, settings)
+    assert restored == [{3, 5}]
+    assert _reports(res) == _reports(whole)
+    assert {f.rule for f in res.findings} == {"G003", "G004"}
+    assert set(res.model.decoded.ec_guard_runs) == {2}  # node 2 still compacted

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
-from nmtcheck.model import EcTable, NodeConfig, NodeModel
+from nmtcheck.model import EcTable, NodeModel
 from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST, between
 
 
@@ -145,8 +145,11 @@ def guard_interval_exceeded(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
     resets = np.sort(np.concatenate([m.commands.reset_idx, ec.idx[ec.kind == BOOTUP]]))
     reqs = ec.where(REQUEST)
     a, b = reqs[:-1], reqs[1:]
+    if ec.guard_runs is not None:  # a long log: a dropped run between two kept requests
+        inside = np.isin(b, ec.guard_runs.pos)  # lies within the life time (ec_compact)
+        a, b = a[~inside], b[~inside]
     # node life time in force at each request (files, or 100Ch/100Dh written by SDO)
-    life = m.config_series(ec.ts[a], _life_s)
+    life = m.config_series(ec.ts[a], lambda cfg: cfg.life_time_s)
     late = np.flatnonzero((ec.ts[b] - ec.ts[a] > life + EPS)
                           & ~between(resets, ec.idx[a], ec.idx[b]))
     # consecutive late requests within one timeline interval: one finding
@@ -160,13 +163,6 @@ def guard_interval_exceeded(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
         yield (fb.ts, f"guarding requests to node {m.node} {fb.ts - fa.ts:.3f} s apart (node "
                f"life time {gt * ltf / 1000.0:.3f} s = {gt:g} ms x {ltf})"
                f"{count_note(int(count), 'requests')}", fb)
-
-
-def _life_s(cfg: NodeConfig) -> float | None:
-    """Node life time = guard time x life time factor, None when either is unknown."""
-    if not cfg.guard_time_ms or not cfg.life_time_factor:
-        return None
-    return cfg.guard_time_ms * cfg.life_time_factor / 1000.0
 
 
 @rule("G004", "guarding-with-heartbeat", "warning")
