@@ -10,6 +10,12 @@ and with `--network` a network file configuring 1017h = 100 ms for every node wh
 process, with `ec_compact.SETTINGS` as shipped and with compaction off, and compares the
 JSON and text reports: they must be identical. Prints time, kept and dropped rows.
 `tests/test_ec_compact.py` does the same on small logs with forced settings.
+
+With `--guarding`, nodes 9-16 answer node guarding instead (a remote request every
+100 ms, the answer 2 ms later, its toggle bit alternating): node 11 misses one answer
+(G002), node 13 repeats a toggle bit once (G001); with `--network` as well, nodes 9-16
+get guard time 100 ms and life time factor 3 while node 15 is guarded every 350 ms
+(G003 on every request, so node 15 must be read back whole).
 """
 
 from __future__ import annotations
@@ -38,12 +44,31 @@ OPTIONS: dict[str, object] = {"fail_on": "error", "quiet": False,
                               "config": {"file": None, "profile": "default", "overrides": []}}
 
 
-def write_log(path: Path, frames: int, slow9: bool) -> None:
+def guarded(n: int, per: int, period: float, rng: np.random.Generator
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`per` frames of node guarding of node n: request (data -1: `R`), answer."""
+    pairs = per // 2
+    t = 0.05 * n / 16 + np.arange(pairs) * period + rng.uniform(-0.002, 0.002, pairs)
+    answer = 0x05 | (np.arange(pairs) % 2) << 7
+    if n == 13:
+        answer[pairs // 3] ^= 0x80  # the toggle bit repeats: G001
+    ts = np.stack([t, t + 0.002], 1).ravel()
+    data = np.stack([np.full(pairs, -1), answer], 1).ravel()
+    keep = np.ones(len(ts), bool)
+    if n == 11:
+        keep[pairs + 1] = False  # one answer lost: G002
+    return ts[keep], np.full(int(keep.sum()), 0x700 + n), data[keep]
+
+
+def write_log(path: Path, frames: int, slow9: bool, guarding: bool = False) -> None:
     rng = np.random.default_rng(1)
     per = frames // 16
     parts = []
     for n in range(1, 17):
-        period = 0.115 if slow9 and n == 9 else 0.1
+        if guarding and n >= 9:
+            parts.append(guarded(n, per, 0.35 if slow9 and n == 15 else 0.1, rng))
+            continue
+        period = 0.115 if slow9 and n == 9 and not guarding else 0.1
         t = 0.05 * n / 16 + np.arange(per) * period + rng.uniform(-0.002, 0.002, per)
         keep = np.ones(per, bool)
         if n == 3:
@@ -58,7 +83,8 @@ def write_log(path: Path, frames: int, slow9: bool) -> None:
         parts.append((t, np.full(len(t), 0x700 + n), state))
     ts = np.concatenate([p[0] for p in parts] + [np.asarray([3000.0, 9000.0])])
     cid = np.concatenate([p[1] for p in parts] + [np.asarray([0, 0])])
-    data = np.concatenate([np.char.mod("%02X", np.concatenate([p[2] for p in parts])),
+    values = np.concatenate([p[2] for p in parts])
+    data = np.concatenate([np.where(values < 0, "R", np.char.mod("%02X", values & 0xFF)),
                            np.asarray(["0207", "8007"])])
     order = np.argsort(ts, kind="stable")
     with path.open("w") as f:
@@ -72,17 +98,23 @@ def main() -> int:
     ap.add_argument("--frames", default="3M")
     ap.add_argument("--network", action="store_true",
                     help="configure 1017h = 100 ms for all; node 9 beats every 115 ms")
+    ap.add_argument("--guarding", action="store_true",
+                    help="nodes 9-16 answer node guarding instead of producing heartbeats")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/nmtcheck-ecdiff"))
     args = ap.parse_args()
     frames = parse_size(args.frames)
     args.dir.mkdir(parents=True, exist_ok=True)
-    log = args.dir / f"hb16-{frames}{'-slow9' if args.network else ''}.log"
+    log = args.dir / (f"{'guard' if args.guarding else 'hb'}16-{frames}"
+                      f"{'-slow9' if args.network else ''}.log")
     if not log.exists():
-        write_log(log, frames, args.network)
+        write_log(log, frames, args.network, args.guarding)
     net = None
     if args.network:
         toml = args.dir / "network.toml"
-        toml.write_text("".join(f"[nodes.{n}]\nheartbeat_ms = 100\n\n" for n in range(1, 17)))
+        toml.write_text("".join(
+            f"[nodes.{n}]\nguard_time_ms = 100\nlife_time_factor = 3\n\n"
+            if args.guarding and n >= 9 else f"[nodes.{n}]\nheartbeat_ms = 100\n\n"
+            for n in range(1, 17)))
         net = load_network(str(toml))
     profile = load_profile("default")
     rules = select_rules(profile, [], [])
@@ -92,7 +124,9 @@ def main() -> int:
         ec_compact.SETTINGS = settings
         t0 = time.perf_counter()
         res = check_input(str(log), 0, profile, rules, network=net)
-        dropped = sum(r.dropped for r in res.model.decoded.ec_runs.values())
+        decoded = res.model.decoded
+        dropped = (sum(r.dropped for r in decoded.ec_runs.values())
+                   + sum(g.dropped for g in decoded.ec_guard_runs.values()))
         print(f"{name}: {time.perf_counter() - t0:.1f} s, kept rows "
               f"{len(res.model.decoded.ec['ts']):,}, dropped {dropped:,}, "
               f"findings {len(res.findings)} ({', '.join(sorted({f.rule for f in res.findings}))})")
