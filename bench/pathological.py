@@ -36,8 +36,8 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
 - bootfail (issue 22): the same, but each node refuses the 1017h download (SDO abort
   06010002h, read-only): a failed process and a P003 finding per 8 frames;
 - guarded: node guarding of 16 nodes every 100 ms (remote request 700h+N, the answer
-  05h with its toggle bit alternating 2 ms later), nothing else: the error-control
-  stream that is still held per frame (issue 24's bound covers heartbeats).
+  05h with its toggle bit alternating 2 ms later), nothing else: half remote frames,
+  and the error-control stream of networks that guard instead of beating.
 
 Then runs `NMTCHECK check LOG --format text` (stdout to /dev/null) with one report
 file per run (`-o report.json`, ... ; `text` alone writes none) through a small
