@@ -25,7 +25,7 @@ import os
 import signal
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
@@ -655,11 +655,14 @@ def _written_pdo_cob_ids(ev: np.ndarray) -> set[int]:
     return {int(c) & STD_ID_MASK for c in cob.tolist()}
 
 
-def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> Decoded:
+def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
+           protect_s: float = 0.0) -> Decoded:
     """Stream the batches once; keep only sparse events, the compact store and aggregates.
 
     `pdo_cob_ids`: configured PDO COB-IDs outside the pre-defined set (network file,
     EDS/DCF); COB-IDs written by SDO in the trace are added as they are seen.
+    `protect_s`: a long log keeps every error-control frame at least this long after an
+    NMT or SDO frame (a rule looks that far after a command: S004's obey time).
     """
     keep = np.zeros(STD_IDS + 1, bool)  # 11-bit IDs stored for later attribution
     for c in pdo_cob_ids:
@@ -763,6 +766,8 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = ()) -> De
     emcy_cols = _grouped(emcy_spool, EMCY_COLUMNS)
     emcy_spool.close()
     settings = ec_compact.SETTINGS
+    if protect_s > settings.protect_s:
+        settings = replace(settings, protect_s=protect_s)
     ec_runs: dict[int, ec_compact.GapRuns] = {}
     guard_runs: dict[int, ec_compact.GuardRuns] = {}
     kept_spool: ColumnSpool | None = None

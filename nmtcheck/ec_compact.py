@@ -410,12 +410,13 @@ def restore(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, Gap
             {k: r for k, r in guard_runs.items() if k not in keys})
 
 
-def unsafe_nodes(model: InputModel, tolerance: float) -> set[int]:
+def unsafe_nodes(model: InputModel, tolerance: float, silence_min: float = 0.1) -> set[int]:
     """Node keys whose dropped runs a rule could tell apart: a run that reaches an early
     or timeout limit, leaves the producer-time tolerance, crosses a segment bound or
     a change of configuration, or a node that is guarded too (requests and responses are
-    told apart frame by frame); and guarding runs that `_unsafe_guarding` names."""
-    bad: set[int] = _unsafe_guarding(model)
+    told apart frame by frame); and guarding runs that `_unsafe_guarding` names
+    (`silence_min`: the causes' shortest silence on a channel, `[timeline]`)."""
+    bad: set[int] = _unsafe_guarding(model, silence_min)
     factor_t, factor_e = model.timeline.timeout_factor, model.timeline.early_factor
     for m in model.nodes():
         runs = m.ec.runs
@@ -455,18 +456,27 @@ def unsafe_nodes(model: InputModel, tolerance: float) -> set[int]:
     return bad
 
 
-def _unsafe_guarding(model: InputModel) -> set[int]:
+def _unsafe_guarding(model: InputModel, silence_min: float) -> set[int]:
     """Node keys whose dropped guarding runs a rule could tell apart: a node that also
     produces heartbeats (its answers are told from heartbeats by toggle bit and timing),
     a run whose neighbours are not an answer before and a request after, whose longest
     wait reaches the response timeout (G002), or whose longest interval between requests
     exceeds the node life time, or that a change of guard time or life time factor
-    divides (G003)."""
+    divides (G003); or a run with a pause as long as the shortest silence the causes
+    report on its channel (max(silence_min, 2 x the shortest heartbeat period there):
+    a guarded node has no period of its own to keep its pauses below it)."""
     bad: set[int] = set()
     timeout = model.timeline.response_timeout_s
+    silence: dict[int, float] = {}
+    for cm in model.channels:
+        periods = [o.period_s for o in cm.nodes.values() if o.period_s]
+        silence[cm.chan] = max(silence_min, 2 * min(periods)) if periods else np.inf
     for m in model.nodes():
         g = m.ec.guard_runs
         if g is None or not len(g.pos):
+            continue
+        if bool((g.gmax >= silence.get(m.chan, 0.0) - EPS).any()):
+            bad.add(m.key)
             continue
         ec = m.ec
         a, b = g.pos - 1, g.pos

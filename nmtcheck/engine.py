@@ -180,7 +180,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
     selected = [r.code for r in rules]
     spool = SdoSpool()  # the SDO and error frames, per server (SPEC §8.3.1, §8.6)
     batches = tee(_in_order(opened.batches, stats), spool)
-    decoded = decode(_counted(batches, progress) if progress else batches, pdo_ids)
+    decoded = decode(_counted(batches, progress) if progress else batches, pdo_ids,
+                     protect_s=timeline_params(profile).obey_s)
     collecting = _pause_collector()
     try:
         if stats.frames == 0:
@@ -201,14 +202,15 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         model = build(decoded, stats.channels, start, end, params, configs, masters)
         if decoded.ec_runs or decoded.ec_guard_runs:  # a long log: a node whose dropped
             tolerance = profile["H003"].params["tolerance"]  # runs a limit cuts is read whole
-            unsafe = unsafe_nodes(model, tolerance)
+            silence = float(profile.timeline.get("silence_min_ms", 100.0)) / 1000.0
+            unsafe = unsafe_nodes(model, tolerance, silence)
             every = set(decoded.ec_runs) | set(decoded.ec_guard_runs)
             for keys in (unsafe, every):  # then, if limits moved: every node
                 if not unsafe:
                     break
                 decoded.restore_ec(keys)
                 model = build(decoded, stats.channels, start, end, params, configs, masters)
-                unsafe = unsafe_nodes(model, tolerance)
+                unsafe = unsafe_nodes(model, tolerance, silence)
         decoded.events = decoded.events[:0].copy()  # the SDO rows are paired into the model
         model.stats = stats
         model.expected = network.expected() if network else []

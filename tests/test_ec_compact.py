@@ -13,6 +13,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -338,3 +339,75 @@ def test_a_guarded_node_a_limit_cuts_or_that_beats_too_is_read_back_whole(
     assert _reports(res) == _reports(whole)
     assert {f.rule for f in res.findings} == {"G003", "G004"}
     assert set(res.model.decoded.ec_guard_runs) == {2}  # node 2 still compacted
+
+
+def test_late_requests_on_either_side_of_a_run_stay_two_findings(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    # life time 100 ms, requests 99.5 ms apart but twice 100.5 ms (inside the steady band):
+    # G003's pairs around the dropped run between them must not read as consecutive
+    net = tmp_path / "network.toml"
+    net.write_text("[nodes.5]\nguard_time_ms = 100\nlife_time_factor = 1\n")
+    frames = [(0.0, 0x705, "00"), (0.001, 0x000, "0105"), (2.0, 0x000, "0107"),
+              (15.0, 0x000, "0107")]
+    t = 0.05
+    for i in range(200):
+        frames += [(round(t, 6), 0x705, "R"), (round(t + 0.002, 6), 0x705, f"{i % 2 << 7 | 5:02X}")]
+        t += 0.1005 if i in (32, 146) else 0.0995
+    log = _write(tmp_path / "late.log", frames)
+    whole = _check(log, net, ec_compact.Compaction(), settings)
+    assert [f.rule for f in whole.findings] == ["G003", "G003"]
+    for compaction in (ec_compact.Compaction(above=0), FORCED):
+        res = _check(log, net, compaction, settings)
+        assert _guard_dropped(res) > 100
+        assert _reports(res) == _reports(whole), compaction
+
+
+def test_a_guarding_run_with_pauses_as_long_as_a_silence_is_read_back_whole(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    # the causes' silences on the channel: node 5's 0.5 s pauses while nodes 3 and 4 are
+    # quiet are silences, which stand-ins for its dropped exchanges cannot place
+    frames = [(0.0, 0x703, "00"), (0.0, 0x704, "00"), (0.0, 0x705, "00")]
+    frames += _heartbeats(3, 0.05, 20.0, 0.1) + _heartbeats(4, 0.07, 20.0, 0.2)
+    frames = [f for f in frames if not (f[1] == 0x703 and 10.0 < f[0] < 12.0)]
+    frames = [f for f in frames if not (f[1] == 0x704 and 9.0 < f[0] < 13.0)]
+    frames += _guarded(5, 0.011, 20.0, 0.5)
+    log = _write(tmp_path / "silence.log", frames)
+    whole = _check(log, None, ec_compact.Compaction(), settings)
+    assert any(c["kind"] == "silence" for f in whole.findings for c in f.causes or [])
+    restored: list[set[int]] = []
+    real_restore = ec_compact.restore
+
+    def spy(*args: Any) -> Any:
+        restored.append(set(args[4]))
+        return real_restore(*args)
+
+    settings.setattr(ec_compact, "restore", spy)
+    for compaction in (FORCED, TIGHT, ec_compact.Compaction(above=0)):
+        res = _check(log, None, compaction, settings)
+        assert _reports(res) == _reports(whole), compaction
+        assert restored[-1] == {5} and not res.model.decoded.ec_guard_runs  # read back
+
+
+def test_a_rule_that_looks_long_after_a_command_keeps_what_it_needs(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    # S004 with obey_ms = 3000: the first report 3 s after an ignored stop is kept (the
+    # frames after a command are kept for at least the obey time, not only for protect_s)
+    frames = [(0.0, 0x705, "00"), (0.002, 0x000, "0105"), (10.0201, 0x000, "0205")]
+    frames += _guarded(5, 0.01, 20.0, 0.05)
+    frames += [(0.0, 0x706, "00"), (0.003, 0x000, "0106"), (10.0202, 0x000, "0206")]
+    frames += _heartbeats(6, 0.02, 20.0, 0.05)
+    log = _write(tmp_path / "obey.log", frames)
+    profile = load_profile("default")
+    profile["S004"].params["obey_ms"] = 3000.0
+    rules = select_rules(profile, [], [])
+
+    def check(compaction: ec_compact.Compaction) -> InputResult:
+        settings.setattr(ec_compact, "SETTINGS", compaction)
+        return check_input(str(log), 0, profile, rules)
+
+    whole = check(ec_compact.Compaction())
+    assert sorted(f.node or 0 for f in whole.findings if f.rule == "S004") == [5, 6]
+    for compaction in (FORCED, TIGHT, ec_compact.Compaction(above=0)):
+        res = check(compaction)
+        assert _guard_dropped(res) > 0 and _dropped(res) > 0
+        assert _reports(res) == _reports(whole), compaction

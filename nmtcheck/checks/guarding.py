@@ -145,13 +145,12 @@ def guard_interval_exceeded(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
     resets = np.sort(np.concatenate([m.commands.reset_idx, ec.idx[ec.kind == BOOTUP]]))
     reqs = ec.where(REQUEST)
     a, b = reqs[:-1], reqs[1:]
-    if ec.guard_runs is not None:  # a long log: a dropped run between two kept requests
-        inside = np.isin(b, ec.guard_runs.pos)  # lies within the life time (ec_compact)
-        a, b = a[~inside], b[~inside]
     # node life time in force at each request (files, or 100Ch/100Dh written by SDO)
     life = m.config_series(ec.ts[a], lambda cfg: cfg.life_time_s)
-    late = np.flatnonzero((ec.ts[b] - ec.ts[a] > life + EPS)
-                          & ~between(resets, ec.idx[a], ec.idx[b]))
+    late = (ec.ts[b] - ec.ts[a] > life + EPS) & ~between(resets, ec.idx[a], ec.idx[b])
+    if ec.guard_runs is not None:  # a long log: a dropped run between two kept requests
+        late &= ~np.isin(b, ec.guard_runs.pos)  # lies within the life time (ec_compact);
+    late = np.flatnonzero(late)  # its pair keeps its place, so the pairs around stay apart
     # consecutive late requests within one timeline interval: one finding
     iv = m.interval_indices(ec.ts[b[late]])
     join = np.ones(len(late), bool)
