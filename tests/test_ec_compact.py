@@ -13,7 +13,6 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -125,6 +124,22 @@ def _heartbeats(node: int, t0: float, t1: float, period: float, jitter: float = 
     return [(round(float(t), 6), 0x700 + node, state) for t in ts]
 
 
+def _spy_restore(mp: pytest.MonkeyPatch) -> list[set[int]]:
+    """The node keys each `ec_compact.restore` call reads back, in order."""
+    restored: list[set[int]] = []
+    real_restore = ec_compact.restore
+
+    def spy(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, ec_compact.GapRuns],
+            guard: dict[int, ec_compact.GuardRuns], keys: set[int], chunk: int
+            ) -> tuple[dict[str, np.ndarray], dict[int, ec_compact.GapRuns],
+                       dict[int, ec_compact.GuardRuns]]:
+        restored.append(set(keys))
+        return real_restore(spool, cols, runs, guard, keys, chunk)
+
+    mp.setattr(ec_compact, "restore", spy)
+    return restored
+
+
 def _network(path: Path, nodes: dict[int, int]) -> Path:
     path.write_text("".join(f"[nodes.{n}]\nheartbeat_ms = {ms}\n\n" for n, ms in nodes.items()))
     return path
@@ -172,17 +187,7 @@ def test_a_run_a_limit_cuts_is_read_back_whole(
     log = _write(tmp_path / "slow.log", frames)
     net = _network(tmp_path / "network.toml", {2: 100, 3: 100})
     whole = _check(log, net, ec_compact.Compaction(), settings)
-    restored: list[set[int]] = []
-    real_restore = ec_compact.restore
-
-    def spy(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, ec_compact.GapRuns],
-            guard: dict[int, ec_compact.GuardRuns], keys: set[int], chunk: int
-            ) -> tuple[dict[str, np.ndarray], dict[int, ec_compact.GapRuns],
-                       dict[int, ec_compact.GuardRuns]]:
-        restored.append(set(keys))
-        return real_restore(spool, cols, runs, guard, keys, chunk)
-
-    settings.setattr(ec_compact, "restore", spy)
+    restored = _spy_restore(settings)
     res = _check(log, net, FORCED, settings)
     assert restored == [{3}]  # node 3 was compacted, then read back whole
     assert _reports(res) == _reports(whole)
@@ -323,17 +328,7 @@ def test_a_guarded_node_a_limit_cuts_or_that_beats_too_is_read_back_whole(
     net.write_text("".join(f"[nodes.{n}]\nguard_time_ms = 100\nlife_time_factor = 3\n\n"
                            for n in (2, 3)))
     whole = _check(log, net, ec_compact.Compaction(), settings)
-    restored: list[set[int]] = []
-    real_restore = ec_compact.restore
-
-    def spy(spool: ColumnSpool, cols: dict[str, np.ndarray], runs: dict[int, ec_compact.GapRuns],
-            guard: dict[int, ec_compact.GuardRuns], keys: set[int], chunk: int
-            ) -> tuple[dict[str, np.ndarray], dict[int, ec_compact.GapRuns],
-                       dict[int, ec_compact.GuardRuns]]:
-        restored.append(set(keys))
-        return real_restore(spool, cols, runs, guard, keys, chunk)
-
-    settings.setattr(ec_compact, "restore", spy)
+    restored = _spy_restore(settings)
     res = _check(log, net, FORCED, settings)
     assert restored == [{3, 5}]
     assert _reports(res) == _reports(whole)
@@ -374,14 +369,7 @@ def test_a_guarding_run_with_pauses_as_long_as_a_silence_is_read_back_whole(
     log = _write(tmp_path / "silence.log", frames)
     whole = _check(log, None, ec_compact.Compaction(), settings)
     assert any(c["kind"] == "silence" for f in whole.findings for c in f.causes or [])
-    restored: list[set[int]] = []
-    real_restore = ec_compact.restore
-
-    def spy(*args: Any) -> Any:
-        restored.append(set(args[4]))
-        return real_restore(*args)
-
-    settings.setattr(ec_compact, "restore", spy)
+    restored = _spy_restore(settings)
     for compaction in (FORCED, TIGHT, ec_compact.Compaction(above=0)):
         res = _check(log, None, compaction, settings)
         assert _reports(res) == _reports(whole), compaction
