@@ -53,7 +53,7 @@ class Compaction:
 
     above: int = 2_000_000  # rows: a log with fewer is kept whole (no summary anywhere)
     chunk: int = 1 << 20  # rows read back from the spool at a time
-    margin: int = 8  # frames kept on either side of anything a rule looks at
+    margin: int = 8  # frames (guarding: exchanges) kept on either side of anything a rule sees
     band: float = 0.05  # intervals within this fraction of the chunk's median
     protect_s: float = 1.0  # frames this long after an NMT or SDO frame are kept
     min_run: int = 32  # shorter runs are kept: a run's summary costs as much as ~12 rows
@@ -213,7 +213,9 @@ def _chunk(node: _Node, new: dict[str, np.ndarray],
     if stop > start:
         drop = _droppable(_good(rows, same, events, s), before, k, start, stop, final)
         _keep_short_runs(drop, s.min_run)
-        guard = _droppable(_protected(_guard_good(rows, s), rows, events, s), before, k,
+        # guarding: `margin` counts exchanges (two frames each), as it counts heartbeats;
+        # the context kept between chunks (2 * margin + 2 rows) covers such a window
+        guard = _droppable(_protected(_guard_good(rows, s), rows, events, s), before, 2 * k,
                            start, stop, final)
         _keep_short_runs(guard, s.min_run)
         _whole_exchanges(guard, rows["rtr"], s.min_run)
