@@ -302,23 +302,32 @@ def test_kill_9_of_the_driver_ends_every_worker(tmp_path: Path) -> None:
     body = "".join(f"({1_700_000_000 + i / 100:.6f}) can0 705#05\n" for i in range(150_000))
     for k in range(24):
         (logs / f"log{k:02d}.log").write_text(body)
+    temp = tmp_path / "temp"
+    temp.mkdir()
     driver = subprocess.Popen([sys.executable, "-m", "nmtcheck", "check", "logs/*.log",
                                "--results", "results", "--isolated", "--executor", "local:2"],
-                              cwd=tmp_path, env=ENV, start_new_session=True,
+                              cwd=tmp_path, env={**ENV, "TMPDIR": str(temp)},
+                              start_new_session=True,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def pool_dirs() -> list[str]:
+        return [p.name for p in temp.iterdir() if p.name.startswith("nmtcheck-workers-")]
+
     try:
         deadline = time.monotonic() + 60
-        while len(_session_members(driver.pid)) < 4 and time.monotonic() < deadline:
-            time.sleep(0.1)  # the driver, the fork server, its workers
+        while (len(_session_members(driver.pid)) < 4 or not pool_dirs()) and (
+                time.monotonic() < deadline):
+            time.sleep(0.05)  # the driver, the fork server, its workers and their directory
         assert len(_session_members(driver.pid)) >= 4, "the workers never started"
-        time.sleep(1.0)
+        time.sleep(0.3)
         driver.kill()
-        driver.wait()
+        assert driver.wait() == -9  # killed in the middle of the run, not ended by itself
         deadline = time.monotonic() + 20
         while _session_members(driver.pid) and time.monotonic() < deadline:
             time.sleep(0.1)
         left = _session_members(driver.pid)
         assert not left, [Path(f"/proc/{p}/cmdline").read_bytes()[:120] for p in left]
+        assert not pool_dirs()  # the workers removed it: the killed driver could not
     finally:
         for pid in _session_members(driver.pid):
             os.kill(pid, 9)

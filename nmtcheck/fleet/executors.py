@@ -59,16 +59,20 @@ class Executor(Protocol):
 _started: Any = None  # in a pool worker: where it says which task it starts
 
 
-def watch_driver(pid: int) -> threading.Thread:
+def watch_driver(pid: int, tmpdir: str | None = None) -> threading.Thread:
     """End this process at once (os._exit) when process `pid`, the run's driver, has ended,
     however it ended: `kill -9`, the OOM killer, a crash. A worker is a child of the fork
     server, not of the driver, and the pool's pipes may stay open in other processes of
     the run, so neither a parent-death signal nor an EOF would tell it reliably: a pidfd
     (Linux 5.3+) becomes readable when the driver ends; elsewhere the driver is looked
     for every WATCH_POLL_S. Without this a killed run's workers went on checking the
-    tasks already queued to them, then held their memory for minutes (issue 24)."""
+    tasks already queued to them, then held their memory for minutes (issue 24). The
+    pool's temporary directory `tmpdir`, which the driver can no longer remove, goes
+    first (every worker tries; what a worker still writes there is unlinked with it)."""
 
     def gone() -> None:
+        if tmpdir is not None:
+            shutil.rmtree(tmpdir, ignore_errors=True)
         os._exit(DRIVER_GONE_EXIT)
 
     def watch() -> None:
@@ -105,7 +109,7 @@ def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None 
     mark("worker")
     _started = queue
     if driver is not None:
-        watch_driver(driver)
+        watch_driver(driver, tmpdir)
     # A forked worker inherits the CLI's handlers, which turn a signal into an exception
     # with a traceback: a worker the pool (or Ctrl-C) stops just ends; the parent reports.
     for name in ("SIGTERM", "SIGHUP", "SIGINT"):
