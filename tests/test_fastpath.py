@@ -15,6 +15,7 @@ import random
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -149,6 +150,9 @@ def _asc_line(rnd: random.Random, t: float) -> str:
     kind = rnd.choice(("d", "d", "d", "D", "r"))
     direction = rnd.choice(("Rx", "Rx", "Tx", "TxRq"))
     tail = rnd.choice(("", "", "  Length = 240000 BitCount = 120 ID = 385", " x"))
+    if kind == "r" and rnd.random() < 0.5:  # a remote frame without its length, as CANoe
+        return f"{ts} {chan}  {cid:<15} {direction}   " + rnd.choice(("r", "R", "r ", "r  1",
+                                                                      "r\r", "r 1", "r x"))
     return f"{ts} {chan}  {cid:<15} {direction}   {kind} {dlc:x} {data}{tail}".rstrip(" ") \
         if rnd.random() < 0.9 else f"{ts} {chan}  {cid:<15} {direction}   {kind} {dlc:x} {data}"
 
@@ -250,3 +254,34 @@ def test_remote_frames_take_the_fast_path(tmp_path: Path, monkeypatch: pytest.Mo
     dlc = np.concatenate([b.dlc for b in batches])
     assert int(rtr.sum()) == 1002 and dlc[:4].tolist() == [0, 1, 1, 1]
     assert dlc[-1] == 8 and bool(rtr[-1]) and bool(np.concatenate([b.ext for b in batches])[-2])
+
+
+def test_asc_remote_frames_take_the_fast_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                              ) -> None:
+    # CANoe writes a remote request as `r` (and maybe its length): node guarding
+    from nmtcheck.readers import asc
+
+    lines = [*_ASC_HEADERS]
+    for i in range(2000):
+        t = i * 0.05
+        request = "r" if i % 3 else "r 1"
+        lines.append(f"{t:11.6f} 1  {0x701 + i % 7:<15X} Rx   {request}")
+        lines.append(f"{t + 0.002:11.6f} 1  {0x701 + i % 7:<15X} Rx   d 1 "
+                     f"{(i // 7 % 2) << 7 | 5:02X}")
+    lines.append("End TriggerBlock")
+    path = tmp_path / "guarding.asc"
+    path.write_text("\n".join(lines) + "\n")
+    assert_same_reading(path, monkeypatch, "asc")
+    per_line = asc._parse_line
+    calls: list[int] = []
+
+    def counted(*args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        return per_line(*args, **kwargs)
+
+    monkeypatch.setattr(asc, "_parse_line", counted)
+    batches = _read(path, False, monkeypatch, "asc")[1]
+    assert len(calls) <= len(_ASC_HEADERS) + 1  # the header and footer lines only
+    rtr = np.concatenate([b.rtr for b in batches])
+    dlc = np.concatenate([b.dlc for b in batches])
+    assert int(rtr.sum()) == 2000 and dlc[:4].tolist() == [1, 1, 0, 1]

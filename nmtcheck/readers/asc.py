@@ -61,6 +61,7 @@ from nmtcheck.readers.blocks import (
 
 FLAG_REMOTE = 0x10  # <MessageFlags> bit 4
 FLAG_EDL = 0x1000  # bit 12: an FD frame
+FLAG_RTR = 2  # BatchBuilder's flag bit of a remote frame
 _NON_FRAME_AFTER_CHANNEL = {b"statistic:", b"j1939tp", b"status:", b"overloadframe"}
 
 
@@ -245,6 +246,7 @@ class _Parsed:
     can_id: np.ndarray
     dlc: np.ndarray
     data: np.ndarray
+    flags: np.ndarray  # BatchBuilder's flag bits: remote frames (node guarding) have bit 1
 
 
 _U64 = np.uint64
@@ -270,12 +272,12 @@ _DATA_SPACES, _DATA_DIGITS, _DATA_NEED = _data_tables()
 
 def _fixed_words(layout: _Layout) -> list[tuple[int, np.uint64, np.uint64]]:
     """(offset, mask, value) words that check the template's fixed bytes after the
-    timestamp: the spaces between the fields and the `x` of Rx/Tx."""
+    timestamp: the spaces between the fields and the `x` of Rx/Tx (the byte after the
+    frame type is checked apart: a remote frame's line may end there)."""
     fixed = {c: 0x20 for c in range(layout.chan)}
     fixed.update({c: 0x20 for c in range(layout.chan + layout.chan_w, layout.ident)})
     fixed.update({c: 0x20 for c in range(layout.ident + 3, layout.direction)})  # ID: 1..3 hex
     fixed.update({c: 0x20 for c in range(layout.direction + 2, layout.dtype)})
-    fixed[layout.dtype + 1] = 0x20
     fixed[layout.direction + 1] = ord("x")
     out = []
     for start in range(0, layout.width, 8):
@@ -345,34 +347,43 @@ def _parse_block(block: Block, layout: _Layout, rows: np.ndarray) -> _Parsed:
     direction = line.byte(after + layout.direction)
     ok &= (direction == 0x52) | (direction == 0x54)
     dtype = line.byte(after + layout.dtype)
-    ok &= (dtype == 0x64) | (dtype == 0x44)
     dlc = line.byte(after + layout.dtype + 2) - _U64(0x30)
-    ok &= dlc <= _U64(8)
-    dlc = np.minimum(dlc, _U64(8)).astype(np.int64)
+    # A remote frame: `r` (or `R`) then the end of the line, or one space and its length
+    # 0..8 then whitespace; other spellings (more spaces, a longer token) go per line.
+    past_r = dot + after + layout.dtype + 1
+    end_now = (buf[past_r] == 0x0A) | (buf[past_r] == 0x0D) & (buf[past_r + 1] == 0x0A)
+    with_dlc = (buf[past_r] == 0x20) & (dlc <= _U64(8)) & _WS[buf[past_r + 2]]
+    remote = ((dtype == 0x72) | (dtype == 0x52)) & (end_now | with_dlc)
+    ok &= ((dtype == 0x64) | (dtype == 0x44)) & (buf[past_r] == 0x20) | remote
+    ok &= (dlc <= _U64(8)) | end_now
+    dlc = np.where(remote & end_now, _U64(0), np.minimum(dlc, _U64(8))).astype(np.int64)
+    data_len = np.where(remote, 0, dlc)  # a remote frame carries no data
     # Data: ` XX` per byte, then whitespace or the end of the line.
     nibs = np.empty((rows.size, 3), np.uint64)
     for k in range(3):
         word = line.word(after + layout.width + 8 * k)
         flags, nibs[:, k] = hex_flags(word)
         have = (byte_flags(word, 0x20) & _DATA_SPACES[k]) | (flags & _DATA_DIGITS[k])
-        need = _DATA_NEED[k][dlc]
+        need = _DATA_NEED[k][data_len]
         ok &= (have & need) == need
     body = end + layout.width
-    ok &= _WS[buf[body + 3 * dlc]]
+    ok &= _WS[buf[body + 3 * data_len]] | remote
     # Each character's nibble shifted up, or'ed with the next one's: byte 3k+1 is data byte k.
     pairs = nibs.view(np.uint8).reshape(-1) << np.uint8(4)
     pairs[:-1] |= nibs.view(np.uint8).reshape(-1)[1:]
     data = pairs.reshape(-1, 24)[:, 1::3].copy()
-    data.view(np.uint64)[:, 0] &= byte_mask(dlc)
+    data.view(np.uint64)[:, 0] &= byte_mask(data_len)
     inexact = ok & (total >= np.uint64(MAX_EXACT))
     for i in np.flatnonzero(inexact):  # more digits than a double holds
         ts[i] = float(block.buf[dot[i] - n_int[i]:end[i]].tobytes())
     chan = chan.astype(np.int64)
+    flags = np.where(remote, FLAG_RTR, 0).astype(np.uint8)
     if bool(ok.all()):
-        return _Parsed(rows, ts, chan, can_id.astype(np.uint32), dlc.astype(np.int16), data)
+        return _Parsed(rows, ts, chan, can_id.astype(np.uint32), dlc.astype(np.int16), data,
+                       flags)
     good = np.flatnonzero(ok)
     return _Parsed(rows[good], ts[good], chan[good], can_id[good].astype(np.uint32),
-                   dlc[good].astype(np.int16), data[good])
+                   dlc[good].astype(np.int16), data[good], flags[good])
 
 
 
@@ -416,7 +427,8 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
     n = len(block)
     if parsed is None:
         parsed = _Parsed(np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64),
-                         np.empty(0, np.uint32), np.empty(0, np.int16), np.empty((0, 8), np.uint8))
+                         np.empty(0, np.uint32), np.empty(0, np.int16), np.empty((0, 8), np.uint8),
+                         np.empty(0, np.uint8))
     slow_rows: list[int] = []
     slow_vals: list[Row] = []
 
@@ -454,7 +466,8 @@ def _merge(block: Block, parsed: _Parsed | None, stats: InputStats, state: _Stat
         code_of = np.zeros(max(codes, default=0) + 1, np.int32)
         code_of[list(codes)] = list(codes.values())
         chan_code = code_of[chan]
-    fast_cols = (parsed.ts[:k], chan_code, parsed.can_id[:k], parsed.dlc[:k], parsed.data[:k])
+    fast_cols = (parsed.ts[:k], chan_code, parsed.can_id[:k], parsed.dlc[:k], parsed.data[:k],
+                 parsed.flags[:k])
     slow = [SlowRow(v.ts, stats.channel_code(v.channel), v.can_id, v.ext, v.rtr, v.err, v.fd,
                     v.dlc, v.data) for v in slow_vals]
     for batch in merged_batches(builder, block, fast_rows, fast_cols, slow_rows, slow):
