@@ -84,15 +84,16 @@ _SIGNALS = {getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP")
             if hasattr(signal, name)}
 
 
-def spill_directory() -> tempfile.TemporaryDirectory[str]:
-    """A temporary directory for spilled columns, made with the terminating signals held
-    back: one that came between making the directory and registering its clean-up would
-    leave the directory behind (the CLI turns these signals into an exception)."""
+def spill_directory(prefix: str = "nmtcheck-") -> tempfile.TemporaryDirectory[str]:
+    """A temporary directory for spilled columns (or a worker pool's files), made with
+    the terminating signals held back: one that came between making the directory and
+    registering its clean-up would leave the directory behind (the CLI turns these
+    signals into an exception)."""
     if not hasattr(signal, "pthread_sigmask"):
-        return tempfile.TemporaryDirectory(prefix="nmtcheck-")
+        return tempfile.TemporaryDirectory(prefix=prefix)
     held = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
     try:
-        return tempfile.TemporaryDirectory(prefix="nmtcheck-")
+        return tempfile.TemporaryDirectory(prefix=prefix)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
 

@@ -217,7 +217,6 @@ def _chunk(node: _Node, new: dict[str, np.ndarray],
         # the context kept between chunks (2 * margin + 2 rows) covers such a window
         guard = _droppable(_protected(_guard_good(rows, s), rows, events, s), before, 2 * k,
                            start, stop, final)
-        _keep_short_runs(guard, s.min_run)
         _whole_exchanges(guard, rows["rtr"], s.min_run)
         _emit(node, rows, start, stop, drop, before, odd_upto, guard)
     keep_from = max(stop - (2 * k + 2), 0)  # context for the next chunk's windows
@@ -245,16 +244,17 @@ def _droppable(good: np.ndarray, before: np.ndarray, k: int, start: int, stop: i
     return drop
 
 
-def _runs_of(drop: np.ndarray) -> tuple[list[int], list[int]]:
+def _runs_of(drop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The runs of True in `drop` as [start, end) bounds."""
     edges = np.diff(np.concatenate([[0], drop.astype(np.int8), [0]]))
-    return np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
 
 
 def _whole_exchanges(drop: np.ndarray, rtr: np.ndarray, min_run: int) -> None:
     """Trim each guarding run to whole exchanges (from a request to an answer) and an even
-    number of answers: the answers kept on either side then alternate as before."""
-    for s_, e_ in zip(*_runs_of(drop), strict=True):
+    number of answers: the answers kept on either side then alternate as before. Runs
+    shorter than `min_run` after that stay."""
+    for s_, e_ in zip(*(b.tolist() for b in _runs_of(drop)), strict=True):
         a, b = s_, e_
         if not rtr[a]:
             a += 1
@@ -271,8 +271,7 @@ def _keep_short_runs(drop: np.ndarray, min_run: int) -> None:
     """Runs of fewer than `min_run` dropped rows stay (their summary would cost more)."""
     if min_run <= 1 or not drop.any():
         return
-    edges = np.diff(np.concatenate([[0], drop.astype(np.int8), [0]]))
-    s_runs, e_runs = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    s_runs, e_runs = _runs_of(drop)
     short = e_runs - s_runs < min_run
     if short.any():
         mark = np.zeros(len(drop) + 1, np.int64)
@@ -344,14 +343,14 @@ def _emit(node: _Node, rows: dict[str, np.ndarray], start: int, stop: int, drop:
     first_kept = node.kept_rows  # the node's kept rows so far
     node.kept.append({name: col[keep] for name, col in rows.items()})
     node.kept_rows += len(keep)
-    for s_, e_ in zip(*_runs_of(guard), strict=True):
+    for s_, e_ in zip(*(b.tolist() for b in _runs_of(guard)), strict=True):
         gaps = np.diff(ts[s_ - 1:e_ + 1])  # from the kept answer before to the request after
         j = int(np.argmax(gaps))
         requests = ts[s_ - 2:e_ + 1:2]  # the kept request before, the dropped ones, the next
         node.guard_runs.append(np.asarray([
             first_kept + int(np.searchsorted(keep, e_)), e_ - s_, gaps.max(), ts[s_ - 1 + j],
             np.diff(requests).max(), (ts[s_ + 1:e_:2] - ts[s_:e_:2]).max()], np.float64))
-    for s_, e_ in zip(*_runs_of(drop), strict=True):
+    for s_, e_ in zip(*(b.tolist() for b in _runs_of(drop)), strict=True):
         gaps = np.diff(ts[s_ - 1:e_ + 1])  # from the kept row before to the kept row after
         j = int(np.argmax(gaps))
         b_pos = first_kept + int(np.searchsorted(keep, e_))  # e_ is the kept row after

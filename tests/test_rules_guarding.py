@@ -6,12 +6,14 @@ from __future__ import annotations
 import random
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
 from conftest import Checker, candump
 from traces import HEALTHY_NET, hb, healthy, profile
 
+from nmtcheck.checks.guarding import _BadToggle
 from nmtcheck.model import TimelineParams
 from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, REQUEST
 
@@ -267,9 +269,36 @@ def _random_guarding(rnd: random.Random) -> tuple[SimpleNamespace, np.ndarray]:
     return ec, resets
 
 
+def _toggle_errors_walk(ec: Any, pos: np.ndarray, resets: list[int]) -> list[_BadToggle]:
+    """`_toggle_errors` as it was, frame by frame: the reference it is compared with."""
+    expected: int | None = None
+    ri = 0
+    bad: list[_BadToggle] = []
+    prev_boot = True  # the previous guard/boot-up frame is a boot-up (or none)
+    # n numbers responses and boot-ups alike: a boot-up separates runs
+    for n, (p_, k, idx, value) in enumerate(zip(
+            pos.tolist(), ec.kind[pos].tolist(), ec.idx[pos].tolist(),
+            ec.value[pos].tolist(), strict=True)):
+        while ri < len(resets) and resets[ri] < idx:
+            expected = 0
+            ri += 1
+        if k == BOOTUP:
+            expected = 0
+        else:
+            toggle = value >> 7
+            if expected is not None and toggle != expected:
+                why = ("first response after boot-up/reset has toggle 1"
+                       if expected == 0 and value & 0x80 and prev_boot
+                       else f"toggle bit {toggle} repeats the previous response's")
+                bad.append(_BadToggle(n, p_, why))
+            expected = 1 - toggle
+        prev_boot = k == BOOTUP
+    return bad
+
+
 def test_guarding_timeouts_and_toggles_match_their_walks() -> None:
     """G002's stretches and G001's array judgement give what walking every frame gives."""
-    from nmtcheck.checks.guarding import _toggle_errors, _toggle_errors_walk
+    from nmtcheck.checks.guarding import _toggle_errors
     from nmtcheck.timeline import _guard_timeouts, _guard_walk
 
     params = TimelineParams(response_timeout_s=1.0)
@@ -285,6 +314,6 @@ def test_guarding_timeouts_and_toggles_match_their_walks() -> None:
         timeouts += bool(every.timeouts)
         pos = ec.where(GUARD, BOOTUP)
         got = _toggle_errors(ec, pos, resets)  # type: ignore[arg-type]
-        assert got == _toggle_errors_walk(ec, pos, resets.tolist()), seed  # type: ignore[arg-type]
+        assert got == _toggle_errors_walk(ec, pos, resets.tolist()), seed
         toggles += bool(got)
     assert 200 < timeouts < 1300 and 200 < toggles < 1300, (timeouts, toggles)

@@ -52,9 +52,8 @@ def _toggle_errors(ec: EcTable, pos: np.ndarray, resets: np.ndarray) -> list[_Ba
     """The guarding responses among `pos` (responses and boot-ups) whose toggle bit is
     wrong. Each response is judged by the frame before it among `pos` and the reset
     commands between them: after a boot-up or reset it must have toggle 0, after a
-    response the other toggle than that response's (the first of all is free)."""
-    if len(resets) > 1 and bool((np.diff(resets) < 0).any()):  # never in file order
-        return _toggle_errors_walk(ec, pos, resets.tolist())
+    response the other toggle than that response's (the first of all is free).
+    `resets`: file positions, in file order (`Commands.reset_idx`)."""
     kind, idx, value = ec.kind[pos], ec.idx[pos], ec.value[pos]
     toggle = (value >> 7).astype(np.int64)
     boot = kind == BOOTUP
@@ -73,33 +72,6 @@ def _toggle_errors(ec: EcTable, pos: np.ndarray, resets: np.ndarray) -> list[_Ba
                else f"toggle bit {t} repeats the previous response's")
         out.append(_BadToggle(n, int(pos[n]), why))
     return out
-
-
-def _toggle_errors_walk(ec: EcTable, pos: np.ndarray, resets: list[int]) -> list[_BadToggle]:
-    """`_toggle_errors` frame by frame (the reference the tests compare with)."""
-    expected: int | None = None
-    ri = 0
-    bad: list[_BadToggle] = []
-    prev_boot = True  # the previous guard/boot-up frame is a boot-up (or none)
-    # n numbers responses and boot-ups alike: a boot-up separates runs
-    for n, (p_, k, idx, value) in enumerate(zip(
-            pos.tolist(), ec.kind[pos].tolist(), ec.idx[pos].tolist(),
-            ec.value[pos].tolist(), strict=True)):
-        while ri < len(resets) and resets[ri] < idx:
-            expected = 0
-            ri += 1
-        if k == BOOTUP:
-            expected = 0
-        else:
-            toggle = value >> 7
-            if expected is not None and toggle != expected:
-                why = ("first response after boot-up/reset has toggle 1"
-                       if expected == 0 and value & 0x80 and prev_boot
-                       else f"toggle bit {toggle} repeats the previous response's")
-                bad.append(_BadToggle(n, p_, why))
-            expected = 1 - toggle
-        prev_boot = k == BOOTUP
-    return bad
 
 
 @rule("G002", "guard-no-response", "error",

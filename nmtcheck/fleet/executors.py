@@ -10,6 +10,7 @@ its scheduler's `allowed-failures` (KilledWorker). Dask is imported only by its 
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import select
@@ -29,7 +30,6 @@ from nmtcheck.errors import UsageError
 from nmtcheck.fleet.prestart import local_context
 
 ALLOWED_FAILURES = 2  # a task on a worker that died is retried this many times
-_END_SIGNALS = {getattr(signal, n) for n in ("SIGTERM", "SIGINT", "SIGHUP") if hasattr(signal, n)}
 MIN_TICK_S = 0.1  # a Dask worker's event loop waking more often than this slows a check
 DRIVER_GONE_EXIT = 75  # a worker's exit status when it ends because its driver died
 WATCH_POLL_S = 0.5  # where no pidfd can watch the driver, how often it is looked for
@@ -150,7 +150,7 @@ class ResilientPool:
         self._failures: dict[Hashable, int] = {}
         self._ready: list[tuple[Hashable, Any]] = []
         self._dead_starts = 0
-        self._tmpdir: str | None = None
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
 
     def _ensure(self) -> ProcessPoolExecutor:
         if self._pool is None:
@@ -161,34 +161,27 @@ class ResilientPool:
             # go below a directory of this pool's, removed once its workers have ended: a
             # worker that dies (a crash, the OOM killer) cannot clean up after itself, and
             # what it spilled can be 40 bytes per frame of its log.
-            self._make_tmpdir()
+            from nmtcheck.decode import spill_directory
+
+            try:
+                self._tmp = spill_directory("nmtcheck-workers-")
+            except OSError:  # no room, no rights: the workers' own spill says so, as before
+                self._tmp = None
             self._pool = ProcessPoolExecutor(self.workers, mp_context=self._ctx,
                                              initializer=_init_worker,
                                              initargs=(self._queue, environ, os.getpid(),
-                                                       self._tmpdir))
+                                                       self._tmp.name if self._tmp else None))
         return self._pool
-
-    def _make_tmpdir(self) -> None:
-        """The pool's directory, made and noted with SIGTERM/SIGINT/SIGHUP held back (the
-        CLI turns them into an exception: one between the two would leave it behind)."""
-        mask = getattr(signal, "pthread_sigmask", None)
-        held = mask(signal.SIG_BLOCK, _END_SIGNALS) if mask else None
-        try:
-            self._tmpdir = tempfile.mkdtemp(prefix="nmtcheck-workers-")
-        except OSError:  # no room, no rights: the workers' own spill says so, as before
-            self._tmpdir = None
-        finally:
-            if mask and held is not None:
-                mask(signal.SIG_SETMASK, held)
 
     def _shutdown(self) -> None:
         """End this pool's workers, then remove what they left in their directory."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
         self._pool = None
-        if self._tmpdir is not None:
-            shutil.rmtree(self._tmpdir, ignore_errors=True)
-            self._tmpdir = None
+        if self._tmp is not None:
+            with contextlib.suppress(OSError):
+                self._tmp.cleanup()
+            self._tmp = None
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
         self._submit(key, fn, args)
