@@ -32,7 +32,8 @@ FORCED = ec_compact.Compaction(above=0, chunk=53, margin=8, protect_s=1.0, min_r
 TIGHT = ec_compact.Compaction(above=0, chunk=31, margin=4, protect_s=0.0, min_run=1)
 OPTIONS: dict[str, object] = {"fail_on": "error", "quiet": False,
                               "config": {"file": None, "profile": "default", "overrides": []}}
-DATE = re.compile(r"\d{4}-\d\d-\d\dT[0-9:.]+(Z|[+-]\d\d:\d\d)?")
+# when a report was made: ISO in JSON and text, "2026-11-26 22:26:30 UTC" in HTML
+DATE = re.compile(r"\d{4}-\d\d-\d\d(T[0-9:.]+(Z|[+-]\d\d:\d\d)?| \d\d:\d\d:\d\d UTC)")
 
 
 @pytest.fixture
