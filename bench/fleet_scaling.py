@@ -194,12 +194,21 @@ def phases(marks: list[dict[str, Any]], launched: float, wall: float) -> dict[st
     if starts:
         at["first_task"] = min(starts) - launched
         at["last_task_end"] = max(ends) - launched
+        # every worker busy: the latest of the workers' first task starts (the pool forks
+        # its workers one after the other)
+        firsts: dict[int, float] = {}
+        for m in marks:
+            if m["phase"] == "task_start":
+                firsts[m["pid"]] = min(firsts.get(m["pid"], m["t"]), m["t"])
+        at["all_busy"] = max(firsts.values()) - launched
     at["exit"] = wall
     by_pid: dict[int, list[dict[str, Any]]] = {}
     for m in marks:
         by_pid.setdefault(m["pid"], []).append(m)
     writes = []
     busy = []
+    first_tasks: list[float] = []
+    later_tasks: list[float] = []
     for ms in by_pid.values():
         t = {}
         for m in ms:
@@ -211,8 +220,13 @@ def phases(marks: list[dict[str, Any]], launched: float, wall: float) -> dict[st
         e = [m["t"] for m in ms if m["phase"] == "task_end"]
         if s and e:
             busy.append(max(e) - min(s))
+        # each task's duration, a worker's first apart (cold: its pages not yet touched)
+        spans = sorted(zip(sorted(s), sorted(e), strict=False))
+        for i, (t0, t1) in enumerate(spans):
+            (first_tasks if i == 0 else later_tasks).append(t1 - t0)
     cpu = {k: m["cpu"] for k, m in driver.items()}
     return {"at": at, "writes_s": writes, "worker_span_s": busy,
+            "first_task_s": first_tasks, "later_task_s": later_tasks,
             "driver_cpu_run_s": cpu.get("run_end", 0) - cpu.get("run_fleet", 0),
             # from the executor made (a Dask cluster started) to the run's end: per log
             "driver_cpu_after_start_s": cpu.get("run_end", 0) - cpu.get("executor", 0),
@@ -355,6 +369,7 @@ PHASES = (("prestart", "driver: fork server started (prestart)"),
           ("executor", "driver: listed, executor made"),
           ("preload_start", "fork server: interpreter up, preload begins"),
           ("preload", "fork server: preload done"), ("first_task", "first task starts"),
+          ("all_busy", "every worker has started its first task"),
           ("last_task_end", "last task ends"), ("drained", "driver: every result in"),
           ("run_row", "driver: pool closed, run row written"), ("exit", "process exit"))
 
@@ -381,6 +396,12 @@ def print_phases(fleet_stats: dict[str, list[dict[str, Any]]]) -> None:
             continue
         first = statistics.median(r["at"]["first_task"] for r in runs)
         nan = float("nan")
+        firsts = [t for r in runs for t in r.get("first_task_s", [])]
+        laters = [t for r in runs for t in r.get("later_task_s", [])]
+        if firsts:
+            print(f"{n}: a task takes {statistics.median(firsts):.3f} s as its worker's first, "
+                  + (f"{statistics.median(laters):.3f} s later" if laters else "none later")
+                  + " (medians)")
         print(f"{n}: fixed cost = first task {first:.3f} s + tail "
               f"{statistics.median(tail) if tail else nan:.3f} s (last task end to exit); "
               f"worker writes {1e3 * statistics.median(writes) if writes else nan:.1f} ms "

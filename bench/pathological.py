@@ -74,7 +74,7 @@ from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
 KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts",
          "channels", "chanbeats", "canids", "extended", "errorframes", "boots", "bootfail",
-         "guarded")
+         "guarded", "keepalive")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -221,10 +221,24 @@ def guarded(i: np.ndarray) -> Frames:
     return f
 
 
+def keepalive(i: np.ndarray) -> Frames:
+    """A master that repeats "start all nodes" (01h 00h) every 500 ms, as some keep their
+    network operational, among the heartbeats (05h) of 16 nodes every 100 ms: one NMT
+    command per 80 heartbeats, each node operational and obeying throughout."""
+    per = 81  # 80 heartbeats, then the command, every 500 ms
+    k, j = i // per, i % per
+    command = j == per - 1
+    node = j % 16 + 1
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = np.where(command, 0x01, 0x05)
+    us = k * 500_000 + np.where(command, 499_000, (j // 16) * 100_000 + (node - 1) * 6_000)
+    return _frames(i, us, np.where(command, 0, 0x700 + node), np.where(command, 2, 1), data)
+
+
 MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
     "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127,
     "emcy": emcy, "sdo": sdo, "aborts": aborts, "boots": boots,
-    "bootfail": bootfail, "guarded": guarded}
+    "bootfail": bootfail, "guarded": guarded, "keepalive": keepalive}
 
 
 def chunks(kind: str, n: int) -> Iterator[Frames]:
