@@ -11,6 +11,9 @@ process, with `ec_compact.SETTINGS` as shipped and with compaction off, and comp
 JSON and text reports: they must be identical. Prints time, kept and dropped rows.
 `tests/test_ec_compact.py` does the same on small logs with forced settings.
 
+With `--keepalive`, a master sends "start all" every 500 ms throughout (node 7's stop and
+pre-operational then last until the next one): runs of heartbeats pass the repeats.
+
 With `--guarding`, nodes 9-16 answer node guarding instead (a remote request every
 100 ms, the answer 2 ms later, its toggle bit alternating): node 11 misses one answer
 (G002), node 13 repeats a toggle bit once (G001); with `--network` as well, nodes 9-16
@@ -60,7 +63,8 @@ def guarded(n: int, per: int, period: float, rng: np.random.Generator
     return ts[keep], np.full(int(keep.sum()), 0x700 + n), data[keep]
 
 
-def write_log(path: Path, frames: int, slow9: bool, guarding: bool = False) -> None:
+def write_log(path: Path, frames: int, slow9: bool, guarding: bool = False,
+              keepalive: bool = False) -> None:
     rng = np.random.default_rng(1)
     per = frames // 16
     parts = []
@@ -77,15 +81,24 @@ def write_log(path: Path, frames: int, slow9: bool, guarding: bool = False) -> N
             keep[per // 2:per // 2 + 100] = False  # 10 s lost: H001
         t = t[keep]
         state = np.full(len(t), 0x05)
-        if n == 7:  # stopped, then pre-operational, by the commands below
+        if n == 7 and keepalive:  # the next "start all" ends the stop and the pre-op
+            state[(t > 3000.0) & (t <= 3000.5)] = 0x04
+            state[(t > 9000.0) & (t <= 9000.5)] = 0x7F
+        elif n == 7:  # stopped, then pre-operational, by the commands below
             state[t > 3000.0] = 0x04
             state[t > 9000.0] = 0x7F
         parts.append((t, np.full(len(t), 0x700 + n), state))
-    ts = np.concatenate([p[0] for p in parts] + [np.asarray([3000.0, 9000.0])])
-    cid = np.concatenate([p[1] for p in parts] + [np.asarray([0, 0])])
+    commands = np.asarray([3000.0, 9000.0])
+    command_data = np.asarray(["0207", "8007"])
+    if keepalive:  # the master repeats "start all" every 500 ms
+        every = np.arange(0.5, max(float(p[0].max()) for p in parts), 0.5)
+        commands = np.concatenate([commands, every])
+        command_data = np.concatenate([command_data, np.full(len(every), "0100")])
+    ts = np.concatenate([p[0] for p in parts] + [commands])
+    cid = np.concatenate([p[1] for p in parts] + [np.zeros(len(commands), np.int64)])
     values = np.concatenate([p[2] for p in parts])
     data = np.concatenate([np.where(values < 0, "R", np.char.mod("%02X", values & 0xFF)),
-                           np.asarray(["0207", "8007"])])
+                           command_data])
     order = np.argsort(ts, kind="stable")
     with path.open("w") as f:
         for a, c, d in zip(ts[order].tolist(), cid[order].tolist(), data[order].tolist(),
@@ -100,14 +113,18 @@ def main() -> int:
                     help="configure 1017h = 100 ms for all; node 9 beats every 115 ms")
     ap.add_argument("--guarding", action="store_true",
                     help="nodes 9-16 answer node guarding instead of producing heartbeats")
+    ap.add_argument("--keepalive", action="store_true",
+                    help="a master sends \"start all\" every 500 ms (node 7's stop and "
+                         "pre-operational last until the next one)")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/nmtcheck-ecdiff"))
     args = ap.parse_args()
     frames = parse_size(args.frames)
     args.dir.mkdir(parents=True, exist_ok=True)
     log = args.dir / (f"{'guard' if args.guarding else 'hb'}16-{frames}"
-                      f"{'-slow9' if args.network else ''}.log")
+                      f"{'-slow9' if args.network else ''}"
+                      f"{'-keepalive' if args.keepalive else ''}.log")
     if not log.exists():
-        write_log(log, frames, args.network, args.guarding)
+        write_log(log, frames, args.network, args.guarding, args.keepalive)
     net = None
     if args.network:
         toml = args.dir / "network.toml"

@@ -7,7 +7,10 @@ run of heartbeats is dropped: plain heartbeats (one data byte, a CiA 301 state, 
 remote request) that report the same state as every frame within `margin` frames on
 either side, whose intervals all lie within `band` of the node's median interval in
 the chunk, and that are neither within `margin` frames of an NMT frame or SDO frame of
-the channel nor within `protect_s` after one. What a rule or report can tell apart
+the channel nor within `protect_s` after one; an NMT command that cannot concern the
+node's rows does not count (`_barriers`: a command to another node, a repeat of a
+start, stop or enter pre-operational the node has obeyed), so that a master repeating
+"start all" every 500 ms does not keep every heartbeat. What a rule or report can tell apart
 stays: state changes, boot-ups, requests, odd frames, everything near a command or a
 configuration write, every irregular interval with its neighbours.
 
@@ -26,7 +29,8 @@ steady interval) loses its interior, an even number of answers at a time, so tha
 answers kept on either side still alternate. Its `GuardRuns` row keeps what G002 and
 G003 judge (the longest wait for an answer, the longest interval between requests)
 and the longest silence (for the causes); `unsafe_nodes` reads back whole a node whose
-runs a limit cuts, or that produces heartbeats too.
+runs a limit cuts, or that produces heartbeats too; and the channel's master with a run
+across a command that reaches it (`_masters_spanning_commands`).
 """
 
 from __future__ import annotations
@@ -133,19 +137,73 @@ class _Node:
         self.guard_runs: list[np.ndarray] = []  # rows of GuardRuns' columns
 
 
+ChannelEvents = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # idx, ts, cs, target
+
+_VALID_CS = (0x01, 0x02, 0x80, 0x81, 0x82)
+# start, stop, enter pre-operational: the state byte of a node that has carried it out
+_COMMANDED_CODE = {0x01: 0x05, 0x02: 0x04, 0x80: 0x7F}
+
+
 def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray
-                       ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per channel code, the file indices (sorted) and times of its NMT and SDO frames:
-    one sort for all channels (a log may have tens of thousands)."""
+                       ) -> dict[int, ChannelEvents]:
+    """Per channel code, the file indices (sorted) and times of its NMT and SDO frames,
+    with each valid NMT command's specifier and target node (-1 for an SDO frame and for
+    a malformed frame on 000h): one sort for all channels (a log may have tens of
+    thousands)."""
+    valid = ~nmt["rtr"] & (nmt["dlc"] == 2) & np.isin(nmt["cs"], _VALID_CS) & (
+        nmt["target"] <= 127)
     chan = np.concatenate([nmt["chan"].astype(np.int64), events["chan"].astype(np.int64)])
     idx = np.concatenate([nmt["idx"], events["idx"]])
     ts = np.concatenate([nmt["ts"], events["ts"]])
+    none = np.full(len(events), -1, np.int16)
+    cs = np.concatenate([np.where(valid, nmt["cs"], -1).astype(np.int16), none])
+    target = np.concatenate([np.where(valid, nmt["target"], -1).astype(np.int16), none])
     order = np.lexsort((idx, chan))
-    chan, idx, ts = chan[order], idx[order], ts[order]
+    chan, idx, ts, cs, target = chan[order], idx[order], ts[order], cs[order], target[order]
     codes, first = np.unique(chan, return_index=True)
     bounds = np.append(first, len(chan)).tolist()
-    return {c: (idx[bounds[k]:bounds[k + 1]], ts[bounds[k]:bounds[k + 1]])
-            for k, c in enumerate(codes.tolist())}
+    return {c: (idx[a:b], ts[a:b], cs[a:b], target[a:b])
+            for c, a, b in zip(codes.tolist(), bounds[:-1], bounds[1:], strict=True)}
+
+
+def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: int
+              ) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
+    """The channel's events among these rows of one node that divide its runs, and how
+    many of the channel's events come before the rows. Every event does, except the NMT
+    commands that cannot concern the node's rows: a valid command to another node, and
+    a repeated start, stop or enter pre-operational that the node has obeyed since the
+    same command before it (every row of the node from that command to the first row
+    after this one reports the commanded state). A master that repeats "start all" to
+    keep its network going (every 500 ms, say) would otherwise keep every heartbeat.
+    The first command of the kind and any that changes something stay events, with
+    their `margin` and `protect_s`: a rule looks at the reports right after them."""
+    if events is None or not len(events[0]) or not len(rows["idx"]):
+        return None, 0
+    e_idx, e_ts, e_cs, e_target = events
+    lo = int(np.searchsorted(e_idx, rows["idx"][0]))
+    hi = int(np.searchsorted(e_idx, rows["idx"][-1], side="right"))
+    idx, cs, target = e_idx[lo:hi], e_cs[lo:hi], e_target[lo:hi]
+    other = (cs >= 0) & (target != 0) & (target != node)
+    reaching = np.flatnonzero((cs >= 0) & ~other)
+    repeat = np.zeros(len(idx), bool)
+    if len(reaching) > 1:
+        n = len(rows["idx"])
+        rtr = rows["rtr"]
+        state = np.where(~rtr & (rows["dlc"] == 1), rows["value"] & 0x7F, -1)  # toggle bit off
+        p = np.searchsorted(rows["idx"], idx[reaching])  # the node's first row after each
+        cur, prev = reaching[1:], reaching[:-1]
+        p_cur, p_prev = p[1:], p[:-1]
+        # up to the first report after the command (a guarded node's request comes first)
+        end = p_cur + 1 + rtr[np.minimum(p_cur, n - 1)]
+        same = (cs[cur] == cs[prev]) & (end <= n)
+        end = np.minimum(end, n)
+        for code, want in _COMMANDED_CODE.items():
+            cand = same & (cs[cur] == code)
+            if cand.any():  # every row since the command before: a request or the state
+                ok = np.concatenate([[0], np.cumsum(rtr | (state == want))])
+                repeat[cur[cand]] = (ok[end] - ok[p_prev] == end - p_prev)[cand]
+    keep = ~(other | repeat)
+    return (idx[keep], e_ts[lo:hi][keep]), lo
 
 
 def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
@@ -167,11 +225,11 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
             rows = order[lo:hi]
             node = nodes.setdefault(key, _Node())
             _chunk(node, {name: chunk[name][rows] for name in names},
-                   by_chan.get(key // 128), settings, final=False)
+                   by_chan.get(key // 128), key % 128, settings, final=False)
     for key, node in nodes.items():
         if node.tail is not None:
             _chunk(node, {name: node.tail[name][:0] for name in names},
-                   by_chan.get(key // 128), settings, final=True)
+                   by_chan.get(key // 128), key % 128, settings, final=True)
     cols: dict[str, list[np.ndarray]] = {name: [] for name in names}
     runs: dict[int, GapRuns] = {}
     guard_runs: dict[int, GuardRuns] = {}
@@ -191,8 +249,8 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
              for name, parts in cols.items()}, runs, guard_runs)
 
 
-def _chunk(node: _Node, new: dict[str, np.ndarray],
-           events: tuple[np.ndarray, np.ndarray] | None, s: Compaction, final: bool) -> None:
+def _chunk(node: _Node, new: dict[str, np.ndarray], events: ChannelEvents | None,
+           node_id: int, s: Compaction, final: bool) -> None:
     """Decide the rows of one node in one chunk (with the previous chunk's tail in
     front); the last rows wait for the next chunk unless this is the last."""
     if node.tail is not None:
@@ -207,15 +265,21 @@ def _chunk(node: _Node, new: dict[str, np.ndarray],
     n = len(rows["ts"])
     k = s.margin
     stop = n if final else max(n - 2 * k, start)  # rows [start, stop) are decided now
-    before = (np.searchsorted(events[0], rows["idx"]) if events is not None
-              and len(events[0]) else np.zeros(n, np.int64))  # channel events before a row
+    barriers, offset = _barriers(events, rows, node_id)
+    before = (offset + np.searchsorted(barriers[0], rows["idx"]) if barriers is not None
+              else np.zeros(n, np.int64))  # events before a row that divide its runs
+    if events is not None and offset:  # the event before the rows, of whatever kind
+        last = (events[0][offset - 1:offset], events[1][offset - 1:offset])
+        barriers = last if barriers is None else (np.concatenate([last[0], barriers[0]]),
+                                                  np.concatenate([last[1], barriers[1]]))
+    events_n = barriers
     odd_upto = node.odd_base + np.cumsum(odd)
     if stop > start:
-        drop = _droppable(_good(rows, same, events, s), before, k, start, stop, final)
+        drop = _droppable(_good(rows, same, events_n, s), before, k, start, stop, final)
         _keep_short_runs(drop, s.min_run)
         # guarding: `margin` counts exchanges (two frames each), as it counts heartbeats;
         # the context kept between chunks (2 * margin + 2 rows) covers such a window
-        guard = _droppable(_protected(_guard_good(rows, s), rows, events, s), before, 2 * k,
+        guard = _droppable(_protected(_guard_good(rows, s), rows, events_n, s), before, 2 * k,
                            start, stop, final)
         _whole_exchanges(guard, rows["rtr"], s.min_run)
         _emit(node, rows, start, stop, drop, before, odd_upto, guard)
@@ -417,7 +481,7 @@ def unsafe_nodes(model: InputModel, tolerance: float, silence_min: float = 0.1) 
     a change of configuration, or a node that is guarded too (requests and responses are
     told apart frame by frame); and guarding runs that `_unsafe_guarding` names
     (`silence_min`: the causes' shortest silence on a channel, `[timeline]`)."""
-    bad: set[int] = _unsafe_guarding(model, silence_min)
+    bad: set[int] = _unsafe_guarding(model, silence_min) | _masters_spanning_commands(model)
     factor_t, factor_e = model.timeline.timeout_factor, model.timeline.early_factor
     for m in model.nodes():
         runs = m.ec.runs
@@ -454,6 +518,26 @@ def unsafe_nodes(model: InputModel, tolerance: float, silence_min: float = 0.1) 
         if not bool(ok.all()) or not all(_one_per_span(runs.span, x)
                                           for x in (seg_a, hb_a, lim_a, per_a)):
             bad.add(m.key)
+    return bad
+
+
+def _masters_spanning_commands(model: InputModel) -> set[int]:
+    """The channel masters with a dropped run (of either kind) across a valid NMT command
+    that reaches them: whether a master obeyed its own broadcast is read from its next
+    reports (timeline._master_obeyed), which the run would hide behind later commands.
+    The decoder cannot tell a master from a slave; the timeline can."""
+    bad: set[int] = set()
+    for cm in model.channels:
+        m = cm.nodes.get(cm.master.node) if cm.master is not None else None
+        if m is None:
+            continue
+        nmt = cm.nmt
+        reach = np.sort(nmt.idx[nmt.valid & ((nmt.target == 0) | (nmt.target == m.node))])
+        for runs in (m.ec.runs, m.ec.guard_runs):
+            if runs is not None and len(runs.pos) and len(reach):
+                a, b = m.ec.idx[runs.pos - 1], m.ec.idx[runs.pos]
+                if bool((np.searchsorted(reach, a) != np.searchsorted(reach, b)).any()):
+                    bad.add(m.key)
     return bad
 
 

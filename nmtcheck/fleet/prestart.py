@@ -9,9 +9,9 @@ imports then run on another core while the driver imports, parses and lists. Any
 cannot recognise it leaves to run_fleet (warm_up), which starts the server if needed.
 At this point the command has one thread and almost nothing imported, so the server (and
 the resource tracker before it) is forked from it rather than started as a new
-interpreter (forked_helpers). It also asks numpy's BLAS for one thread in the `nmtcheck` command (single_threaded_blas),
-before anything imports numpy. Only the standard library here: the module is imported
-by every `nmtcheck` command.
+interpreter (forked_helpers). It also asks numpy's BLAS for one thread in the `nmtcheck`
+command (single_threaded_blas), before anything imports numpy. Only the standard library
+here: the module is imported by every `nmtcheck` command.
 """
 
 from __future__ import annotations
