@@ -99,6 +99,7 @@ class _Ctx:
         self.channels = {cm.name: cm for cm in self.model.channels}
         self._errors: dict[str, np.ndarray] | None = None
         self._drops: dict[str, np.ndarray] | None = None
+        self._nmt_by_time: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def causes(self, f: Finding) -> list[dict[str, Any]] | None:
         cm = self.channels.get(str(f.channel))
@@ -303,21 +304,35 @@ class _Ctx:
             parts.append(chunk["ts"][sel])
         return np.sort(np.concatenate(parts)) if parts else np.zeros(0)
 
+    def _nmt_in(self, cm: Any, windows: list[tuple[float, float]]) -> np.ndarray:
+        """Positions (ascending) of the channel's NMT frames inside the windows, by binary
+        search on the frames sorted by time once per channel: a log of nothing but NMT
+        commands has millions, and up to MAX_CAUSED_PER_RULE findings of each rule ask."""
+        by_time = self._nmt_by_time.get(cm.name)
+        if by_time is None:
+            order = np.argsort(cm.nmt.ts, kind="stable")
+            by_time = self._nmt_by_time[cm.name] = (order, cm.nmt.ts[order])
+        order, ts = by_time
+        parts = [order[np.searchsorted(ts, lo - EPS, side="left"):
+                       np.searchsorted(ts, hi + EPS, side="right")] for lo, hi in windows]
+        return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+
     def _nmt(self, cm: Any, m: Any, n: int, f: Finding, windows: list[tuple[float, float]],
              a0: float) -> list[dict[str, Any]]:
         nmt = cm.nmt
         master = cm.master.node if cm.master is not None else None
-        tgt = nmt.target.astype(np.int64)
-        mine = nmt.valid & ((tgt == n) | ((tgt == 0) & (n != master)))
-        sel = mine & _in(nmt.ts, windows)
+        pos = self._nmt_in(cm, windows)
+        tgt = nmt.target[pos].astype(np.int64)
+        ts, cs = nmt.ts[pos], nmt.cs[pos]
+        sel = nmt.valid[pos] & ((tgt == n) | ((tgt == 0) & (n != master)))
         if f.rule in ("S004", "B001"):
-            sel &= ~(np.abs(nmt.ts - a0) < 1e-9)
+            sel &= ~(np.abs(ts - a0) < 1e-9)
         if f.rule == "B001":
-            sel &= (nmt.cs != 0x81) & (nmt.cs != 0x82) & (nmt.ts > a0)
+            sel &= (cs != 0x81) & (cs != 0x82) & (ts > a0)
         out = []
-        for k in np.flatnonzero(sel).tolist():
+        for k in pos[sel].tolist():
             name = NMT_NAMES.get(int(nmt.cs[k]), f"{int(nmt.cs[k]):02X}h")
-            to = "all nodes" if tgt[k] == 0 else f"node {int(tgt[k])}"
+            to = "all nodes" if int(nmt.target[k]) == 0 else f"node {int(nmt.target[k])}"
             text = f"NMT {name} to {to}"
             if f.rule == "B002":
                 text += f": reset at {nmt.ts[k]:.3f} already answered before the boot-up"

@@ -672,6 +672,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
     nmt_spool = ColumnSpool(NMT_COLUMNS)
     emcy_spool = ColumnSpool(EMCY_COLUMNS)
     ec_spool = ColumnSpool(EC_COLUMNS)
+    bootups = ColumnSpool({"ts": np.float64, "idx": np.int64, "chan": np.int32})
     frame_times = ChunkStore()
     node_frames = ChunkStore()
     restricted: dict[tuple[int, int], IdUse] = {}
@@ -687,12 +688,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
         cid = b.can_id.astype(np.int64)
         ec = co & (cid >= EC_BASE + 1) & (cid <= EC_BASE + MAX_NODE_ID)
         if ec.any():
-            sel = np.flatnonzero(ec)
-            rtr, dlc = b.rtr[sel], b.dlc[sel]
-            ec_spool.append({
-                "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
-                "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EC_BASE),
-                "rtr": rtr, "dlc": dlc, "value": np.where((dlc >= 1) & ~rtr, b.data[sel, 0], 0)})
+            _spool_ec(b, cid, np.flatnonzero(ec), ec_spool, bootups)
         nmt = co & (cid == NMT_ID)
         if nmt.any():
             sel = np.flatnonzero(nmt)
@@ -773,13 +769,31 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
     guard_runs: dict[int, ec_compact.GuardRuns] = {}
     kept_spool: ColumnSpool | None = None
     if len(ec_spool) > settings.above:  # a long log: steady runs as summaries
-        ec_cols, ec_runs, guard_runs = ec_compact.compact(ec_spool, nmt_cols, events, settings)
+        boot_cols = {name: bootups.column(name) for name in ("ts", "idx", "chan")}
+        ec_cols, ec_runs, guard_runs = ec_compact.compact(ec_spool, nmt_cols, events, settings,
+                                                          boot_cols)
         kept_spool = ec_spool  # read again if a run turns out to matter (`restore`)
     else:
         ec_cols = _grouped(ec_spool, EC_COLUMNS)
         ec_spool.close()
+    bootups.close()
     return Decoded(events, nmt_cols, emcy_cols, ec_cols, frame_times, node_frames, restricted,
                    first_tx, last_tx, standard, ec_runs, kept_spool, guard_runs)
+
+
+def _spool_ec(b: FrameBatch, cid: np.ndarray, sel: np.ndarray, ec_spool: ColumnSpool,
+              bootups: ColumnSpool) -> None:
+    """The batch's error-control rows `sel` into the spool, and their boot-ups apart
+    (sparse: a long log's compaction lets each divide every node's runs on its channel)."""
+    rtr, dlc = b.rtr[sel], b.dlc[sel]
+    value = np.where((dlc >= 1) & ~rtr, b.data[sel, 0], 0)
+    ec_spool.append({
+        "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+        "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EC_BASE),
+        "rtr": rtr, "dlc": dlc, "value": value})
+    boot = sel[(value == 0) & (dlc == 1) & ~rtr]
+    if boot.size:
+        bootups.append({"ts": b.ts[boot], "idx": b.index[boot], "chan": b.chan[boot]})
 
 
 def _grouped(spool: ColumnSpool, columns: dict[str, type]) -> dict[str, np.ndarray]:

@@ -6,9 +6,10 @@ error-control rows (on disk) is read back in chunks, and the interior of each st
 run of heartbeats is dropped: plain heartbeats (one data byte, a CiA 301 state, no
 remote request) that report the same state as every frame within `margin` frames on
 either side, whose intervals all lie within `band` of the node's median interval in
-the chunk, and that are neither within `margin` frames of an NMT frame or SDO frame of
-the channel nor within `protect_s` after one; an NMT command that cannot concern the
-node's rows does not count (`_barriers`: a command to another node, a repeat of a
+the chunk, and that are neither within `margin` frames of an NMT frame, SDO frame or
+boot-up (of any node) of the channel nor within `protect_s` after one (a boot process
+anchored on a master's boot-up reads the slaves' next reports); an NMT command that
+cannot concern the node's rows does not count (`_barriers`: a command to another node, a repeat of a
 start, stop or enter pre-operational the node has obeyed), so that a master repeating
 "start all" every 500 ms does not keep every heartbeat. What a rule or report can tell apart
 stays: state changes, boot-ups, requests, odd frames, everything near a command or a
@@ -29,8 +30,9 @@ steady interval) loses its interior, an even number of answers at a time, so tha
 answers kept on either side still alternate. Its `GuardRuns` row keeps what G002 and
 G003 judge (the longest wait for an answer, the longest interval between requests)
 and the longest silence (for the causes); `unsafe_nodes` reads back whole a node whose
-runs a limit cuts, or that produces heartbeats too; and the channel's master with a run
-across a command that reaches it (`_masters_spanning_commands`).
+runs a limit cuts, or that produces heartbeats too; the channel's master with a run
+across a command that reaches it (`_masters_spanning_commands`); and a node with a run
+inside one of its OFFLINE intervals (`_runs_while_offline`).
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nmtcheck.nmt import GUARD, HEARTBEAT, REQUEST
+from nmtcheck.nmt import GUARD, HEARTBEAT, OFFLINE, REQUEST, STATES
 
 if TYPE_CHECKING:
     from nmtcheck.decode import ColumnSpool
@@ -144,18 +146,23 @@ _VALID_CS = (0x01, 0x02, 0x80, 0x81, 0x82)
 _COMMANDED_CODE = {0x01: 0x05, 0x02: 0x04, 0x80: 0x7F}
 
 
-def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray
+def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray,
+                       bootups: dict[str, np.ndarray] | None = None
                        ) -> dict[int, ChannelEvents]:
-    """Per channel code, the file indices (sorted) and times of its NMT and SDO frames,
-    with each valid NMT command's specifier and target node (-1 for an SDO frame and for
-    a malformed frame on 000h): one sort for all channels (a log may have tens of
-    thousands)."""
+    """Per channel code, the file indices (sorted) and times of its NMT and SDO frames
+    and of every node's boot-ups, with each valid NMT command's specifier and target
+    node (-1 for the others): one sort for all channels (a log may have tens of
+    thousands). A boot-up divides every node's runs on its channel: a boot process
+    anchored on a master's boot-up reads the slaves' next reports (SPEC §8)."""
     valid = ~nmt["rtr"] & (nmt["dlc"] == 2) & np.isin(nmt["cs"], _VALID_CS) & (
         nmt["target"] <= 127)
-    chan = np.concatenate([nmt["chan"].astype(np.int64), events["chan"].astype(np.int64)])
-    idx = np.concatenate([nmt["idx"], events["idx"]])
-    ts = np.concatenate([nmt["ts"], events["ts"]])
-    none = np.full(len(events), -1, np.int16)
+    boot = bootups or {"chan": np.zeros(0, np.int64), "idx": np.zeros(0, np.int64),
+                       "ts": np.zeros(0)}
+    chan = np.concatenate([nmt["chan"].astype(np.int64), events["chan"].astype(np.int64),
+                           boot["chan"].astype(np.int64)])
+    idx = np.concatenate([nmt["idx"], events["idx"], boot["idx"]])
+    ts = np.concatenate([nmt["ts"], events["ts"], boot["ts"]])
+    none = np.full(len(events) + len(boot["idx"]), -1, np.int16)
     cs = np.concatenate([np.where(valid, nmt["cs"], -1).astype(np.int16), none])
     target = np.concatenate([np.where(valid, nmt["target"], -1).astype(np.int16), none])
     order = np.lexsort((idx, chan))
@@ -166,56 +173,86 @@ def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray
             for c, a, b in zip(codes.tolist(), bounds[:-1], bounds[1:], strict=True)}
 
 
-def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: int
+def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: int,
+              protect_s: float = 0.0, boots: np.ndarray | None = None, known_from: int = 0
               ) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
     """The channel's events among these rows of one node that divide its runs, and how
     many of the channel's events come before the rows. Every event does, except the NMT
     commands that cannot concern the node's rows: a valid command to another node, and
     a repeated start, stop or enter pre-operational that the node has obeyed since the
-    same command before it (every row of the node from that command to the first row
-    after this one reports the commanded state). A master that repeats "start all" to
-    keep its network going (every 500 ms, say) would otherwise keep every heartbeat.
-    The first command of the kind and any that changes something stay events, with
-    their `margin` and `protect_s`: a rule looks at the reports right after them."""
+    same command before it. A master that repeats "start all" to keep its network going
+    (every 500 ms, say) would otherwise keep every heartbeat.
+
+    A repeat counts only where nothing could tell it apart: every row of the node from
+    the command before through the first report more than `protect_s` (S004's obey
+    time) after it reports the commanded state (remote requests aside), time goes
+    forward, and no boot-up of the channel (`boots`: file indices, known from index
+    `known_from` on) lies in between: a boot process anchored on a master's boot-up
+    reads the slaves' next reports. The first command of the kind, any that changes a
+    state or that a node ignores stay events, with their `margin` and `protect_s`."""
     if events is None or not len(events[0]) or not len(rows["idx"]):
         return None, 0
     e_idx, e_ts, e_cs, e_target = events
     lo = int(np.searchsorted(e_idx, rows["idx"][0]))
     hi = int(np.searchsorted(e_idx, rows["idx"][-1], side="right"))
-    idx, cs, target = e_idx[lo:hi], e_cs[lo:hi], e_target[lo:hi]
+    idx, ts_e, cs, target = e_idx[lo:hi], e_ts[lo:hi], e_cs[lo:hi], e_target[lo:hi]
     other = (cs >= 0) & (target != 0) & (target != node)
     reaching = np.flatnonzero((cs >= 0) & ~other)
     repeat = np.zeros(len(idx), bool)
-    if len(reaching) > 1:
-        n = len(rows["idx"])
+    ts = rows["ts"]
+    if len(reaching) > 1 and boots is not None and bool((np.diff(ts) >= 0).all()):
+        n = len(ts)
         rtr = rows["rtr"]
         state = np.where(~rtr & (rows["dlc"] == 1), rows["value"] & 0x7F, -1)  # toggle bit off
         p = np.searchsorted(rows["idx"], idx[reaching])  # the node's first row after each
         cur, prev = reaching[1:], reaching[:-1]
         p_cur, p_prev = p[1:], p[:-1]
-        # up to the first report after the command (a guarded node's request comes first)
-        end = p_cur + 1 + rtr[np.minimum(p_cur, n - 1)]
-        same = (cs[cur] == cs[prev]) & (end <= n)
+        c_ts = ts_e[cur]
+        # through the first report past the obey time (a guarded node's request first)
+        end = np.searchsorted(ts, c_ts + protect_s + EPS, side="right")
+        end = end + 1 + rtr[np.minimum(end, n - 1)]
+        same = (cs[cur] == cs[prev]) & (end <= n) & (idx[prev] >= known_from)
         end = np.minimum(end, n)
+        # time goes forward around both commands
+        same &= (p_cur > 0) & (c_ts >= ts[np.maximum(p_cur - 1, 0)]) & (c_ts <= ts[
+            np.minimum(p_cur, n - 1)]) & (ts_e[prev] <= c_ts)
+        last = rows["idx"][end - 1]
+        same &= np.searchsorted(boots, idx[prev], side="right") == np.searchsorted(
+            boots, last, side="right")
         for code, want in _COMMANDED_CODE.items():
             cand = same & (cs[cur] == code)
             if cand.any():  # every row since the command before: a request or the state
                 ok = np.concatenate([[0], np.cumsum(rtr | (state == want))])
                 repeat[cur[cand]] = (ok[end] - ok[p_prev] == end - p_prev)[cand]
     keep = ~(other | repeat)
-    return (idx[keep], e_ts[lo:hi][keep]), lo
+    return (idx[keep], ts_e[keep]), lo
+
+
+def _channel_bootups(chunk: dict[str, np.ndarray]) -> dict[int, np.ndarray]:
+    """Per channel code, the file indices (sorted) of the boot-ups in one spool chunk."""
+    boot = (chunk["value"] == 0) & (chunk["dlc"] == 1) & ~chunk["rtr"]
+    chan, idx = chunk["key"][boot] // 128, chunk["idx"][boot]
+    order = np.lexsort((idx, chan))
+    chan, idx = chan[order], idx[order]
+    codes, first = np.unique(chan, return_index=True)
+    bounds = np.append(first, len(chan)).tolist()
+    return {int(c): idx[a:b] for c, a, b in zip(codes.tolist(), bounds[:-1], bounds[1:],
+                                                 strict=True)}
 
 
 def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
-            settings: Compaction
+            settings: Compaction, bootups: dict[str, np.ndarray] | None = None
             ) -> tuple[dict[str, np.ndarray], dict[int, GapRuns], dict[int, GuardRuns]]:
     """The spooled error-control rows, grouped by node key as the decoder groups them,
     with the interior of steady heartbeat and guarding runs dropped; and each node's
     runs of either kind."""
-    by_chan = _events_by_channel(nmt, events)
+    by_chan = _events_by_channel(nmt, events, bootups)
     nodes: dict[int, _Node] = {}
     names = list(spool.dtypes)
+    none = np.zeros(0, np.int64)
     for chunk in spool.chunks(settings.chunk):
+        boots = _channel_bootups(chunk)  # a repeat needs none between: known in this chunk
+        known_from = int(chunk["idx"].min()) if len(chunk["idx"]) else 0
         order = np.argsort(chunk["key"], kind="stable")
         keys = chunk["key"][order]
         cut = np.flatnonzero(np.diff(keys)) + 1
@@ -225,7 +262,8 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
             rows = order[lo:hi]
             node = nodes.setdefault(key, _Node())
             _chunk(node, {name: chunk[name][rows] for name in names},
-                   by_chan.get(key // 128), key % 128, settings, final=False)
+                   by_chan.get(key // 128), key % 128, settings, final=False,
+                   boots=boots.get(key // 128, none), known_from=known_from)
     for key, node in nodes.items():
         if node.tail is not None:
             _chunk(node, {name: node.tail[name][:0] for name in names},
@@ -250,7 +288,8 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
 
 
 def _chunk(node: _Node, new: dict[str, np.ndarray], events: ChannelEvents | None,
-           node_id: int, s: Compaction, final: bool) -> None:
+           node_id: int, s: Compaction, final: bool, boots: np.ndarray | None = None,
+           known_from: int = 0) -> None:
     """Decide the rows of one node in one chunk (with the previous chunk's tail in
     front); the last rows wait for the next chunk unless this is the last."""
     if node.tail is not None:
@@ -265,7 +304,7 @@ def _chunk(node: _Node, new: dict[str, np.ndarray], events: ChannelEvents | None
     n = len(rows["ts"])
     k = s.margin
     stop = n if final else max(n - 2 * k, start)  # rows [start, stop) are decided now
-    barriers, offset = _barriers(events, rows, node_id)
+    barriers, offset = _barriers(events, rows, node_id, s.protect_s, boots, known_from)
     before = (offset + np.searchsorted(barriers[0], rows["idx"]) if barriers is not None
               else np.zeros(n, np.int64))  # events before a row that divide its runs
     if events is not None and offset:  # the event before the rows, of whatever kind
@@ -481,7 +520,8 @@ def unsafe_nodes(model: InputModel, tolerance: float, silence_min: float = 0.1) 
     a change of configuration, or a node that is guarded too (requests and responses are
     told apart frame by frame); and guarding runs that `_unsafe_guarding` names
     (`silence_min`: the causes' shortest silence on a channel, `[timeline]`)."""
-    bad: set[int] = _unsafe_guarding(model, silence_min) | _masters_spanning_commands(model)
+    bad: set[int] = (_unsafe_guarding(model, silence_min) | _masters_spanning_commands(model)
+                      | _runs_while_offline(model))
     factor_t, factor_e = model.timeline.timeout_factor, model.timeline.early_factor
     for m in model.nodes():
         runs = m.ec.runs
@@ -538,6 +578,30 @@ def _masters_spanning_commands(model: InputModel) -> set[int]:
                 a, b = m.ec.idx[runs.pos - 1], m.ec.idx[runs.pos]
                 if bool((np.searchsorted(reach, a) != np.searchsorted(reach, b)).any()):
                     bad.add(m.key)
+    return bad
+
+
+def _runs_while_offline(model: InputModel) -> set[int]:
+    """Nodes with a dropped run (of either kind) inside one of their OFFLINE intervals:
+    the timeline leaves OFFLINE at the first report that is evidence, and a report
+    within the obey time after a repeated command that changed nothing is not (it may
+    have been queued before the command), so the report that ends it can lie inside a
+    run (a master repeating a stop faster than the obey time)."""
+    offline = STATES.index(OFFLINE)
+    bad: set[int] = set()
+    for m in model.nodes():
+        iv = m.intervals
+        off = iv.state == offline
+        if not off.any():
+            continue
+        lo, hi = iv.start[off], iv.end[off]
+        for runs in (m.ec.runs, m.ec.guard_runs):
+            if runs is None or not len(runs.pos):
+                continue
+            a, b = m.ec.ts[runs.pos - 1], m.ec.ts[runs.pos]
+            k = np.searchsorted(lo, b, side="left") - 1  # the last one to begin before b
+            if bool(((k >= 0) & (hi[np.maximum(k, 0)] > a)).any()):  # (in time order)
+                bad.add(m.key)
     return bad
 
 

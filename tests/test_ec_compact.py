@@ -602,7 +602,7 @@ def test_random_keepalive_networks_give_the_same_reports(
             across += _runs_across_commands(res)
             guard_across += _runs_across_commands(res, guard=True)
             assert _reports(res) == whole, (seed, compaction)
-    assert dropped > 20_000 and across > 200 and guard_across > 20
+    assert dropped > 10_000 and across > 50 and guard_across > 20
 
 
 def test_a_master_that_obeys_its_own_keepalive_is_read_back_whole(
@@ -621,7 +621,8 @@ def test_a_master_that_obeys_its_own_keepalive_is_read_back_whole(
     network.write_text("master = 1\n")
     whole = _check(log, network, ec_compact.Compaction(), settings)
     restored = _spy_restore(settings)
-    for compaction in (FORCED, ec_compact.Compaction(above=0)):
+    assert _reports(_check(log, network, FORCED, settings)) == _reports(whole)
+    for compaction in (ec_compact.Compaction(above=0),):  # FORCED's chunks hold few repeats
         restored.clear()
         res = _check(log, network, compaction, settings)
         assert _reports(res) == _reports(whole), compaction
@@ -659,3 +660,68 @@ def test_a_repeated_command_a_node_ignores_divides_its_runs(
         assert _reports(res) == _reports(whole), compaction
         assert _dropped(res) > 500 and _guard_dropped(res) > 500
     assert _runs_across_commands(res) > 0  # node 7's, across the repeated stops
+
+
+def test_a_report_that_changes_in_the_obey_time_after_a_repeat_keeps_its_finding(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    # The review's case: "start all" every second; 2 ms after the sixth, node 2 still
+    # reports 05h (queued before it), then STOPPED from 12 ms on. S004 reads the first
+    # report past the obey time (102 ms): the repeat must stay an event, with the rows
+    # of its obey time, or the finding moves to the next kept report.
+    period = 0.009
+    frames = [(0.0, 0x702, "00")] + [(0.3 + i, 0x000, "0100") for i in range(12)]
+    beats = [round(0.002 + i * period, 6) for i in range(int(12 / period))]
+    stop = [t for t in beats if t > 5.3][1]
+    frames += [(t, 0x702, "7F" if t < 0.3 else "04" if t >= stop else "05") for t in beats]
+    log = _write(tmp_path / "late_change.log", frames)
+    whole = _check(log, None, ec_compact.Compaction(), settings)
+    s004 = [f.message for f in whole.findings if f.rule == "S004"]
+    assert s004[0] == ("node 2 reports STOPPED 0.102 s after NMT start (broadcast) "
+                       "(expected OPERATIONAL)")
+    for compaction in (ec_compact.Compaction(above=0), FORCED, TIGHT):
+        res = _check(log, None, compaction, settings)
+        assert _reports(res) == _reports(whole), compaction
+    assert _dropped(_check(log, None, ec_compact.Compaction(above=0), settings)) > 300
+
+
+def test_repeated_stops_with_a_line_back_in_time_give_the_same_report(
+        settings: pytest.MonkeyPatch) -> None:
+    # The review's case (its fuzz seed 26, reduced: tests/data/README.md): node 4
+    # stopped, "stop all" every 100 ms, one heartbeat written 3 s late. The timeout it
+    # leaves is ended by the first report that is evidence (not queued before a stop);
+    # compacted, that report had been dropped inside a run of repeats (OFFLINE to
+    # 17.18 s instead of 15.28 s). Two guards: no repeat where time goes back, and a
+    # node with a run inside OFFLINE is read back whole; either one alone mends it.
+    log = REPO / "tests" / "data" / "compaction" / "repeated_stops_back_in_time.log"
+    whole = _reports(_check(log, None, ec_compact.Compaction(), settings))
+    assert '"state": "OFFLINE", "start": 1700000015.012191, "end": 1700000015.282243' in whole[
+        "json"]
+    for compaction in (ec_compact.Compaction(above=0), FORCED, TIGHT, GUARD_TIGHT,
+                       ec_compact.Compaction(above=0, chunk=4096, margin=2, protect_s=0.0,
+                                             min_run=1)):
+        assert _reports(_check(log, None, compaction, settings)) == whole, compaction
+
+
+def test_a_slaves_report_after_its_masters_boot_up_is_kept(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    # The review's case (older than the keep-alive change): the manager (node 1, named
+    # in the network file) boots again at 10 s while node 2 beats steadily; the boot
+    # process anchored there ends with node 2's first OPERATIONAL report after it
+    # (P005, letter L) and its probes come 0.9 s later. Compacted, that report lay
+    # inside a run: P007 (start before boot complete) and a failed gate. Every boot-up
+    # now divides every node's runs on its channel.
+    frames = [(0.0, 0x701, "00"), (0.0005, 0x702, "00")]
+    frames += [(0.25 + i * 0.5, 0x000, "0100") for i in range(10)]
+    frames += [(t, c, "7F" if t < 0.25 else d) for t, c, d in _heartbeats(2, 0.005, 12.0, 0.01)]
+    frames += [(10.0, 0x701, "00"), (10.9, 0x602, "4000100000000000"),
+               (10.901, 0x582, "4300100091010000"), (10.91, 0x602, "4018100100000000"),
+               (10.911, 0x582, "4318100101000000")]
+    log = _write(tmp_path / "master_reboot.log", frames)
+    network = tmp_path / "master.toml"
+    network.write_text("master = 1\n")
+    whole = _check(log, network, ec_compact.Compaction(), settings)
+    assert [(f.rule, f.node) for f in whole.findings if f.rule.startswith("P")] == [("P005", 2)]
+    for compaction in (ec_compact.Compaction(above=0), FORCED, TIGHT):
+        res = _check(log, network, compaction, settings)
+        assert _reports(res) == _reports(whole), compaction
+        assert _dropped(res) > 400  # of 1,200 heartbeats
