@@ -211,6 +211,10 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                 decoded.restore_ec(keys)
                 model = build(decoded, stats.channels, start, end, params, configs, masters)
                 unsafe = unsafe_nodes(model, tolerance, silence)
+            late = _boot_evidence_in_runs(model, spool, network, profile, max_findings)
+            if late:
+                decoded.restore_ec(late)
+                model = build(decoded, stats.channels, start, end, params, configs, masters)
         decoded.events = decoded.events[:0].copy()  # the SDO rows are paired into the model
         model.stats = stats
         model.expected = network.expected() if network else []
@@ -435,6 +439,32 @@ def _counted(batches: Iterator[FrameBatch], progress: Callable[[int], object]
     for batch in batches:
         progress(len(batch))
         yield batch
+
+
+def _boot_evidence_in_runs(model: InputModel, spool: SdoSpool, network: Network | None,
+                           profile: Profile, cap: int) -> set[int]:
+    """A long log's nodes whose boot evidence (the first report after a process's last
+    transfer: SPEC §8) is the kept row after a dropped run, where the report the boot
+    analysis wants may lie: the SDO transfers of a boot process do not divide runs (a
+    master polling a node by SDO would keep every heartbeat). Read back whole, they give
+    the whole log's boot report. The analysis runs once more on the final model."""
+    analysis = boot_stage.run(model, spool, network, profile, cap)
+    if analysis is None:
+        return set()
+    channels = {cm.name: cm for cm in model.channels}
+    bad: set[int] = set()
+    for (name, n), rep in analysis.nodes.items():
+        ev = rep.spans.ev_idx[rep.spans.ev_idx >= 0]
+        cm = channels.get(name)
+        m = cm.nodes.get(n) if cm is not None else None
+        if m is None or not len(ev):
+            continue
+        rows = np.flatnonzero(np.isin(m.ec.idx, ev))
+        runs, guard = m.ec.runs, m.ec.guard_runs
+        if (runs is not None and bool((runs.at_rows(rows) >= 0).any())) or (
+                guard is not None and bool(np.isin(rows, guard.pos).any())):
+            bad.add(m.key)
+    return bad
 
 
 def error_reason(exc: InputError) -> str:

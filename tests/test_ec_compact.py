@@ -725,3 +725,30 @@ def test_a_slaves_report_after_its_masters_boot_up_is_kept(
         res = _check(log, network, compaction, settings)
         assert _reports(res) == _reports(whole), compaction
         assert _dropped(res) > 400  # of 1,200 heartbeats
+
+
+def test_a_boot_processes_evidence_inside_a_run_is_read_back_whole(
+        tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
+    # A process anchored on the manager's boot-up at 10 s stays incomplete; its evidence
+    # is node 2's first report after the last transfer (1018h:02 at 11.8 s), which lay
+    # inside a run (SDO transfers do not divide runs): compacted, the evidence moved to
+    # 13.835 s. Such a node is now read back whole before the boot report is made.
+    frames = [(0.0, 0x701, "00"), (0.0005, 0x702, "00")]
+    frames += [(t, c, "7F") for t, c, _d in _heartbeats(2, 0.005, 14.0, 0.01)]
+    frames += [(10.0, 0x701, "00"), (10.3, 0x602, "4000100000000000"),
+               (10.301, 0x582, "4300100091010000"), (10.31, 0x602, "4018100100000000"),
+               (10.311, 0x582, "4318100101000000"), (11.8, 0x602, "4018100200000000"),
+               (11.801, 0x582, "4318100201000000")]
+    log = _write(tmp_path / "evidence.log", frames)
+    network = tmp_path / "master.toml"
+    network.write_text("master = 1\n")
+    whole = _check(log, network, ec_compact.Compaction(), settings)
+    report = whole.boot.nodes[("can0", 2)]
+    assert report.status == "incomplete" and report.process is not None
+    assert report.process.evidence is not None
+    assert round(report.process.evidence.time - 1_700_000_000, 3) == 11.805
+    for compaction in (ec_compact.Compaction(above=0), FORCED, TIGHT):
+        restored = _spy_restore(settings)
+        res = _check(log, network, compaction, settings)
+        assert _reports(res) == _reports(whole), compaction
+        assert {node_key(0, 2)} in restored
