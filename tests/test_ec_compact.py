@@ -702,6 +702,24 @@ def test_repeated_stops_with_a_line_back_in_time_give_the_same_report(
         assert _reports(_check(log, None, compaction, settings)) == whole, compaction
 
 
+def _uploads(node: int, reads: list[tuple[float, int, int]]) -> list[tuple[float, int, str]]:
+    """A manager's expedited SDO uploads from `node` (time, index, sub), each answered
+    1 ms later with the value 0191h (1000h) or 1 (1018h)."""
+    out = []
+    for t, index, sub in reads:
+        obj = f"{index & 0xFF:02X}{index >> 8:02X}{sub:02X}"
+        value = "91010000" if index == 0x1000 else "01000000"
+        out += [(t, 0x600 + node, f"40{obj}00000000"),
+                (round(t + 0.001, 6), 0x580 + node, f"43{obj}{value}")]
+    return out
+
+
+def _named_master(tmp_path: Path) -> Path:
+    network = tmp_path / "master.toml"
+    network.write_text("master = 1\n")
+    return network
+
+
 def test_a_slaves_report_after_its_masters_boot_up_is_kept(
         tmp_path: Path, settings: pytest.MonkeyPatch) -> None:
     # The review's case (older than the keep-alive change): the manager (node 1, named
@@ -713,12 +731,9 @@ def test_a_slaves_report_after_its_masters_boot_up_is_kept(
     frames = [(0.0, 0x701, "00"), (0.0005, 0x702, "00")]
     frames += [(0.25 + i * 0.5, 0x000, "0100") for i in range(10)]
     frames += [(t, c, "7F" if t < 0.25 else d) for t, c, d in _heartbeats(2, 0.005, 12.0, 0.01)]
-    frames += [(10.0, 0x701, "00"), (10.9, 0x602, "4000100000000000"),
-               (10.901, 0x582, "4300100091010000"), (10.91, 0x602, "4018100100000000"),
-               (10.911, 0x582, "4318100101000000")]
+    frames += [(10.0, 0x701, "00"), *_uploads(2, [(10.9, 0x1000, 0), (10.91, 0x1018, 1)])]
     log = _write(tmp_path / "master_reboot.log", frames)
-    network = tmp_path / "master.toml"
-    network.write_text("master = 1\n")
+    network = _named_master(tmp_path)
     whole = _check(log, network, ec_compact.Compaction(), settings)
     assert [(f.rule, f.node) for f in whole.findings if f.rule.startswith("P")] == [("P005", 2)]
     for compaction in (ec_compact.Compaction(above=0), FORCED, TIGHT):
@@ -735,14 +750,12 @@ def test_a_boot_processes_evidence_inside_a_run_is_read_back_whole(
     # 13.835 s. Such a node is now read back whole before the boot report is made.
     frames = [(0.0, 0x701, "00"), (0.0005, 0x702, "00")]
     frames += [(t, c, "7F") for t, c, _d in _heartbeats(2, 0.005, 14.0, 0.01)]
-    frames += [(10.0, 0x701, "00"), (10.3, 0x602, "4000100000000000"),
-               (10.301, 0x582, "4300100091010000"), (10.31, 0x602, "4018100100000000"),
-               (10.311, 0x582, "4318100101000000"), (11.8, 0x602, "4018100200000000"),
-               (11.801, 0x582, "4318100201000000")]
+    frames += [(10.0, 0x701, "00"),
+               *_uploads(2, [(10.3, 0x1000, 0), (10.31, 0x1018, 1), (11.8, 0x1018, 2)])]
     log = _write(tmp_path / "evidence.log", frames)
-    network = tmp_path / "master.toml"
-    network.write_text("master = 1\n")
+    network = _named_master(tmp_path)
     whole = _check(log, network, ec_compact.Compaction(), settings)
+    assert whole.boot is not None
     report = whole.boot.nodes[("can0", 2)]
     assert report.status == "incomplete" and report.process is not None
     assert report.process.evidence is not None
