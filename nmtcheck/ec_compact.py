@@ -9,11 +9,11 @@ either side, whose intervals all lie within `band` of the node's median interval
 the chunk, and that are neither within `margin` frames of an NMT frame, SDO frame or
 boot-up (of any node) of the channel nor within `protect_s` after one (a boot process
 anchored on a master's boot-up reads the slaves' next reports); an NMT command that
-cannot concern the node's rows does not count (`_barriers`: a command to another node, a repeat of a
-start, stop or enter pre-operational the node has obeyed), so that a master repeating
-"start all" every 500 ms does not keep every heartbeat. What a rule or report can tell apart
-stays: state changes, boot-ups, requests, odd frames, everything near a command or a
-configuration write, every irregular interval with its neighbours.
+cannot concern the node's rows does not count (`_barriers`: a command to another node, a
+repeat of a start, stop or enter pre-operational the node has obeyed), so that a master
+repeating "start all" every 500 ms does not keep every heartbeat. What a rule or report
+can tell apart stays: state changes, boot-ups, requests, odd frames, everything near a
+command or a configuration write, every irregular interval with its neighbours.
 
 Each dropped run leaves a `GapRuns` row on the kept frame after it: how many frames it
 held, its first, smallest and largest interval and where the largest began, and its
@@ -174,8 +174,7 @@ def _events_by_channel(nmt: dict[str, np.ndarray], events: np.ndarray,
 
 
 def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: int,
-              protect_s: float = 0.0, boots: np.ndarray | None = None, known_from: int = 0
-              ) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
+              protect_s: float = 0.0) -> tuple[tuple[np.ndarray, np.ndarray] | None, int]:
     """The channel's events among these rows of one node that divide its runs, and how
     many of the channel's events come before the rows. Every event does, except the NMT
     commands that cannot concern the node's rows: a valid command to another node, and
@@ -186,10 +185,11 @@ def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: i
     A repeat counts only where nothing could tell it apart: every row of the node from
     the command before through the first report more than `protect_s` (S004's obey
     time) after it reports the commanded state (remote requests aside), time goes
-    forward, and no boot-up of the channel (`boots`: file indices, known from index
-    `known_from` on) lies in between: a boot process anchored on a master's boot-up
-    reads the slaves' next reports. The first command of the kind, any that changes a
-    state or that a node ignores stay events, with their `margin` and `protect_s`."""
+    forward, and no other event of the channel (a boot-up, an SDO configuration frame, a
+    malformed frame on 000h) lies in between: a boot process anchored on a master's
+    boot-up reads the slaves' next reports. The first command of the kind, any that
+    changes a state or that a node ignores stay events, with their `margin` and
+    `protect_s`."""
     if events is None or not len(events[0]) or not len(rows["idx"]):
         return None, 0
     e_idx, e_ts, e_cs, e_target = events
@@ -200,7 +200,7 @@ def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: i
     reaching = np.flatnonzero((cs >= 0) & ~other)
     repeat = np.zeros(len(idx), bool)
     ts = rows["ts"]
-    if len(reaching) > 1 and boots is not None and bool((np.diff(ts) >= 0).all()):
+    if len(reaching) > 1 and bool((np.diff(ts) >= 0).all()):
         n = len(ts)
         rtr = rows["rtr"]
         state = np.where(~rtr & (rows["dlc"] == 1), rows["value"] & 0x7F, -1)  # toggle bit off
@@ -211,14 +211,14 @@ def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: i
         # through the first report past the obey time (a guarded node's request first)
         end = np.searchsorted(ts, c_ts + protect_s + EPS, side="right")
         end = end + 1 + rtr[np.minimum(end, n - 1)]
-        same = (cs[cur] == cs[prev]) & (end <= n) & (idx[prev] >= known_from)
+        same = (cs[cur] == cs[prev]) & (end <= n)
         end = np.minimum(end, n)
         # time goes forward around both commands
         same &= (p_cur > 0) & (c_ts >= ts[np.maximum(p_cur - 1, 0)]) & (c_ts <= ts[
             np.minimum(p_cur, n - 1)]) & (ts_e[prev] <= c_ts)
-        last = rows["idx"][end - 1]
-        same &= np.searchsorted(boots, idx[prev], side="right") == np.searchsorted(
-            boots, last, side="right")
+        others = np.concatenate([[0], np.cumsum(cs < 0)])  # events not commands, so far
+        through = np.searchsorted(idx, rows["idx"][end - 1], side="right")
+        same &= others[through] == others[prev + 1]
         for code, want in _COMMANDED_CODE.items():
             cand = same & (cs[cur] == code)
             if cand.any():  # every row since the command before: a request or the state
@@ -226,18 +226,6 @@ def _barriers(events: ChannelEvents | None, rows: dict[str, np.ndarray], node: i
                 repeat[cur[cand]] = (ok[end] - ok[p_prev] == end - p_prev)[cand]
     keep = ~(other | repeat)
     return (idx[keep], ts_e[keep]), lo
-
-
-def _channel_bootups(chunk: dict[str, np.ndarray]) -> dict[int, np.ndarray]:
-    """Per channel code, the file indices (sorted) of the boot-ups in one spool chunk."""
-    boot = (chunk["value"] == 0) & (chunk["dlc"] == 1) & ~chunk["rtr"]
-    chan, idx = chunk["key"][boot] // 128, chunk["idx"][boot]
-    order = np.lexsort((idx, chan))
-    chan, idx = chan[order], idx[order]
-    codes, first = np.unique(chan, return_index=True)
-    bounds = np.append(first, len(chan)).tolist()
-    return {int(c): idx[a:b] for c, a, b in zip(codes.tolist(), bounds[:-1], bounds[1:],
-                                                 strict=True)}
 
 
 def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
@@ -249,10 +237,7 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
     by_chan = _events_by_channel(nmt, events, bootups)
     nodes: dict[int, _Node] = {}
     names = list(spool.dtypes)
-    none = np.zeros(0, np.int64)
     for chunk in spool.chunks(settings.chunk):
-        boots = _channel_bootups(chunk)  # a repeat needs none between: known in this chunk
-        known_from = int(chunk["idx"].min()) if len(chunk["idx"]) else 0
         order = np.argsort(chunk["key"], kind="stable")
         keys = chunk["key"][order]
         cut = np.flatnonzero(np.diff(keys)) + 1
@@ -262,8 +247,7 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
             rows = order[lo:hi]
             node = nodes.setdefault(key, _Node())
             _chunk(node, {name: chunk[name][rows] for name in names},
-                   by_chan.get(key // 128), key % 128, settings, final=False,
-                   boots=boots.get(key // 128, none), known_from=known_from)
+                   by_chan.get(key // 128), key % 128, settings, final=False)
     for key, node in nodes.items():
         if node.tail is not None:
             _chunk(node, {name: node.tail[name][:0] for name in names},
@@ -288,8 +272,7 @@ def compact(spool: ColumnSpool, nmt: dict[str, np.ndarray], events: np.ndarray,
 
 
 def _chunk(node: _Node, new: dict[str, np.ndarray], events: ChannelEvents | None,
-           node_id: int, s: Compaction, final: bool, boots: np.ndarray | None = None,
-           known_from: int = 0) -> None:
+           node_id: int, s: Compaction, final: bool) -> None:
     """Decide the rows of one node in one chunk (with the previous chunk's tail in
     front); the last rows wait for the next chunk unless this is the last."""
     if node.tail is not None:
@@ -304,21 +287,20 @@ def _chunk(node: _Node, new: dict[str, np.ndarray], events: ChannelEvents | None
     n = len(rows["ts"])
     k = s.margin
     stop = n if final else max(n - 2 * k, start)  # rows [start, stop) are decided now
-    barriers, offset = _barriers(events, rows, node_id, s.protect_s, boots, known_from)
+    barriers, offset = _barriers(events, rows, node_id, s.protect_s)
     before = (offset + np.searchsorted(barriers[0], rows["idx"]) if barriers is not None
               else np.zeros(n, np.int64))  # events before a row that divide its runs
-    if events is not None and offset:  # the event before the rows, of whatever kind
+    if events is not None and offset:  # `protect_s` after the event before the rows, too
         last = (events[0][offset - 1:offset], events[1][offset - 1:offset])
         barriers = last if barriers is None else (np.concatenate([last[0], barriers[0]]),
                                                   np.concatenate([last[1], barriers[1]]))
-    events_n = barriers
     odd_upto = node.odd_base + np.cumsum(odd)
     if stop > start:
-        drop = _droppable(_good(rows, same, events_n, s), before, k, start, stop, final)
+        drop = _droppable(_good(rows, same, barriers, s), before, k, start, stop, final)
         _keep_short_runs(drop, s.min_run)
         # guarding: `margin` counts exchanges (two frames each), as it counts heartbeats;
         # the context kept between chunks (2 * margin + 2 rows) covers such a window
-        guard = _droppable(_protected(_guard_good(rows, s), rows, events_n, s), before, 2 * k,
+        guard = _droppable(_protected(_guard_good(rows, s), rows, barriers, s), before, 2 * k,
                            start, stop, final)
         _whole_exchanges(guard, rows["rtr"], s.min_run)
         _emit(node, rows, start, stop, drop, before, odd_upto, guard)
