@@ -286,12 +286,17 @@ def measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask:
     began = time.time()
     load_before = os.getloadavg()
     started = time.perf_counter()
+    sys.path.insert(0, str(HERE))
+    from bytecode import ensure_bytecode
+
+    compiled = ensure_bytecode()
     paths, size = make_logs(tmp / "logs", n_logs, frames)
     generate_s = time.perf_counter() - started
     glob = str(tmp / "logs" / "*.log")
     print(f"{n_logs} candump logs of {frames:,} frames ({size / 1e6:.0f} MB each, written in "
           f"{generate_s:.1f} s); N={n} of {usable} usable CPUs; {platform.machine()}, "
-          f"Python {platform.python_version()}, load {load_before[0]:.2f}; best of {repeat}")
+          f"Python {platform.python_version()}, load {load_before[0]:.2f}; best of {repeat}; "
+          f"{compiled}")
 
     small = tmp / "small.log"
     shutil.copyfile(REPO / "samples" / "healthy.log", small)

@@ -42,6 +42,7 @@ from typing import Any
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
+from bytecode import ensure_bytecode  # noqa: E402
 from generate import FORMATS, generate  # noqa: E402
 
 LENS_VERSION = "0.5.1"
@@ -180,6 +181,7 @@ def main() -> None:
     formats = args.formats.split(",")
     peers_limit = parse_size(args.peers_up_to)
     all_tools = tools(args.data, not args.no_lens, args.checkout)
+    print(ensure_bytecode(args.checkout), file=sys.stderr)
     rows: list[tuple[int, str, str, Sample | None, float | None]] = []
     for n in sizes:
         for fmt in formats:

@@ -26,7 +26,7 @@ import signal
 import sys
 import tempfile
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +50,6 @@ from nmtcheck.config import discover
 from nmtcheck.engine import (
     MAX_FINDINGS_PER_RULE,
     InputResult,
-    check_input,
     check_inputs,
     select_rules,
     summary,
@@ -224,6 +223,54 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
     rules = select_rules(profile, selected, ignored)
     stdout_render = streamer(fmt) if not statistics else statistics_renderer(fmt)
     files = [(path, streamer(format_for_path(path))) for path in outputs]
+    with remote_logs(logs, fleet_args.get("storage_options") or (), follow) as (logs, names):
+        _check_logs(logs, names, profile, rules, network, config_info, stdout_render, files,
+                    fmt=fmt, fail_on=fail_on, quiet=quiet, follow=follow, jobs=jobs,
+                    color=color, statistics=statistics, max_findings=max_findings,
+                    input_format=input_format, strict=strict, channel=channel,
+                    topics=topics)
+
+
+def named_check_inputs(names: dict[str, str], logs: tuple[str, ...], *args: Any, **kw: Any
+                       ) -> list[InputResult]:
+    """check_inputs, the error of a fetched copy (`names`: copy -> URL) naming its URL."""
+    try:
+        return check_inputs(logs, *args, **kw)
+    except InputError as exc:
+        if exc.path in names:
+            raise InputError(names[exc.path], exc.message, exc.line) from None
+        raise
+
+
+@contextlib.contextmanager
+def remote_logs(logs: tuple[str, ...], storage_options: tuple[str, ...], follow: bool = False
+                ) -> Iterator[tuple[tuple[str, ...], dict[str, str]]]:
+    """LOG arguments with each URL (s3://..., gs://...) fetched into a temporary local copy
+    for the time of the check (fleet.storage.local_copies), and {copy: URL} to name the
+    copies in the reports. Without a URL, nothing is imported and `--storage-option` is a
+    usage error (it would be ignored)."""
+    from nmtcheck.fleet.prestart import is_remote
+
+    if not any(is_remote(a) for a in logs):
+        if storage_options:
+            raise UsageError("--storage-option is for URLs: a LOG such as s3://bucket/log.mf4, "
+                             "or --results")
+        yield logs, {}
+        return
+    if follow:
+        raise UsageError("--follow reads a local file as it grows, not a URL")
+    from nmtcheck.fleet.storage import local_copies, parse_storage_options
+
+    with local_copies(logs, parse_storage_options(storage_options)) as (copies, names):
+        yield tuple(copies), names
+
+
+def _check_logs(logs: tuple[str, ...], names: dict[str, str], profile: Any, rules: list[Any],
+                network: Any, config_info: Any, stdout_render: Any, files: list[Any], *,
+                fmt: str, fail_on: str, quiet: bool, follow: bool, jobs: int, color: str,
+                statistics: bool, max_findings: int, input_format: str | None, strict: bool,
+                channel: str | None, topics: tuple[str, ...]) -> None:
+    """The rest of `check` without --results: check the logs, write the reports, exit."""
     logs, not_logs = expand_inputs(logs)
     if "-" in logs:
         jobs = 1  # worker processes do not share this process's standard input
@@ -239,7 +286,7 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
                                   max_findings=max_findings)
         else:
             # one unreadable input among several hides none of the others (SPEC §4)
-            results = check_inputs(logs, jobs or os.cpu_count() or 1, profile, rules,
+            results = named_check_inputs(names,logs, jobs or os.cpu_count() or 1, profile, rules,
                                    progress=progress, keep_going=len(logs) > 1,
                                    network=network,
                                    input_format=input_format, strict=strict, channel=channel,
@@ -247,6 +294,8 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
     finally:
         if progress:
             progress.close()
+    for res in results:  # a fetched copy is named by its URL
+        res.stats.path = names.get(res.stats.path, res.stats.path)
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet,
                                   "rules": {r.code: profile[r.code].severity for r in rules},
                                   "network_notes": list(network.notes) if network else [],
@@ -280,10 +329,14 @@ def timeline(logs: tuple[str, ...], input_format: str | None, rules_profile: str
     expanded as by `check`): the states and the node events in time order."""
     profile, network, _info = load_profile_network(rules_profile, network_file, dcf,
                                                    discover(config_file, isolated))
-    paths, _not_logs = expand_inputs(logs)
-    results = [check_input(log, k, profile, [], network, input_format, strict, channel,
-                           {"topics": list(topics)} if topics else {})
-               for k, log in enumerate(paths)]
+    with remote_logs(logs, ()) as (logs, names):
+        paths, _not_logs = expand_inputs(logs)
+        results = named_check_inputs(names, paths, 1, profile, [], network=network,
+                                     input_format=input_format, strict=strict,
+                                     channel=channel,
+                                     reader_options={"topics": list(topics)} if topics else {})
+    for res in results:
+        res.stats.path = names.get(res.stats.path, res.stats.path)
     write_stdout([render_timelines(results, fmt)])
 
 

@@ -21,6 +21,7 @@ One streaming pass over the frame batches keeps:
 
 from __future__ import annotations
 
+import contextvars
 import os
 import signal
 import tempfile
@@ -84,16 +85,23 @@ _SIGNALS = {getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP")
             if hasattr(signal, name)}
 
 
+# Where a check's temporary files go (spilled columns, a spooled MF4 stream, a fleet task's
+# fetched logs); None: tempfile's default. A fleet task in a Dask worker sets the worker's
+# own directory (fleet.tasks.worker_scratch), which Dask removes even after a crash.
+SCRATCH: contextvars.ContextVar[str | None] = contextvars.ContextVar("nmtcheck_scratch",
+                                                                    default=None)
+
+
 def spill_directory(prefix: str = "nmtcheck-") -> tempfile.TemporaryDirectory[str]:
     """A temporary directory for spilled columns (or a worker pool's files), made with
     the terminating signals held back: one that came between making the directory and
     registering its clean-up would leave the directory behind (the CLI turns these
     signals into an exception)."""
     if not hasattr(signal, "pthread_sigmask"):
-        return tempfile.TemporaryDirectory(prefix=prefix)
+        return tempfile.TemporaryDirectory(prefix=prefix, dir=SCRATCH.get())
     held = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
     try:
-        return tempfile.TemporaryDirectory(prefix=prefix)
+        return tempfile.TemporaryDirectory(prefix=prefix, dir=SCRATCH.get())
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
 

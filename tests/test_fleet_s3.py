@@ -4,10 +4,12 @@ environment only."""
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -130,3 +132,101 @@ def test_s3_fleet_run_incremental_and_manifest(s3: Any, endpoint: str, tmp_path:
     assert "2 logs: 1 checked" in third.stdout, third.stdout + third.stderr
     new = set(objects(s3, f"{BUCKET}/nmtcheck")) - set(before)
     assert {p.split("/")[2] for p in new} == {"inputs", "findings", "node_stats", "runs"}
+
+
+DASK_CLUSTER = """
+import sys, dask, distributed
+with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=50)
+print(cluster.scheduler_address, flush=True)
+sys.stdin.read()  # until the test is done
+cluster.close()
+"""
+
+
+def _fetched_copies(root: Path) -> list[Path]:
+    """What fleet tasks fetched (or the directories they fetched into) below `root`."""
+    return [p for p in root.rglob("*") if p.name.startswith("nmtcheck-fleet-")
+            or p.name.endswith("CRASHME.log")]
+
+
+def test_dask_worker_that_dies_leaves_no_fetched_logs(s3: Any, endpoint: str,
+                                                      tmp_path: Path) -> None:
+    """A Dask worker killed in the middle of a batch (the OOM killer, a crash; here the
+    test-only NMTCHECK_TEST_CRASH hook, after the batch's logs were fetched) cannot remove
+    what it fetched: the copies go below the worker's own directory, which the next
+    worker to start removes, not into /tmp for good."""
+    pytest.importorskip("distributed")
+    s3.put_file(str(SAMPLES / "healthy.log"), f"{BUCKET}/crash/healthy.log")
+    s3.put_file(str(SAMPLES / "healthy.log"), f"{BUCKET}/crash/CRASHME.log")
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    env = {**os.environ, **CREDENTIALS, "TMPDIR": str(temp), "NMTCHECK_TEST_CRASH": "CRASHME"}
+    proc = subprocess.Popen([sys.executable, "-c", DASK_CLUSTER], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout is not None and proc.stdin is not None
+    try:
+        address = proc.stdout.readline().strip().removeprefix("tcp://")
+        assert address, "the Dask cluster did not start"
+        res = cli("check", f"s3://{BUCKET}/crash/*.log", "--results", str(tmp_path / "ds"),
+                  "--executor", f"dask://{address}", "--storage-option",
+                  f"endpoint_url={endpoint}", "--fail-on", "never",
+                  "--on-input-error", "continue", cwd=tmp_path)
+        assert res.returncode == 0, res.stdout + res.stderr
+        assert "crashed 1" in res.stdout, res.stdout
+        # the worker that died last is removed when the nanny's next worker starts
+        deadline = time.monotonic() + 30
+        while _fetched_copies(temp) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert _fetched_copies(temp) == []
+        assert list(temp.glob("dask-scratch-space*")), "the workers used another directory"
+    finally:
+        proc.stdin.close()
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def test_check_reads_a_log_from_s3_without_results(s3: Any, endpoint: str,
+                                                    tmp_path: Path) -> None:
+    """`nmtcheck check s3://...` (no --results): the object is fetched to a temporary copy,
+    checked as the local file is, and named by its URL in every report; the copy goes."""
+    s3.put_file(str(SAMPLES / "heartbeat_loss.log"), f"{BUCKET}/single/heartbeat_loss.log")
+    s3.put_file(str(SAMPLES / "healthy.log"), f"{BUCKET}/single/healthy.log")
+    s3.pipe(f"{BUCKET}/single/garbage.txt", b"\xff\xfe no CAN log here\n")
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "nmtcheck", "check", *args,
+                               "--storage-option", f"endpoint_url={endpoint}", "--isolated"],
+                              cwd=tmp_path, text=True, capture_output=True, timeout=300,
+                              env={**os.environ, **CREDENTIALS, "TMPDIR": str(temp)})
+
+    url = f"s3://{BUCKET}/single/heartbeat_loss.log"
+    remote = run(url, "--format", "json")
+    local = subprocess.run([sys.executable, "-m", "nmtcheck", "check", "--isolated",
+                            str(SAMPLES / "heartbeat_loss.log"), "--format", "json"],
+                           text=True, capture_output=True, timeout=300)
+    assert remote.returncode == local.returncode == 1, remote.stderr
+    got, want = json.loads(remote.stdout), json.loads(local.stdout)
+    assert [i["path"] for i in got["inputs"]] == [url]
+    assert [(f["rule"], f["node"], f["time"], f["message"]) for f in got["findings"]] == \
+        [(f["rule"], f["node"], f["time"], f["message"]) for f in want["findings"]]
+    assert "H001" in {f["rule"] for f in got["findings"]}
+
+    both = run(f"s3://{BUCKET}/single/*.log", "--format", "text")
+    assert both.returncode == 1, both.stderr
+    assert f"s3://{BUCKET}/single/healthy.log" in both.stdout and url in both.stdout
+
+    missing = run(f"s3://{BUCKET}/single/missing.log")
+    assert missing.returncode == 2
+    assert missing.stderr.strip() == f"nmtcheck: s3://{BUCKET}/single/missing.log: no such file"
+    garbage = run(f"s3://{BUCKET}/single/garbage.txt")
+    assert garbage.returncode == 2
+    assert garbage.stderr.startswith(f"nmtcheck: s3://{BUCKET}/single/garbage.txt: "), \
+        garbage.stderr
+    assert str(temp) not in garbage.stderr + garbage.stdout
+    assert list(temp.iterdir()) == []  # every fetched copy is gone

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from conftest import REPO, candump
 
-from nmtcheck.decode import ChunkStore, ColumnSpool, decode
+from nmtcheck.decode import SCRATCH, ChunkStore, ColumnSpool, decode
 from nmtcheck.readers import open_input
 
 
@@ -86,6 +86,23 @@ def test_chunk_store_spills_past_its_budget_and_reads_back() -> None:
             np.testing.assert_array_equal(got[name], want[name])
             assert got[name].dtype == want[name].dtype
     store.close()
+
+
+def test_spills_go_below_the_scratch_directory_a_fleet_task_sets(tmp_path: Path) -> None:
+    """A fleet task in a Dask worker sets SCRATCH to the worker's own directory, so that
+    what a worker killed mid-log spilled is removed with that directory."""
+    token = SCRATCH.set(str(tmp_path))
+    try:
+        spool = ColumnSpool({"ts": np.float64}, budget=100)
+        for k in range(4):
+            spool.append({"ts": np.arange(k, k + 50, dtype=np.float64)})
+        spilled = [p for p in tmp_path.rglob("*") if p.is_file()]
+        assert spilled and all(p.parent.parent == tmp_path for p in spilled)
+        assert len(spool.column("ts")) == 200
+        spool.close()
+    finally:
+        SCRATCH.reset(token)
+    assert list(tmp_path.iterdir()) == []  # closed: its directory is gone
 
 
 def test_chunk_store_skips_chunks_that_end_before_a_moment() -> None:

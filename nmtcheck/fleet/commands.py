@@ -34,7 +34,8 @@ def fleet_options(f: Callable[..., Any]) -> Callable[..., Any]:
                      help="With --results: also check the logs listed in FILE, one URL per "
                           "line (or an S3 Inventory CSV), for listings too big to glob."),
         click.option("--storage-option", "storage_options", multiple=True, metavar="KEY=VALUE",
-                     help="With --results: an fsspec storage option (endpoint_url=..., "
+                     help="For URLs (LOG arguments such as s3://bucket/log.mf4, and "
+                          "--results): an fsspec storage option (endpoint_url=..., "
                           "anon=true); credentials come from the environment. Repeatable."),
         click.option("--path-pattern", default=None, metavar="PATTERN",
                      help="With --results: read {device}, {session}, {split} from the end of "
@@ -53,8 +54,9 @@ def fleet_options(f: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def fleet_requested(options: dict[str, Any]) -> bool:
-    """Any fleet option given (then --results is required)."""
-    given = [n for n in FLEET_OPTION_NAMES if options.get(n)]
+    """Any fleet option given (then --results is required); --storage-option alone is no
+    fleet run: it may be for a LOG that is a URL."""
+    given = [n for n in FLEET_OPTION_NAMES if options.get(n) and n != "storage_options"]
     if given and not options.get("results"):
         flag = "--" + given[0].replace("_", "-").removesuffix("s")
         raise UsageError(f"{flag} needs --results DIR_OR_URL (where the fleet's results go)")

@@ -9,11 +9,12 @@ them; `--storage-option` refuses credential keys so that none travel in task arg
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import os
 import re
 import stat
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -87,7 +88,11 @@ def filesystem(url: str, storage_options: dict[str, Any] | None = None) -> tuple
     if not storage_options and os.sep == "/" and is_local(url):
         path = url[len("file://"):] if url.startswith("file://") else url
         return LOCAL_FS, LocalFS.strip(path)
-    import fsspec
+    try:
+        import fsspec
+    except ImportError:
+        raise UsageError(f"{url}: reading URLs needs fsspec; install it with pip install "
+                         "'.[fleet]' in the nmtcheck checkout") from None
     from fsspec.core import split_protocol
 
     protocol, _ = split_protocol(url)
@@ -465,3 +470,37 @@ def fetch_all(urls: list[str], directory: Path, storage_options: dict[str, Any] 
         with ThreadPoolExecutor(min(FETCH_THREADS, len(remote))) as pool:
             out.update(pool.map(get, enumerate(remote)))
     return out
+
+
+@contextlib.contextmanager
+def local_copies(args: Sequence[str], storage_options: dict[str, Any] | None
+                 ) -> Iterator[tuple[list[str], dict[str, str]]]:
+    """The LOG arguments of a check without --results, each URL (s3://..., a glob of them
+    too) replaced by local copies of the objects it names, fetched concurrently into a
+    temporary directory that goes when the check is done; and {copy: URL}, the name the
+    reports give each copy. An object that cannot be listed or fetched is a usage error
+    (exit 2) before anything is checked. Local arguments are left as they are."""
+    remote = [a for a in dict.fromkeys(args) if a != "-" and not is_local(a)]
+    if not remote:
+        yield list(args), {}
+        return
+    from nmtcheck.decode import spill_directory
+
+    listed = {src: [fi.url for fi in expand([src], None, storage_options)] for src in remote}
+    urls = list(dict.fromkeys(url for found in listed.values() for url in found))
+    with spill_directory("nmtcheck-fetched-") as tmp:
+        fetched = fetch_all(urls, Path(tmp), storage_options)
+        for url in urls:
+            error = fetched[url][1]
+            if error is not None:
+                raise UsageError(f"{url}: {error}")
+        out: list[str] = []
+        names: dict[str, str] = {}
+        for arg in args:
+            for url in listed.get(arg, ()):
+                copy = str(fetched[url][0])
+                out.append(copy)
+                names[copy] = url
+            if arg not in listed:
+                out.append(arg)
+        yield out, names

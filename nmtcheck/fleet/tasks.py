@@ -84,6 +84,36 @@ def batch_id(ids: list[str]) -> str:
 def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> BatchCounts:
     """Fetch the batch (concurrently), check each log, write the batch's Parquet files
     (findings, node_stats, boot, then inputs: the commit record), return the counts."""
+    from nmtcheck.decode import SCRATCH
+
+    token = SCRATCH.set(worker_scratch())
+    try:
+        return _check_batch(files, cfg, attempts)
+    finally:
+        SCRATCH.reset(token)
+
+
+def worker_scratch() -> str | None:
+    """In a Dask worker, its own directory, for the batch's fetched logs and spilled
+    columns: Dask removes it when the worker closes, and the next worker to start beside
+    a worker that died (a crash, the OOM killer) removes the dead one's, so what the dead
+    worker fetched does not stay in /tmp for good. Elsewhere None: a local pool's workers
+    already have a temporary directory of their pool's (executors.ResilientPool)."""
+    import sys
+
+    if "distributed" not in sys.modules:
+        return None
+    from distributed import get_worker
+
+    try:
+        return str(get_worker().local_directory)
+    except ValueError:  # not in a Dask worker
+        return None
+
+
+def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> BatchCounts:
+    from nmtcheck.decode import SCRATCH
+
     os.environ["NMTCHECK_THREADS"] = "1"
     from nmtcheck.checks import BY_CODE
     from nmtcheck.fleet.dataset import Dataset, arrow_without_pandas
@@ -103,7 +133,7 @@ def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> Ba
     # a directory only for fetched copies: local logs are read where they are (and a
     # worker that dies leaves no empty directory behind)
     fetching = any(not is_local(url) for url in wanted)
-    with (tempfile.TemporaryDirectory(prefix="nmtcheck-fleet-") if fetching
+    with (tempfile.TemporaryDirectory(prefix="nmtcheck-fleet-", dir=SCRATCH.get()) if fetching
           else contextlib.nullcontext(None)) as tmp:
         local = fetch_all(wanted, Path(tmp or "."), cfg.storage_options)
         for fi, iid in zip(files, ids, strict=True):

@@ -107,7 +107,9 @@ def _local_copy(source: Source) -> str:
     """A seekable file for asammdf: the input itself, or the decompressed stream spooled."""
     if source.file_path is not None:
         return source.file_path
-    fd, name = tempfile.mkstemp(prefix="nmtcheck-", suffix=".mf4")
+    from nmtcheck.decode import SCRATCH
+
+    fd, name = tempfile.mkstemp(prefix="nmtcheck-", suffix=".mf4", dir=SCRATCH.get())
     try:
         with os.fdopen(fd, "wb") as out:
             shutil.copyfileobj(source.stream, out, 1 << 20)
