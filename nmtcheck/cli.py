@@ -233,13 +233,27 @@ def check(logs: tuple[str, ...], input_format: str | None, rules_profile: str | 
 
 def named_check_inputs(names: dict[str, str], logs: tuple[str, ...], *args: Any, **kw: Any
                        ) -> list[InputResult]:
-    """check_inputs, the error of a fetched copy (`names`: copy -> URL) naming its URL."""
+    """check_inputs, with each fetched copy (`names`: copy -> URL) named by its URL in
+    the results and in any error, never by its temporary path."""
     try:
-        return check_inputs(logs, *args, **kw)
+        results = check_inputs(logs, *args, **kw)
     except InputError as exc:
-        if exc.path in names:
-            raise InputError(names[exc.path], exc.message, exc.line) from None
-        raise
+        raise InputError(names.get(exc.path, exc.path), by_url(exc.message, names),
+                         exc.line) from None
+    except UsageError as exc:  # --channel not in the log names the log
+        raise UsageError(by_url(str(exc), names)) from None
+    for res in results:
+        res.stats.path = names.get(res.stats.path, res.stats.path)
+        if res.error is not None:
+            res.error = by_url(res.error, names)
+    return results
+
+
+def by_url(text: str, names: dict[str, str]) -> str:
+    """`text` with each fetched copy's path replaced by its URL."""
+    for copy, url in names.items():
+        text = text.replace(copy, url)
+    return text
 
 
 @contextlib.contextmanager
@@ -294,8 +308,6 @@ def _check_logs(logs: tuple[str, ...], names: dict[str, str], profile: Any, rule
     finally:
         if progress:
             progress.close()
-    for res in results:  # a fetched copy is named by its URL
-        res.stats.path = names.get(res.stats.path, res.stats.path)
     options: dict[str, object] = {"fail_on": fail_on, "quiet": quiet,
                                   "rules": {r.code: profile[r.code].severity for r in rules},
                                   "network_notes": list(network.notes) if network else [],
@@ -321,22 +333,23 @@ def _check_logs(logs: tuple[str, ...], names: dict[str, str], profile: Any, rule
 @_common
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text",
               show_default=True)
+@click.option("--storage-option", "storage_options", multiple=True, metavar="KEY=VALUE",
+              help="For a LOG that is a URL (s3://...): an fsspec storage option "
+                   "(endpoint_url=...); credentials come from the environment. Repeatable.")
 def timeline(logs: tuple[str, ...], input_format: str | None, rules_profile: str | None,
              network_file: str | None, config_file: str | None, isolated: bool,
              dcf: tuple[str, ...], strict: bool, channel: str | None, topics: tuple[str, ...],
-             fmt: str) -> None:
+             fmt: str, storage_options: tuple[str, ...] = ()) -> None:
     """Print the per-node NMT state timeline of each LOG (quoted globs and directories are
     expanded as by `check`): the states and the node events in time order."""
     profile, network, _info = load_profile_network(rules_profile, network_file, dcf,
                                                    discover(config_file, isolated))
-    with remote_logs(logs, ()) as (logs, names):
+    with remote_logs(logs, storage_options) as (logs, names):
         paths, _not_logs = expand_inputs(logs)
         results = named_check_inputs(names, paths, 1, profile, [], network=network,
                                      input_format=input_format, strict=strict,
                                      channel=channel,
                                      reader_options={"topics": list(topics)} if topics else {})
-    for res in results:
-        res.stats.path = names.get(res.stats.path, res.stats.path)
     write_stdout([render_timelines(results, fmt)])
 
 

@@ -21,6 +21,7 @@ One streaming pass over the frame batches keeps:
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import os
 import signal
@@ -104,6 +105,40 @@ def spill_directory(prefix: str = "nmtcheck-") -> tempfile.TemporaryDirectory[st
         return tempfile.TemporaryDirectory(prefix=prefix, dir=SCRATCH.get())
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
+@contextlib.contextmanager
+def removed_on_exit(tmp: tempfile.TemporaryDirectory[str]) -> Iterator[str]:
+    """`with tmp` whose removal the terminating signals cannot cut short: a second Ctrl-C
+    during the rmtree of a directory of fetched logs left most of them behind."""
+    try:
+        yield tmp.name
+    finally:
+        with signals_deferred():
+            tmp.cleanup()
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """The terminating signals that come during the block are handled after it, by their
+    own handlers. Python runs handlers in the main thread whichever thread the signal
+    reached (numpy's BLAS threads, a fetch pool), so a thread's signal mask is not
+    enough; elsewhere than the main thread the block just runs."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: list[int] = []
+    previous = {sig: signal.signal(sig, lambda signum, _frame: came.append(signum))
+                for sig in _SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():  # None: one set outside Python
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        for sig in dict.fromkeys(came):
+            signal.raise_signal(sig)
 
 
 def write_spill(col: np.ndarray, f: BinaryIO | str, directory: str) -> None:

@@ -230,3 +230,47 @@ def test_check_reads_a_log_from_s3_without_results(s3: Any, endpoint: str,
         garbage.stderr
     assert str(temp) not in garbage.stderr + garbage.stdout
     assert list(temp.iterdir()) == []  # every fetched copy is gone
+
+
+def test_a_fetched_copy_is_never_named_by_its_temporary_path(s3: Any, endpoint: str,
+                                                             tmp_path: Path) -> None:
+    """Errors from a reader, a library or an option name the URL (a review found the copy's
+    temporary path in each of these); an object name too long for a local file is read."""
+    long_name = "a" * 260 + ".log"  # S3 keys may be 1024 bytes, a local file name 255
+    s3.put_file(str(SAMPLES / "healthy.log"), f"{BUCKET}/named/{long_name}")
+    s3.put_file(str(SAMPLES / "healthy.log"), f"{BUCKET}/named/healthy.log")
+    s3.pipe(f"{BUCKET}/named/garbage.log", b"\xff\xfe no CAN log here\n")
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    env = {**os.environ, **CREDENTIALS, "TMPDIR": str(temp)}
+    option = ("--storage-option", f"endpoint_url={endpoint}")
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "nmtcheck", *args, *option],
+                              cwd=tmp_path, text=True, capture_output=True, timeout=300,
+                              env=env)
+
+    healthy, garbage = f"s3://{BUCKET}/named/healthy.log", f"s3://{BUCKET}/named/garbage.log"
+    long_url = f"s3://{BUCKET}/named/{long_name}"
+    assert run("check", long_url, "--isolated").returncode == 0
+    channel = run("check", healthy, "--channel", "can9", "--isolated")
+    assert channel.returncode == 2
+    assert channel.stderr.startswith(f"nmtcheck: --channel can9: not in {healthy} "), \
+        channel.stderr
+    as_mf4 = run("check", healthy, "--input-format", "mf4", "--isolated")
+    if "asammdf" not in as_mf4.stderr:  # the mf4 extra is installed
+        assert as_mf4.returncode == 2
+        assert as_mf4.stderr.startswith(f"nmtcheck: {healthy}: cannot read MF4 file")
+    several = run("check", healthy, garbage, "-j", "2", "--isolated", "-o", "r.json",
+                  "-o", "r.html")
+    assert several.returncode == 2
+    assert f"nmtcheck: {garbage}: unknown log format" in several.stderr
+    errors = [i.get("error") for i in json.loads((tmp_path / "r.json").read_text())["inputs"]]
+    assert errors[0] is None and errors[1].startswith("unknown log format"), errors
+    timeline = run("timeline", healthy, "--format", "json", "--isolated")
+    assert timeline.returncode == 0, timeline.stderr
+    for text in (channel.stderr, as_mf4.stderr, several.stdout + several.stderr,
+                 (tmp_path / "r.json").read_text(), (tmp_path / "r.html").read_text(),
+                 timeline.stdout):
+        assert "nmtcheck-fetched" not in text and str(temp) not in text
+    assert list(temp.iterdir()) == []

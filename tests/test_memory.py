@@ -9,15 +9,17 @@ what is measured): four times the frames may not cost more than 20 % more memory
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import REPO, candump
 
-from nmtcheck.decode import SCRATCH, ChunkStore, ColumnSpool, decode
+from nmtcheck.decode import SCRATCH, ChunkStore, ColumnSpool, decode, removed_on_exit
 from nmtcheck.readers import open_input
 
 
@@ -103,6 +105,30 @@ def test_spills_go_below_the_scratch_directory_a_fleet_task_sets(tmp_path: Path)
     finally:
         SCRATCH.reset(token)
     assert list(tmp_path.iterdir()) == []  # closed: its directory is gone
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signal masks")
+def test_a_signal_does_not_cut_a_directory_removal_short(tmp_path: Path) -> None:
+    """A second Ctrl-C while a directory of fetched logs was being removed left most of
+    them behind: the signal now waits until the directory is gone."""
+    tmp = tempfile.TemporaryDirectory(dir=tmp_path)
+    for i in range(50):
+        (Path(tmp.name) / f"copy{i}.log").write_bytes(b"x" * 1000)
+    cleanup = tmp.cleanup
+
+    def interrupted_cleanup() -> None:
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C as the removal begins
+        cleanup()
+
+    tmp.cleanup = interrupted_cleanup  # type: ignore[method-assign]
+    # Python's own Ctrl-C handler (a test before may have run the CLI, which sets its own)
+    handler = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt), removed_on_exit(tmp) as name:
+            assert Path(name).is_dir()
+    finally:
+        signal.signal(signal.SIGINT, handler)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_chunk_store_skips_chunks_that_end_before_a_moment() -> None:

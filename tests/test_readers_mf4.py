@@ -177,7 +177,27 @@ def test_compressed_mf4_is_spooled(written: Path, tmp_path: Path,
     assert b.format == "mf4"
     for name in ca:
         np.testing.assert_array_equal(ca[name], cb[name], err_msg=name)
-    assert len(made) == 1 and Path(made[0]).parent == spool
+    assert len(made) == 1 and Path(made[0]).parent.parent == spool
+    assert list(spool.iterdir()) == []
+
+
+def test_a_damaged_unfinalised_file_leaves_no_copy(written: Path, tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """asammdf copies an unfinalised MF4 (CANedge writes them) whole to a temporary file
+    before it reads it, and left that copy behind when the file was damaged: 10 cut-off
+    CANedge files left 10 copies in /tmp. Its temporary files now go to a directory of
+    the read's, removed however the read ends."""
+    data = bytearray(written.read_bytes())
+    data[0:8] = b"UnFinMF "
+    data[60:62] = (1).to_bytes(2, "little")  # id_unfin_flags: asammdf copies the file first
+    cut = tmp_path / "cut.mf4"
+    cut.write_bytes(bytes(data[: len(data) // 2]))
+    spool = tmp_path / "spool"
+    spool.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(spool))
+    with pytest.raises(InputError) as exc:
+        read(cut)
+    assert str(exc.value).startswith(f"{cut}: cannot read MF4 file (cut off or damaged?)")
     assert list(spool.iterdir()) == []
 
 

@@ -218,10 +218,13 @@ def _locked_run(ds: Any, opts: FleetOptions, cfg_args: tuple[Any, ...], digest: 
             dispatch.executor.close()
     try:
         _record_run(ds, out, opts, digest, __version__, dispatch.totals, started)
-    finally:
-        if closing is not None:
-            closing.join()
-        mark("closed")
+    except BaseException:
+        if closing is not None:  # the run row's error is the one to tell, not the pool's
+            closing.join(raising=False)
+        raise
+    if closing is not None:
+        closing.join()
+    mark("closed")
     return out
 
 
@@ -239,9 +242,9 @@ class _Closing(threading.Thread):
         except BaseException as exc:  # noqa: BLE001 - handed to the driver's thread by join
             self.error = exc
 
-    def join(self, timeout: float | None = None) -> None:
+    def join(self, timeout: float | None = None, raising: bool = True) -> None:
         super().join(timeout)
-        if self.error is not None:
+        if self.error is not None and raising:
             raise self.error
 
 

@@ -456,20 +456,38 @@ def fetch_all(urls: list[str], directory: Path, storage_options: dict[str, Any] 
 
     def get(item: tuple[int, str]) -> tuple[str, tuple[str | None, str | None]]:
         i, url = item
-        target = directory / f"{i:06d}-{os.path.basename(url.split('?', 1)[0]) or 'log'}"
+        target = directory / f"{i:06d}-{copy_name(url)}"
         try:
             fs, path = filesystem(url, storage_options)
             fs.get_file(path, str(target))
         except FileNotFoundError:
             return url, (None, "no such object")
         except Exception as exc:  # noqa: BLE001 - one object's failure is that input's error
-            return url, (None, f"cannot fetch: {type(exc).__name__}: {exc}")
+            why = str(exc).replace(str(target), url)  # never the copy's temporary path
+            return url, (None, f"cannot fetch: {type(exc).__name__}: {why}")
         return url, (str(target), None)
 
     if remote:
-        with ThreadPoolExecutor(min(FETCH_THREADS, len(remote))) as pool:
+        pool = ThreadPoolExecutor(min(FETCH_THREADS, len(remote)))
+        try:
             out.update(pool.map(get, enumerate(remote)))
+        except BaseException:  # Ctrl-C: only the downloads under way are waited for
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown()
     return out
+
+
+COPY_NAME_BYTES = 120  # S3 keys may be 1024 bytes, a local file name 255
+
+
+def copy_name(url: str) -> str:
+    """The local name of a fetched object's copy: its base name (the suffixes tell a
+    compressed log), cut from the left where it is too long for a file name."""
+    name = os.path.basename(url.split("?", 1)[0]) or "log"
+    while len(name.encode()) > COPY_NAME_BYTES:
+        name = name[1:]
+    return name
 
 
 @contextlib.contextmanager
@@ -480,15 +498,17 @@ def local_copies(args: Sequence[str], storage_options: dict[str, Any] | None
     temporary directory that goes when the check is done; and {copy: URL}, the name the
     reports give each copy. An object that cannot be listed or fetched is a usage error
     (exit 2) before anything is checked. Local arguments are left as they are."""
-    remote = [a for a in dict.fromkeys(args) if a != "-" and not is_local(a)]
+    from nmtcheck.fleet.prestart import is_remote
+
+    remote = [a for a in dict.fromkeys(args) if is_remote(a)]
     if not remote:
         yield list(args), {}
         return
-    from nmtcheck.decode import spill_directory
+    from nmtcheck.decode import removed_on_exit, spill_directory
 
     listed = {src: [fi.url for fi in expand([src], None, storage_options)] for src in remote}
     urls = list(dict.fromkeys(url for found in listed.values() for url in found))
-    with spill_directory("nmtcheck-fetched-") as tmp:
+    with removed_on_exit(spill_directory("nmtcheck-fetched-")) as tmp:
         fetched = fetch_all(urls, Path(tmp), storage_options)
         for url in urls:
             error = fetched[url][1]

@@ -103,13 +103,12 @@ def _frames(group: str, samples: np.ndarray, times: np.ndarray, start: float) ->
     return frames
 
 
-def _local_copy(source: Source) -> str:
-    """A seekable file for asammdf: the input itself, or the decompressed stream spooled."""
+def _local_copy(source: Source, folder: str) -> str:
+    """A seekable file for asammdf: the input itself, or the decompressed stream spooled
+    into `folder`."""
     if source.file_path is not None:
         return source.file_path
-    from nmtcheck.decode import SCRATCH
-
-    fd, name = tempfile.mkstemp(prefix="nmtcheck-", suffix=".mf4", dir=SCRATCH.get())
+    fd, name = tempfile.mkstemp(prefix="nmtcheck-", suffix=".mf4", dir=folder)
     try:
         with os.fdopen(fd, "wb") as out:
             shutil.copyfileobj(source.stream, out, 1 << 20)
@@ -125,20 +124,22 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     except ImportError:
         raise InputError(source.path, "reading MF4 needs the optional asammdf package: "
                          + INSTALL_HINT) from None
-    path = _local_copy(source)
-    try:
-        mdf = _open(MDF, path, source)
+    from nmtcheck.decode import removed_on_exit, spill_directory
+
+    # asammdf's own temporary files go here too: it copies an unfinalized MF4 whole, and
+    # left that copy in /tmp when the file turned out damaged
+    with removed_on_exit(spill_directory("nmtcheck-mf4-")) as folder:
+        path = _local_copy(source, folder)
+        mdf = _open(MDF, path, source, folder)
         try:
             yield from _read_groups(mdf, source, stats)
         finally:
             mdf.close()
-    finally:
-        if path != source.file_path:
-            os.unlink(path)
 
 
-def _open(mdf_class: Any, path: str, source: Source) -> Any:
-    """asammdf's MDF of the file; a damaged or cut-off file is an InputError.
+def _open(mdf_class: Any, path: str, source: Source, folder: str) -> Any:
+    """asammdf's MDF of the file, its temporary files in `folder`; a damaged or cut-off
+    file is an InputError naming the input, not a temporary copy of it.
 
     When asammdf's constructor fails, the half-built object's __del__ fails too and Python
     prints that traceback on stderr ("Exception ignored in MDF4.__del__"): silenced, so the
@@ -149,10 +150,12 @@ def _open(mdf_class: Any, path: str, source: Source) -> Any:
     try:
         try:
             # asammdf's own per-ID signal tables are not needed (and cost time)
-            options: dict[str, Any] = {"process_bus_logging": False}
+            options: dict[str, Any] = {"process_bus_logging": False,
+                                       "temporary_folder": folder}
             return mdf_class(path, **options)
         except Exception as exc:  # asammdf raises many kinds for a damaged file
-            message = f"cannot read MF4 file (cut off or damaged?): {exc}"
+            why = str(exc).replace(path, source.path)
+            message = f"cannot read MF4 file (cut off or damaged?): {why}"
         gc.collect()  # the half-built object goes now, while its complaint is silenced
     finally:
         sys.unraisablehook = hook
