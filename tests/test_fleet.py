@@ -410,3 +410,58 @@ def test_what_a_dead_worker_spilled_goes_with_its_pool(tmp_path: Path,
         assert Path(str(got[k])).name.startswith("nmtcheck-workers-")
     pool.close()
     assert list(tmp_path.iterdir()) == []  # the dead workers' files and the live ones' too
+
+
+SLOW_STORE = r"""
+import sys, time
+import fsspec
+from fsspec.implementations.memory import MemoryFileSystem
+
+class SlowStore(MemoryFileSystem):  # an object store whose downloads take a minute
+    protocol = "slowstore"
+
+    @classmethod
+    def _strip_protocol(cls, path):
+        return super()._strip_protocol(path.replace("slowstore://", "memory://", 1))
+
+    def get_file(self, rpath, lpath, **kwargs):
+        sys.stderr.write("fetching\n")
+        sys.stderr.flush()
+        time.sleep(60)
+
+fsspec.register_implementation("slowstore", SlowStore, clobber=True)
+for i in range(40):
+    SlowStore().pipe(f"/bucket/log{i:02d}.log", b"(1.0) can0 701#05\n")
+sys.argv = ["nmtcheck", "check", "slowstore://bucket/*.log"]
+from nmtcheck.cli import main
+main()
+"""
+
+
+def test_ctrl_c_while_logs_are_fetched_ends_at_once(tmp_path: Path) -> None:
+    """`check URL...` (no --results) fetches up to 16 objects at once: Ctrl-C ends the run at
+    once, exit 130, without starting the objects still queued and without waiting for
+    the downloads under way (a pool's threads were joined at exit: minutes for an MF4 of
+    gigabytes); the copies' directory goes."""
+    import signal
+    import time
+
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_STORE], stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, cwd=tmp_path,
+                            env={**os.environ, "TMPDIR": str(temp)})
+    assert proc.stderr is not None
+    assert proc.stderr.readline() == "fetching\n"
+    time.sleep(0.5)  # the other downloads begin
+    proc.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    try:
+        _out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert time.monotonic() - sent < 10
+    assert proc.returncode == 130, err
+    assert err.count("fetching") <= 16 - 1  # the first line was read above
+    assert err.strip().splitlines()[-1] == "nmtcheck: interrupted (SIGINT)"
+    assert list(temp.iterdir()) == []

@@ -14,7 +14,7 @@ import fnmatch
 import os
 import re
 import stat
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -467,15 +467,47 @@ def fetch_all(urls: list[str], directory: Path, storage_options: dict[str, Any] 
             return url, (None, f"cannot fetch: {type(exc).__name__}: {why}")
         return url, (str(target), None)
 
-    if remote:
-        pool = ThreadPoolExecutor(min(FETCH_THREADS, len(remote)))
-        try:
-            out.update(pool.map(get, enumerate(remote)))
-        except BaseException:  # Ctrl-C: only the downloads under way are waited for
-            pool.shutdown(wait=True, cancel_futures=True)
-            raise
-        pool.shutdown()
+    out.update(map_in_daemons(get, list(enumerate(remote)), FETCH_THREADS))
     return out
+
+
+def map_in_daemons(fn: Callable[[Any], Any], items: list[Any], threads: int) -> list[Any]:
+    """[fn(x) for x in items], in up to `threads` daemon threads; `fn` catches what it
+    can raise. An interrupt (Ctrl-C) in the calling thread returns at once: no item is
+    started after it, and the downloads under way are left to the process's exit, not
+    waited for (a pool's threads are joined at exit: Ctrl-C waited for every object
+    queued, then for an MF4 of gigabytes to arrive)."""
+    import threading
+
+    results: list[Any] = [None] * len(items)
+    todo = iter(enumerate(items))
+    lock = threading.Lock()
+    finished = threading.Semaphore(0)
+    stopped = threading.Event()
+
+    def work() -> None:
+        while not stopped.is_set():
+            with lock:
+                item = next(todo, None)
+            if item is None:
+                return
+            try:
+                results[item[0]] = fn(item[1])
+            finally:
+                finished.release()
+
+    workers = [threading.Thread(target=work, name="nmtcheck-fetch", daemon=True)
+               for _ in range(min(threads, len(items)))]
+    for t in workers:
+        t.start()
+    try:
+        for _ in items:
+            finished.acquire()
+    finally:
+        stopped.set()
+    for t in workers:  # all done: they end now (a forked parse worker wants no thread)
+        t.join()
+    return results
 
 
 COPY_NAME_BYTES = 120  # S3 keys may be 1024 bytes, a local file name 255
