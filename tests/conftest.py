@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -119,3 +121,21 @@ def assert_one_line_error(res: subprocess.CompletedProcess[str], *needles: str) 
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
     for needle in needles:
         assert needle in lines[0], lines[0]
+
+
+@contextlib.contextmanager
+def cluster_process(code: str, env: dict[str, str] | None = None) -> Iterator[str]:
+    """A Dask cluster that `code` starts in a Python of its own, printing its scheduler's
+    address, and closes when its standard input ends; the address. Out of this process:
+    a Dask client leaves threads running for good, and these tests fork."""
+    proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout is not None and proc.stdin is not None
+    try:
+        yield proc.stdout.readline().strip()
+    finally:
+        proc.stdin.close()
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()

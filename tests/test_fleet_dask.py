@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import SAMPLES
+from conftest import SAMPLES, cluster_process
 
 pytest.importorskip("pyarrow")
 distributed = pytest.importorskip("distributed")
@@ -44,17 +44,8 @@ def scheduler() -> Iterator[str]:
     The cluster and every Dask client live in other processes: a client leaves threads
     running in its process for good, and this test process forks (other tests check
     the forked parse worker, which is not started while other threads run)."""
-    proc = subprocess.Popen([sys.executable, "-c", CLUSTER], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True)
-    assert proc.stdout is not None and proc.stdin is not None
-    try:
-        yield proc.stdout.readline().strip()
-    finally:
-        proc.stdin.close()
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+    with cluster_process(CLUSTER) as address:
+        yield address
 
 
 def run_py(code: str, *args: str) -> str:

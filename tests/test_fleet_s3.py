@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import SAMPLES, shared_path
+from conftest import SAMPLES, cluster_process, shared_path
 
 pytest.importorskip("pyarrow")
 s3fs = pytest.importorskip("s3fs")
@@ -163,15 +163,11 @@ def test_dask_worker_that_dies_leaves_no_fetched_logs(s3: Any, endpoint: str,
     temp = tmp_path / "tmp"
     temp.mkdir()
     env = {**os.environ, **CREDENTIALS, "TMPDIR": str(temp), "NMTCHECK_TEST_CRASH": "CRASHME"}
-    proc = subprocess.Popen([sys.executable, "-c", DASK_CLUSTER], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True, env=env)
-    assert proc.stdout is not None and proc.stdin is not None
-    try:
-        address = proc.stdout.readline().strip().removeprefix("tcp://")
+    with cluster_process(DASK_CLUSTER, env) as address:
         assert address, "the Dask cluster did not start"
         res = cli("check", f"s3://{BUCKET}/crash/*.log", "--results", str(tmp_path / "ds"),
-                  "--executor", f"dask://{address}", "--storage-option",
-                  f"endpoint_url={endpoint}", "--fail-on", "never",
+                  "--executor", f"dask://{address.removeprefix('tcp://')}",
+                  "--storage-option", f"endpoint_url={endpoint}", "--fail-on", "never",
                   "--on-input-error", "continue", cwd=tmp_path)
         assert res.returncode == 0, res.stdout + res.stderr
         assert "crashed 1" in res.stdout, res.stdout
@@ -181,12 +177,6 @@ def test_dask_worker_that_dies_leaves_no_fetched_logs(s3: Any, endpoint: str,
             time.sleep(0.2)
         assert _fetched_copies(temp) == []
         assert list(temp.glob("dask-scratch-space*")), "the workers used another directory"
-    finally:
-        proc.stdin.close()
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
 
 
 def test_check_reads_a_log_from_s3_without_results(s3: Any, endpoint: str,
