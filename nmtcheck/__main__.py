@@ -1,3 +1,3 @@
-from nmtcheck.cli import main
+from nmtcheck.cli import command
 
-main()
+command()
