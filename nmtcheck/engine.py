@@ -358,7 +358,10 @@ _ORDER_ONLY_PARAMS = {("B001", "bootup_timeout_ms"): float("inf"),
                       ("B002", "reset_window_ms"): float("inf"),
                       ("B003", "repeat_window_ms"): float("inf"),
                       ("S001", "grace_ms"): 0.0, ("S003", "grace_ms"): 0.0,
-                      ("S004", "obey_ms"): 0.0}
+                      ("S004", "obey_ms"): 0.0,
+                      # the timeline's: N's data frame right after a remote request to
+                      # 700h+N answers it, however many frames of others come between
+                      ("G002", "response_timeout_ms"): float("inf")}
 MAX_TIMELESS_LOOKAHEAD = 1 << 20  # frames held back while every timestamp so far is equal
 
 

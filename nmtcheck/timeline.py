@@ -308,7 +308,7 @@ def _master_obeyed(m: NodeModel, nmt: NmtTable, own: np.ndarray, direct: np.ndar
         later_cmd = ok & (np.searchsorted(reach_idx, c_idx, side="right")
                           < np.searchsorted(reach_idx, d_idx[qq], side="left"))
         stale = ok & ~later_cmd & (st == prior) & (st != wanted) & (
-            dt <= params.obey_s + EPS) & (st >= 0)
+            (dt <= params.obey_s + EPS) | (params.order_only and j == 0)) & (st >= 0)
         decide = ok & ~stale
         obeyed |= decide & ~later_cmd & (st == wanted)
         undecided &= ~decide
@@ -478,10 +478,10 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
     p = int(np.searchsorted(t.idx[data], f_idx, side="right"))
     after = (int(q) for q in data[p:p + 256])  # the answer is in the next few frames
     if f_cs in RESETS:
-        for q in after:
+        for n, q in enumerate(after):
             boot = int(t.value[q]) == 0
             dt = float(t.ts[q]) - f_ts
-            if not boot and dt <= params.obey_s + EPS:
+            if not boot and (dt <= params.obey_s + EPS or (params.order_only and n == 0)):
                 continue  # may have been queued before the command
             return not boot or dt > params.bootup_timeout_s + EPS
         return True  # no boot-up from it as far as the trace goes
@@ -493,10 +493,10 @@ def _disobeyed(t: EcTable, data: np.ndarray, valid: _Valid, i: int, node: int,
     if prior is None or prior == COMMAND_STATE[f_cs]:
         return False
     next_cmd = valid.next_to(i, node)
-    for q in after:
+    for n, q in enumerate(after):
         if (next_cmd is not None and int(t.idx[q]) > next_cmd) or int(t.value[q]) == 0:
             return False
-        if float(t.ts[q]) - f_ts <= params.obey_s + EPS:
+        if float(t.ts[q]) - f_ts <= params.obey_s + EPS or (params.order_only and n == 0):
             continue
         return STATE_OF_CODE.get(int(t.value[q]) & 0x7F) == prior
     return False
@@ -1001,20 +1001,26 @@ def _self_start_queries(m: NodeModel, end: float) -> list[tuple[NodeModel, int, 
     never = np.iinfo(np.int64).max
     next_boot = np.append(b_idx[1:], never)
     next_boot_ts = np.append(b_ts[1:], end)
-    r_idx, r_ts = m.commands.reset_idx, m.commands.reset_ts
     msg: np.ndarray = _next_of(ec.idx[msgs], b_idx, msgs, -1).astype(np.int64)
     msg_idx = np.where(msg >= 0, ec.idx[msg], never)
     next_cmd = _next_of(m.commands.idx, b_idx)
-    next_reset = _next_of(r_idx, b_idx)
-    next_reset_ts = _next_of(r_idx, b_idx, r_ts, end)
-    stop = np.minimum(next_boot, next_reset)
+    next_cmd_ts = _next_of(m.commands.idx, b_idx, m.commands.ts, end)
+    stop = np.minimum(next_boot, _next_of(m.commands.reset_idx, b_idx))
     answered = (msg_idx < stop) & (msg_idx < next_cmd)
     started = answered & (_CODE_STATE[ec.value[msg] & 0x7F] == STATE_INDEX[OPERATIONAL])
     # no message before the next reset or boot-up, and no other command before it
     unknown = (msg_idx >= stop) & (next_cmd >= stop)
+    span_end = np.minimum(next_boot_ts, _next_of(m.commands.reset_idx, b_idx,
+                                                 m.commands.reset_ts, end))
+    if m.order_only:
+        # Without timestamps, any command to N before its first message: that message
+        # reports what the command asked, self-started or not. CANopenNode's master starts
+        # a self-starting slave before its first heartbeat, and the slave's TPDO right
+        # after its boot-up (16 us, within S001's grace with timestamps) is no S001.
+        unknown = msg_idx >= np.minimum(next_boot, next_cmd)
+        span_end = np.minimum(next_boot_ts, next_cmd_ts)
     m.unproven_spans = [(float(a), float(b)) for a, b in zip(
-        b_ts[unknown].tolist(), np.minimum(next_boot_ts, next_reset_ts)[unknown].tolist(),
-        strict=True)]
+        b_ts[unknown].tolist(), span_end[unknown].tolist(), strict=True)]
     return [(m, int(boots[i]), int(b_idx[i]), int(msg_idx[i]))
             for i in np.flatnonzero(started).tolist()]
 
@@ -1099,12 +1105,30 @@ _EV_CMD = 3
 STEP_CHUNK = 1 << 16
 
 
+def _stale_until(m: NodeModel, obey_s: float) -> np.ndarray:
+    """Per command to N, until when a report of N that still says the state from before
+    the command was queued before N processed it (stale, SPEC §2): `obey_s` after the
+    command; in a log without timestamps, up to N's first report after the command
+    (frame numbers are no time, and that report may still be a queued one: CANopenNode's
+    heartbeat right after `000#0102` often says 7Fh, its TPDO and 05h come next)."""
+    cmds = m.commands
+    if not m.order_only:
+        return cmds.ts + obey_s
+    ec = m.ec
+    reports = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == GUARD))
+    if not reports.size:
+        return cmds.ts.astype(np.float64)
+    k = np.searchsorted(ec.idx[reports], cmds.idx, side="right")
+    first = ec.ts[reports[np.minimum(k, reports.size - 1)]].astype(np.float64)
+    return np.where(k < reports.size, first, cmds.ts)
+
+
 def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, int]]:
     """What the interval walk sees, in order: (time, what, reference) for each evidence
     frame, command, timeout and end of a timeout. At one moment a timeout comes first
     and its end last; the rest in file order."""
     ec, cmds = m.ec, m.commands
-    windows = [(t, t + obey_s) for t in cmds.ts.tolist()] + [
+    windows = list(zip(cmds.ts.tolist(), _stale_until(m, obey_s).tolist(), strict=True)) + [
         (t, t) for t in [t.moment for t in m.timeouts]
         + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
     pos = _evidence(m, windows)
@@ -1204,6 +1228,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     """
     ec, cmds = m.ec, m.commands
     steps, kind, code_state = _walk_inputs(m, obey_s)
+    until = _stale_until(m, obey_s).tolist()
     # per command, then per self-start (SPEC §2): the state it sets and the source
     cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()] + [
         STATE_INDEX[OPERATIONAL]] * len(m.self_starts)
@@ -1233,7 +1258,8 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
 
     saved: tuple[int, int] | None = None  # state and source to return to after OFFLINE
     offline_until: float | None = None
-    last_cmd: tuple[float, int] | None = None  # the latest command: ts, state before it
+    # the latest command: until when a report may be stale, the state before it
+    last_cmd: tuple[float, int] | None = None
     pre_offline: int | None = None  # the state N had when it went OFFLINE
     stale = ec.stale
     for at, w, r in steps:
@@ -1242,7 +1268,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
             k = kind[r]
             state = code_state[r]
             if k in (HEARTBEAT, GUARD) and last_cmd is not None and (
-                    at - last_cmd[0] <= obey_s + EPS) and state == last_cmd[1]:
+                    at <= last_cmd[0] + EPS) and state == last_cmd[1]:
                 stale[r] = True
                 continue
             if k == BOOTUP:
@@ -1256,7 +1282,8 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
                 go(at, *saved)
                 saved = None
         elif w == _EV_CMD:
-            last_cmd = (at, pre_offline if cur == offline and pre_offline is not None else cur)
+            last_cmd = (until[r] if r < len(until) else at + obey_s,  # else a self-start
+                        pre_offline if cur == offline and pre_offline is not None else cur)
             if cur == offline:
                 saved = (cmd_state[r], cmd_source[r])
             else:

@@ -502,3 +502,28 @@ def test_i001_every_line_skipped_suggests_the_format(tmp_path: Path) -> None:
     message = _i001(path)
     assert "2 lines: no frame, 2 skipped (first at line 1: " in message
     assert "--input-format" in message and "is --input-format right?" not in message
+
+
+@pytest.mark.parametrize("name", ["heartbeat_loss.log", "heartbeat_loss.asc"])
+@pytest.mark.parametrize("bom", ["utf-16-le", "utf-16-be"])
+def test_a_utf16_log_is_read_as_its_text(name: str, bom: str, tmp_path: Path) -> None:
+    """Windows PowerShell 5.1 writes `ssh pi candump -L can0 > run.log` as UTF-16 with a
+    BOM and CRLF line ends. It was an unknown format, and in a directory a skipped file
+    that let the gate pass over a real H001: it is read as the text it holds."""
+    from conftest import SAMPLES
+
+    text = (SAMPLES / name).read_text()
+    log = tmp_path / "logs" / name
+    log.parent.mkdir()
+    encoded = text.replace("\n", "\r\n").encode(bom)
+    log.write_bytes((b"\xff\xfe" if bom == "utf-16-le" else b"\xfe\xff") + encoded)
+    profile = load_profile()
+    rules = select_rules(profile, [], [])
+    want = check_input(str(SAMPLES / name), 0, profile, rules)
+    got = check_input(str(log), 0, profile, rules)
+    assert (got.stats.format, got.stats.frames, got.stats.skipped) == (
+        want.stats.format, want.stats.frames, want.stats.skipped)
+    assert [(f.rule, f.node, f.time, f.line) for f in got.findings] == [
+        (f.rule, f.node, f.time, f.line) for f in want.findings]
+    res = run_cli("check", str(log.parent), cwd=tmp_path)
+    assert res.returncode == 1 and "H001" in res.stdout and "no log (skipped)" not in res.stdout

@@ -268,3 +268,89 @@ def test_equal_timestamps_are_no_timestamps(checker: Checker) -> None:
 def test_timestamped_log_gives_no_i006(checker: Checker) -> None:
     fr = [(0.0, "702#00"), (0.1, "702#7F")]
     assert checker.findings(candump(fr), select="I006") == []
+
+
+def _screen(frames: list[str]) -> str:
+    """`candump can0` screen output without timestamps of `ID#DATA` / `ID#R` frames."""
+    out = []
+    for frame in frames:
+        cid, _, data = frame.partition("#")
+        if data == "R":
+            out.append(f"  can0  {cid}   [0]  remote request\n")
+        else:
+            pairs = " ".join(data[i:i + 2] for i in range(0, len(data), 2))
+            out.append(f"  can0  {cid}   [{len(data) // 2}]  {pairs}\n")
+    return "".join(out)
+
+
+def _codes(checker: Checker, frames: list[str], select: str = "") -> list[tuple[str, int | None]]:
+    res = checker.run(_screen(frames), select=select, suffix=".txt")
+    assert res.stats.order_only
+    return [(f.rule, f.node) for f in res.findings if f.rule != "I006"]
+
+
+def test_no_timestamps_a_guarding_answer_may_follow_other_frames(checker: Checker) -> None:
+    """N's data frame right after a request to 700h+N answers it, whatever other nodes
+    sent between (frame numbers are no response time): 85h is toggle 1 + OPERATIONAL, no
+    C003, no G001, no G004. A review found every Lely and CANopenNode network with a
+    guarded node FAIL so when pasted without timestamps."""
+    ok = ["704#R", "704#05", "704#R", "702#05", "704#85", "704#R", "702#05", "703#05",
+          "704#05"]
+    assert _codes(checker, ok) == []
+    repeated = ["704#R", "704#05", "704#R", "702#05", "704#05"]  # the toggle not flipped
+    assert _codes(checker, repeated) == [("G001", 4)]
+
+
+def test_no_timestamps_the_report_right_after_a_command_may_be_stale(checker: Checker
+                                                                     ) -> None:
+    """CANopenNode: `000#0102`, then node 2's heartbeat queued before it (7Fh), its TPDO,
+    then 05h. Its first report after the command may still be a queued one: no S001, no
+    S005. Reporting 7Fh twice, it did not start: its TPDO after that is S001."""
+    start = ["702#00", "702#7F", "000#0102", "702#7F", "182#00000000", "702#05"]
+    assert _codes(checker, start) == []
+    ignored = ["702#00", "702#7F", "000#0102", "702#7F", "702#7F", "182#00000000"]
+    assert _codes(checker, ignored, select="S001") == [("S001", 2)]
+
+
+def test_no_timestamps_b003_needs_its_boot_ups_in_a_row(checker: Checker) -> None:
+    """Without a window B003 takes a 00h right after N's previous 00h (N heartbeats 00h);
+    a node that reported another state between its two boot-ups rebooted: B002."""
+    repeated = ["703#00", "703#00", "703#00", "703#05"]
+    assert _codes(checker, repeated, select="B002,B003") == [("B003", 3)]
+    rebooted = ["703#00", "703#7F", "702#05", "703#7F", "703#00", "703#7F"]
+    assert _codes(checker, rebooted, select="B002,B003") == [("B002", 3)]
+
+
+def test_no_timestamps_no_n002_from_frame_numbers(checker: Checker) -> None:
+    """N002's intervals need time: node 2's heartbeats 3 and 6 frames apart in turn are
+    no two producers. Its state pattern (7F, 05, 7F, 05) still is."""
+    frames = ["702#00"]
+    for k in range(6):  # node 2 every 3rd, then every 6th frame, in turn
+        frames += ["702#7F"] + ["703#7F"] * (2 if k % 2 == 0 else 5)
+    assert _codes(checker, frames, select="N002") == []
+    pattern = ["702#00", "702#7F", "702#05", "702#7F", "702#05"]
+    assert _codes(checker, pattern, select="N002") == [("N002", 2)]
+
+
+def test_no_timestamps_a_tpdo_before_the_boot_up_that_answers_a_reset(checker: Checker
+                                                                      ) -> None:
+    """Lely's TPDOs right after `000#8100` were queued before the reset (2 us with
+    timestamps, within B001's grace): without time, a TPDO before the boot-up that
+    answers the reset is no sign of life. A node that goes on reporting does not reset."""
+    reset = ["702#05", "182#01", "000#8100", "182#02", "702#00", "702#7F"]
+    assert _codes(checker, reset, select="B001") == []
+    alive = ["702#05", "000#8102", "702#05", "702#05", "702#05"]
+    assert _codes(checker, alive, select="B001") == [("B001", 2)]
+
+
+def test_no_timestamps_a_start_before_a_self_starting_node_reports(checker: Checker
+                                                                  ) -> None:
+    """CANopenNode's self-starting slave sends its TPDO right after its boot-up; the master
+    starts it before its first heartbeat, so that heartbeat (05h) cannot show whether it
+    started itself. With timestamps S001's grace after the reset covers the TPDO (16 us);
+    without them, its PDOs before the command are unjudged, as SPEC §2 has it for a reset
+    or a boot-up before the first report. Reporting 7Fh first, it did not start itself."""
+    started = ["000#8203", "703#00", "183#03000000", "000#0103", "703#05", "183#04000000"]
+    assert _codes(checker, started, select="S001,S005") == []
+    told = ["000#8203", "703#00", "183#03000000", "703#7F", "000#0103", "703#05"]
+    assert _codes(checker, told, select="S001") == [("S001", 3)]

@@ -193,3 +193,46 @@ def test_canopennode_sample(name: str, variant: str, tmp_path: Path) -> None:
 
 def test_every_canopennode_log_has_an_expectation() -> None:
     assert {p.stem for p in (SAMPLES / "canopennode").glob("*.log")} == set(CANOPENNODE)
+
+
+# -- the same recordings pasted without timestamps (SPEC §1) ------------------------------
+
+TIMELESS_CASES = sorted(
+    [p for p in (SAMPLES / "lely").rglob("*.log") if "boot" not in p.parts]
+    + list((SAMPLES / "canopennode").glob("*.log")) + list(SAMPLES.glob("*.log")))
+
+
+def _screen_output(log: Path, out: Path) -> None:
+    """`log` (candump -L) as `candump can0` prints it without -t: one frame a line, so the
+    line numbers stay the same."""
+    lines = []
+    for line in log.read_text().splitlines():
+        _ts, iface, frame, *_direction = line.split()  # python-canopen's: R or T
+        cid, _, data = frame.partition("#")
+        if data.startswith("R"):
+            lines.append(f"  {iface}  {cid}   [{data[1:] or 0}]  remote request")
+        else:
+            pairs = " ".join(data[i:i + 2] for i in range(0, len(data), 2))
+            lines.append(f"  {iface}  {cid}   [{len(data) // 2}]  {pairs}")
+    out.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("log", TIMELESS_CASES, ids=lambda p: str(p.relative_to(SAMPLES)))
+def test_real_stack_pasted_without_timestamps(log: Path, tmp_path: Path) -> None:
+    """Every recording from a real stack, pasted as `candump can0` prints it (no
+    timestamps), gives its timestamped findings (same rule, node and line) less those of
+    the rules that need time, plus I006: no order-only artefact. A review found Lely's
+    and CANopenNode's healthy networks FAIL so: guarding answers with another node's
+    frame before them taken for heartbeats (C003, G001, G004), CANopenNode's heartbeat
+    queued before a start (S001, S005), frame numbers taken for intervals (N002, B003)."""
+    from nmtcheck.engine import TIME_RULES
+
+    network = next((p / "network.toml" for p in log.parents
+                    if (p / "network.toml").exists()), None)
+    pasted = tmp_path / f"{log.stem}.txt"
+    _screen_output(log, pasted)
+    timed, timeless = _check(log, network), _check(pasted, network)
+    assert timeless.stats.order_only and timeless.stats.frames == timed.stats.frames
+    want = sorted((f.rule, f.node, f.line) for f in timed.findings if f.rule not in TIME_RULES)
+    got = sorted((f.rule, f.node, f.line) for f in timeless.findings if f.rule != "I006")
+    assert got == want

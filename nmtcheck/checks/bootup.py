@@ -95,6 +95,9 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float, grace
     has_sign = sign.idx < limit
     other = ctx.model.first_tx_after_resets(m)  # TPDO, SDO response, EMCY (after the grace)
     has_other = (other.idx >= 0) & (other.idx < limit) & (~has_sign | (other.idx < sign.idx))
+    if m.order_only:  # no grace without time: a TPDO, SDO or EMCY before the boot-up that
+        # answers the reset may have been queued (Lely's TPDOs 2 us after `000#8100`)
+        has_other &= boot_idx >= next_idx
     has_sign &= ~has_other
     restarted = ((next_idx < never) & (next_idx < boot_idx)
                  & (next_ts - r_ts <= timeout + EPS))  # a newer reset restarts the wait
@@ -168,8 +171,13 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
 
     Each reset command (within B002's `reset_window_ms`) explains one boot-up, as for
     B002: two resets sent back to back (Lely's `000#8100` then `000#8200`) are answered
-    by two boot-ups, no repeat."""
+    by two boot-ups, no repeat. In a log without timestamps (no window) a repeat is a
+    00h right after N's previous 00h, with no other report of N between: a node that
+    reported another state in between booted again (B002), it did not heartbeat 00h."""
     runs: list[list[EcFrame]] = []
+    if m.order_only:
+        reports = (m.ec.kind == HEARTBEAT) | (m.ec.kind == GUARD)
+        seen = np.cumsum(reports)  # reports of N up to each row
     prev: EcFrame | None = None
     resets = m.commands.reset_idx.tolist()
     reset_ts = m.commands.reset_ts.tolist()
@@ -184,7 +192,8 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
         explained = bool(unanswered)
         if unanswered:
             unanswered.popleft()
-        if prev is not None and b.ts - prev.ts <= window + EPS and not explained:
+        in_a_row = not m.order_only or seen[b.pos] == seen[prev.pos] if prev else False
+        if prev is not None and b.ts - prev.ts <= window + EPS and not explained and in_a_row:
             if runs and runs[-1][-1] is prev:
                 runs[-1].append(b)
             else:

@@ -91,7 +91,7 @@ def _duplicate_evidence(m: NodeModel) -> tuple[EcFrame, str] | None:
         i = int(alt[0])
         found.append((int(hb[runs[i + 3]]), 0, f"its heartbeat alternates between "
                       f"{state_name(int(a[i]))} and {state_name(int(b[i]))}"))
-    if len(hb) >= 5:
+    if len(hb) >= 5 and not m.order_only:  # intervals of frame numbers mean nothing
         g = np.diff(ts)
         if ec.runs is not None:  # a dropped run's pair: one of its (steady) intervals
             r = ec.runs.at_rows(hb[1:])

@@ -358,7 +358,37 @@ def _decompressed(raw: IO[bytes], magic: bytes) -> tuple[IO[bytes], str]:
         return lzma.LZMAFile(raw), "xz"
     if magic.startswith(b"\x28\xb5\x2f\xfd"):
         return io.BufferedReader(_ZstdFrames(raw)), "zstd"
+    if magic.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        return io.BufferedReader(_Utf16Text(raw)), "utf-16"
     return raw, ""
+
+
+class _Utf16Text(io.RawIOBase):
+    """A UTF-16 text log (with its BOM) read as UTF-8: what Windows PowerShell 5.1 writes
+    for `ssh pi candump -L can0 > run.log`. Unread, such a log was "unknown log format",
+    and in a directory a skipped file that let the gate pass. A byte sequence that is no
+    UTF-16 becomes U+FFFD, so its line is a skipped record, counted."""
+
+    READ_BYTES = 1 << 16
+
+    def __init__(self, raw: IO[bytes]) -> None:
+        self.raw = raw
+        self.decoder = codecs.getincrementaldecoder("utf-16")("replace")
+        self.pending = b""
+        self.done = False
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: Any) -> int:
+        while not self.pending and not self.done:
+            chunk = self.raw.read(self.READ_BYTES)
+            self.done = not chunk
+            self.pending = self.decoder.decode(chunk, final=self.done).encode("utf-8")
+        n = min(len(b), len(self.pending))
+        b[:n] = self.pending[:n]
+        self.pending = self.pending[n:]
+        return n
 
 
 class _ZstdFrames(io.RawIOBase):
@@ -556,7 +586,7 @@ class Source:
     path: str  # the name to show in messages
     stream: IO[bytes]  # buffered, from the first byte of the (decompressed) content
     errors: tuple[type[Exception], ...]  # what a damaged stream raises while being read
-    compression: str = ""  # "", "gzip", "bzip2", "xz" or "zstd"
+    compression: str = ""  # "", "gzip", "bzip2", "xz", "zstd" or "utf-16" (text, re-encoded)
     file_path: str | None = None  # the path on disk when uncompressed (for seeking libraries)
     options: dict[str, Any] = field(default_factory=dict)  # e.g. {"topics": [...]} from --topic
     first_line: int = 1  # the line number of the stream's first line (after leading lines)
