@@ -397,13 +397,24 @@ def expand_inputs(args: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
     return tuple(out), not_logs
 
 
+# Suffixes that only logs have: a file below a directory named so whose content is no
+# log format is a damaged or empty recording (a cut-off .blf, a 0-byte .mf4), not some
+# other file, and checking it fails the gate; `.log`, `.txt` and `.csv` are left to the
+# content (build.log, README.txt).
+LOG_SUFFIXES = (".asc", ".blf", ".mf4", ".trc", ".mcap", ".pcap", ".pcapng")
+COMPRESSED_SUFFIXES = ("", ".gz", ".bz2", ".xz", ".zst")
+
+
 def is_log(path: str) -> bool:
     """Whether the content of `path` is a log format nmtcheck reads (detected from the
     first bytes, as `check` does). A file that cannot be opened counts as a log: checking
-    it names the reason."""
+    it names the reason; so does one whose suffix only logs have (LOG_SUFFIXES)."""
     try:
         opened = open_input(path)
     except InputError as exc:
+        if path.lower().endswith(tuple(s + z for s in LOG_SUFFIXES
+                                       for z in COMPRESSED_SUFFIXES)):
+            return True
         return not exc.message.startswith(("unknown log format", "empty file"))
     opened.batches.close()
     return True

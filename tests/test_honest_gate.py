@@ -134,6 +134,27 @@ def test_a_directory_means_every_log_below_it(tmp_path: Path) -> None:
                           "no log file below this directory", "1 file whose content")
 
 
+def test_a_damaged_recording_below_a_directory_fails_the_gate(tmp_path: Path) -> None:
+    """A file whose suffix only logs have (.blf, .mf4, .asc, ...) but whose content is no
+    log format is a cut-off or empty recording, not some other file: skipped, it let the
+    gate pass. It is an unreadable input, exit 2, named. notes.txt and build.log whose
+    content is no log stay skipped."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "a.log").write_bytes(HEALTHY.read_bytes())
+    (logs / "build.log").write_text("make: Nothing to be done for 'all'.\n")
+    (logs / "notes.txt").write_text("what we did on day 1\n")
+    (logs / "cut.blf").write_bytes(b"LOG")  # a BLF cut after 3 bytes
+    (logs / "empty.MF4").write_bytes(b"")
+    res = run("check", "logs", "--format", "json", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    doc = json.loads(res.stdout)
+    assert [(i["path"], i["error"] is None) for i in doc["inputs"]] == [
+        ("logs/a.log", True), ("logs/cut.blf", False), ("logs/empty.MF4", False)]
+    assert doc["not_logs"] == ["logs/build.log", "logs/notes.txt"]
+    assert "nmtcheck: logs/cut.blf: unknown log format" in res.stderr
+
+
 # 4. rules that could not run -------------------------------------------------------------
 
 def test_rules_without_what_they_need_are_not_evaluated_not_passed(tmp_path: Path) -> None:
