@@ -527,3 +527,21 @@ def test_a_utf16_log_is_read_as_its_text(name: str, bom: str, tmp_path: Path) ->
         (f.rule, f.node, f.time, f.line) for f in want.findings]
     res = run_cli("check", str(log.parent), cwd=tmp_path)
     assert res.returncode == 1 and "H001" in res.stdout and "no log (skipped)" not in res.stdout
+
+
+def test_td_paste_of_one_node_whose_deltas_never_decrease(tmp_path: Path) -> None:
+    """`candump -td can0,703:7FF`: one node's 100 ms heartbeat whose jitter happens to
+    grow never goes down, so it looked like -tz (five heartbeats in 0.1 ms: H001, timeout
+    0). Read as offsets, every frame after the second would come within a twentieth of
+    the first gap: deltas. A -tz log keeps growing and stays offsets."""
+    deltas = ["0.000000", "0.099981", "0.100002", "0.100033", "0.100079", "0.100102"]
+    td = write(tmp_path, [f" ({d})  can0  703   [1]  05" for d in deltas])
+    _stats, cols = read_columns(td)
+    assert np.diff(cols["ts"]).round(6).tolist() == [float(d) for d in deltas[1:]]
+    offsets = ["0.000000", "0.100000", "0.200000", "0.300000", "0.400000", "0.500000"]
+    tz = tmp_path / "tz.txt"
+    tz.write_text("".join(f" ({d})  can0  703   [1]  05\n" for d in offsets))
+    _stats, cols = read_columns(tz)
+    assert (cols["ts"] - cols["ts"][0]).round(6).tolist() == [float(d) for d in offsets]
+    res = run_cli("check", str(td), cwd=tmp_path)
+    assert res.returncode == 0, res.stdout

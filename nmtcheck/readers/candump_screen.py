@@ -201,8 +201,12 @@ def _split(raw: bytes) -> tuple[bytes | None, bytes]:
 
 
 def _looks_like_deltas(lines: list[bytes]) -> bool:
-    """True when relative stamps go down somewhere: deltas (-td), not offsets (-tz)."""
-    previous = None
+    """True when relative stamps go down somewhere: deltas (-td), not offsets (-tz). Or,
+    never going down, when read as offsets every frame after the first two would come
+    within a twentieth of the first gap of each other, while read as deltas they are
+    about equal: `candump -td can0,703:7FF` of one node's 100 ms heartbeat whose jitter
+    happens to grow (0, 0.099981, 0.100002, 0.100033, ...), not five heartbeats in 0.1 ms."""
+    values: list[float] = []
     for raw in lines:
         stamp, _rest = _split(raw)
         if stamp is None:
@@ -211,10 +215,13 @@ def _looks_like_deltas(lines: list[bytes]) -> bool:
         if number is None or not _is_relative(number[1]):
             continue
         value = float(stamp)
-        if previous is not None and value < previous:
+        if values and value < values[-1]:
             return True
-        previous = value
-    return False
+        values.append(value)
+    if len(values) < 5 or values[1] <= 0:
+        return False
+    spread = values[-1] - values[1]  # what all frames after the second span as offsets
+    return spread < values[1] / 20
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
