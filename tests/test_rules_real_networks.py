@@ -354,3 +354,14 @@ def test_no_timestamps_a_start_before_a_self_starting_node_reports(checker: Chec
     assert _codes(checker, started, select="S001,S005") == []
     told = ["000#8203", "703#00", "183#03000000", "703#7F", "000#0103", "703#05"]
     assert _codes(checker, told, select="S001") == [("S001", 3)]
+
+
+def test_a_boot_up_earlier_in_time_than_the_last_is_no_repeat(checker: Checker) -> None:
+    """Two captures in one file (`cat a.log b.log`): node 3's boot-up of the second has an
+    earlier time than its last of the first. That is no boot-up repeated "over -0.102 s"
+    (B003, an error); I005 says the time went back."""
+    first = [(10.0, "703#00"), (10.1, "703#7F"), (10.2, "703#7F")]
+    second = [(9.9, "703#00"), (10.0, "703#7F")]
+    text = candump(first) + candump(second)
+    got = checker.findings(text, select="B002,B003,I005")
+    assert sorted(r for r, _n, _t in got) == ["B002", "I005"], got
