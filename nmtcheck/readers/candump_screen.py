@@ -89,6 +89,12 @@ def _data(tokens: list[bytes], n: int) -> bytes:
     """n data bytes from hex (`11`) or binary (`-i`: `00010001`) tokens."""
     if len(tokens) < n:
         raise _Bad(f"expected {n} data bytes, found {len(tokens)}")
+    head = tokens[:n]
+    if all(len(tok) == 2 for tok in head):  # hex pairs, the usual: one call, not n
+        try:
+            return bytes.fromhex(b"".join(head).decode("latin-1"))
+        except ValueError:
+            pass  # a token that is not hex: the loop below names it
     out = bytearray()
     for tok in tokens[:n]:
         if len(tok) == 2 and (value := unsigned(tok, 16)) is not None:
