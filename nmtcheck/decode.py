@@ -425,24 +425,34 @@ class Decoded:
         keep = idx >= 0
         return {"ts": ts[keep], "idx": idx[keep], "line": lines[keep], "count": counts[keep]}
 
-    def first_frame_at_or_after(self, moments: list[float]) -> list[FrameAt | None]:
-        """(frame index, line) of the first frame whose time is >= each moment."""
+    def first_frame_at_or_after(self, moments: list[float],
+                                after: list[int | None] | None = None) -> list[FrameAt | None]:
+        """(frame index, line) of the first frame whose time is >= each moment, and that
+        comes after frame `after[i]` where one is given (the moment's evidence: where time
+        goes back, the first such frame in file order can be in another capture)."""
         result: list[FrameAt | None] = [None] * len(moments)
         if not moments:
             return result
+        after = after or [None] * len(moments)
         order = np.argsort(np.asarray(moments, np.float64), kind="stable")
         pending = list(order)
         for chunk in self.frame_times.reaching(min(moments)):
             if not pending:
                 break
             ts = chunk["ts"]
+            base = int(chunk["base"][0])
             runmax = np.maximum.accumulate(ts)  # tolerate timestamps that go backwards
             qs = np.asarray([moments[i] for i in pending], np.float64)
             pos = np.searchsorted(runmax, qs, side="left")
             still = []
-            for q, p in zip(pending, pos, strict=True):
+            for q, p in zip(pending, pos.tolist(), strict=True):
+                a = after[q]
+                if a is not None and base + p <= a:  # time went back: look after frame a
+                    start = max(a + 1 - base, 0)
+                    hit = np.flatnonzero(ts[start:] >= moments[q])[:1]
+                    p = start + int(hit[0]) if hit.size else len(ts)
                 if p < len(ts):
-                    result[q] = FrameAt(int(chunk["base"][0]) + int(p), _line_at(chunk, int(p)))
+                    result[q] = FrameAt(base + p, _line_at(chunk, p))
                 else:
                     still.append(q)
             pending = still

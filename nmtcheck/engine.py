@@ -22,6 +22,7 @@ from nmtcheck.boot import BootAnalysis
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import (
     SEVERITIES,
+    After,
     Check,
     Located,
     NodeCheck,
@@ -30,7 +31,7 @@ from nmtcheck.checks.base import (
     Problems,
     Rule,
 )
-from nmtcheck.decode import decode
+from nmtcheck.decode import FrameAt, decode
 from nmtcheck.ec_compact import unsafe_nodes
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.evaluated import finding_bases
@@ -305,6 +306,8 @@ def _node_problems(r: Rule, contexts: list[NodeContext], params: dict[str, Any])
                     yield m, replace(found, channel=cm.name, node=m.node)
                 elif len(found) == 2:
                     yield m, Problem(cm.name, m.node, found[0], found[1])
+                elif isinstance(found[2], After):
+                    yield m, Problem(cm.name, m.node, found[0], found[1], after=found[2].idx)
                 else:
                     idx, line = _frame_of(found[2])
                     yield m, Problem(cm.name, m.node, found[0], found[1], idx, line)
@@ -579,8 +582,14 @@ def _check_in_worker(path: str, index: int, profile: Profile, codes: list[str],
 def _locate(model: InputModel, problems: list[tuple[Rule, Problem]]) -> None:
     """Give moment findings the first frame at or after their moment."""
     moments = [p for _r, p in problems if p.frame_index is None]
-    found = model.decoded.first_frame_at_or_after([p.time for p in moments])
+    found = model.decoded.first_frame_at_or_after([p.time for p in moments],
+                                                  [p.after for p in moments])
+    last: tuple[float, FrameAt] | None = None
     for p, hit in zip(moments, found, strict=True):
+        if hit is None and p.after is not None:  # time went back and never came up to the
+            if last is None:  # moment again: the trace's end, as for "the rest of the trace"
+                last = model.decoded.last_frame(model.end)
+            hit = last[1] if last is not None else None
         if hit is not None:
             p.frame_index, p.line = hit
 

@@ -365,3 +365,20 @@ def test_a_boot_up_earlier_in_time_than_the_last_is_no_repeat(checker: Checker) 
     text = candump(first) + candump(second)
     got = checker.findings(text, select="B002,B003,I005")
     assert sorted(r for r, _n, _t in got) == ["B002", "I005"], got
+
+
+def test_a_timeout_in_the_second_of_two_captures_points_into_it(checker: Checker) -> None:
+    """A log pasted twice into one file (`cat run.log run.log`): each H001 points at a line
+    of its own copy. Located by time alone, both pointed into the first copy (the first
+    frame in the file at or after the moment); now at the first such frame after the
+    heartbeat the timeout was counted from."""
+    from conftest import SAMPLES
+
+    text = (SAMPLES / "heartbeat_loss.log").read_text()
+    n = len(text.splitlines())
+    single = checker.run(text, select="H001")
+    double = checker.run(text + text, select="H001")
+    lines = [f.line or 0 for f in single.findings]
+    assert lines and all(lines)
+    assert sorted(f.line or 0 for f in double.findings) == sorted(
+        lines + [line + n for line in lines])

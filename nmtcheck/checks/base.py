@@ -56,6 +56,7 @@ class Problem:
     message: str
     frame_index: int | None = None  # None: a moment; the engine finds the first frame at/after it
     line: int | None = None
+    after: int | None = None  # a moment's evidence frame: the frame found comes after it
 
 
 @dataclass
@@ -108,6 +109,16 @@ def batch(time: np.ndarray, message: Callable[[int], str], frame_index: np.ndarr
     return Problems(None, None, time, message, frame_index, line)
 
 
+@dataclass(frozen=True)
+class After:
+    """A moment found from frame `idx` (a timeout from the last heartbeat before it): the
+    finding points at the first frame at or after the moment that comes after that frame.
+    Where time goes back (two captures in one file), the first frame at or after the
+    moment in file order can lie in the other capture."""
+
+    idx: int
+
+
 class Located(Protocol):
     """A frame a finding points at: an `EcFrame`, `NmtFrame`, ... (anything with these)."""
 
@@ -118,9 +129,9 @@ class Located(Protocol):
 
 
 Params = dict[str, Any]
-# What a per-node check yields: a moment (the engine finds its frame), a moment at a frame
-# (a `Located` or an (index, line) pair), or a batch.
-Found = tuple[float, str] | tuple[float, str, Located | tuple[int, int]] | Problems
+# What a per-node check yields: a moment (the engine finds its frame, after an `After`'s
+# frame where given), a moment at a frame (a `Located` or an (index, line) pair), or a batch.
+Found = tuple[float, str] | tuple[float, str, Located | tuple[int, int] | After] | Problems
 Check = Callable[[InputModel, Params], Iterator["Problem | Problems"]]
 NodeCheck = Callable[[NodeModel, "NodeContext", Params], Iterator[Found]]
 
