@@ -22,7 +22,6 @@ from nmtcheck.boot import BootAnalysis
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import (
     SEVERITIES,
-    After,
     Check,
     Located,
     NodeCheck,
@@ -37,7 +36,7 @@ from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.evaluated import finding_bases
 from nmtcheck.evaluated import not_evaluated as rules_not_evaluated
 from nmtcheck.frames import FrameBatch
-from nmtcheck.model import InputModel, Master, NodeModel, TimelineParams
+from nmtcheck.model import InputModel, Master, NodeModel, TimelineParams, Timeout
 from nmtcheck.network import Network
 from nmtcheck.nmt import UNKNOWN
 from nmtcheck.profiles import Profile, RuleSettings
@@ -306,8 +305,9 @@ def _node_problems(r: Rule, contexts: list[NodeContext], params: dict[str, Any])
                     yield m, replace(found, channel=cm.name, node=m.node)
                 elif len(found) == 2:
                     yield m, Problem(cm.name, m.node, found[0], found[1])
-                elif isinstance(found[2], After):
-                    yield m, Problem(cm.name, m.node, found[0], found[1], after=found[2].idx)
+                elif isinstance(found[2], Timeout):  # its frame comes after the wait's start
+                    yield m, Problem(cm.name, m.node, found[0], found[1],
+                                     after=found[2].after_idx)
                 else:
                     idx, line = _frame_of(found[2])
                     yield m, Problem(cm.name, m.node, found[0], found[1], idx, line)

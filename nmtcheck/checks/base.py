@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from nmtcheck.model import ChannelModel, InputModel, Master, NodeModel, TimelineParams
+from nmtcheck.model import ChannelModel, InputModel, Master, NodeModel, TimelineParams, Timeout
 
 SEVERITIES = ("error", "warning", "info")  # the one order: most severe first
 
@@ -109,16 +109,6 @@ def batch(time: np.ndarray, message: Callable[[int], str], frame_index: np.ndarr
     return Problems(None, None, time, message, frame_index, line)
 
 
-@dataclass(frozen=True)
-class After:
-    """A moment found from frame `idx` (a timeout from the last heartbeat before it): the
-    finding points at the first frame at or after the moment that comes after that frame.
-    Where time goes back (two captures in one file), the first frame at or after the
-    moment in file order can lie in the other capture."""
-
-    idx: int
-
-
 class Located(Protocol):
     """A frame a finding points at: an `EcFrame`, `NmtFrame`, ... (anything with these)."""
 
@@ -129,9 +119,11 @@ class Located(Protocol):
 
 
 Params = dict[str, Any]
-# What a per-node check yields: a moment (the engine finds its frame, after an `After`'s
-# frame where given), a moment at a frame (a `Located` or an (index, line) pair), or a batch.
-Found = tuple[float, str] | tuple[float, str, Located | tuple[int, int] | After] | Problems
+# What a per-node check yields: a moment (the engine finds its frame; for a `Timeout`'s,
+# one after the frame the wait started from: where time goes back, as in two captures in
+# one file, the first frame at the moment can lie in the other capture), a moment at a
+# frame (a `Located` or an (index, line) pair), or a batch.
+Found = tuple[float, str] | tuple[float, str, Located | tuple[int, int] | Timeout] | Problems
 Check = Callable[[InputModel, Params], Iterator["Problem | Problems"]]
 NodeCheck = Callable[[NodeModel, "NodeContext", Params], Iterator[Found]]
 

@@ -7,16 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from nmtcheck.checks.base import (
-    After,
-    Found,
-    NodeContext,
-    Param,
-    Params,
-    count_note,
-    rule,
-    run_starts,
-)
+from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
 from nmtcheck.model import EcTable, NodeModel
 from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST, between
 
@@ -103,7 +94,7 @@ def guard_no_response(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
         if t.rule == "G002":
             n = f" ({t.requests} requests in a row)" if t.requests > 1 else ""
             yield (t.moment, f"no guarding response from node {m.node} to the remote request "
-                   f"at {t.after_ts - ctx.start:.6f} s{n}", After(t.after_idx))
+                   f"at {t.after_ts - ctx.start:.6f} s{n}", t)
 
 
 @rule("G003", "guard-interval-exceeded", "warning")

@@ -6,16 +6,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from nmtcheck.checks.base import (
-    After,
-    Found,
-    NodeContext,
-    Param,
-    Params,
-    count_note,
-    rule,
-    run_starts,
-)
+from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
 from nmtcheck.model import NodeModel, SmallEc
 from nmtcheck.nmt import (
     BOOTUP,
@@ -69,7 +60,7 @@ def heartbeat_timeout(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
             limit = f"consumer time {t.limit_s:.3f} s{whose}"
         else:
             limit = f"timeout {t.limit_s:.3f} s"
-        yield t.moment, f"{what} ({limit})", After(t.after_idx)
+        yield t.moment, f"{what} ({limit})", t
 
 
 @rule("H002", "heartbeat-too-early", "warning",
