@@ -402,8 +402,9 @@ def expand_inputs(args: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
 # log format is a damaged or empty recording (a cut-off .blf, a 0-byte .mf4), not some
 # other file, and checking it fails the gate; `.log`, `.txt` and `.csv` are left to the
 # content (build.log, README.txt).
-LOG_SUFFIXES = (".asc", ".blf", ".mf4", ".trc", ".mcap", ".pcap", ".pcapng")
-COMPRESSED_SUFFIXES = ("", ".gz", ".bz2", ".xz", ".zst")
+LOG_SUFFIXES = tuple(suffix + packed
+                     for suffix in (".asc", ".blf", ".mf4", ".trc", ".mcap", ".pcap", ".pcapng")
+                     for packed in ("", ".gz", ".bz2", ".xz", ".zst"))
 
 
 def is_log(path: str) -> bool:
@@ -413,8 +414,7 @@ def is_log(path: str) -> bool:
     try:
         opened = open_input(path)
     except InputError as exc:
-        if path.lower().endswith(tuple(s + z for s in LOG_SUFFIXES
-                                       for z in COMPRESSED_SUFFIXES)):
+        if path.lower().endswith(LOG_SUFFIXES):
             return True
         return not exc.message.startswith(("unknown log format", "empty file"))
     opened.batches.close()

@@ -1003,22 +1003,23 @@ def _self_start_queries(m: NodeModel, end: float) -> list[tuple[NodeModel, int, 
     next_boot_ts = np.append(b_ts[1:], end)
     msg: np.ndarray = _next_of(ec.idx[msgs], b_idx, msgs, -1).astype(np.int64)
     msg_idx = np.where(msg >= 0, ec.idx[msg], never)
-    next_cmd = _next_of(m.commands.idx, b_idx)
-    next_cmd_ts = _next_of(m.commands.idx, b_idx, m.commands.ts, end)
-    stop = np.minimum(next_boot, _next_of(m.commands.reset_idx, b_idx))
+    cmds = m.commands
+    next_cmd = _next_of(cmds.idx, b_idx)
+    stop = np.minimum(next_boot, _next_of(cmds.reset_idx, b_idx))
     answered = (msg_idx < stop) & (msg_idx < next_cmd)
     started = answered & (_CODE_STATE[ec.value[msg] & 0x7F] == STATE_INDEX[OPERATIONAL])
-    # no message before the next reset or boot-up, and no other command before it
-    unknown = (msg_idx >= stop) & (next_cmd >= stop)
-    span_end = np.minimum(next_boot_ts, _next_of(m.commands.reset_idx, b_idx,
-                                                 m.commands.reset_ts, end))
+    # No message before the next reset or boot-up, and no other command before it. Without
+    # timestamps any command to N before its first message ends the span too: the message
+    # reports what the command asked, self-started or not (CANopenNode's master starts a
+    # self-starting slave before its first heartbeat; the slave's TPDO right after its
+    # boot-up, 16 us, is within S001's grace with timestamps, and no S001 without them).
     if m.order_only:
-        # Without timestamps, any command to N before its first message: that message
-        # reports what the command asked, self-started or not. CANopenNode's master starts
-        # a self-starting slave before its first heartbeat, and the slave's TPDO right
-        # after its boot-up (16 us, within S001's grace with timestamps) is no S001.
         unknown = msg_idx >= np.minimum(next_boot, next_cmd)
-        span_end = np.minimum(next_boot_ts, next_cmd_ts)
+        ends, ends_ts = cmds.idx, cmds.ts
+    else:
+        unknown = (msg_idx >= stop) & (next_cmd >= stop)
+        ends, ends_ts = cmds.reset_idx, cmds.reset_ts
+    span_end = np.minimum(next_boot_ts, _next_of(ends, b_idx, ends_ts, end))
     m.unproven_spans = [(float(a), float(b)) for a, b in zip(
         b_ts[unknown].tolist(), span_end[unknown].tolist(), strict=True)]
     return [(m, int(boots[i]), int(b_idx[i]), int(msg_idx[i]))
@@ -1123,12 +1124,12 @@ def _stale_until(m: NodeModel, obey_s: float) -> np.ndarray:
     return np.where(k < reports.size, first, cmds.ts)
 
 
-def _interval_steps(m: NodeModel, obey_s: float) -> Iterator[tuple[float, int, int]]:
+def _interval_steps(m: NodeModel, until: np.ndarray) -> Iterator[tuple[float, int, int]]:
     """What the interval walk sees, in order: (time, what, reference) for each evidence
     frame, command, timeout and end of a timeout. At one moment a timeout comes first
     and its end last; the rest in file order."""
     ec, cmds = m.ec, m.commands
-    windows = list(zip(cmds.ts.tolist(), _stale_until(m, obey_s).tolist(), strict=True)) + [
+    windows = list(zip(cmds.ts.tolist(), until.tolist(), strict=True)) + [
         (t, t) for t in [t.moment for t in m.timeouts]
         + [t.ended_by for t in m.timeouts if t.ended_by is not None]]
     pos = _evidence(m, windows)
@@ -1207,14 +1208,15 @@ def _in_chunks(ts: np.ndarray, what: np.ndarray, ref: np.ndarray, steps: np.ndar
         yield from zip(ts[part].tolist(), what[part].tolist(), ref[part].tolist(), strict=True)
 
 
-def _walk_inputs(m: NodeModel, obey_s: float) -> tuple[
+def _walk_inputs(m: NodeModel, until: np.ndarray) -> tuple[
         Iterable[tuple[float, int, int]], array[int] | list[int], array[int] | list[int]]:
-    """The steps of `_intervals`' walk, and each frame's kind and reported state."""
+    """The steps of `_intervals`' walk (`until`: each command's stale window's end), and
+    each frame's kind and reported state."""
     if m.small is not None:  # a few frames, no command: lists
         return (_small_steps(m, m.small), m.small.kind,
                 [_CODE_STATE_LIST[v & 0x7F] for v in m.small.value])
     # compact arrays, not lists: one entry per frame, read one at a time
-    return (_interval_steps(m, obey_s), array("b", m.ec.kind.astype(np.int8).tobytes()),
+    return (_interval_steps(m, until), array("b", m.ec.kind.astype(np.int8).tobytes()),
             array("b", _CODE_STATE[m.ec.value & 0x7F].tobytes()))
 
 
@@ -1227,8 +1229,9 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     floats, never objects: a node may change state on every heartbeat.
     """
     ec, cmds = m.ec, m.commands
-    steps, kind, code_state = _walk_inputs(m, obey_s)
-    until = _stale_until(m, obey_s).tolist()
+    stale_until = _stale_until(m, obey_s)
+    steps, kind, code_state = _walk_inputs(m, stale_until)
+    until = stale_until.tolist()
     # per command, then per self-start (SPEC §2): the state it sets and the source
     cmd_state = [STATE_INDEX[COMMAND_STATE[c]] for c in cmds.cs.tolist()] + [
         STATE_INDEX[OPERATIONAL]] * len(m.self_starts)

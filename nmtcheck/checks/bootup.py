@@ -192,10 +192,9 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
         explained = bool(unanswered)
         if unanswered:
             unanswered.popleft()
-        in_a_row = not m.order_only or seen[b.pos] == seen[prev.pos] if prev else False
         # time going back (two captures in one file) makes no repeat: "over -0.102 s"
-        if prev is not None and -EPS <= b.ts - prev.ts <= window + EPS and not explained \
-                and in_a_row:
+        if (prev is not None and -EPS <= b.ts - prev.ts <= window + EPS and not explained
+                and (not m.order_only or seen[b.pos] == seen[prev.pos])):
             if runs and runs[-1][-1] is prev:
                 runs[-1].append(b)
             else:

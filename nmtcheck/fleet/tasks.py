@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,7 +111,7 @@ def worker_scratch() -> str | None:
 
 
 def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> BatchCounts:
-    from nmtcheck.decode import SCRATCH
+    from nmtcheck.decode import spill_directory  # below SCRATCH, made with signals held
 
     os.environ["NMTCHECK_THREADS"] = "1"
     from nmtcheck.checks import BY_CODE
@@ -133,7 +132,7 @@ def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> Batch
     # a directory only for fetched copies: local logs are read where they are (and a
     # worker that dies leaves no empty directory behind)
     fetching = any(not is_local(url) for url in wanted)
-    with (tempfile.TemporaryDirectory(prefix="nmtcheck-fleet-", dir=SCRATCH.get()) if fetching
+    with (spill_directory("nmtcheck-fleet-") if fetching
           else contextlib.nullcontext(None)) as tmp:
         local = fetch_all(wanted, Path(tmp or "."), cfg.storage_options)
         for fi, iid in zip(files, ids, strict=True):
