@@ -367,6 +367,20 @@ def test_a_boot_up_earlier_in_time_than_the_last_is_no_repeat(checker: Checker) 
     assert sorted(r for r, _n, _t in got) == ["B002", "I005"], got
 
 
+def test_a_boot_up_at_the_time_of_the_last_after_time_went_back_is_no_repeat(
+        checker: Checker) -> None:
+    """The same capture twice in one file (`cat run.asc run.asc`, each from 0 s): node 3's
+    second boot-up has the time of its first, but its heartbeats between them were later
+    than both. That was B003 "2 times in a row over 0.000 s" (an error: FAIL on a healthy
+    network); the time between the two is unknown. Two 00h at one time with nothing later
+    between them are still a repeat."""
+    run = [(0.0, "703#00"), (0.1, "703#7F"), (0.2, "703#7F")]
+    got = checker.findings(candump(run) + candump(run), select="B002,B003,I005")
+    assert sorted(r for r, _n, _t in got) == ["B002", "I005"], got
+    stuck = [(0.0, "703#00"), (0.0, "703#00"), (0.1, "703#7F")]
+    assert [r for r, _n, _t in checker.findings(candump(stuck), select="B003")] == ["B003"]
+
+
 def test_a_timeout_in_the_second_of_two_captures_points_into_it(checker: Checker) -> None:
     """A log pasted twice into one file (`cat run.log run.log`): each H001 points at a line
     of its own copy. Located by time alone, both pointed into the first copy (the first

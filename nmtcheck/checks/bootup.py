@@ -166,6 +166,13 @@ def _late_start(m: NodeModel, ctx: NodeContext, late_start_ms: float) -> Iterato
                f"trace with a heartbeat and no boot-up (limit {late:.3f} s)", first)
 
 
+def _time_went_back(between: np.ndarray, ts: float) -> bool:
+    """N's frames `between` two of its boot-ups include one later than the second boot-up
+    at `ts`: time went back between them (another capture appended to the file), so the
+    time from one to the other is unknown."""
+    return bool(len(between)) and float(between.max()) > ts + EPS
+
+
 def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFrame]]:
     """Runs of 00h frames that follow each other within the window with no reset between.
 
@@ -192,9 +199,11 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
         explained = bool(unanswered)
         if unanswered:
             unanswered.popleft()
-        # time going back (two captures in one file) makes no repeat: "over -0.102 s"
+        # time going back (two captures in one file) makes no repeat: "over -0.102 s",
+        # nor "over 0.000 s" where N's frames between the two were later than both
         if (prev is not None and -EPS <= b.ts - prev.ts <= window + EPS and not explained
-                and (not m.order_only or seen[b.pos] == seen[prev.pos])):
+                and (not m.order_only or seen[b.pos] == seen[prev.pos])
+                and not _time_went_back(m.ec.ts[prev.pos + 1:b.pos], b.ts)):
             if runs and runs[-1][-1] is prev:
                 runs[-1].append(b)
             else:
