@@ -178,6 +178,106 @@ def test_fuzzed_asc_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed:
     assert_same_reading(path, monkeypatch, "asc")
 
 
+# --- fuzzing around the candump screen output's fast path ---------------------------------
+
+
+def _screen_line(rnd: random.Random, mode: str, t: float) -> str:
+    """A line as candump prints it (` (%010ld.%06ld)  %*s  %03X   [%d]  %02X …`), with the
+    variants of its options: `-x`, `-a`, `-c`, CAN FD, 29-bit IDs, remote and error frames."""
+    stamp = {"bare": "", "ta": f"({t:017.6f}) ", "tz": f"({t % 1000:010.6f}) "}[mode]
+    iface = rnd.choice(("can0", "can0", "can0", "vcan12", "c", "can_with_long_nm", "a@b",
+                        "DROPCOUNTER0"))
+    cid = rnd.choice(("701", "000", "181", "7FF", "1abcDEF0", "20000004", "6a2"))
+    dlc = rnd.choice((0, 1, 1, 2, 4, 8, 8, 9))
+    data = [f"{rnd.randrange(256):02X}" for _ in range(min(dlc, 8))]
+    body = f" [{dlc}] " + "".join(f" {b}" for b in data)
+    r = rnd.random()
+    if r < 0.05:
+        body = f" [{rnd.choice((0, 1, 8))}]  remote request"
+    elif r < 0.08:
+        body = "[12] " + "".join(" 11" for _ in range(12))
+    elif r < 0.10:
+        body += "   ERRORFRAME"
+    elif r < 0.13:
+        body += "   '" + "." * len(data) + "'"
+    elif r < 0.15:
+        body += rnd.choice(("  # boot-up", "  <-- here", " x", "   "))
+    flags = rnd.choice(("", "", "", "  RX - -", "  TX B E"))
+    line = f" {stamp} {iface}{flags}  {cid}  {body}"
+    if rnd.random() < 0.03:
+        line = f"\x1b[1m\x1b[34m{line}\x1b[0m"
+    return line
+
+
+@pytest.mark.parametrize("mode", ["bare", "ta", "tz"])
+@pytest.mark.parametrize("seed", range(int(os.environ.get("FUZZ_SEEDS", "4"))))
+def test_fuzzed_screen_lines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, seed: int,
+                             mode: str) -> None:
+    rnd = random.Random(seed)
+    lines = [_screen_line(rnd, mode, 1700000000.0) for _ in range(5)]  # a clean start
+    t = 1700000000.0
+    for _ in range(3000):
+        t += rnd.choice((0.0, 0.000123, 0.01, 3.5))
+        line = _screen_line(rnd, mode, t)
+        if rnd.random() < 0.3:
+            line = _mutate(line, rnd)
+        if rnd.random() < 0.01:
+            line = rnd.choice(("DROPCOUNT: dropped 3 frames", "\tcontroller-problem{rx}",
+                               "$ candump can0", "", "  ", "# note", "..."))
+        lines.append(line + rnd.choice(("\n", "\n", "\r\n")))
+    path = tmp_path / "fuzz.txt"
+    path.write_bytes("".join(lines).encode("latin-1"))
+    monkeypatch.setattr(blocks, "BLOCK_BYTES", 4096)  # many blocks: lines cut at block ends
+    _stats, batches = _read(path, False, monkeypatch, "candump-screen")
+    assert sum(len(b) for b in batches) > 1000  # most lines are frames: the fast path ran
+    assert_same_reading(path, monkeypatch, "candump-screen")
+
+
+def test_screen_output_takes_the_fast_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                           ) -> None:
+    """`candump can0 > dump.txt` (no timestamps) and `-ta`: their lines are parsed a block at
+    a time, not one by one (1 M frames: 0.65 s against 6.8 s), with the same result."""
+    from nmtcheck.readers import candump_screen
+
+    calls: list[int] = []
+    parse = candump_screen._LineParser.parse
+
+    def counted(self: Any, *args: Any) -> Any:
+        calls.append(1)
+        return parse(self, *args)
+
+    frames = [(0x701, [0x7F]), (0x000, [0x01, 0x00]), (0x181, list(range(8))), (0x080, [])]
+    for stamp in ("", "(1700000000.100000) "):
+        text = "".join(f" {stamp} can0  {i:03X}   [{len(d)}] " + "".join(f" {b:02X}" for b in d)
+                       + "\n" for i, d in frames * 50)
+        path = tmp_path / "screen.txt"
+        path.write_text(text)
+        calls.clear()
+        with monkeypatch.context() as m:
+            m.setattr(candump_screen._LineParser, "parse", counted)
+            _stats, batches = _read(path, False, monkeypatch, "candump-screen")
+        assert sum(len(b) for b in batches) == 200 and calls == []
+        assert_same_reading(path, monkeypatch, "candump-screen")
+
+
+@pytest.mark.parametrize("block_bytes", [40, 4096])
+def test_screen_error_frame_explanation_ends_at_a_fast_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, block_bytes: int) -> None:
+    """`-e` explains an error frame on the tab-indented lines right after it. A frame line
+    in between (parsed by the fast path, never seen by the line parser) ends that: a damaged
+    tab-indented line after it is a skipped record, also across a block's end."""
+    lines = ["  can0  701   [1]  7F",
+             "  can0  20000004   [8]  00 04 00 00 00 00 00 00   ERRORFRAME",
+             "\tcontroller-problem{rx-error-warning}", "  can0  701   [1]  7F",
+             "\tcontroller-problem{rx-error-warning}", "  can0  701   [1]  7F"]
+    path = tmp_path / "screen.txt"
+    path.write_text("".join(line + "\n" for line in lines))
+    monkeypatch.setattr(blocks, "BLOCK_BYTES", block_bytes)
+    stats, _ = _read(path, False, monkeypatch, "candump-screen")
+    assert (stats.frames, stats.skipped, stats.skipped_lines) == (4, 1, [5])
+    assert_same_reading(path, monkeypatch, "candump-screen")
+
+
 # --- several logs at once, and what stderr shows ------------------------------------------
 
 

@@ -529,3 +529,34 @@ def pack_nibbles(nib: np.ndarray) -> np.ndarray:
 
 POW10 = 10.0 ** np.arange(20)
 MAX_EXACT = 2**53  # integers up to here are exact in a float64
+
+
+def decimal_stamps(line: LineWords, buf: np.ndarray, s: np.ndarray, ok: np.ndarray, dot: int,
+                   close: int, int_w: int, frac_w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(seconds, ok) of a decimal number per line: `int_w` (1..12) digits right-aligned
+    before offset `dot` (the `.`), `frac_w` (1..9) after it, up to offset `close` (the
+    byte after the number: candump's `)`). `ok` narrowed to the lines whose number is all
+    digits there; each value is float() of its text, correctly rounded."""
+    # the decimal's digits as one exact integer: the integer digits' last 8 and the
+    # fraction's last 8 as words, right-aligned before the dot and the close
+    low = fill_high(line.word(dot - 8), min(int_w, 8))
+    ok = ok & all_digits(low)
+    total = parse_digits(low)
+    if int_w > 8:
+        high = fill_high(line.word(dot - 16), int_w - 8)
+        ok &= all_digits(high)
+        total += parse_digits(high) * _U64(10**8)
+    frac = fill_high(line.word(close - 8), min(frac_w, 8))
+    ok &= all_digits(frac)
+    total = total * _U64(10**frac_w) + parse_digits(frac)
+    if frac_w == 9:  # nanoseconds: the fraction's first digit
+        first = line.byte(dot + 1) - _U64(0x30)  # non-digits wrap around: > 9
+        ok &= first <= _U64(9)
+        total += first * _U64(10**8)
+    # float(total) / 10**frac_w is the correctly rounded value, as float() of the text is.
+    ts = total.astype(np.float64) / POW10[frac_w]
+    # More than 16 digits may even overflow `total`: those take float() of the text.
+    inexact = ok if int_w + frac_w > 16 else ok & (total >= _U64(MAX_EXACT))
+    for i in np.flatnonzero(inexact).tolist():  # more digits than a double holds
+        ts[i] = float(buf[s[i] + dot - int_w:s[i] + close].tobytes())
+    return ts, ok

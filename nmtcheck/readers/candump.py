@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import re
 from binascii import unhexlify
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,19 +47,15 @@ from nmtcheck.readers import (
     plausible_time,
 )
 from nmtcheck.readers.blocks import (
-    MAX_EXACT,
-    POW10,
     Block,
     LineWords,
     SlowRow,
-    all_digits,
-    fill_high,
+    decimal_stamps,
     fill_low,
     find_byte,
     hex_nibbles,
     merged_batches,
     pack_nibbles,
-    parse_digits,
     parsed_blocks,
     reference_path,
 )
@@ -336,7 +332,7 @@ class _Layout:
 
 
 @dataclass
-class _Parsed:
+class ParsedLines:
     """A block's common-shape lines, parsed; the other lines are `slow`."""
 
     fast: np.ndarray  # row numbers (within the block) of the lines parsed here
@@ -359,7 +355,7 @@ FLAG_EXT, FLAG_RTR, FLAG_ERR = 1, 2, 4  # BatchBuilder's flag bits
 _ID_WIDE = 1 << 15  # in a block's shape key: the lines' CAN-IDs have 8 hex digits
 
 
-def _parse_block(block: Block, layout: _Layout) -> _Parsed:
+def _parse_block(block: Block, layout: _Layout) -> ParsedLines:
     """Vectorised parse of the lines of `block` that match `_FAST`; nothing else is touched.
 
     Lines are grouped by where their `)`, `.` and the space after the interface are (one
@@ -395,13 +391,13 @@ def _parse_block(block: Block, layout: _Layout) -> _Parsed:
     ok, ts, can_id, dlc, data, name, name_len, flags = cols
     data8 = data.view(np.uint8).reshape(-1, 8)
     if rows.size == n and bool(ok.all()):  # the usual block: every line has the common shape
-        return _Parsed(rows, np.empty(0, np.int64), ts, can_id, dlc, data8, name, name_len,
+        return ParsedLines(rows, np.empty(0, np.int64), ts, can_id, dlc, data8, name, name_len,
                        flags)
     good = np.flatnonzero(ok)
     fast = rows[good]
     is_fast = np.zeros(n, bool)
     is_fast[fast] = True
-    return _Parsed(fast, np.flatnonzero(~is_fast), ts[good], can_id[good], dlc[good],
+    return ParsedLines(fast, np.flatnonzero(~is_fast), ts[good], can_id[good], dlc[good],
                    data8[good], name[good], name_len[good], flags[good])
 
 
@@ -419,28 +415,7 @@ def _parse_shape(block: Block, s: np.ndarray, e: np.ndarray, ok: np.ndarray, clo
         ok[:] = False
         int_w, frac_w = min(max(int_w, 1), 12), min(max(frac_w, 1), 9)
 
-    # Timestamp: the integer digits right-aligned before the dot, the fraction's last (up to
-    # 8) digits right-aligned before the `)`: the decimal's digits as one exact integer.
-    low = fill_high(line.word(dot - 8), min(int_w, 8))
-    ok &= all_digits(low)
-    total = parse_digits(low)
-    if int_w > 8:
-        high = fill_high(line.word(dot - 16), int_w - 8)
-        ok &= all_digits(high)
-        total += parse_digits(high) * _U64(10**8)
-    frac = fill_high(line.word(close - 8), min(frac_w, 8))
-    ok &= all_digits(frac)
-    total = total * _U64(10**frac_w) + parse_digits(frac)
-    if frac_w == 9:  # nanoseconds: the fraction's first digit
-        first = line.byte(dot + 1) - _U64(0x30)  # non-digits wrap around: > 9
-        ok &= first <= _U64(9)
-        total += first * _U64(10**8)
-    # float(total) / 10**frac_w is the correctly rounded value, as float() of the text is.
-    ts = total.astype(np.float64) / POW10[frac_w]
-    # More than 16 digits may even overflow `total`: those take float() of the text.
-    inexact = ok if int_w + frac_w > 16 else ok & (total >= _U64(MAX_EXACT))
-    for i in np.flatnonzero(inexact).tolist():  # more digits than a double holds
-        ts[i] = float(buf[s[i] + 1:s[i] + close].tobytes())
+    ts, ok = decimal_stamps(line, buf, s, ok, dot, close, int_w, frac_w)
 
     name = close + 2
     names = np.zeros((s.size, 2), np.uint64)
@@ -503,7 +478,7 @@ _WHITESPACE = frozenset(b" \t\n\r\x0b\x0c")
 _NameKey = tuple[int, int, int]  # an interface name as two zero-padded words and its length
 
 
-class _Channels:
+class ChannelNames:
     """Interface names of fast lines (as zero-padded words) -> channel codes.
 
     Per block the distinct names are found once (np.unique) and looked up in a dict: linear
@@ -513,7 +488,7 @@ class _Channels:
     def __init__(self) -> None:
         self.codes: dict[_NameKey, int] = {}
 
-    def resolve(self, p: _Parsed) -> tuple[np.ndarray, np.ndarray, list[tuple[int, bytes, int]],
+    def resolve(self, p: ParsedLines) -> tuple[np.ndarray, np.ndarray, list[tuple[int, bytes, int]],
                                            np.ndarray]:
         """(code per distinct name, -1 where the name is new; which distinct name each fast
         row has; the new names, each with its first row (in the block) and its place among
@@ -550,10 +525,33 @@ class _Channels:
 def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     """The fast path: common lines vectorised per block, the rest line by line, in order."""
     layout = _Layout()
-    channels = _Channels()
+    return read_parsed_blocks(source, stats, lambda b: _parse_block(b, layout), layout.learn,
+                              _slow_lines)
+
+
+def _slow_lines(block: Block, p: ParsedLines, stats: InputStats) -> Iterator[tuple[int, _Row]]:
+    """The lines `_parse_block` left, through `_parse_line`: (row, frame) for each frame."""
+    for row in _lines_to_parse(block, p.slow, stats).tolist():
+        parsed = _parse_line(block.line(row), block.first_line + row, stats)
+        if parsed is not None:
+            yield row, parsed
+
+
+SlowLines = Callable[[Block, ParsedLines, InputStats], Iterable[tuple[int, _Row]]]
+
+
+def read_parsed_blocks(source: Source, stats: InputStats, parse: Callable[[Block], ParsedLines],
+                       learn: Callable[[Block], None], slow_lines: SlowLines
+                       ) -> Iterator[FrameBatch]:
+    """A text reader's fast path (this one's and candump screen output's): each block's
+    common lines vectorised by `parse`, the others (`ParsedLines.slow`) parsed by
+    `slow_lines` (a frame as `_parse_line` gives it: its interface name as bytes),
+    merged in file order; channels coded in order of first appearance, as the reference
+    path codes them."""
+    channels = ChannelNames()
     chan_of: dict[bytes, int] = {}
     builder = BatchBuilder()
-    for block, p in parsed_blocks(source, lambda b: _parse_block(b, layout), layout.learn):
+    for block, p in parsed_blocks(source, parse, learn):
         ucode, inverse, new, bad_names = channels.resolve(p)
         if bad_names.any():  # an interface name with odd whitespace: let the reference decide
             bad = bad_names[inverse]
@@ -562,11 +560,9 @@ def read_blocks(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
         # The other lines, in file order (they count skips and may name channels too).
         slow_rows: list[int] = []
         slow_vals: list[_Row] = []
-        for row in _lines_to_parse(block, p.slow, stats).tolist():
-            parsed = _parse_line(block.line(row), block.first_line + row, stats)
-            if parsed is not None:
-                slow_rows.append(row)
-                slow_vals.append(parsed)
+        for row, parsed in slow_lines(block, p, stats):
+            slow_rows.append(row)
+            slow_vals.append(parsed)
         # Register new channel names in order of first appearance, as the reference does.
         firsts: dict[bytes, int] = {name: row for row, name, _u in new}
         for row, vals in zip(slow_rows, slow_vals, strict=True):
@@ -618,8 +614,8 @@ def _lines_to_parse(block: Block, rows: np.ndarray, stats: InputStats) -> np.nda
     return out
 
 
-def _demote(p: _Parsed, bad: np.ndarray) -> _Parsed:
+def _demote(p: ParsedLines, bad: np.ndarray) -> ParsedLines:
     keep = ~bad
     slow = np.union1d(p.slow, p.fast[bad])
-    return _Parsed(p.fast[keep], slow, p.ts[keep], p.can_id[keep], p.dlc[keep], p.data[keep],
+    return ParsedLines(p.fast[keep], slow, p.ts[keep], p.can_id[keep], p.dlc[keep], p.data[keep],
                    p.iface[keep], p.iface_len[keep], p.flags[keep])

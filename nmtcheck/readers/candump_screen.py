@@ -29,14 +29,24 @@ error frame, and only when it is no frame itself; text after a complete record
 is a note, ignored (readers.note_follows); a line that is only a note or a
 comment (`# …`, a shell prompt such as `$ candump can0`, `...`) is a non-frame
 record. python-can has no reader for this format.
+
+Speed: the file's common line (a classic 11-bit data frame, with or without `-ta`/`-tz`
+stamps) is parsed vectorised a block of lines at a time (readers/blocks.py), at the
+offsets its first such line has (`_Layout`); every other line goes through
+`_LineParser`, the per-line reference parser, in file order. `-td` logs are read line by
+line (each time adds to the one before).
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Iterator
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from itertools import chain, islice
+from typing import Any
+
+import numpy as np
 
 from nmtcheck.frames import FrameBatch
 from nmtcheck.readers import (
@@ -48,9 +58,20 @@ from nmtcheck.readers import (
     is_note_line,
     is_text,
     note_follows,
+    peek,
     plausible_time,
     unsigned,
 )
+from nmtcheck.readers.blocks import (
+    Block,
+    LineWords,
+    decimal_stamps,
+    fill_low,
+    reference_path,
+)
+from nmtcheck.readers.candump import ParsedLines, read_parsed_blocks
+
+_U64 = np.uint64
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -231,7 +252,171 @@ def _looks_like_deltas(lines: list[bytes]) -> bool:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    return batches_of(stats, _rows(source, stats))
+    if reference_path():
+        return batches_of(stats, _rows(source, stats))
+    head = peek(source, HEAD_PEEK_BYTES)
+    lines = head.split(b"\n")
+    if len(lines) <= DETECT_LINES and len(head) == HEAD_PEEK_BYTES:  # very long lines
+        return batches_of(stats, _rows(source, stats))
+    head_lines = [line + b"\n" for line in lines[:DETECT_LINES]]
+    if len(lines) <= DETECT_LINES and not head.endswith(b"\n"):  # the whole input, its last
+        head_lines[-1] = head_lines[-1][:-1]  # line without a newline
+    stamped = _timestamped(head_lines)
+    if stamped and _looks_like_deltas(head_lines):  # `-td`: each time depends on the last
+        return batches_of(stats, _rows(source, stats))
+    return _read_blocks(source, stats, stamped)
+
+
+# --- the fast path ----------------------------------------------------------------------
+
+HEAD_PEEK_BYTES = 1 << 20  # enough for DETECT_LINES lines of candump's screen output
+_FAST = re.compile(  # a classic 11-bit data frame as candump prints it; the layout's model
+    rb"( *)(?:\(([0-9]{1,12})\.([0-9]{1,9})\)( +))?([A-Za-z0-9_.-]{1,16})( +)"
+    rb"([0-9A-Fa-f]{3})( +)\[([0-8])\]( +([0-9A-Fa-f]{2})(?: [0-9A-Fa-f]{2})*)? {0,2}\r?\n?")
+_NAME_BYTE = np.zeros(256, bool)  # what an interface name of the fast path is made of
+_NAME_BYTE[list(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_.-")] = True
+_HEX_VALUE = np.full(256, 16, np.uint8)  # a hex digit's value, 16 for any other byte
+for _i, _c in enumerate(b"0123456789abcdef"):
+    _HEX_VALUE[_c] = _HEX_VALUE[bytes([_c]).upper()[0]] = _i
+_DROPCOUNT = int.from_bytes(b"DROPCOUN", "little")
+MAX_OFFSET = 96  # the layout's last field starts before this: gathers stay in a block's pad
+
+
+@dataclass
+class _Layout:
+    """Where the fields of the file's common line are, from the first line of that shape:
+    a classic 11-bit data frame with or without `(seconds)`, as candump prints it. Every
+    line of a screen log is printed with one format string, so the offsets hold for almost
+    every line; a line that differs in any byte is left to the reference parser."""
+
+    stamped: bool  # the log's timestamps (decided by its first lines, as the reference)
+    usable: bool = False
+    lead: int = 0  # spaces before `(` (or the interface)
+    dot: int = 0
+    close: int = 0
+    name_at: int = 0
+    name_len: int = 0
+    id_at: int = 0
+    bracket: int = 0  # the `[` of `[len]`
+    data_at: int = 0  # the first data byte (learned from a line with data)
+
+    def learn(self, block: Block) -> None:
+        first: tuple[int, ...] | None = None
+        for row in range(min(len(block), 50)):
+            m = _FAST.fullmatch(block.line(row))
+            if m is None or (m[2] is not None) != self.stamped:
+                continue
+            offsets = (len(m[1]), m.end(2) if self.stamped else 0,
+                       m.end(3) if self.stamped else 0, m.start(5), len(m[5]), m.start(7),
+                       m.start(9) - 1)
+            if first is None:
+                first = offsets
+                (self.lead, self.dot, self.close, self.name_at, self.name_len, self.id_at,
+                 self.bracket) = offsets
+                self.data_at = self.bracket + 5  # `[1]  05`: candump's two spaces
+                self.usable = True
+            if m[11] is not None and offsets == first:  # the data's place, where it has data
+                self.data_at = m.start(11)
+                break
+        self.usable &= self.data_at + 3 * 8 < MAX_OFFSET
+
+    def spaces(self) -> list[int]:
+        """The offsets that hold a space in every line of the layout (with data)."""
+        gaps = [range(0, self.lead), range(self.name_at + self.name_len, self.id_at),
+                range(self.id_at + 3, self.bracket)]
+        if self.stamped:
+            gaps.append(range(self.close + 1, self.name_at))
+        return [k for gap in gaps for k in gap]
+
+
+def _parse_block(block: Block, lay: _Layout) -> ParsedLines:
+    """Vectorised parse of the lines of `block` that have the layout's shape byte for byte;
+    every other line is left `slow`."""
+    n = len(block)
+    buf, s = block.buf, block.starts
+    if not lay.usable or n == 0:
+        return _no_fast_lines(n)
+    e = block.ends - (buf[block.ends - 1] == 0x0D)  # the end without `\r` and up to two
+    for _ in range(2):  # trailing spaces
+        e -= buf[e - 1] == 0x20
+    ok = np.ones(n, bool)
+    for k in lay.spaces():
+        ok &= buf[s + k] == 0x20
+    line = LineWords(block, s)
+    if lay.stamped:
+        ok &= (buf[s + lay.lead] == 0x28) & (buf[s + lay.dot] == 0x2E) & (
+            buf[s + lay.close] == 0x29)
+        ts, ok = decimal_stamps(line, buf, s, ok, lay.dot, lay.close,
+                                lay.dot - lay.lead - 1, lay.close - lay.dot - 1)
+    else:
+        ts = np.zeros(n)
+    for k in range(lay.name_len):
+        ok &= _NAME_BYTE[buf[s + lay.name_at + k]]
+    if lay.name_len >= 9:  # `DROPCOUNT…` as a name: a DROPCOUNT line to the reference
+        ok &= ~((line.word(lay.name_at) == _U64(_DROPCOUNT))
+                & (buf[s + lay.name_at + 8] == ord("T")))
+    names = np.zeros((n, 2), np.uint64)
+    names[:, 0] = fill_low(line.word(lay.name_at), lay.name_len, _U64(0))
+    if lay.name_len > 8:
+        names[:, 1] = fill_low(line.word(lay.name_at + 8), lay.name_len - 8, _U64(0))
+    hi, mid, lo = (_HEX_VALUE[buf[s + lay.id_at + k]] for k in range(3))
+    ok &= (hi | mid | lo) < 16
+    can_id = (hi.astype(np.uint32) << 8) | (mid.astype(np.uint32) << 4) | lo
+    b = lay.bracket
+    dlc = buf[s + b + 1].astype(np.int16) - ord("0")
+    ok &= (buf[s + b] == ord("[")) & (buf[s + b + 2] == ord("]")) & (dlc >= 0) & (dlc <= 8)
+    dlc = np.where(ok, dlc, 0).astype(np.int16)
+    with_data = dlc > 0
+    ok &= e == np.where(with_data, s + lay.data_at + 3 * dlc - 1, s + b + 3)
+    for k in range(b + 3, lay.data_at):  # between `]` and the first data byte
+        ok &= ~with_data | (buf[s + k] == 0x20)
+    data = np.zeros((n, 8), np.uint8)
+    for i in range(8):
+        has = dlc > i
+        if not has.any():
+            break
+        at = s + lay.data_at + 3 * i
+        high, low = _HEX_VALUE[buf[at]], _HEX_VALUE[buf[at + 1]]
+        ok &= ~has | ((high | low) < 16)
+        if i:
+            ok &= ~has | (buf[at - 1] == 0x20)
+        data[:, i] = np.where(has, (high << 4) | low, 0)
+    fast = np.flatnonzero(ok)
+    return ParsedLines(fast, np.flatnonzero(~ok), ts[fast], can_id[fast], dlc[fast],
+                       data[fast], names[fast], np.full(fast.size, lay.name_len, np.int64),
+                       np.zeros(fast.size, np.uint8))
+
+
+def _no_fast_lines(n: int) -> ParsedLines:
+    empty = np.empty(0, np.int64)
+    return ParsedLines(empty, np.arange(n), np.empty(0), np.empty(0, np.uint32),
+                       np.empty(0, np.int16), np.empty((0, 8), np.uint8),
+                       np.empty((0, 2), np.uint64), empty, np.empty(0, np.uint8))
+
+
+def _read_blocks(source: Source, stats: InputStats, stamped: bool) -> Iterator[FrameBatch]:
+    """The fast path: the common lines vectorised a block at a time (readers/blocks.py),
+    every other line through the reference parser, in file order. Not for `-td` logs."""
+    stats.timestamped = stamped
+    layout = _Layout(stamped)
+    parser = _LineParser(stamped, deltas=False)
+    last_fast = [False]  # whether the previous block's last line was a fast one
+
+    def slow_lines(block: Block, p: ParsedLines, stats: InputStats
+                   ) -> Iterator[tuple[int, tuple[Any, ...]]]:
+        is_fast = np.zeros(len(block) + 1, bool)  # row -1 (at the end): the previous block's
+        is_fast[p.fast] = True
+        is_fast[-1] = last_fast[0]
+        for row in p.slow.tolist():
+            if is_fast[row - 1]:  # a fast line is a frame and no error frame
+                parser.explaining = False
+            frame = parser.parse(block.first_line + row, block.line(row), stats)
+            if frame is not None:
+                yield row, (frame.ts, frame.channel.encode("latin-1"), *frame[2:])
+        last_fast[0] = bool(is_fast[len(block) - 1]) if len(block) else last_fast[0]
+
+    return read_parsed_blocks(source, stats, lambda b: _parse_block(b, layout), layout.learn,
+                              slow_lines)
 
 
 def _timestamped(lines: list[bytes]) -> bool:
@@ -252,20 +437,24 @@ def _timestamped(lines: list[bytes]) -> bool:
     return stamped >= bare
 
 
-def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
-    lines = source.lines()
-    head = list(islice(lines, DETECT_LINES))
-    stamped = _timestamped(head)
-    stats.timestamped = stamped
-    clock = _Clock(deltas=stamped and _looks_like_deltas(head))
-    explaining = False  # after an error frame: `-e` prints its explanation on `\t` lines
-    for lineno, raw in enumerate(chain(head, lines), source.first_line):
+class _LineParser:
+    """The reference parser of one line at a time, with what it carries from line to line:
+    the clock (deltas add up) and whether the last record was an error frame (`-e`
+    explains it on the tab-indented lines after it)."""
+
+    def __init__(self, stamped: bool, deltas: bool) -> None:
+        self.stamped = stamped
+        self.clock = _Clock(deltas=deltas)
+        self.explaining = False
+
+    def parse(self, lineno: int, raw: bytes, stats: InputStats) -> Row | None:
+        """The frame of line `lineno`, or None (counted into `stats` where it is a record)."""
         if not raw.strip():
-            continue
+            return None
         stamp, rest = _split(raw)
         tokens = rest.split()
         if tokens and tokens[0].startswith(b"DROPCOUNT"):
-            explaining = False
+            self.explaining = False
             m = _DROP.search(raw)
             count = None if m is None else unsigned(m[1])
             if count is None:
@@ -273,16 +462,18 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
             else:
                 stats.drop(lineno, count)
                 stats.ignored += 1
-            continue
+            return None
         if is_note_line(raw):
-            explaining = False
+            self.explaining = False
             stats.note()  # a comment, a shell prompt, `...`: no record
-            continue
+            return None
+        clock = self.clock
         try:
-            if (stamp is not None) != stamped:
+            if (stamp is not None) != self.stamped:
                 _damaged_delta(raw, clock)
-                raise _Bad("a frame without a timestamp in a log with timestamps" if stamped
-                           else "a frame with a timestamp in a log without timestamps")
+                raise _Bad("a frame without a timestamp in a log with timestamps"
+                           if self.stamped else
+                           "a frame with a timestamp in a log without timestamps")
             try:
                 ts = clock(stamp)  # a delta counts even when the rest of the line is damaged
             except _Bad:
@@ -290,13 +481,25 @@ def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
                 raise
             iface, can_id, ext, rtr, err, fd, dlc, data = _frame(tokens, rest)
         except _Bad as exc:
-            if explaining and raw[:1] == b"\t":
-                continue  # part of the error frame's record: its `-e` explanation
-            explaining = b"ERRORFRAME" in raw  # a damaged error frame keeps its explanation
+            if self.explaining and raw[:1] == b"\t":
+                return None  # part of the error frame's record: its `-e` explanation
+            self.explaining = b"ERRORFRAME" in raw  # a damaged error frame keeps it
             stats.skip(lineno, str(exc))
-            continue
-        explaining = err
-        yield lineno, Row(ts, iface, can_id, ext, rtr, err, fd, dlc, data)
+            return None
+        self.explaining = err
+        return Row(ts, iface, can_id, ext, rtr, err, fd, dlc, data)
+
+
+def _rows(source: Source, stats: InputStats) -> Iterator[tuple[int, Row]]:
+    lines = source.lines()
+    head = list(islice(lines, DETECT_LINES))
+    stamped = _timestamped(head)
+    stats.timestamped = stamped
+    parser = _LineParser(stamped, deltas=stamped and _looks_like_deltas(head))
+    for lineno, raw in enumerate(chain(head, lines), source.first_line):
+        row = parser.parse(lineno, raw, stats)
+        if row is not None:
+            yield lineno, row
 
 
 def _damaged_delta(raw: bytes, clock: _Clock) -> None:
