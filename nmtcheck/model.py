@@ -203,6 +203,22 @@ class NodeModel:
     # stages and rules take their per-node shortcuts on them; None: the numpy paths
     small: SmallEc | None = field(default=None, repr=False, compare=False)
 
+    def reported_period(self, end: float) -> tuple[float | None, str]:
+        """N's heartbeat period as the reports give it (seconds, and configured | measured |
+        none): the producer time (1017h) in force at the trace's `end`, where a confirmed
+        SDO write replaces the files' value (a CANopenNode slave powers on at 1000 ms and
+        its master sets 100 ms), else the measured median; none where 1017h = 0 was
+        written (no heartbeat at the end). `period_s` itself stays the files' value: the
+        rules that use it take it as it was."""
+        if self.order_only or not len(self.writes):
+            return self.period_s, self.period_source
+        producer = self.config_at(end).heartbeat_ms
+        if producer:
+            return producer / 1000.0, "configured"
+        if producer == 0:
+            return None, "none"
+        return (self.median_s, "measured") if self.median_s is not None else (None, "none")
+
     def config_at(self, ts: float) -> NodeConfig:
         """The configuration in force at `ts`: files, then SDO writes confirmed before it."""
         if not len(self.writes) and not len(self.consumer_writes):  # the files' (most nodes)

@@ -586,8 +586,10 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
     a data frame answers the request right before it (no boot-up or other data frame
     between) within the response timeout. That is the walk's answer wherever the walk's
     other test (a node that also produced two heartbeats since its boot-up: the toggle
-    bit and the early limit decide) is not reached, and time does not go backwards (a
-    request a late heartbeat left pending could then be answered); else the walk decides."""
+    bit and the early limit decide) is not reached, time does not go backwards (a
+    request a late heartbeat left pending could then be answered), and no frame with
+    toggle 0 follows a request left unanswered (a heartbeat of a node polled while it
+    ignores guarding may look like an answer); else the walk decides."""
     timeout = params.response_timeout_s + EPS
     rel = np.flatnonzero((kind == REQUEST) | (kind == BOOTUP) | (kind == HEARTBEAT))
     k = kind[rel]
@@ -600,48 +602,92 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
     at = np.arange(len(rel))
     last_boot = np.maximum.accumulate(np.where(k == BOOTUP, at, -1))
     since_boot = before - np.where(last_boot >= 0, before[np.maximum(last_boot, 0)], 0)
+    after_misses = np.zeros(len(rel), bool)  # MISSED requests unanswered before the pending
+    if len(rel) > MISSED + 1:
+        run = np.ones(len(rel) - MISSED - 1, bool)
+        for j in range(1, MISSED + 2):  # the row j before each
+            run &= k[MISSED + 1 - j:len(k) - j] == REQUEST
+        after_misses[MISSED + 1:] = run
+    doubtful = guard & after_misses & (ec.value[rel] & 0x80 == 0)
     if not bool((guard & (since_boot >= 2) & ~disabled[rel]).any()) and not bool(
-            (np.diff(ts) < 0).any()):
+            (np.diff(ts) < 0).any()) and not bool(doubtful.any()):
         kind[rel[guard]] = GUARD
         return
     _classify_guarding_walk(ec, kind, params, periods, disabled)
 
 
+MISSED = 2  # requests a node left unanswered before a frame that may be its heartbeat
+
+
 def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParams,
                             periods: np.ndarray, disabled: np.ndarray) -> None:
     """`_classify_guarding` frame by frame, in order (plain Python ints, no objects): for
-    a node that answers guarding and produces heartbeats too."""
+    a node that answers guarding and produces heartbeats too.
+
+    Beyond the SPEC's test: of two frames in a row with toggle 0, each after requests N
+    left unanswered (MISSED of them or more), the second is N's heartbeat where, as a
+    response, its toggle would repeat the first's, and then so is the first; and such a
+    frame taken for the last response was a heartbeat where the first answer after a
+    1017h = 0 write (the master switching N to guarding) only fits without it. A heartbeat
+    producer that a master polls
+    (CANopenNode after a power cycle: 1017h back at its power-on value, which disables
+    its guarding slave) sends heartbeats at any phase of the polling, so every one of them
+    comes within the response timeout of the latest request, and N never shows the two
+    heartbeats the SPEC's test needs: each was a guarding response with toggle 0, then a
+    false G001 on it and on the first real response once the master switched N to
+    guarding."""
     pending: float | None = None  # ts of the pending request
     hb_since_boot = 0
     last_hb: float | None = None
     early: float | None = None  # the early limit at the last heartbeat
     timeout = params.response_timeout_s + EPS
+    requests = 0  # requests since N's last data frame
+    expect: int | None = None  # the next response's toggle (None: either, at the start)
+    doubtful: tuple[int, int | None] | None = None  # the last response, if it came after
+    # unanswered requests with toggle 0: (its row, the toggle expected before it)
     for i, (k, ts, value, period, off) in enumerate(zip(
             kind.tolist(), ec.ts.tolist(), ec.value.tolist(), periods.tolist(),
             disabled.tolist(), strict=True)):
         if k == REQUEST:
             pending = ts
+            requests += 1
         elif k == BOOTUP:
             # Always a boot-up, even with a request pending: a node in Initialisation does
             # not answer guarding, and reading it as a response would raise false G001/B001.
             hb_since_boot = 0
             last_hb = None
             pending = None
+            requests = 0
+            expect, doubtful = 0, None
         elif k == HEARTBEAT:
             is_guard = False
+            toggle = value >> 7 & 1
             if pending is not None and ts - pending <= timeout:
+                repeat = False  # the second of two such frames in a row: heartbeats
                 if hb_since_boot >= 2 and not off:
                     is_guard = bool(value & 0x80) or (
                         early is not None and last_hb is not None and ts - last_hb < early)
                 else:
-                    is_guard = True
+                    repeat = (not off and requests > MISSED and toggle == 0 and expect == 1
+                              and doubtful is not None)
+                    is_guard = not repeat
+                if doubtful is not None and (repeat or off) and toggle != expect and (
+                        doubtful[1] is None or toggle == doubtful[1]):
+                    # it was a heartbeat too, or one before the master switched N to
+                    # guarding (1017h = 0): then this answer's toggle fits
+                    kind[doubtful[0]] = HEARTBEAT
+                    hb_since_boot += 1
+                    expect, doubtful = doubtful[1], None
             if is_guard:
                 kind[i] = GUARD
                 pending = None
+                doubtful = (i, expect) if requests > MISSED and toggle == 0 and not off else None
+                expect = 1 - toggle
             else:
                 hb_since_boot += 1
                 last_hb = ts
                 early = None if period != period else params.early_factor * period - EPS
+            requests = 0
 
 
 def _find_period(m: NodeModel) -> None:

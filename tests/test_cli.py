@@ -43,6 +43,28 @@ def test_fail_on_never_and_ignore(tmp_path: Path) -> None:
     assert res.returncode == 0
 
 
+def test_json_heartbeat_period_is_the_one_in_force_at_the_end(tmp_path: Path) -> None:
+    """CANopenNode slaves power on at 1000 ms (network.toml) and their master writes 100 ms,
+    or 0 for the guarded node 4: the report gave 1000 ms for all three."""
+    folder = SAMPLES / "canopennode"
+    res = run("check", str(folder / "healthy.log"), "--network", str(folder / "network.toml"),
+              "--format", "json", cwd=tmp_path)
+    periods = {n["node"]: n["heartbeat_period_ms"] for n in json.loads(res.stdout)["nodes"]}
+    assert periods == {1: 200.0, 2: 100.0, 3: 100.0, 4: None}
+    # a written value a reset voids has no known value at the end: the measured median
+    frames = [(0.0, "702#00"), (0.1, "602#2B17100064000000"), (0.1005, "582#6017100000000000")]
+    frames += [(0.1 + 0.1 * i, "702#05") for i in range(1, 10)]
+    frames += [(1.05, "000#8102"), (1.06, "702#00")] + [(1.06 + 0.1 * i, "702#7F")
+                                                        for i in range(1, 10)]
+    log = tmp_path / "reset.log"
+    log.write_text(candump(frames))
+    net = tmp_path / "net.toml"
+    net.write_text("[nodes.2]\nheartbeat_ms = 1000\n")
+    res = run("check", str(log), "--network", str(net), "--format", "json", cwd=tmp_path)
+    (node,) = json.loads(res.stdout)["nodes"]
+    assert node["heartbeat_period_ms"] == pytest.approx(100.0, abs=1.0)  # median, not 1000
+
+
 def test_fail_on_warning_counts_warnings(tmp_path: Path) -> None:
     log = tmp_path / "early.log"
     # B002 (warning): node 2 reboots on its own

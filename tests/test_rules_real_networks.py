@@ -396,3 +396,45 @@ def test_a_timeout_in_the_second_of_two_captures_points_into_it(checker: Checker
     assert lines and all(lines)
     assert sorted(f.line or 0 for f in double.findings) == sorted(
         lines + [line + n for line in lines])
+
+
+# -- a heartbeat producer that a guarding master polls (CANopenNode after a power cycle) --
+
+
+def _polled(frames: list[tuple[float, str]], until: float = 3.0) -> str:
+    """Node 4 boots at 0 s; its master sends `704#R1` every 100 ms from 0.05 s."""
+    requests = [(0.05 + 0.1 * i, "704#R1") for i in range(int(until * 10))]
+    return candump(sorted([(0.0, "704#00"), *requests, *frames]))
+
+
+def test_heartbeats_of_a_polled_node_are_no_guarding_answers(checker: Checker) -> None:
+    """Back at its power-on 1017h = 1000 ms (guarding slave off), node 4 heartbeats while
+    its master polls every 100 ms: each `704#7F` comes within 100 ms of a request it did
+    not answer. They were guarding answers with toggle 0, each a G001."""
+    beats = [(0.5 + i, "704#7F") for i in range(3)]
+    res = checker.run(_polled(beats), select="G001")
+    assert res.findings == []
+    (m,) = [m for cm in res.model.channels for m in cm.nodes.values() if m.node == 4]
+    assert [iv.source for iv in m.intervals][-1] == "heartbeat"
+
+
+def test_the_first_answer_after_the_switch_to_guarding_is_judged_alone(checker: Checker
+                                                                       ) -> None:
+    """One heartbeat while polled, then the master writes 1017h = 0 and the node answers
+    `704#7F`, `704#FF`, ...: the heartbeat is no answer whose toggle the first real one
+    repeats (G001 at 0.950 before)."""
+    frames = [(0.5, "704#7F"), (0.9, "604#2B17100000000000"), (0.9005, "584#6017100000000000")]
+    frames += [(0.9502 + 0.1 * i, "704#FF" if i % 2 else "704#7F") for i in range(15)]
+    assert checker.findings(_polled(frames), select="G001") == []
+
+
+def test_a_repeated_toggle_after_a_missed_request_is_still_g001(checker: Checker) -> None:
+    """A guarding node that misses a request and then repeats its last toggle: G001 (its
+    answers before were prompt, none taken for a heartbeat). With the right toggle after
+    the miss: no G001."""
+    answers = ["704#7F", "704#FF", "704#7F", "704#FF", None, "704#FF", "704#7F"]
+    frames = [(0.0502 + 0.1 * i, a) for i, a in enumerate(answers) if a]
+    assert checker.findings(_polled(frames, 0.7), select="G001") == [("G001", 4, 0.55)]
+    answers[5:] = ["704#7F", "704#FF"]
+    frames = [(0.0502 + 0.1 * i, a) for i, a in enumerate(answers) if a]
+    assert checker.findings(_polled(frames, 0.7), select="G001") == []

@@ -140,11 +140,31 @@ CANOPENNODE: dict[str, Expected] = {
     # node 3 unplugged: heartbeat timeout (1.5 x 100 ms), back pre-operational, no reset
     "unplugged_heartbeat": [("H001", 3, 5.12, 5.13), ("S005", 3, 7.02, 7.03)],
     "unplugged_guarded": [("G002", 4, 5.17, 5.18), ("S005", 4, 7.08, 7.09)],
+    # node 2 powered off and on: heartbeat timeout, then its unannounced boot-up
+    "power_cycle": [("H001", 2, 4.11, 4.12), ("B002", 2, 4.60, 4.61)],
+    "nmt_direct": [],  # stop, pre-operational, start, reset node/communication to one node
+    # the master unplugged: the slaves' consumers fire, they drop to pre-operational
+    "master_unplugged": [("H001", 1, 4.50, 4.52), ("S005", 2, 4.51, 4.52),
+                         ("S005", 3, 4.51, 4.52), ("G003", 4, 6.07, 6.08),
+                         ("S005", 4, 6.07, 6.08)],
+    "hb_runtime": [],  # 1017h rewritten while running: each write starts a segment
+    "reset_node_all": [],  # 000#8100: every node boots again, the master too
+    # guarded node 4 powered off and on: back heartbeating at 1000 ms while the master
+    # polls it (no G001 on those heartbeats), answered again once reconfigured
+    "guarded_power_cycle": [("G002", 4, 4.17, 4.18), ("B002", 4, 4.30, 4.31),
+                            ("G002", 4, 4.47, 4.48)],
+    "guarded_power_cycle_stored": [("G002", 4, 4.17, 4.18), ("B002", 4, 4.30, 4.31)],
+    "sync_pdo": [],  # SYNC every 50 ms, synchronous TPDOs, node 2 stopped and started
 }
 CANOPENNODE_NO_MASTER: dict[str, Expected] = {  # the master's own changes are S005
     "guard_toggle": [("S005", 1, 2.26, 2.27)],
     "unplugged_heartbeat": [("S005", 1, 5.27, 5.28)],
     "unplugged_guarded": [("S005", 1, 5.17, 5.18)],
+    "guarded_power_cycle": [("S005", 1, 4.17, 4.18)],
+    "guarded_power_cycle_stored": [("S005", 1, 4.17, 4.18)],
+    "master_unplugged": [("S005", 1, 6.17, 6.18)],
+    "hb_runtime": [("S005", 1, 3.30, 3.31)],
+    "nmt_direct": [("S005", 1, 5.00, 5.01)],
 }
 _NETWORKS = {
     "bare": None,

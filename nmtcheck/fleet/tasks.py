@@ -338,6 +338,7 @@ def node_rows(res: Any, key: dict[str, Any], date: str,
 
     out = []
     for m in res.nodes():
+        period, _source = m.reported_period(res.model.end)
         iv = m.intervals  # columns: a node may have millions of intervals
         seconds = np.bincount(iv.state, weights=np.maximum(iv.end - iv.start, 0.0),
                               minlength=len(STATES))
@@ -365,7 +366,7 @@ def node_rows(res: Any, key: dict[str, Any], date: str,
                     "last_seen": m.last_seen,
                     "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
                     "bootups": m.bootup_count, "error_control": m.error_control,
-                    "heartbeat_period_ms": m.period_s * 1e3 if m.period_s else None,
+                    "heartbeat_period_ms": period * 1e3 if period else None,
                     **{k: round(v, 6) for k, v in in_state.items()},
                     "heartbeats": int(m.ec.count(HEARTBEAT)), **hb,
                     "n_error": sev.get("error", 0), "n_warning": sev.get("warning", 0),

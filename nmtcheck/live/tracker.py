@@ -36,6 +36,7 @@ from nmtcheck.nmt import (
     state_name,
 )
 from nmtcheck.profiles import Profile
+from nmtcheck.timeline import MISSED
 
 SCAN_S = 0.001  # bus time between two looks at every node's deadlines while frames come
 RECENT_INTERVALS = 32  # the period of a node with no configured producer time: their median
@@ -103,6 +104,10 @@ class NodeState:
     consumer_ms: dict[int, float] = field(default_factory=dict)  # consumer -> its 1016h entry
     sdo_request: tuple[int, int, int | None, float] | None = None  # index, sub, value, ts
     request: float | None = None  # the pending guarding request's ts
+    requests: int = 0  # guarding requests since N's last 700h data frame
+    # the last response came after unanswered requests with toggle 0 (it may have been a
+    # heartbeat): the toggle expected before it
+    doubt: tuple[int | None] | None = None
     request_closed: bool = False
     guard_run: bool = False
     boots: int = 0
@@ -515,7 +520,9 @@ class Tracker:
             if st.request is not None and not st.request_closed:
                 self._close_request(st, f.ts)  # the next request before the answer
             st.request, st.request_closed = f.ts, False
+            st.requests += 1
             return
+        requests, st.requests = st.requests, 0  # since N's previous 700h data frame
         was_seen = st.seen
         value = f.data[0] if f.data else 0
         if f.dlc == 1 and value == 0:
@@ -534,19 +541,32 @@ class Tracker:
             return
         code = value & 0x7F
         guard = False
+        toggle = value >> 7
+        off = st.written_hb_ms == 0  # 1017h = 0 written: heartbeat disabled
         if st.request is not None and f.ts - st.request <= self.response_s + EPS:
-            if st.hb_since_boot >= 2 and st.written_hb_ms != 0:  # 0: heartbeat disabled
+            if st.hb_since_boot >= 2 and not off:
                 guard = bool(value & 0x80) or (
                     st.class_early is not None and st.class_last_hb is not None
                     and f.ts - st.class_last_hb < st.class_early)
                 if not (value & 0x80) and not st.class_early_sure:
                     st.ambiguous = True  # the class hangs on the whole trace's median
-            else:
-                guard = True
+            else:  # the second of two frames with toggle 0 after unanswered requests,
+                # a repeat as a response: heartbeats (timeline._classify_guarding_walk)
+                guard = not (not off and requests > MISSED and toggle == 0
+                             and st.toggle_expected == 1 and st.doubt is not None)
+            if st.doubt is not None and (not guard or off) and toggle != st.toggle_expected \
+                    and st.doubt[0] in (None, toggle):
+                st.toggle_expected = st.doubt[0]  # that one was a heartbeat: this one fits
+                st.doubt = None
         if guard:
             st.request = None
             st.guard_run = False
+            doubtful = requests > MISSED and toggle == 0 and not off
+            before = st.toggle_expected
             self._toggle(st, f.ts, value)
+            st.doubt = (before,) if doubtful else None
+            if doubtful:  # the offline check may find it was a heartbeat
+                st.ambiguous = True
         else:
             if value & 0x80:
                 self._ec_bad(st, "C003", f.ts, f"heartbeat {value:02X}h has bit 7 (reserved) set",
@@ -636,6 +656,7 @@ class Tracker:
         st.last_cmd = None  # nothing after a boot-up was queued before a command
         st.self_start_open = True  # until a report or a command shows it did not start itself
         st.toggle_expected, st.g001_run = 0, False
+        st.requests, st.doubt = 0, None
         # B003's window: 3 x the configured period, else x the whole trace's median
         # (the recent one here: then a verdict on a gap over 1 s is provisional)
         configured = st.config.heartbeat_ms

@@ -268,15 +268,17 @@ def _histogram(intervals: Gaps) -> dict[str, Any] | None:
             "overflow_height": overflow / peak, "max_ms": intervals.maximum() * 1000}
 
 
-def _node_view(entry: dict[str, Any], m: NodeModel) -> dict[str, Any]:
-    """The JSON report's node entry plus what a person wants to see of its heartbeats."""
+def _node_view(entry: dict[str, Any], m: NodeModel, end: float) -> dict[str, Any]:
+    """The JSON report's node entry plus what a person wants to see of its heartbeats
+    (`end`: the trace's, where the period in force is reported)."""
     hb = heartbeat_stats(m)
 
     def ms(seconds: float | None) -> float | None:
         return None if seconds is None else seconds * 1000
 
     return {
-        **entry, "period_ms": entry["heartbeat_period_ms"], "period_source": m.period_source,
+        **entry, "period_ms": entry["heartbeat_period_ms"],
+        "period_source": m.reported_period(end)[1],
         "heartbeats": m.ec.count(HEARTBEAT), "intervals": hb.count, "min_ms": ms(hb.minimum),
         "median_ms": ms(hb.median), "max_ms": ms(hb.maximum), "jitter_ms": ms(hb.jitter),
         "resets": resets(m), "histogram": _histogram(hb.intervals),
@@ -310,8 +312,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                 for a, b, st, so in zip(ivs.start[:shown].tolist(), ivs.end[:shown].tolist(),
                                         ivs.state[:shown].tolist(), ivs.source[:shown].tolist(),
                                         strict=True)]
-    models = {(res.index, m.channel, m.node): m for res in results for m in res.nodes()}
-    nodes = [_node_view(entry, models[(entry["input"], entry["channel"], entry["node"])])
+    models = {(res.index, m.channel, m.node): (m, res.model.end)
+              for res in results for m in res.nodes()}
+    nodes = [_node_view(entry, *models[(entry["input"], entry["channel"], entry["node"])])
              for entry in report["nodes"]]
     groups: list[dict[str, Any]] = []
     timelines = []

@@ -32,6 +32,11 @@ def _num(x: float) -> str:
     return repr(round(x, 6)) if math.isfinite(x) else "null"
 
 
+def _period_ms(m: NodeModel, end: float) -> float | None:
+    period, _source = m.reported_period(end)
+    return _r(period * 1000.0) if period else None
+
+
 def _configured_vs_measured(m: NodeModel, end: float) -> dict[str, Any]:
     c = configured_vs_measured(m, end)
     return {"configured": {"heartbeat_ms": c.producer_ms, "consumer_timeout_ms": c.consumer_ms,
@@ -83,7 +88,7 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "first_seen": _r(m.first_show_ts), "last_seen": _r(m.last_seen),
             "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
             "bootups": m.bootup_count, "error_control": m.error_control,
-            "heartbeat_period_ms": _r(m.period_s * 1000.0) if m.period_s else None,
+            "heartbeat_period_ms": _period_ms(m, res.model.end),
             **_configured_vs_measured(m, res.model.end),
             "boot": boot_report.node_boot(res, m.channel, m.node),
         } for m in res.nodes())

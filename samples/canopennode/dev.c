@@ -27,7 +27,12 @@
  *
  * Control commands from the hub (scenario driver), one text datagram each:
  *   nmt CS NODE | sdo_read NODE IDX SUB | sdo_write NODE IDX SUB LEN VALUE |
- *   emcy_set | emcy_clear | set1017 MS | quit
+ *   emcy_set | emcy_clear | set1017 MS | config NODE | quit
+ *
+ * `config NODE` (master: configure and start that one
+ * slave again, as at boot; for a slave that was power-cycled or reset), and
+ * `--guard MS:F` (power-on 100Ch/100Dh, as stored parameters; use with --hb 0), and
+ * `--sync-us US` (SYNC producer on COB-ID 80h with period US at power-on).
  */
 #include <errno.h>
 #include <poll.h>
@@ -54,6 +59,8 @@ static int nodeId = 0;
 static int hbPowerOn = 1000;
 static int selfStart = 0, noTpdo = 0, isMaster = 0, resetAll = 0;
 static int resetDelayMs = 100, configDelayMs = 50;
+static unsigned guardPowerOn = 0, lifePowerOn = 0; /* power-on 100Ch/100Dh (--guard) */
+static unsigned syncUs = 0; /* SYNC producer period (1006h, --sync-us), 0 = none */
 static char slavesSpec[128] = "";
 static int resetAllDone = 0; /* survives communication resets (RAM) */
 
@@ -170,9 +177,26 @@ jobs_process(uint32_t diff_us) {
     }
 }
 
-/* master: configure every slave, then start it */
+/* master: configure one slave (spec token "Nh" or "Ng", k = its position in --slaves), then start it */
 static void
-master_queue_configuration(void) {
+master_queue_slave(int n, char kind, int k) {
+    if (kind == 'g') {
+        job_add(J_SDO_W, n, 0x1017, 0, 2, 0);   /* no heartbeat: guarding is used */
+        job_add(J_SDO_W, n, 0x100C, 0, 2, 100); /* guard time 100 ms */
+        job_add(J_SDO_W, n, 0x100D, 0, 1, 3);   /* life time factor 3 */
+        job_add(J_NMT, n, CO_NMT_ENTER_OPERATIONAL, 0, 0, 0);
+        job_add(J_GUARD, n, 0, k, 0, 100);
+    } else {
+        job_add(J_SDO_W, n, 0x1016, 1, 4, (1u << 16) | 600u); /* consume master's heartbeat, 600 ms */
+        job_add(J_SDO_W, n, 0x1017, 0, 2, 100);               /* producer heartbeat 100 ms */
+        job_add(J_NMT, n, CO_NMT_ENTER_OPERATIONAL, 0, 0, 0);
+        job_add(J_LOCAL_1016, n, 0x1016, k + 1, 4, ((uint32_t)n << 16) | 300u); /* master consumes N, 300 ms */
+    }
+}
+
+/* master: configure every slave (or only node `only`, if > 0), then start it */
+static void
+master_queue_configuration_of(int only) {
     char spec[128];
     strncpy(spec, slavesSpec, sizeof(spec) - 1);
     spec[sizeof(spec) - 1] = 0;
@@ -180,20 +204,16 @@ master_queue_configuration(void) {
     for (char* tok = strtok(spec, ","); tok != NULL; tok = strtok(NULL, ",")) {
         int n = atoi(tok);
         char kind = tok[strlen(tok) - 1];
-        if (kind == 'g') {
-            job_add(J_SDO_W, n, 0x1017, 0, 2, 0);   /* no heartbeat: guarding is used */
-            job_add(J_SDO_W, n, 0x100C, 0, 2, 100); /* guard time 100 ms */
-            job_add(J_SDO_W, n, 0x100D, 0, 1, 3);   /* life time factor 3 */
-            job_add(J_NMT, n, CO_NMT_ENTER_OPERATIONAL, 0, 0, 0);
-            job_add(J_GUARD, n, 0, k, 0, 100);
-        } else {
-            job_add(J_SDO_W, n, 0x1016, 1, 4, (1u << 16) | 600u); /* consume master's heartbeat, 600 ms */
-            job_add(J_SDO_W, n, 0x1017, 0, 2, 100);               /* producer heartbeat 100 ms */
-            job_add(J_NMT, n, CO_NMT_ENTER_OPERATIONAL, 0, 0, 0);
-            job_add(J_LOCAL_1016, n, 0x1016, k + 1, 4, ((uint32_t)n << 16) | 300u); /* master consumes N, 300 ms */
+        if (only <= 0 || only == n) {
+            master_queue_slave(n, kind, k);
         }
         k++;
     }
+}
+
+static void
+master_queue_configuration(void) {
+    master_queue_configuration_of(0);
 }
 
 /* ------------------------------------------------------------ control */
@@ -213,6 +233,9 @@ handle_control(char* text) {
         CO_errorReset(CO->em, CO_EM_MANUFACTURER_START, 0);
     } else if (sscanf(text, "set1017 %u", &a) == 1) {
         OD_set_u16(OD_ENTRY_H1017, 0, (uint16_t)a, false); /* local write through CANopenNode's OD extension */
+    } else if (sscanf(text, "config %u", &a) == 1) {
+        /* the master application re-configures and starts one slave (after its boot-up) */
+        master_queue_configuration_of((int)a);
     } else if (strncmp(text, "quit", 4) == 0) {
         exit(0);
     } else {
@@ -260,6 +283,8 @@ main(int argc, char** argv) {
         else if (!strcmp(o, "--reset-all")) { resetAll = 1; }
         else if (!strcmp(o, "--reset-delay")) { resetDelayMs = atoi(v); i++; }
         else if (!strcmp(o, "--config-delay")) { configDelayMs = atoi(v); i++; }
+        else if (!strcmp(o, "--sync-us")) { syncUs = (unsigned)atoi(v); i++; }
+        else if (!strcmp(o, "--guard")) { sscanf(v, "%u:%u", &guardPowerOn, &lifePowerOn); i++; }
         else { fprintf(stderr, "unknown option %s\n", o); return 2; }
     }
     if (hubDir == NULL || nodeId < 1 || nodeId > 127) {
@@ -291,6 +316,14 @@ main(int argc, char** argv) {
     OD_PERSIST_COMM.x1017_producerHeartbeatTime = (uint16_t)hbPowerOn;
     if (noTpdo) {
         OD_PERSIST_COMM.x1800_TPDOCommunicationParameter.COB_IDUsedByTPDO |= 0x80000000u;
+    }
+    if (guardPowerOn != 0) { /* guarding configured at power-on (stored parameters) */
+        OD_RAM.x100C_guardTime = (uint16_t)guardPowerOn;
+        OD_RAM.x100D_lifeTimeFactor = (uint8_t)lifePowerOn;
+    }
+    if (syncUs != 0) { /* SYNC producer at power-on: 1005h bit 30, 1006h */
+        OD_PERSIST_COMM.x1005_COB_ID_SYNCMessage = 0x40000080u;
+        OD_PERSIST_COMM.x1006_communicationCyclePeriod = syncUs;
     }
     uint16_t nmtControl = CO_NMT_ERR_ON_ERR_REG | CO_ERR_REG_GENERIC_ERR | CO_ERR_REG_COMMUNICATION;
     if (selfStart || isMaster) {

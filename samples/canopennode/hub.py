@@ -80,6 +80,10 @@ def ctl(t: float, dev: str, cmd: str) -> Action:
     return Action(t, "ctl", dev, cmd=cmd)
 
 
+def kill(t: float, dev: str) -> Action:
+    return Action(t, "kill", dev)
+
+
 def unplug(t: float, dev: str) -> Action:
     return Action(t, "unplug", dev)
 
@@ -158,6 +162,87 @@ SCENARIOS: dict[str, Scenario] = {
         ctl(6.0, "master", "nmt 01 3"),
         ctl(7.0, "s3", "emcy_clear"),
         ctl(7.5, "master", "sdo_read 3 1018 1"),
+    ]),
+    # ---- power cycles, direct commands, run-time 1017h, SYNC ----------------------
+    # node 2 power-cycled while OPERATIONAL (off 0.6 s); the master application
+    # re-configures and starts it 0.2 s after its boot-up
+    "power_cycle": Scenario(10.0, [
+        *boot(),
+        kill(4.0, "s2"),
+        spawn(4.6, "s2", slave(2)),
+        ctl(4.8, "master", "config 2"),
+    ]),
+    # direct NMT commands to single slaves: stop, pre-op, start, reset node
+    # (node 2, then re-configured), stop and reset communication (node 4,
+    # guarded; CANopenNode keeps 1017h = 0, 100Ch, 100Dh in RAM) and start
+    "nmt_direct": Scenario(10.0, [
+        *boot(),
+        ctl(2.0, "master", "nmt 02 2"),
+        ctl(3.0, "master", "nmt 80 2"),
+        ctl(4.0, "master", "nmt 01 2"),
+        ctl(5.0, "master", "nmt 81 2"),
+        ctl(5.5, "master", "config 2"),
+        ctl(6.5, "master", "nmt 02 4"),
+        ctl(7.5, "master", "nmt 82 4"),
+        ctl(8.5, "master", "nmt 01 4"),
+    ]),
+    # the master is unplugged for 2 s: the slaves' heartbeat consumers (600 ms)
+    # and node 4's life guarding (300 ms) fire, the slaves drop to
+    # PRE-OPERATIONAL (CO_NMT_ERR_ON_ERR_REG); nobody restarts them
+    "master_unplugged": Scenario(10.0, [
+        *boot(),
+        unplug(4.0, "master"),
+        plug(6.0, "master"),
+    ]),
+    # 1017h changed at run time by SDO, no NMT command: node 2 100 -> 300 -> 50 ms,
+    # node 3 100 -> 0 (heartbeat off) -> 100 ms
+    "hb_runtime": Scenario(10.0, [
+        *boot(),
+        ctl(3.0, "master", "sdo_write 2 1017 0 2 300"),
+        ctl(5.0, "master", "sdo_write 2 1017 0 2 50"),
+        ctl(6.0, "master", "sdo_write 3 1017 0 2 0"),
+        ctl(7.5, "master", "sdo_write 3 1017 0 2 100"),
+    ]),
+    # broadcast reset node (000#8100) while everything runs; CANopenNode's master
+    # obeys it too, powers up again and then does its usual 000#8200 + configuration
+    "reset_node_all": Scenario(10.0, [
+        *boot(),
+        ctl(4.0, "master", "nmt 81 0"),
+    ]),
+    # guarded node 4 power-cycled (off 0.3 s): it comes back with its power-on
+    # 1017h = 1000 ms (guarding slave disabled) while the master keeps polling;
+    # the master application re-configures it 1.7 s later
+    "guarded_power_cycle": Scenario(10.0, [
+        *boot(),
+        kill(4.0, "s4"),
+        spawn(4.3, "s4", slave(4)),
+        ctl(6.0, "master", "config 4"),
+    ]),
+    # as guarded_power_cycle, but node 4 has its guarding configuration stored
+    # (power-on 1017h = 0, 100Ch = 100 ms, 100Dh = 3): it answers the master's
+    # requests right after its boot-up (toggle 0 again) and stays PRE-OPERATIONAL
+    # until the master application re-configures and starts it 0.5 s later
+    "guarded_power_cycle_stored": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", ["--node", "4", "--hb", "0", "--guard", "100:3"]),
+        spawn(0.0, "master", MASTER),
+        kill(4.0, "s4"),
+        spawn(4.3, "s4", ["--node", "4", "--hb", "0", "--guard", "100:3"]),
+        ctl(4.8, "master", "config 4"),
+    ]),
+    # SYNC producer on the master (50 ms), TPDO1 of nodes 2 and 3 set to
+    # synchronous (type 1 / type 4) by SDO while OPERATIONAL; node 2 stopped
+    # and started again
+    "sync_pdo": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "50000"]),
+        ctl(1.0, "master", "sdo_write 2 1800 2 1 1"),
+        ctl(1.0, "master", "sdo_write 3 1800 2 1 4"),
+        ctl(4.0, "master", "nmt 02 2"),
+        ctl(6.0, "master", "nmt 01 2"),
     ]),
 }
 

@@ -7,6 +7,7 @@ set -e
 BIN=${1:-/work/build/canopennode/bin}
 OUT=${2:-.}
 for s in healthy late_master write_1017 self_start master_obeys broadcast guard_toggle duplicate_id \
-         unplugged_heartbeat unplugged_guarded stopped_sdo; do
+         unplugged_heartbeat unplugged_guarded stopped_sdo power_cycle nmt_direct master_unplugged \
+         hb_runtime reset_node_all guarded_power_cycle guarded_power_cycle_stored sync_pdo; do
   chrt -f 10 python3 hub.py $s "$OUT/$s.log" --bin "$BIN" --events "$OUT/$s.events"
 done
