@@ -381,6 +381,19 @@ def test_a_boot_up_at_the_time_of_the_last_after_time_went_back_is_no_repeat(
     assert [r for r, _n, _t in checker.findings(candump(stuck), select="B003")] == ["B003"]
 
 
+def test_two_captures_whose_self_start_spans_go_back_in_time(checker: Checker) -> None:
+    """`cat self_start.log late_master.log` (CANopenNode): every node's spans in which its
+    PDOs are not judged go back in time. S001 crashed (IndexError, exit 2) instead of
+    checking each node's spans in file order."""
+    from conftest import SAMPLES
+
+    folder = SAMPLES / "canopennode"
+    text = (folder / "self_start.log").read_text() + (folder / "late_master.log").read_text()
+    res = checker.run(text)
+    assert res.stats.backwards_timestamps == 1 and res.stats.frames > 900
+    assert "I005" in {f.rule for f in res.findings}
+
+
 def test_a_timeout_in_the_second_of_two_captures_points_into_it(checker: Checker) -> None:
     """A log pasted twice into one file (`cat run.log run.log`): each H001 points at a line
     of its own copy. Located by time alone, both pointed into the first copy (the first

@@ -165,6 +165,8 @@ def _last_at_or_before(g_node: np.ndarray, g_at: np.ndarray, q_node: np.ndarray,
     the same node and a time at or before it (-1: none): one merge for every node, as
     `np.searchsorted(..., side="right") - 1` would find node by node."""
     n = len(g_at)
+    if not n:
+        return np.full(len(q_at), -1, np.int64)
     order = np.lexsort((np.concatenate([np.zeros(n, np.int8), np.ones(len(q_at), np.int8)]),
                         np.concatenate([g_at, q_at]), np.concatenate([g_node, q_node])))
     last = np.maximum.accumulate(np.where(order < n, order, -1))
@@ -188,7 +190,8 @@ def _unproven(nodes: list[NodeModel], group: np.ndarray, ts: np.ndarray) -> np.n
     unsorted = np.unique(node[1:][(node[1:] == node[:-1]) & (lo[1:] < lo[:-1])])
     sorted_rows = ~is_one_of(node, unsorted) if unsorted.size else np.ones(len(node), bool)
     k = _last_at_or_before(node[sorted_rows], lo[sorted_rows], group, ts)
-    k = np.where(k >= 0, np.flatnonzero(sorted_rows)[np.maximum(k, 0)], -1)
+    if sorted_rows.any():  # else every node's spans go back in time: each is done below
+        k = np.where(k >= 0, np.flatnonzero(sorted_rows)[np.maximum(k, 0)], -1)
     for g in unsorted.tolist():
         mine = np.flatnonzero(group == g)
         span = np.searchsorted(spans[g][:, 0], ts[mine], side="right") - 1
