@@ -158,14 +158,14 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
     master, master_note = _channel_master(name, nmt, ec_tables, params, masters, start)
     if len(nmt):  # else every node keeps its empty command table
         _apply_commands(nmt, nodes, master, params)
-    requests = {n: _classify(m, params, with_period=False)  # boot-ups bound the
+    requests = {n: _classify(m, params, with_period=False, start=start)  # boot-ups bound the
                 for n, m in nodes.items()}  # SDO-written values
     write_validity(nodes)
     for n, m in nodes.items():
         m.small = _small(m, params)
         _find_period(m)
         if requests[n]:  # without requests the second pass classifies alike
-            _classify(m, params, with_period=True)
+            _classify(m, params, with_period=True, start=start)
             _find_period(m)
         if params.order_only:  # frame numbers are no time: nothing was measured
             m.order_only = True
@@ -537,7 +537,7 @@ def _ec_tables(decoded: Decoded, chan: int, groups: list[tuple[int, slice]],
     return tables
 
 
-def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> bool:
+def _classify(m: NodeModel, params: TimelineParams, with_period: bool, start: float) -> bool:
     """Boot-up, heartbeat or guarding response for each data frame on 700h+N (SPEC §2).
 
     Without the period (first pass) only boot-ups are final: the period in force needs
@@ -550,7 +550,10 @@ def _classify(m: NodeModel, params: TimelineParams, with_period: bool) -> bool:
         return False
     kind = _plain_kinds(ec.rtr, ec.dlc, ec.value)
     periods = m.periods_at(ec.ts) if with_period else np.full(len(ec), np.nan)
-    _classify_guarding(ec, kind, params, periods, _heartbeat_disabled(m, kind))
+    # a log that starts mid-stream: a request sent before the recording began may be
+    # pending at its first frame (order only: no time tells how long before)
+    before = -np.inf if params.order_only else start
+    _classify_guarding(ec, kind, params, periods, _heartbeat_disabled(m, kind), before)
     ec.kind = kind
     return True
 
@@ -577,10 +580,14 @@ def _heartbeat_disabled(m: NodeModel, kind: np.ndarray) -> np.ndarray:
 
 
 def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
-                       periods: np.ndarray, disabled: np.ndarray) -> None:
+                       periods: np.ndarray, disabled: np.ndarray, start: float) -> None:
     """Where remote requests are pending, a data frame may be a guarding response.
 
-    `periods`: the heartbeat period in force at each frame (NaN: unknown).
+    `periods`: the heartbeat period in force at each frame (NaN: unknown). `start`: the
+    trace's first frame, taken for a request sent before the recording began: in a log
+    that starts mid-stream, N's first report within the response timeout answers it
+    where a request to N comes before N's next report (a guarding answer `704#85` there
+    was a heartbeat with bit 7 set, C003, then G004 and H001 "for the rest of the trace").
 
     A node that only answers guarding (the usual one) is classified with array operations:
     a data frame answers the request right before it (no boot-up or other data frame
@@ -597,6 +604,9 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
     guard = np.zeros(len(rel), bool)
     if len(rel) > 1:
         guard[1:] = (k[1:] == HEARTBEAT) & (k[:-1] == REQUEST) & (ts[1:] - ts[:-1] <= timeout)
+    start = request_before_trace(k, ts, start, timeout)
+    if len(rel) and start > -np.inf:  # (no timestamps: the timeout is infinite)
+        guard[0] = True
     beat = (k == HEARTBEAT) & ~guard  # counted by the walk's hb_since_boot
     before = np.cumsum(beat) - beat  # heartbeats before each row
     at = np.arange(len(rel))
@@ -608,19 +618,33 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
         for j in range(1, MISSED + 2):  # the row j before each
             run &= k[MISSED + 1 - j:len(k) - j] == REQUEST
         after_misses[MISSED + 1:] = run
+    if start > -np.inf:
+        after_misses[0] = True  # how many requests went unanswered before the trace: unknown
     doubtful = guard & after_misses & (ec.value[rel] & 0x80 == 0)
     if not bool((guard & (since_boot >= 2) & ~disabled[rel]).any()) and not bool(
             (np.diff(ts) < 0).any()) and not bool(doubtful.any()):
         kind[rel[guard]] = GUARD
         return
-    _classify_guarding_walk(ec, kind, params, periods, disabled)
+    _classify_guarding_walk(ec, kind, params, periods, disabled, start)
+
+
+def request_before_trace(kind: np.ndarray, ts: np.ndarray, start: float, timeout: float
+                         ) -> float:
+    """`start` where N's first report (of its requests, boot-ups and reports `kind` at
+    `ts`) may answer a request sent before the trace began: it comes within the response
+    timeout of the trace's start and a request to N follows it before N's next report;
+    else -inf (no such request)."""
+    if len(kind) > 1 and kind[0] == HEARTBEAT and kind[1] == REQUEST and (
+            -np.inf < start and ts[0] - start <= timeout):
+        return start
+    return -np.inf
 
 
 MISSED = 2  # requests a node left unanswered before a frame that may be its heartbeat
 
 
 def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParams,
-                            periods: np.ndarray, disabled: np.ndarray) -> None:
+                            periods: np.ndarray, disabled: np.ndarray, start: float) -> None:
     """`_classify_guarding` frame by frame, in order (plain Python ints, no objects): for
     a node that answers guarding and produces heartbeats too.
 
@@ -636,15 +660,19 @@ def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParam
     heartbeats the SPEC's test needs: each was a guarding response with toggle 0, then a
     false G001 on it and on the first real response once the master switched N to
     guarding."""
-    pending: float | None = None  # ts of the pending request
+    # ts of the pending request (maybe one before the trace: request_before_trace)
+    pending: float | None = start if start > -np.inf else None
     hb_since_boot = 0
     last_hb: float | None = None
     early: float | None = None  # the early limit at the last heartbeat
     timeout = params.response_timeout_s + EPS
-    requests = 0  # requests since N's last data frame
+    # requests since N's last data frame (before the trace: as if several went unanswered,
+    # so that N's first report, taken for an answer, may still turn out a heartbeat)
+    requests = MISSED + 1 if pending is not None else 0
     expect: int | None = None  # the next response's toggle (None: either, at the start)
     doubtful: tuple[int, int | None] | None = None  # the last response, if it came after
     # unanswered requests with toggle 0: (its row, the toggle expected before it)
+    before_trace = -1  # the row of N's first report, taken for an answer from before it
     for i, (k, ts, value, period, off) in enumerate(zip(
             kind.tolist(), ec.ts.tolist(), ec.value.tolist(), periods.tolist(),
             disabled.tolist(), strict=True)):
@@ -671,15 +699,17 @@ def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParam
                     repeat = (not off and requests > MISSED and toggle == 0 and expect == 1
                               and doubtful is not None)
                     is_guard = not repeat
-                if doubtful is not None and (repeat or off) and toggle != expect and (
-                        doubtful[1] is None or toggle == doubtful[1]):
+                if doubtful is not None and (repeat or off or doubtful[0] == before_trace) \
+                        and toggle != expect and (doubtful[1] is None or toggle == doubtful[1]):
                     # it was a heartbeat too, or one before the master switched N to
-                    # guarding (1017h = 0): then this answer's toggle fits
+                    # guarding (1017h = 0), or the trace's first: then this answer's fits
                     kind[doubtful[0]] = HEARTBEAT
                     hb_since_boot += 1
                     expect, doubtful = doubtful[1], None
             if is_guard:
                 kind[i] = GUARD
+                if requests > MISSED and pending == start:
+                    before_trace = i
                 pending = None
                 doubtful = (i, expect) if requests > MISSED and toggle == 0 and not off else None
                 expect = 1 - toggle

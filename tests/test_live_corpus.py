@@ -50,4 +50,7 @@ def test_certain_live_findings_are_confirmed_on_the_corpus(tmp_path: Path) -> No
     assert unconfirmed == KNOWN
     assert counts[(True, "confirmed")] > 1500  # the corpus exercises the live rules
     assert counts[(False, "confirmed")] > counts[(False, "not-confirmed")]
-    assert set(c for _certain, c in counts) <= {"confirmed", "not-confirmed"}
+    # no certain finding is withdrawn; a provisional one may be, once a later frame shows
+    # what it rested on was otherwise (a report at the start that answered a request)
+    assert set(c for certain, c in counts if certain) <= {"confirmed", "not-confirmed"}
+    assert counts[(False, "withdrawn")] <= 2

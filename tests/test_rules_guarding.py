@@ -15,7 +15,7 @@ from traces import HEALTHY_NET, hb, healthy, profile
 
 from nmtcheck.checks.guarding import _BadToggle
 from nmtcheck.model import TimelineParams
-from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, REQUEST
+from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST
 
 
 def guard(node: int, t0: float, toggles: str, state: int = 0x7F, period: float = 0.1,
@@ -236,11 +236,17 @@ def test_the_array_classification_of_guarding_is_the_walks(
             [rnd.choice((0x05, 0x85, 0x7F, 0xFF, 0x04)) for _ in range(n)], np.uint8))
         periods = np.full(n, rnd.choice((np.nan, 0.1, 0.05)))
         disabled = np.asarray([rnd.random() < 0.05 for _ in range(n)])
+        # the trace's start: long before, or a request before it may still be pending
+        start = rnd.choice((-np.inf, ts[0], ts[0] - 0.05, ts[0] - 0.5))
+        rel = np.isin(kind, (REQUEST, BOOTUP, HEARTBEAT))
+        start = timeline.request_before_trace(kind[rel], ec.ts[rel], start,
+                                              params.response_timeout_s + EPS)
         a, b = kind.copy(), kind.copy()
         before = len(walked)
-        timeline._classify_guarding(ec, a, params, periods, disabled)  # type: ignore[arg-type]
+        timeline._classify_guarding(ec, a, params, periods, disabled,  # type: ignore[arg-type]
+                                    start)
         fast += len(walked) == before
-        walk(ec, b, params, periods, disabled)  # type: ignore[arg-type]
+        walk(ec, b, params, periods, disabled, start)  # type: ignore[arg-type]
         assert a.tolist() == b.tolist(), seed
     assert 300 < fast < 900, fast  # both ways were taken, and agreed
 

@@ -451,3 +451,18 @@ def test_a_repeated_toggle_after_a_missed_request_is_still_g001(checker: Checker
     answers[5:] = ["704#7F", "704#FF"]
     frames = [(0.0502 + 0.1 * i, a) for i, a in enumerate(answers) if a]
     assert checker.findings(_polled(frames, 0.7), select="G001") == []
+
+
+def test_a_first_heartbeat_followed_by_another_is_no_answer_from_before_the_trace(
+        checker: Checker) -> None:
+    """Node 2's first frame, 70 ms into the trace, is followed by its next heartbeat, not by
+    a request: it is a heartbeat, and the gap after it counts (a request sent before the
+    trace is only taken where a request to N comes before N's next report). Node 4's
+    first frame, an answer `704#85` followed by a request, is no heartbeat with bit 7 set."""
+    frames = [(0.0, "701#05"), (0.07, "702#05"), (0.5, "702#05")]
+    frames += [(0.5 + 0.1 * i, "702#05") for i in range(1, 20)]
+    frames += [(1.0 + 0.1 * i, "704#R") for i in range(10)]
+    frames += [(0.02, "704#85")] + [(1.0005 + 0.1 * i, "704#05" if i % 2 == 0 else "704#85")
+                                   for i in range(10)]
+    got = checker.findings(candump(sorted(frames)), select="H001,C003,G004,G001")
+    assert got == [("H001", 2, 0.22)]  # 0.07 + 1.5 x 100 ms

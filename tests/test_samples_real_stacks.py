@@ -256,3 +256,49 @@ def test_real_stack_pasted_without_timestamps(log: Path, tmp_path: Path) -> None
     want = sorted((f.rule, f.node, f.line) for f in timed.findings if f.rule not in TIME_RULES)
     got = sorted((f.rule, f.node, f.line) for f in timeless.findings if f.rule != "I006")
     assert got == want
+
+
+# -- a recording that starts mid-stream, between a guarding request and its answer ---------
+
+_GUARDED = [("canopennode", "master_obeys.log", "704#"), ("lely", "self_1017.log", "704#"),
+            ("canopennode", "healthy.log", "704#")]
+
+
+@pytest.mark.parametrize("folder,name,prefix", _GUARDED, ids=lambda v: str(v))
+def test_a_recording_that_starts_with_a_guarding_answer(folder: str, name: str, prefix: str,
+                                                        tmp_path: Path) -> None:
+    """The log cut so that its first line is node 4's answer to a request the cut left
+    out (the recorder started between the two): the answer (`704#85`, `704#05`) was read
+    as a heartbeat, then C003 (bit 7 set), G004 (guarding and heartbeats) and H001 "for
+    the rest of the trace" for a node that produces no heartbeat. Offline and live."""
+    from nmtcheck.live.frames import LiveFrame
+    from nmtcheck.live.session import Session
+
+    lines = (SAMPLES / folder / name).read_text().splitlines(keepends=True)
+    network = SAMPLES / folder / "network.toml"
+    answers = [i for i in range(1, len(lines) - 1)
+               if f"{prefix}R" in lines[i - 1] and f" {prefix}" in lines[i]
+               and f"{prefix}R" not in lines[i]][5:10]
+    assert len(answers) == 5
+    original = {f.rule for f in _check(SAMPLES / folder / name, network).findings
+                if f.node == 4}
+    for first in answers:
+        cut = tmp_path / f"cut{first}.log"
+        cut.write_text("".join(lines[first:]))
+        res = _check(cut, network)
+        assert {f.rule for f in res.findings if f.node == 4} <= original, (first, [
+            (f.rule, f.line) for f in res.findings])
+        session = Session(load_profile("default"), select_rules(load_profile("default"), [],
+                                                                []),
+                          load_network(str(network)), timer=False)
+        for line in lines[first:]:
+            stamp, iface, frame = line.split()
+            can_id, _, data = frame.partition("#")
+            rtr = data.startswith("R")
+            payload = b"" if rtr else bytes.fromhex(data)
+            session.feed(LiveFrame(float(stamp.strip("()")), iface, int(can_id, 16), False,
+                                   rtr, False, False, int(data[1:] or 0) if rtr
+                                   else len(payload), payload))
+        outcome = session.close()
+        assert [(lf.rule, lf.node) for lf in outcome.live
+                if lf.certain and lf.confirmed != "confirmed"] == []

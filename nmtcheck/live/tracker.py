@@ -105,9 +105,12 @@ class NodeState:
     sdo_request: tuple[int, int, int | None, float] | None = None  # index, sub, value, ts
     request: float | None = None  # the pending guarding request's ts
     requests: int = 0  # guarding requests since N's last 700h data frame
-    # the last response came after unanswered requests with toggle 0 (it may have been a
-    # heartbeat): the toggle expected before it
-    doubt: tuple[int | None] | None = None
+    polled: bool = False  # a guarding request to N was seen
+    start_frame: tuple[float, int] | None = None  # N's first report, at the session's start
+    # the last response came after unanswered requests with toggle 0, or was N's first
+    # report at the start (it may have been a heartbeat): the toggle expected before it,
+    # and whether it was that first report
+    doubt: tuple[int | None, bool] | None = None
     request_closed: bool = False
     guard_run: bool = False
     boots: int = 0
@@ -359,7 +362,9 @@ class Tracker:
 
     def _open_gap(self, st: NodeState, ts: float) -> None:
         st.gap_start, st.gap_limit, st.gap_fired = ts, st.timeout(self.timeout_factor), False
-        st.gap_certain = st.timeout_configured()
+        # from N's first report at the start, which a request may show was an answer
+        at_start = st.start_frame is not None and st.start_frame[0] == ts and not st.polled
+        st.gap_certain = st.timeout_configured() and not at_start
 
     def _close_request(self, st: NodeState, moment: float) -> None:
         st.request_closed = True
@@ -521,6 +526,9 @@ class Tracker:
                 self._close_request(st, f.ts)  # the next request before the answer
             st.request, st.request_closed = f.ts, False
             st.requests += 1
+            if not st.polled:
+                st.polled = True
+                self._start_frame_answered(st)
             return
         requests, st.requests = st.requests, 0  # since N's previous 700h data frame
         was_seen = st.seen
@@ -540,37 +548,22 @@ class Tracker:
             self._bootup(st, f.ts, was_seen)
             return
         code = value & 0x7F
-        guard = False
         toggle = value >> 7
         off = st.written_hb_ms == 0  # 1017h = 0 written: heartbeat disabled
-        if st.request is not None and f.ts - st.request <= self.response_s + EPS:
-            if st.hb_since_boot >= 2 and not off:
-                guard = bool(value & 0x80) or (
-                    st.class_early is not None and st.class_last_hb is not None
-                    and f.ts - st.class_last_hb < st.class_early)
-                if not (value & 0x80) and not st.class_early_sure:
-                    st.ambiguous = True  # the class hangs on the whole trace's median
-            else:  # the second of two frames with toggle 0 after unanswered requests,
-                # a repeat as a response: heartbeats (timeline._classify_guarding_walk)
-                guard = not (not off and requests > MISSED and toggle == 0
-                             and st.toggle_expected == 1 and st.doubt is not None)
-            if st.doubt is not None and (not guard or off) and toggle != st.toggle_expected \
-                    and st.doubt[0] in (None, toggle):
-                st.toggle_expected = st.doubt[0]  # that one was a heartbeat: this one fits
-                st.doubt = None
+        guard = self._answers(st, f.ts, value, requests, off)
         if guard:
             st.request = None
             st.guard_run = False
             doubtful = requests > MISSED and toggle == 0 and not off
             before = st.toggle_expected
             self._toggle(st, f.ts, value)
-            st.doubt = (before,) if doubtful else None
+            st.doubt = (before, False) if doubtful else None
             if doubtful:  # the offline check may find it was a heartbeat
                 st.ambiguous = True
         else:
-            if value & 0x80:
+            if value & 0x80:  # at the start maybe an answer, which a request may show
                 self._ec_bad(st, "C003", f.ts, f"heartbeat {value:02X}h has bit 7 (reserved) set",
-                             certain=not st.ambiguous)
+                             certain=not st.ambiguous and st.start_frame != (f.ts, value))
             else:
                 st.last_ec_bad["C003"] = False
             self._heartbeat(st, f.ts)
@@ -585,6 +578,60 @@ class Tracker:
                      and reported == cmd[1])  # queued before the command (SPEC §2)
             if not stale:
                 self._set(st, reported, f.ts, observed=True)
+
+    def _answers(self, st: NodeState, ts: float, value: int, requests: int, off: bool
+                 ) -> bool:
+        """Whether N's report `value` at `ts` answers a guarding request (SPEC §2, and
+        timeline._classify_guarding's additions); `requests`: those since N's last
+        report; `off`: 1017h = 0 is written."""
+        toggle = value >> 7
+        if (st.start_frame is None and not st.polled and not st.heartbeats and not st.boots
+                and self.start is not None and ts - self.start <= self.response_s + EPS):
+            # N's first report: maybe the answer to a request sent before the session
+            # began, if a request to N comes before its next report (_start_frame_answered)
+            st.start_frame = (ts, value)
+            return False
+        if st.request is None or ts - st.request > self.response_s + EPS:
+            return False
+        if st.hb_since_boot >= 2 and not off:
+            guard = bool(value & 0x80) or (
+                st.class_early is not None and st.class_last_hb is not None
+                and ts - st.class_last_hb < st.class_early)
+            if not (value & 0x80) and not st.class_early_sure:
+                st.ambiguous = True  # the class hangs on the whole trace's median
+        else:  # the second of two frames with toggle 0 after unanswered requests, a
+            # repeat as a response: heartbeats (timeline._classify_guarding_walk)
+            guard = not (not off and requests > MISSED and toggle == 0
+                         and st.toggle_expected == 1 and st.doubt is not None)
+        if st.doubt is not None and (not guard or off or st.doubt[1]) \
+                and toggle != st.toggle_expected and st.doubt[0] in (None, toggle):
+            st.toggle_expected = st.doubt[0]  # that one was a heartbeat: this one fits
+            st.doubt = None
+        return guard
+
+    def _start_frame_answered(self, st: NodeState) -> None:
+        """N's first request: the heartbeat N sent right at the session's start, its only
+        one, answered a request sent before the session began (monitoring that starts
+        mid-stream, as the offline timeline reads it): its gap, and an H001 that gap
+        fired, go; the next answer's toggle follows it."""
+        if st.start_frame is None or st.heartbeats != 1 or st.prev_hb != st.start_frame[0]:
+            return
+        value = st.start_frame[1]
+        lf = st.gap_finding
+        if lf is not None and st.gap_fired and not lf.withdrawn:
+            lf.withdrawn = True
+            st.findings -= 1
+            if self.withdraw is not None:
+                self.withdraw(lf)
+            self._back(st)
+        st.gap_start = st.gap_limit = None
+        st.gap_fired, st.gap_finding = False, None
+        st.heartbeats -= 1
+        st.hb_since_boot = max(st.hb_since_boot - 1, 0)
+        st.prev_hb = st.class_last_hb = None
+        st.toggle_expected = 1 - (value >> 7)
+        st.doubt = (None, True)  # the next answer's toggle decides, as offline
+        st.ambiguous = True  # offline may still find it was a heartbeat, with what follows
 
     def _toggle(self, st: NodeState, ts: float, value: int) -> None:
         """G001: guarding responses alternate bit 7, starting with 0 after a boot-up or a
