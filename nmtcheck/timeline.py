@@ -84,9 +84,10 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
                             for t in m.timeouts])
     _self_starts(decoded, [m for cm in models for m in cm.nodes.values()], end)
     for cm in models:
+        reports = _reports_by_node(cm) if params.order_only else {}
         for m in cm.nodes.values():
             m.intervals = (_bootups_only(m.ec, start, end) if _only_bootups(m)
-                           else _intervals(m, start, end, params.obey_s))
+                           else _intervals(m, start, end, params.obey_s, reports))
     return InputModel(decoded, start, end, models, params)
 
 
@@ -1182,22 +1183,38 @@ _EV_CMD = 3
 STEP_CHUNK = 1 << 16
 
 
-def _stale_until(m: NodeModel, obey_s: float) -> np.ndarray:
+def _reports_by_node(cm: ChannelModel) -> dict[int, np.ndarray]:
+    """Each node's heartbeats and guarding answers on the channel, as frame indices."""
+    return {n: m.ec.idx[(m.ec.kind == HEARTBEAT) | (m.ec.kind == GUARD)]
+            for n, m in cm.nodes.items()}
+
+
+def _stale_until(m: NodeModel, obey_s: float, reports: dict[int, np.ndarray]) -> np.ndarray:
     """Per command to N, until when a report of N that still says the state from before
     the command was queued before N processed it (stale, SPEC §2): `obey_s` after the
     command; in a log without timestamps, up to N's first report after the command
     (frame numbers are no time, and that report may still be a queued one: CANopenNode's
-    heartbeat right after `000#0102` often says 7Fh, its TPDO and 05h come next)."""
+    heartbeat right after `000#0102` often says 7Fh, its TPDO and 05h come next) if it
+    comes before any other node of the channel (`reports`: each node's, frame indices)
+    has reported twice after the command: a report a whole heartbeat cycle later was
+    not queued before it (B001 missed `703#05` 84 frames after `000#8103`)."""
     cmds = m.commands
     if not m.order_only:
         return cmds.ts + obey_s
     ec = m.ec
-    reports = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == GUARD))
-    if not reports.size:
+    mine = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == GUARD))
+    if not mine.size:
         return cmds.ts.astype(np.float64)
-    k = np.searchsorted(ec.idx[reports], cmds.idx, side="right")
-    first = ec.ts[reports[np.minimum(k, reports.size - 1)]].astype(np.float64)
-    return np.where(k < reports.size, first, cmds.ts)
+    k = np.searchsorted(ec.idx[mine], cmds.idx, side="right")
+    first = mine[np.minimum(k, mine.size - 1)]
+    cycle = np.full(len(cmds), np.iinfo(np.int64).max)  # another node's second report
+    for node, idx in reports.items():
+        if node != m.node and idx.size >= 2:
+            j = np.searchsorted(idx, cmds.idx, side="right") + 1
+            cycle = np.minimum(cycle, np.where(j < idx.size, idx[np.minimum(j, idx.size - 1)],
+                                               cycle))
+    soon = (k < mine.size) & (ec.idx[first] < cycle)
+    return np.where(soon, ec.ts[first].astype(np.float64), cmds.ts)
 
 
 def _interval_steps(m: NodeModel, until: np.ndarray) -> Iterator[tuple[float, int, int]]:
@@ -1296,7 +1313,8 @@ def _walk_inputs(m: NodeModel, until: np.ndarray) -> tuple[
             array("b", _CODE_STATE[m.ec.value & 0x7F].tobytes()))
 
 
-def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> IntervalTable:
+def _intervals(m: NodeModel, start: float, end: float, obey_s: float,
+               reports: dict[int, np.ndarray]) -> IntervalTable:
     """Walk the node's evidence in order and cut the timeline into state intervals.
 
     A heartbeat or guarding response up to `obey_s` after a command that reports the
@@ -1305,7 +1323,7 @@ def _intervals(m: NodeModel, start: float, end: float, obey_s: float) -> Interva
     floats, never objects: a node may change state on every heartbeat.
     """
     ec, cmds = m.ec, m.commands
-    stale_until = _stale_until(m, obey_s)
+    stale_until = _stale_until(m, obey_s, reports)
     steps, kind, code_state = _walk_inputs(m, stale_until)
     until = stale_until.tolist()
     # per command, then per self-start (SPEC §2): the state it sets and the source

@@ -195,7 +195,7 @@ def test_trivial_node_shortcuts_match_the_full_paths(checker: Checker) -> None:
         start, end, obey = res.model.start, res.model.end, res.model.timeline.obey_s
         for m in _trivial_nodes(res):
             trivial += 1
-            full = timeline._intervals(m, start, end, obey)
+            full = timeline._intervals(m, start, end, obey, {})
             for name in ("start", "end", "state", "source"):
                 assert np.array_equal(getattr(m.intervals, name), getattr(full, name))
             spans = m.unproven_spans

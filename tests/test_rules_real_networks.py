@@ -312,6 +312,20 @@ def test_no_timestamps_the_report_right_after_a_command_may_be_stale(checker: Ch
     assert _codes(checker, ignored, select="S001") == [("S001", 2)]
 
 
+def test_no_timestamps_a_report_a_heartbeat_cycle_later_is_not_stale(checker: Checker
+                                                                      ) -> None:
+    """`000#8103`, then node 3's next report only after nodes 1 and 2 have each reported
+    twice: no queued report, a sign of life without a boot-up (B001). A review found it
+    missed, and the pasted log passed where the recording fails. Right after the command
+    (before another node's second report) it may still be a queued one."""
+    late = ["701#05", "702#05", "703#05", "000#8103", "701#05", "702#05", "701#05",
+            "702#05", "703#05"]
+    assert _codes(checker, late, select="B001") == [("B001", 3)]
+    soon = ["701#05", "702#05", "703#05", "000#8103", "701#05", "703#05", "703#00",
+            "703#7F"]
+    assert _codes(checker, soon, select="B001") == []
+
+
 def test_no_timestamps_b003_needs_its_boot_ups_in_a_row(checker: Checker) -> None:
     """Without a window B003 takes a 00h right after N's previous 00h (N heartbeats 00h);
     a node that reported another state between its two boot-ups rebooted: B002."""

@@ -128,8 +128,9 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float, grace
         if what[i] == 0:
             return (f"no boot-up from node {m.node} within {timeout:.3f} s after {command}")
         kind = KIND_NAMES[int(what[i])] if what[i] > 0 else EC_KIND_NAMES[-1 - int(what[i])]
-        return (f"{kind} from node {m.node} {float(time[i] - c_ts[i]):.3f} s after {command} "
-                "without a boot-up")
+        gap = time[i] - c_ts[i]  # frames, where the log has no timestamps
+        after = f"{int(gap)} frames" if m.order_only else f"{float(gap):.3f} s"
+        return f"{kind} from node {m.node} {after} after {command} without a boot-up"
 
     yield batch(time, message, frame, line)
 
