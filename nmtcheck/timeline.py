@@ -619,11 +619,25 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
         for j in range(1, MISSED + 2):  # the row j before each
             run &= k[MISSED + 1 - j:len(k) - j] == REQUEST
         after_misses[MISSED + 1:] = run
-    if start > -np.inf:
-        after_misses[0] = True  # how many requests went unanswered before the trace: unknown
-    doubtful = guard & after_misses & (ec.value[rel] & 0x80 == 0)
+    toggle0 = guard & (ec.value[rel] & 0x80 == 0)
+    # the walk's additions can only change something where: an answer with toggle 0
+    # follows an unanswered request; N's first report since its boot-up, an answer with
+    # toggle 0, is followed by an answer under a 1017h = 0 write; or the trace's first
+    # report, taken for an answer, is followed by an answer with its toggle
+    data_rows = np.where(k != REQUEST, at, -1)
+    prev_data = np.concatenate([[-1], np.maximum.accumulate(data_rows)[:-1]])[:len(rel)]
+    first = (prev_data < 0) | (k[np.maximum(prev_data, 0)] == BOOTUP)
+    off_answer = guard & disabled[rel]
+    off_later = np.flip(np.maximum.accumulate(np.flip(off_answer)))
+    answers = np.flatnonzero(guard)
+    values = ec.value[rel]
+    start_repeat = (start > -np.inf and len(answers) > 1 and answers[0] == 0
+                    and bool((values[answers[1]] ^ values[0]) & 0x80 == 0))
+    off_after = np.concatenate([off_later[1:], [False]])
+    doubtful = bool((toggle0 & after_misses).any()
+                    or (toggle0 & first & ~disabled[rel] & off_after).any() or start_repeat)
     if not bool((guard & (since_boot >= 2) & ~disabled[rel]).any()) and not bool(
-            (np.diff(ts) < 0).any()) and not bool(doubtful.any()):
+            (np.diff(ts) < 0).any()) and not doubtful:
         kind[rel[guard]] = GUARD
         return
     _classify_guarding_walk(ec, kind, params, periods, disabled, start)
@@ -641,7 +655,7 @@ def request_before_trace(kind: np.ndarray, ts: np.ndarray, start: float, timeout
     return -np.inf
 
 
-MISSED = 2  # requests a node left unanswered before a frame that may be its heartbeat
+MISSED = 1  # requests a node left unanswered before a frame that may be its heartbeat
 
 
 def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParams,
@@ -649,9 +663,10 @@ def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParam
     """`_classify_guarding` frame by frame, in order (plain Python ints, no objects): for
     a node that answers guarding and produces heartbeats too.
 
-    Beyond the SPEC's test: of two frames in a row with toggle 0, each after requests N
-    left unanswered (MISSED of them or more), the second is N's heartbeat where, as a
-    response, its toggle would repeat the first's, and then so is the first; and such a
+    Beyond the SPEC's test: of two frames in a row with toggle 0, the second after a
+    request N left unanswered (MISSED or more) and the first after one too or N's first
+    report since its boot-up, the second is N's heartbeat where, as a response, its
+    toggle would repeat the first's, and then so is the first; and such a
     frame taken for the last response was a heartbeat where the first answer after a
     1017h = 0 write (the master switching N to guarding) only fits without it. A heartbeat
     producer that a master polls
@@ -674,6 +689,7 @@ def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParam
     doubtful: tuple[int, int | None] | None = None  # the last response, if it came after
     # unanswered requests with toggle 0: (its row, the toggle expected before it)
     before_trace = -1  # the row of N's first report, taken for an answer from before it
+    first_report = True  # no report of N yet since its boot-up (or the trace's start)
     for i, (k, ts, value, period, off) in enumerate(zip(
             kind.tolist(), ec.ts.tolist(), ec.value.tolist(), periods.tolist(),
             disabled.tolist(), strict=True)):
@@ -688,6 +704,7 @@ def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParam
             pending = None
             requests = 0
             expect, doubtful = 0, None
+            first_report = True
         elif k == HEARTBEAT:
             is_guard = False
             toggle = value >> 7 & 1
@@ -712,13 +729,15 @@ def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParam
                 if requests > MISSED and pending == start:
                     before_trace = i
                 pending = None
-                doubtful = (i, expect) if requests > MISSED and toggle == 0 and not off else None
+                doubtful = (i, expect) if (requests > MISSED or first_report) and (
+                    toggle == 0 and not off) else None
                 expect = 1 - toggle
             else:
                 hb_since_boot += 1
                 last_hb = ts
                 early = None if period != period else params.early_factor * period - EPS
             requests = 0
+            first_report = False
 
 
 def _find_period(m: NodeModel) -> None:

@@ -48,7 +48,9 @@ def test_certain_live_findings_are_confirmed_on_the_corpus(tmp_path: Path) -> No
                 if lf.certain and lf.confirmed != "confirmed":
                     unconfirmed.add((trace.name, lf.rule, lf.node, round(lf.time - start, 3)))
     assert unconfirmed == KNOWN
-    assert counts[(True, "confirmed")] > 1500  # the corpus exercises the live rules
+    # the corpus exercises the live rules (1,350 on 2026-11-27: guarding findings after
+    # an answer that may prove a heartbeat are provisional since, 1,900 before)
+    assert counts[(True, "confirmed")] > 1200
     assert counts[(False, "confirmed")] > counts[(False, "not-confirmed")]
     # no certain finding is withdrawn; a provisional one may be, once a later frame shows
     # what it rested on was otherwise (a report at the start that answered a request)

@@ -445,6 +445,17 @@ def test_heartbeats_of_a_polled_node_are_no_guarding_answers(checker: Checker) -
     assert [iv.source for iv in m.intervals][-1] == "heartbeat"
 
 
+def test_heartbeats_of_a_polled_node_at_any_phase_and_period(checker: Checker) -> None:
+    """The polling's phase and the heartbeat period vary: a first heartbeat 50 ms after
+    the first request (one request before it), and a 250 ms producer with two requests
+    between its heartbeats. A review found G001 on 6 of 20 such logs at 1000 ms and on
+    nearly all at 200-250 ms."""
+    early = [(0.1 + i, "704#7F") for i in range(3)]
+    assert checker.findings(_polled(early), select="G001,G004") == []
+    short = [(0.12 + 0.25 * i, "704#7F") for i in range(11)]
+    assert checker.findings(_polled(short), select="G001,G004") == []
+
+
 def test_the_first_answer_after_the_switch_to_guarding_is_judged_alone(checker: Checker
                                                                        ) -> None:
     """One heartbeat while polled, then the master writes 1017h = 0 and the node answers

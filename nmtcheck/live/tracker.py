@@ -106,6 +106,7 @@ class NodeState:
     request: float | None = None  # the pending guarding request's ts
     requests: int = 0  # guarding requests since N's last 700h data frame
     polled: bool = False  # a guarding request to N was seen
+    reported: bool = False  # N sent a report (700h data frame) since its boot-up
     start_frame: tuple[float, int] | None = None  # N's first report, at the session's start
     # the last response came after unanswered requests with toggle 0, or was N's first
     # report at the start (it may have been a heartbeat): the toggle expected before it,
@@ -372,7 +373,10 @@ class Tracker:
             st.guard_run = True
             self._find("G002", st.channel, st, moment,
                        f"no node-guarding response from node {st.node} within "
-                       f"{self.response_s:.3f} s", certain=not st.ambiguous,
+                       f"{self.response_s:.3f} s",
+                       # after an answer that may prove a heartbeat, the run may be one
+                       # with the run before it
+                       certain=not st.ambiguous and st.doubt is None,
                        cause_from=moment - self.response_s)
             self._go_offline(st)
 
@@ -531,6 +535,7 @@ class Tracker:
                 self._start_frame_answered(st)
             return
         requests, st.requests = st.requests, 0  # since N's previous 700h data frame
+        first, st.reported = not st.reported, True  # N's first report since its boot-up
         was_seen = st.seen
         value = f.data[0] if f.data else 0
         if f.dlc == 1 and value == 0:
@@ -554,11 +559,11 @@ class Tracker:
         if guard:
             st.request = None
             st.guard_run = False
-            doubtful = requests > MISSED and toggle == 0 and not off
+            doubtful = (requests > MISSED or first) and toggle == 0 and not off
             before = st.toggle_expected
             self._toggle(st, f.ts, value)
             st.doubt = (before, False) if doubtful else None
-            if doubtful:  # the offline check may find it was a heartbeat
+            if doubtful and requests > MISSED:  # offline may find it was a heartbeat
                 st.ambiguous = True
         else:
             if value & 0x80:  # at the start maybe an answer, which a request may show
@@ -607,6 +612,7 @@ class Tracker:
                 and toggle != st.toggle_expected and st.doubt[0] in (None, toggle):
             st.toggle_expected = st.doubt[0]  # that one was a heartbeat: this one fits
             st.doubt = None
+            st.ambiguous = True  # what live made of it stands: offline reads it again
         return guard
 
     def _start_frame_answered(self, st: NodeState) -> None:
@@ -704,6 +710,7 @@ class Tracker:
         st.self_start_open = True  # until a report or a command shows it did not start itself
         st.toggle_expected, st.g001_run = 0, False
         st.requests, st.doubt = 0, None
+        st.reported = False
         # B003's window: 3 x the configured period, else x the whole trace's median
         # (the recent one here: then a verdict on a gap over 1 s is provisional)
         configured = st.config.heartbeat_ms
