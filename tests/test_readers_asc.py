@@ -217,6 +217,20 @@ def test_base_dec(tmp_path: Path) -> None:
     _compare_with_python_can(path)  # python-can reads `base dec` correctly
 
 
+def test_a_one_digit_data_byte_is_a_damaged_record(tmp_path: Path) -> None:
+    """`base hex` data bytes are written `%02X`: `d 1 0` is a line cut inside its data
+    byte (a recording killed mid-line), a skipped record, not a boot-up `702#00` (it gave
+    B003, FAIL). Two digits, and `base dec`'s numbers, stay data."""
+    path = write_asc(tmp_path, [
+        "   0.400000 1  702             Rx   d 1 05",
+        "   0.500000 1  702             Rx   d 1 0",
+        "   0.600000 1  702             Rx   d 2 7F 0",
+    ])
+    stats, cols = read(path)
+    assert stats.frames == 1 and stats.skipped == 2
+    assert bytes(cols["data"][0, :1]) == b"\x05"
+
+
 def test_timestamps_relative_accumulate(tmp_path: Path) -> None:
     header = ["date Mon Jan 8 10:00:00.000 2024", "base hex  timestamps relative",
               "internal events logged", "Begin Triggerblock Mon Jan 8 10:00:00.000 2024",

@@ -82,6 +82,8 @@ def _num(tok: bytes, base: int) -> int:
 def _data(tokens: list[bytes], n: int, base: int) -> bytes:
     if len(tokens) < n:
         raise _Bad(f"expected {n} data bytes, found {len(tokens)}")
+    if base == 16 and any(len(t) != 2 for t in tokens[:n]):  # `%02X`: one digit is a cut
+        raise _Bad("data byte is not two hex digits")  # or damaged byte (`d 1 0`)
     values = [_num(t, base) for t in tokens[:n]]
     if any(v > 0xFF for v in values):
         raise _Bad("data byte above FFh")
