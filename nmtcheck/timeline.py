@@ -619,7 +619,8 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
         for j in range(1, MISSED + 2):  # the row j before each
             run &= k[MISSED + 1 - j:len(k) - j] == REQUEST
         after_misses[MISSED + 1:] = run
-    toggle0 = guard & (ec.value[rel] & 0x80 == 0)
+    values = ec.value[rel]
+    toggle0 = guard & (values & 0x80 == 0)
     # the walk's additions can only change something where: an answer with toggle 0
     # follows an unanswered request; N's first report since its boot-up, an answer with
     # toggle 0, is followed by an answer under a 1017h = 0 write; or the trace's first
@@ -627,13 +628,11 @@ def _classify_guarding(ec: EcTable, kind: np.ndarray, params: TimelineParams,
     data_rows = np.where(k != REQUEST, at, -1)
     prev_data = np.concatenate([[-1], np.maximum.accumulate(data_rows)[:-1]])[:len(rel)]
     first = (prev_data < 0) | (k[np.maximum(prev_data, 0)] == BOOTUP)
-    off_answer = guard & disabled[rel]
-    off_later = np.flip(np.maximum.accumulate(np.flip(off_answer)))
+    off = guard & disabled[rel]
+    off_after = np.flip(np.cumsum(np.flip(off))) > off  # an answer under 1017h = 0 later
     answers = np.flatnonzero(guard)
-    values = ec.value[rel]
     start_repeat = (start > -np.inf and len(answers) > 1 and answers[0] == 0
                     and bool((values[answers[1]] ^ values[0]) & 0x80 == 0))
-    off_after = np.concatenate([off_later[1:], [False]])
     doubtful = bool((toggle0 & after_misses).any()
                     or (toggle0 & first & ~disabled[rel] & off_after).any() or start_repeat)
     if not bool((guard & (since_boot >= 2) & ~disabled[rel]).any()) and not bool(
@@ -666,12 +665,12 @@ def _classify_guarding_walk(ec: EcTable, kind: np.ndarray, params: TimelineParam
     Beyond the SPEC's test: of two frames in a row with toggle 0, the second after a
     request N left unanswered (MISSED or more) and the first after one too or N's first
     report since its boot-up, the second is N's heartbeat where, as a response, its
-    toggle would repeat the first's, and then so is the first; and such a
-    frame taken for the last response was a heartbeat where the first answer after a
-    1017h = 0 write (the master switching N to guarding) only fits without it. A heartbeat
-    producer that a master polls
-    (CANopenNode after a power cycle: 1017h back at its power-on value, which disables
-    its guarding slave) sends heartbeats at any phase of the polling, so every one of them
+    toggle would repeat the first's, and then so is the first; and such a frame taken for
+    the last response was a heartbeat where the first answer after a 1017h = 0 write (the
+    master switching N to guarding), or the next answer after the trace's first report
+    taken for one, only fits without it. A heartbeat producer that a master polls
+    (CANopenNode after a power cycle: 1017h back at its power-on value, which disables its
+    guarding slave) sends heartbeats at any phase of the polling, so every one of them
     comes within the response timeout of the latest request, and N never shows the two
     heartbeats the SPEC's test needs: each was a guarding response with toggle 0, then a
     false G001 on it and on the first real response once the master switched N to

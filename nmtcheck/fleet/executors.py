@@ -126,6 +126,7 @@ def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None 
 # glibc's mallopt parameters (malloc.h)
 M_TRIM_THRESHOLD, M_TOP_PAD, M_MMAP_THRESHOLD = -1, -2, -3
 WORKER_HEAP_BYTES = 64 << 20  # about what a check of one 1 M-frame log allocates at once
+MMAP_THRESHOLD_MAX = 32 << 20  # the most a 64-bit glibc takes (HEAP_MAX_SIZE / 2)
 
 
 def keep_freed_memory() -> None:
@@ -141,10 +142,12 @@ def keep_freed_memory() -> None:
         if not os.confstr("CS_GNU_LIBC_VERSION"):
             return
         libc = ctypes.CDLL(None)
-        for param, value in ((M_MMAP_THRESHOLD, WORKER_HEAP_BYTES),
-                             (M_TRIM_THRESHOLD, 4 * WORKER_HEAP_BYTES),
-                             (M_TOP_PAD, WORKER_HEAP_BYTES)):
-            libc.mallopt(param, value)
+        # A fixed trim threshold also fixes the mmap threshold at its 128 kB default (it
+        # stops adapting): every column array would then be mapped and unmapped, 4x
+        # slower. So the rest only where the mmap threshold was taken.
+        if libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_MAX):
+            libc.mallopt(M_TRIM_THRESHOLD, 4 * WORKER_HEAP_BYTES)
+            libc.mallopt(M_TOP_PAD, WORKER_HEAP_BYTES)
     except (OSError, ValueError, AttributeError):  # not glibc: its defaults stay
         return
 

@@ -350,16 +350,23 @@ class Tracker:
         it still counts (SPEC H001). One the clock fired although this frame is stamped
         before its moment (the frame reached us late) is withdrawn."""
         lf = st.gap_finding
-        if (lf is not None and st.gap_fired and ts <= lf.time + EPS and not lf.withdrawn):
+        if lf is not None and ts <= lf.time + EPS:
+            self._withdraw_gap(st)
+        self._expire_gap(st, ts)
+        st.gap_start = st.gap_limit = None
+        st.gap_fired = False
+        st.gap_finding = None
+
+    def _withdraw_gap(self, st: NodeState) -> None:
+        """Take back the H001 the current gap fired (if it did): what it rested on proved
+        otherwise."""
+        lf = st.gap_finding
+        if lf is not None and st.gap_fired and not lf.withdrawn:
             lf.withdrawn = True
             st.findings -= 1
             if self.withdraw is not None:
                 self.withdraw(lf)
             self._back(st)
-        self._expire_gap(st, ts)
-        st.gap_start = st.gap_limit = None
-        st.gap_fired = False
-        st.gap_finding = None
 
     def _open_gap(self, st: NodeState, ts: float) -> None:
         st.gap_start, st.gap_limit, st.gap_fired = ts, st.timeout(self.timeout_factor), False
@@ -623,13 +630,7 @@ class Tracker:
         if st.start_frame is None or st.heartbeats != 1 or st.prev_hb != st.start_frame[0]:
             return
         value = st.start_frame[1]
-        lf = st.gap_finding
-        if lf is not None and st.gap_fired and not lf.withdrawn:
-            lf.withdrawn = True
-            st.findings -= 1
-            if self.withdraw is not None:
-                self.withdraw(lf)
-            self._back(st)
+        self._withdraw_gap(st)
         st.gap_start = st.gap_limit = None
         st.gap_fired, st.gap_finding = False, None
         st.heartbeats -= 1

@@ -252,19 +252,26 @@ def _looks_like_deltas(lines: list[bytes]) -> bool:
 
 
 def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
-    if reference_path():
-        return batches_of(stats, _rows(source, stats))
-    head = peek(source, HEAD_PEEK_BYTES)
-    lines = head.split(b"\n")
-    if len(lines) <= DETECT_LINES and len(head) == HEAD_PEEK_BYTES:  # very long lines
-        return batches_of(stats, _rows(source, stats))
-    head_lines = [line + b"\n" for line in lines[:DETECT_LINES]]
-    if len(lines) <= DETECT_LINES and not head.endswith(b"\n"):  # the whole input, its last
-        head_lines[-1] = head_lines[-1][:-1]  # line without a newline
-    stamped = _timestamped(head_lines)
-    if stamped and _looks_like_deltas(head_lines):  # `-td`: each time depends on the last
+    """A block of lines at a time, decided by the same first lines as the reference
+    decides; line by line (the reference) for `-td` logs, whose times each depend on the
+    last, and where the first DETECT_LINES lines do not fit HEAD_PEEK_BYTES."""
+    head = None if reference_path() else _head_lines(peek(source, HEAD_PEEK_BYTES))
+    stamped = head is not None and _timestamped(head)
+    if head is None or (stamped and _looks_like_deltas(head)):
         return batches_of(stats, _rows(source, stats))
     return _read_blocks(source, stats, stamped)
+
+
+def _head_lines(head: bytes) -> list[bytes] | None:
+    """The first DETECT_LINES lines of `head` as `Source.lines()` gives them; None where
+    `head` (HEAD_PEEK_BYTES of the input) ends before them (very long lines)."""
+    lines = head.split(b"\n")
+    if len(lines) <= DETECT_LINES and len(head) == HEAD_PEEK_BYTES:
+        return None
+    out = [line + b"\n" for line in lines[:DETECT_LINES]]
+    if len(lines) <= DETECT_LINES and not head.endswith(b"\n"):  # the whole input, its last
+        out[-1] = out[-1][:-1]  # line without a newline
+    return out
 
 
 # --- the fast path ----------------------------------------------------------------------
@@ -400,20 +407,22 @@ def _read_blocks(source: Source, stats: InputStats, stamped: bool) -> Iterator[F
     stats.timestamped = stamped
     layout = _Layout(stamped)
     parser = _LineParser(stamped, deltas=False)
-    last_fast = [False]  # whether the previous block's last line was a fast one
+    last_fast = False  # whether the previous block's last line was a fast one
 
     def slow_lines(block: Block, p: ParsedLines, stats: InputStats
                    ) -> Iterator[tuple[int, tuple[Any, ...]]]:
+        nonlocal last_fast
         is_fast = np.zeros(len(block) + 1, bool)  # row -1 (at the end): the previous block's
         is_fast[p.fast] = True
-        is_fast[-1] = last_fast[0]
+        is_fast[-1] = last_fast
         for row in p.slow.tolist():
             if is_fast[row - 1]:  # a fast line is a frame and no error frame
                 parser.explaining = False
             frame = parser.parse(block.first_line + row, block.line(row), stats)
             if frame is not None:
                 yield row, (frame.ts, frame.channel.encode("latin-1"), *frame[2:])
-        last_fast[0] = bool(is_fast[len(block) - 1]) if len(block) else last_fast[0]
+        if len(block):
+            last_fast = bool(is_fast[len(block) - 1])
 
     return read_parsed_blocks(source, stats, lambda b: _parse_block(b, layout), layout.learn,
                               slow_lines)
