@@ -1205,7 +1205,6 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
     """Reconstruct every channel's boot processes; the P findings and the boot report
     (findings past `cap` per code only counted, 0: none)."""
     out = BootAnalysis(cap=cap)
-    last_frame = model.end
     servers: dict[int, set[int]] = {}  # per channel code, found once (40,000 channels)
     for k in spool.servers():
         servers.setdefault(k // 128, set()).add(k)
@@ -1260,7 +1259,7 @@ def analyse(model: InputModel, spool: st.SdoSpool, configs: dict[str, BootConfig
         _channel_properties(cb, cm, cfg, min(first_starts, default=None))
         for n, (nd, kept) in per_node.items():
             _node_report(out, cm, n, nd, kept, cfg, spans[n], counts[n])
-        _findings(out, cm, per_node, dropped, cfg, cb, p, last_frame)
+        _findings(out, cm, per_node, dropped, cfg, cb, p, cm.end)
     return out
 
 
@@ -1295,7 +1294,7 @@ def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, 
     rows = spool.frames(cm.chan * 128 + n) if has_sdo else None
     if rows is not None and n not in cfg.nodes and not _probed(rows):
         rows = None  # no probe: no process (and no columns for a flood of SDO)
-    t = (st.transfers(rows, model.end, p.sdo_timeout_s) if rows is not None
+    t = (st.transfers(rows, cm.end, p.sdo_timeout_s) if rows is not None
          else st.TransferTable.empty())
     del rows
     nd = _node_inputs(cm, n, cm.nodes.get(n), t, mb, cfg.nodes.get(n))
@@ -1304,7 +1303,7 @@ def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, 
     tm = (t.result == st.ABORTED) & (t.abort_code == st.TIMEOUT_ABORT)
     aborts = t.end_ts[tm] - t.start_ts[tm]
     mandatory = n in cfg.nodes and cfg.nodes[n].mandatory
-    judged = _plainly_judged(nd, c, model.end, p, mandatory)
+    judged = _plainly_judged(nd, c, cm.end, p, mandatory)
     if judged.failed is None or len(judged.failed) != len(c):
         judged.failed = np.zeros(len(c), bool)
     if len(c):  # the report shows the last one whole
@@ -1321,7 +1320,7 @@ def _node_pass(model: InputModel, spool: st.SdoSpool, cm: ChannelModel, n: int, 
             seen["P003"] += 1
             continue
         x = _process(nd, c, i)
-        _evaluate(x, nd, p, model.end, model.end, 1 << 62)
+        _evaluate(x, nd, p, cm.end, cm.end, 1 << 62)
         x.last_step = x.steps[-1].step if x.steps else "none"
         if x.last_step not in names:
             names.append(x.last_step)
@@ -1682,7 +1681,7 @@ def run(model: InputModel, spool: st.SdoSpool, network: Any, profile: Any, cap: 
     `cap`: the engine's findings per rule (0: all), past which findings are only counted."""
     if model.timeline.order_only:
         return None
-    configs = ({cm.name: network.boot_config(cm.name) for cm in model.channels}
+    configs = ({cm.name: network.boot_config(cm.network_name) for cm in model.channels}
                if network is not None else {})
     analysis = analyse(model, spool, configs, params_of(profile), cap)
     attach(model, analysis)

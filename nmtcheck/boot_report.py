@@ -105,7 +105,7 @@ def text_lines(res: InputResult) -> Iterator[str]:
             when = (f"{w.time - start:.6f} s (line {w.line})" if w is not None and w.line
                     else f"{w.time - start:.6f} s" if w is not None else "")
             if rep.status == "incomplete":
-                when = f"{res.model.end - start:.6f} s"
+                when = f"{res.model.end_of(channel) - start:.6f} s"
             letter = rep.letter or "-"
             status = "FAILED" if rep.status == "failed" else rep.status
             detail = _detail(rep, res.findings)

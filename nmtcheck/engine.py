@@ -11,7 +11,7 @@ from __future__ import annotations
 import difflib
 import gc
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Protocol, cast
 
 import numpy as np
@@ -19,6 +19,7 @@ import numpy as np
 from nmtcheck import boot as boot_stage
 from nmtcheck import causes as cause_stage
 from nmtcheck.boot import BootAnalysis
+from nmtcheck.captures import Captures, channel_spans
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import (
     SEVERITIES,
@@ -36,7 +37,14 @@ from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.evaluated import finding_bases
 from nmtcheck.evaluated import not_evaluated as rules_not_evaluated
 from nmtcheck.frames import FrameBatch
-from nmtcheck.model import InputModel, Master, NodeModel, TimelineParams, Timeout
+from nmtcheck.model import (
+    InputModel,
+    Master,
+    NodeConfig,
+    NodeModel,
+    TimelineParams,
+    Timeout,
+)
 from nmtcheck.network import Network
 from nmtcheck.nmt import UNKNOWN
 from nmtcheck.profiles import Profile, RuleSettings
@@ -155,16 +163,28 @@ def timeline_params(profile: Profile) -> TimelineParams:
     )
 
 
-def known_masters(network: Network | None, channels: list[str]) -> dict[str, Master]:
-    """Each channel's master as the network file or a device file names it (SPEC §2)."""
+def known_masters(network: Network | None, channels: list[str],
+                  log_name: Callable[[str], str] = str) -> dict[str, Master]:
+    """Each channel's master as the network file or a device file names it (SPEC §2);
+    `log_name`: the name the files know a channel by (a later capture's: nmtcheck/captures.py)."""
     out: dict[str, Master] = {}
     if network is None:
         return out
     for name in channels:
-        found = network.master_for(name)
+        found = network.master_for(log_name(name))
         if found is not None:
             out[name] = Master(*found)
     return out
+
+
+def _configs(network: Network | None, stats: InputStats
+             ) -> dict[tuple[str | None, int], NodeConfig]:
+    """The files' node configurations by (channel, node-ID); a channel's are also those of
+    its later captures' channels (nmtcheck/captures.py)."""
+    configs = network.configs() if network else {}
+    for own, name in stats.capture_channels.items():
+        configs.update({(own, n): cfg for (ch, n), cfg in list(configs.items()) if ch == name})
+    return configs
 
 
 def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
@@ -179,7 +199,9 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
     stats = opened.stats
     selected = [r.code for r in rules]
     spool = SdoSpool()  # the SDO and error frames, per server (SPEC §8.3.1, §8.6)
-    batches = tee(_in_order(opened.batches, stats), spool)
+    captures = Captures(stats)  # where time starts again, a new recording begins
+    batches = tee(captures.split(_in_order(
+        _without_cut_frame(opened.batches, stats, opened.cut_line), stats)), spool)
     decoded = decode(_counted(batches, progress) if progress else batches, pdo_ids,
                      protect_s=timeline_params(profile).obey_s)
     collecting = _pause_collector()
@@ -196,10 +218,11 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             last = decoded.last_event_ts
             if last is not None:
                 end = max(end, last)
-        configs = network.configs() if network else {}
+        spans = channel_spans(captures)
+        configs = _configs(network, stats)
         params = replace(timeline_params(profile), order_only=stats.order_only)
-        masters = known_masters(network, stats.channels)
-        model = build(decoded, stats.channels, start, end, params, configs, masters)
+        masters = known_masters(network, stats.channels, stats.log_channel)
+        model = build(decoded, stats.channels, start, end, params, configs, masters, spans)
         if decoded.ec_runs or decoded.ec_guard_runs:  # a long log: a node whose dropped
             tolerance = profile["H003"].params["tolerance"]  # runs a limit cuts is read whole
             silence = float(profile.timeline.get("silence_min_ms", 100.0)) / 1000.0
@@ -209,12 +232,14 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                 if not unsafe:
                     break
                 decoded.restore_ec(keys)
-                model = build(decoded, stats.channels, start, end, params, configs, masters)
+                model = build(decoded, stats.channels, start, end, params, configs, masters,
+                              spans)
                 unsafe = unsafe_nodes(model, tolerance, silence)
             late = _boot_evidence_in_runs(model, spool, network, profile, max_findings)
             if late:
                 decoded.restore_ec(late)
-                model = build(decoded, stats.channels, start, end, params, configs, masters)
+                model = build(decoded, stats.channels, start, end, params, configs, masters,
+                              spans)
         decoded.events = decoded.events[:0].copy()  # the SDO rows are paired into the model
         model.stats = stats
         model.expected = network.expected() if network else []
@@ -222,7 +247,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             if channel not in stats.channels:
                 raise UsageError(f"--channel {channel}: not in {stats.path} (channels: "
                                  f"{', '.join(stats.channels) or 'none'})")
-            model.channels = [cm for cm in model.channels if cm.name == channel]
+            model.channels = [cm for cm in model.channels  # (and its later captures')
+                              if channel in (cm.name, cm.network_name)]
         result = InputResult(index, stats, model)
         result.boot = boot_stage.run(model, spool, network, profile, max_findings)
         problems: list[tuple[Rule, Problem]] = []
@@ -411,6 +437,49 @@ def _in_order(batches: Iterator[FrameBatch], stats: InputStats) -> Iterator[Fram
         yield from held
 
 
+# the fewest data bytes a CANopen object's frame has (CiA 301): NMT command, EMCY, TIME,
+# SDO; an error-control data frame has its state byte
+_LEAST_BYTES = ((0x000, 0x000, 2), (0x081, 0x0FF, 8), (0x100, 0x100, 6), (0x581, 0x5FF, 8),
+                (0x601, 0x67F, 8), (0x701, 0x77F, 1))
+
+
+def _without_cut_frame(batches: Iterator[FrameBatch], stats: InputStats,
+                       cut_line: int | None) -> Iterator[FrameBatch]:
+    """The batches, but a last frame that a cut explains: on a text file's last line
+    without a newline (`cut_line`), with fewer data bytes than its CANopen object has
+    (`000#01` of `000#0105`). A recording killed mid-write or a file copied while it was
+    written ends so; read as a frame it would be a malformed NMT command (C002) or
+    heartbeat (C003) and fail the gate. It is a skipped record and the input is truncated
+    (I002). A short frame on a last line with its newline, or a whole frame on one
+    without (a pasted log saved without a final newline), is read as it is."""
+    if cut_line is None:  # the input ends with a newline, the usual case
+        yield from batches
+        return
+    held: FrameBatch | None = None  # the last batch is known once the next is not
+    for batch in batches:
+        if held is not None:
+            yield held
+        held = batch
+    if held is None:
+        return
+    if len(held) and int(held.line[-1]) == cut_line and _short(held):
+        held = replace(held, **{f.name: getattr(held, f.name)[:-1] for f in fields(held)})
+        stats.frames -= 1
+        stats.end = float(held.ts[-1]) if len(held) else stats.end
+        stats.truncated = True
+        stats.skip(cut_line, "cut off: the input ends inside this line (no newline after it) "
+                   "and its frame has fewer data bytes than a CANopen frame of its CAN-ID")
+    yield held
+
+
+def _short(batch: FrameBatch) -> bool:
+    """Whether the batch's last frame is an 11-bit data frame shorter than its object."""
+    if batch.ext[-1] or batch.rtr[-1] or batch.err[-1]:
+        return False
+    can_id, dlc = int(batch.can_id[-1]), int(batch.dlc[-1])
+    return any(lo <= can_id <= hi and dlc < least for lo, hi, least in _LEAST_BYTES)
+
+
 def _by_index(batch: FrameBatch) -> FrameBatch:
     return replace(batch, ts=batch.index.astype(np.float64))
 
@@ -582,8 +651,12 @@ def _check_in_worker(path: str, index: int, profile: Profile, codes: list[str],
 def _locate(model: InputModel, problems: list[tuple[Rule, Problem]]) -> None:
     """Give moment findings the first frame at or after their moment."""
     moments = [p for _r, p in problems if p.frame_index is None]
-    found = model.decoded.first_frame_at_or_after([p.time for p in moments],
-                                                  [p.after for p in moments])
+    # a later capture's moment lies after its first frame (nmtcheck/captures.py)
+    firsts = {cm.name: cm.first_index - 1 for cm in model.channels if cm.first_index}
+    found = model.decoded.first_frame_at_or_after(
+        [p.time for p in moments],
+        [p.after if p.after is not None else firsts.get(p.channel)  # type: ignore[arg-type]
+         for p in moments])
     last: tuple[float, FrameAt] | None = None
     for p, hit in zip(moments, found, strict=True):
         if hit is None and p.after is not None:  # time went back and never came up to the

@@ -494,6 +494,28 @@ class ChannelModel:
     nodes: dict[int, NodeModel]
     master: Master | None = None
     master_note: str = ""  # why no master is known, or how it was chosen
+    # the channel's trace span: the input's, or its capture's (nmtcheck/captures.py)
+    start: float = 0.0
+    end: float = 0.0
+    log_name: str = ""  # its name in the log and the files ("" : `name`)
+    first_index: int = 0  # the frame its capture begins at (0: the input's first)
+    first_line: int | None = None  # that frame's line, for a later capture
+
+    @property
+    def network_name(self) -> str:
+        """The name the network and device files know the channel by."""
+        return self.log_name or self.name
+
+
+class CaptureSpan(NamedTuple):
+    """A channel of a later capture in the input (nmtcheck/captures.py): the name it has
+    in the log, its capture's span and where that capture begins."""
+
+    log_name: str
+    start: float
+    end: float
+    first_index: int
+    first_line: int
 
 
 @dataclass
@@ -515,6 +537,14 @@ class InputModel:
         """Every node, channels in model order, nodes in number order."""
         for cm in self.channels:
             yield from cm.nodes.values()
+
+    def end_of(self, channel: str | None) -> float:
+        """The end of a channel's trace: the input's, or its capture's."""
+        return self._channel_ends.get(channel, self.end)  # type: ignore[arg-type]
+
+    @cached_property
+    def _channel_ends(self) -> dict[str, float]:
+        return {cm.name: cm.end for cm in self.channels}
 
     def events(self) -> Iterator[tuple[NodeModel, NodeEvent]]:
         """Every node's events (EMCY, SDO aborts and writes) in file order, each made when

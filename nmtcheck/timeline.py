@@ -20,6 +20,7 @@ import numpy as np
 from nmtcheck.decode import KIND_TPDO, Decoded, node_groups
 from nmtcheck.frames import node_key
 from nmtcheck.model import (
+    CaptureSpan,
     ChannelModel,
     CommandTable,
     EcTable,
@@ -61,11 +62,14 @@ from nmtcheck.tables import shared_empty
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
           params: TimelineParams, configs: dict[tuple[str | None, int], NodeConfig],
-          masters: dict[str, Master] | None = None) -> InputModel:
+          masters: dict[str, Master] | None = None,
+          captures: dict[int, CaptureSpan] | None = None) -> InputModel:
     """Build every node's model and timeline from the decoded input.
 
     `masters`: the NMT master of a channel (by name) known from the network or device
     files; on other channels it is inferred from the start-up pattern (SPEC §2).
+    `captures`: the channels of a later capture in the input, by code, with their span:
+    each is the trace of its own recording (nmtcheck/captures.py).
     """
     # each channel's rows, found once: a log may have tens of thousands of channels
     ev_rows, nmt_rows = _rows_by_channel(decoded.events["chan"]), _rows_by_channel(
@@ -75,19 +79,26 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
         sent.setdefault(key // 128, []).append(key)
     ec_groups, emcy_groups = node_groups(decoded.ec), node_groups(decoded.emcy)
     ec_cols = _ec_columns(decoded.ec)
-    models = [_channel(decoded, chan, name, start, end, params, configs, masters or {},
-                       ev_rows.get(chan), nmt_rows.get(chan), sent.get(chan, []),
-                       ec_groups.get(chan, []), emcy_groups.get(chan, []), ec_cols)
-              for chan, name in enumerate(channels)]
+    models = []
+    for chan, name in enumerate(channels):
+        span = (captures or {}).get(chan)
+        cm = _channel(decoded, chan, name, span.start if span else start,
+                      span.end if span else end, params, configs, masters or {},
+                      ev_rows.get(chan), nmt_rows.get(chan), sent.get(chan, []),
+                      ec_groups.get(chan, []), emcy_groups.get(chan, []), ec_cols)
+        if span is not None:
+            cm.log_name, cm.first_index, cm.first_line = (span.log_name, span.first_index,
+                                                          span.first_line)
+        models.append(cm)
     # OFFLINE lasts until the node's next frame of any kind: one pass for all channels
     _offline_ends(decoded, [(m, t) for cm in models for m in cm.nodes.values()
                             for t in m.timeouts])
-    _self_starts(decoded, [m for cm in models for m in cm.nodes.values()], end)
+    _self_starts(decoded, [(m, cm.end) for cm in models for m in cm.nodes.values()])
     for cm in models:
         reports = _reports_by_node(cm) if params.order_only else {}
         for m in cm.nodes.values():
-            m.intervals = (_bootups_only(m.ec, start, end) if _only_bootups(m)
-                           else _intervals(m, start, end, params.obey_s, reports))
+            m.intervals = (_bootups_only(m.ec, cm.start, cm.end) if _only_bootups(m)
+                           else _intervals(m, cm.start, cm.end, params.obey_s, reports))
     return InputModel(decoded, start, end, models, params)
 
 
@@ -177,7 +188,8 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
             _heartbeat_timeouts(m, params, end)
             if requests[n]:  # G002 needs a request
                 _guard_timeouts(m, params, end)
-    return ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master, master_note)
+    return ChannelModel(chan, name, nmt, dict(sorted(nodes.items())), master, master_note,
+                        start, end)
 
 
 def _nodes_that_sent(decoded: Decoded, keys: list[int], nodes: _Nodes) -> None:
@@ -1050,7 +1062,7 @@ def _offline_ends(decoded: Decoded, items: list[tuple[NodeModel, Timeout]]) -> N
         t.ended_by = best
 
 
-def _self_starts(decoded: Decoded, nodes: list[NodeModel], end: float) -> None:
+def _self_starts(decoded: Decoded, nodes: list[tuple[NodeModel, float]]) -> None:
     """Nodes that entered OPERATIONAL by themselves after a boot-up (SPEC §2 Self-start).
 
     N's first error-control message after a boot-up (no NMT command to N between)
@@ -1060,7 +1072,7 @@ def _self_starts(decoded: Decoded, nodes: list[NodeModel], end: float) -> None:
     started itself: that span goes to `m.unproven_spans` (its PDOs are no S001).
     """
     queries: list[tuple[NodeModel, int, int, int]] = []  # node, boot pos, boot idx, msg idx
-    for m in nodes:
+    for m, end in nodes:  # (each node with the end of its channel's trace)
         counts = m.kind_counts()
         if not counts[BOOTUP]:
             continue

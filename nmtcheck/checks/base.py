@@ -137,11 +137,12 @@ class NodeContext:
 
     @property
     def start(self) -> float:
-        return self.model.start
+        """The start of the channel's trace: the input's, or its capture's."""
+        return self.channel.start
 
     @property
     def end(self) -> float:
-        return self.model.end
+        return self.channel.end
 
     @property
     def timeline(self) -> TimelineParams:

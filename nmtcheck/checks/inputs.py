@@ -122,8 +122,11 @@ def truncated_input(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
     **What it checks.** The reader met the end of the input inside a record (a
     BLF object, an MCAP record), a compressed stream (`.gz`, `.bz2`, `.xz`,
-    `.zst`) or a container, and read it up to there. One finding per input, at
-    the last record read. `--strict` makes this an input error (exit 2).
+    `.zst`) or a container, and read it up to there. A text log's last line
+    without a newline whose frame has fewer data bytes than a CANopen frame of its
+    CAN-ID (`000#01`, `703#`) was cut there too: it is a skipped record, not a
+    malformed frame. One finding per input, at the last record read. `--strict`
+    makes this an input error (exit 2).
 
     **Why it matters.** A log cut off while recording or copying is checked only
     up to the cut: verdicts near the end (a timeout still running, a boot-up
@@ -225,12 +228,21 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     the file. Frames are kept in file order; the message gives the count and the
     first place. One finding per input, at the first frame that goes back.
 
-    **Why it matters.** Merged, concatenated or re-ordered logs make every timing
-    rule unreliable: gaps, early heartbeats and command windows are measured
-    between frames that were not neighbours on the bus.
+    Where time goes back by more than a second, a new recording begins: from there
+    on the frames are a capture of their own, checked as a trace of its own, and a
+    channel an earlier capture had is named `NAME (capture K)` there (the network
+    file's configuration for NAME applies to it). The message names where each
+    capture begins.
 
-    **Example.** Two candump logs of one session joined with `cat` in the wrong
-    order.
+    **Why it matters.** Merged or re-ordered logs make every timing rule
+    unreliable: gaps, early heartbeats and command windows are measured between
+    frames that were not neighbours on the bus. Two recordings joined in one file
+    are two traces: checked as one, every node of the first would fall silent "for
+    the rest of the trace" and the second's PDOs be judged against the first's
+    states.
+
+    **Example.** `cat run1.asc run2.asc` (both count from 0 s), or two candump
+    logs of one session joined in the wrong order.
     """
     stats = model.stats
     if stats is None or not stats.backwards_timestamps:
@@ -242,9 +254,22 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
         idx, line, ts = first
     where = f" (first at line {line})" if line and stats.format in TEXT_FORMATS else (
         f" (first at frame {idx})" if idx is not None else "")
-    yield Problem(None, None, ts, f"timestamps go backwards "
-                  f"{_plural(stats.backwards_timestamps, 'time')}{where}: frames are kept in "
-                  "file order, timing findings may be unreliable", idx, line or None)
+    said = f"timestamps go backwards {_plural(stats.backwards_timestamps, 'time')}{where}"
+    if not stats.restarts:
+        said += ": frames are kept in file order, timing findings may be unreliable"
+    else:  # new recordings in the input (nmtcheck/captures.py)
+        at = ", ".join(_place(stats, i, ln) for i, ln, _t in stats.restarts[:3])
+        said += (f": time starts again at {at}{', …' if len(stats.restarts) > 3 else ''}, "
+                 f"{len(stats.restarts) + 1} captures, each checked as a trace of its own "
+                 "(a later capture's channels are named 'NAME (capture K)')")
+        if stats.backwards_timestamps > len(stats.restarts):
+            said += "; the smaller steps back may make timing findings unreliable"
+    yield Problem(None, None, ts, said, idx, line or None)
+
+
+def _place(stats: InputStats, idx: int, line: int) -> str:
+    """`line L` in a text log, `frame F` in a binary one."""
+    return f"line {line}" if line and stats.format in TEXT_FORMATS else f"frame {idx}"
 
 
 @input_rule("I006", "no-timestamps", "warning", exempt_from_unknown=True, scope="input")

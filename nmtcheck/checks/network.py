@@ -29,13 +29,18 @@ def missing_node(model: InputModel, p: Params) -> Iterator[Problem]:
     first = model.decoded.first_frame_at_or_after([model.start])[0] if model.expected else None
     line = first.line if first is not None and first.idx == 0 else None  # frame 0's line
     for node, channel in model.expected:
-        for name in [channel] if channel is not None else names:
-            cm = next((c for c in model.channels if c.name == name), None)
-            m = cm.nodes.get(node) if cm is not None else None
+        # a channel of the files is also each of its later captures' (nmtcheck/captures.py)
+        on = [c for c in model.channels if channel is None or c.network_name == channel]
+        if channel is not None and channel not in names:  # the log does not have it
+            yield Problem(channel, node, model.start, f"node {node} is in the network "
+                          f"description but never transmits on {channel}", 0, line)
+        for cm in on:
+            m = cm.nodes.get(node)
             if m is None or m.first_tx is None:
-                yield Problem(name, node, model.start,
+                at = (0, line) if not cm.first_index else (cm.first_index, cm.first_line)
+                yield Problem(cm.name, node, cm.start,
                               f"node {node} is in the network description but never transmits "
-                              f"on {name}", 0, line)
+                              f"on {cm.name}", *at)
 
 
 @rule("N002", "duplicate-node-id", "warning")

@@ -338,7 +338,7 @@ def node_rows(res: Any, key: dict[str, Any], date: str,
 
     out = []
     for m in res.nodes():
-        period, _source = m.reported_period(res.model.end)
+        period, _source = m.reported_period(res.model.end_of(m.channel))
         iv = m.intervals  # columns: a node may have millions of intervals
         seconds = np.bincount(iv.state, weights=np.maximum(iv.end - iv.start, 0.0),
                               minlength=len(STATES))

@@ -79,6 +79,10 @@ class InputStats:
     # the frame index stands for the time: no usable timestamps (set by the engine, SPEC §1)
     order_only: bool = False
     strict: bool = False
+    # where a later capture begins in the input (nmtcheck/captures.py): frame index, line,
+    # time; and each of its channels' name in the log
+    restarts: list[tuple[int, int, float]] = field(default_factory=list)
+    capture_channels: dict[str, str] = field(default_factory=dict)
     _chan_codes: dict[str, int] = field(default_factory=dict, repr=False)
 
     def channel_code(self, name: str) -> int:
@@ -88,6 +92,17 @@ class InputStats:
             self._chan_codes[name] = code
             self.channels.append(name)
         return code
+
+    def capture_channel(self, name: str, number: int) -> int:
+        """The code of channel `name` (as logged) in the input's capture `number` (> 1):
+        `can0 (capture 2)`, a channel of its own (nmtcheck/captures.py)."""
+        own = f"{name} (capture {number})"
+        self.capture_channels[own] = name
+        return self.channel_code(own)
+
+    def log_channel(self, name: str) -> str:
+        """A channel's name in the log (that of a later capture's channel without it)."""
+        return self.capture_channels.get(name, name)
 
     def drop(self, line: int, count: int, frame: int | None = None,
              ts: float | None = None) -> None:
@@ -618,6 +633,9 @@ def printable_path(path: str) -> str:
 class OpenedInput:
     stats: InputStats
     batches: Generator[FrameBatch, None, None]  # close() it to close the file early
+    # the line number of a last line without a newline in a plain text file (else None):
+    # where a recording killed mid-write, or a file copied while it was written, ends
+    cut_line: int | None = None
 
 
 def open_input(path: str, input_format: str | None = None, strict: bool = False,
@@ -644,7 +662,31 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
     buffered = io.BufferedReader(_Prefixed(head, stream), buffer_size=1 << 20)
     source = Source(display, buffered, _stream_errors(compression), compression,
                     None if compression or path == "-" else path, options or {})
-    return OpenedInput(stats, _batches(reader, raw, source, stats, start, damage))
+    cut = (unterminated_line(raw) if fmt in TEXT_FORMATS and not compression and path != "-"
+           else None)
+    return OpenedInput(stats, _batches(reader, raw, source, stats, start, damage), cut)
+
+
+def unterminated_line(raw: IO[bytes]) -> int | None:
+    """The number of a plain file's last line when it has no newline, else None. Reads
+    one byte, and counts the lines only then (a log cut while it was written is rare)."""
+    try:
+        where = raw.tell()
+    except (OSError, ValueError):  # not seekable (a pipe, a device): nothing to tell
+        return None
+    try:
+        size = raw.seek(0, os.SEEK_END)
+        if not size:
+            return None
+        raw.seek(size - 1)
+        if raw.read(1) == b"\n":
+            return None
+        raw.seek(0)
+        return 1 + sum(piece.count(b"\n") for piece in iter(lambda: raw.read(1 << 20), b""))
+    except (OSError, ValueError):
+        return None
+    finally:
+        raw.seek(where)
 
 
 def _open_raw(path: str) -> tuple[IO[bytes], str]:

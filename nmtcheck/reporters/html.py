@@ -208,7 +208,7 @@ def _boot_row(res: InputResult, entry: dict[str, Any]) -> dict[str, Any]:
     when: float | None = None
     line = None
     if boot["status"] == "incomplete":
-        when = res.model.end
+        when = res.model.end_of(entry["channel"])
     elif x is not None:
         evidence = x.get("evidence") or {}
         when = evidence.get("time", x.get("end"))
@@ -268,6 +268,15 @@ def _histogram(intervals: Gaps) -> dict[str, Any] | None:
             "overflow_height": overflow / peak, "max_ms": intervals.maximum() * 1000}
 
 
+def _timeline_begins(res: InputResult, start: float) -> dict[str, float]:
+    """Where each channel's timeline begins in an input of several captures (each at its
+    capture's first frame: nmtcheck/captures.py); empty for one capture, whose
+    timelines all begin at the input's first frame, `start`."""
+    if not res.stats.restarts:
+        return {}
+    return {cm.name: _r(cm.start) if cm.first_index else start for cm in res.model.channels}
+
+
 def _node_view(entry: dict[str, Any], m: NodeModel, end: float) -> dict[str, Any]:
     """The JSON report's node entry plus what a person wants to see of its heartbeats
     (`end`: the trace's, where the period in force is reported)."""
@@ -300,8 +309,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     left_out: dict[tuple[int, str], int] = {}  # intervals not drawn, by input and channel
     per_node = drawn_per_node(sum(len(res.nodes()) for res in results))
     for res in results:
-        begin = inputs[res.index]["start"]
+        begins = _timeline_begins(res, inputs[res.index]["start"])
         for m in res.nodes():
+            begin = begins.get(m.channel, inputs[res.index]["start"])
             ivs = m.intervals
             shown = min(len(ivs), per_node)
             if shown < len(ivs):
@@ -312,7 +322,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                 for a, b, st, so in zip(ivs.start[:shown].tolist(), ivs.end[:shown].tolist(),
                                         ivs.state[:shown].tolist(), ivs.source[:shown].tolist(),
                                         strict=True)]
-    models = {(res.index, m.channel, m.node): (m, res.model.end)
+    models = {(res.index, m.channel, m.node): (m, res.model.end_of(m.channel))
               for res in results for m in res.nodes()}
     nodes = [_node_view(entry, *models[(entry["input"], entry["channel"], entry["node"])])
              for entry in report["nodes"]]
@@ -322,14 +332,17 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         res_groups = [_group_view(res, g, f"g{len(groups) + i}")
                       for i, g in enumerate(group_findings(res.findings))]
         groups += res_groups
+        begins = _timeline_begins(res, inputs[res.index]["start"])
         for channel, channel_nodes in nodes_by_channel(res).items():
             rows = []
+            # a later capture's timeline counts from its own first frame
+            shift = begins.get(channel, inputs[res.index]["start"]) - inputs[res.index]["start"]
             for node in channel_nodes:
                 mine = [g for g in res_groups if g["channel"] == channel and g["node"] == node]
-                marks = [[o["time"], g["id"], k] for g in mine
+                marks = [[_r(o["time"] - shift), g["id"], k] for g in mine
                          for k, o in enumerate(g["occurrences"])]
                 # the events that may explain a finding, on the finding's row (SPEC §8.6)
-                causes = [[c["time"], g["id"], k, j] for g in mine
+                causes = [[_r(c["time"] - shift), g["id"], k, j] for g in mine
                           for k, o in enumerate(g["occurrences"])
                           for j, c in enumerate(o.get("causes", ()))]
                 rows.append({"node": node, "label": node_label(node), "marks": sorted(marks),
@@ -343,7 +356,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                               "master_title": "" if cm is None else master_line(cm),
                               "id": timeline_id(res, channel), "input": res.index,
                               "path": res.stats.path, "channel": channel,
-                              "duration": _r(duration(res)), "rows": rows})
+                              "duration": _r(cm.end - cm.start if cm is not None
+                                             and res.stats.restarts else duration(res)),
+                              "shift": _r(shift), "rows": rows})
             hidden = left_out.get((res.index, channel), 0)
             if hidden:
                 timelines[-1]["left_out"] = (f"{hidden} state intervals not drawn (at most "

@@ -79,6 +79,9 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "dropped": s.dropped, "backwards": s.backwards_timestamps,
             "backwards_timestamps": s.backwards_timestamps, "truncated": s.truncated,
             "skipped_lines": s.skipped_lines, "channels": s.channels,
+            # where time starts again: a later capture in the input (nmtcheck/captures.py)
+            "restarts": [{"frame_index": i, "line": line or None, "time": _r(t)}
+                         for i, line, t in s.restarts],
             "error": res.error, "start_utc": utc_start(res),
             "not_evaluated": [{"rule": code, "reason": why}
                               for code, why in res.not_evaluated.items()],
@@ -88,8 +91,8 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "first_seen": _r(m.first_show_ts), "last_seen": _r(m.last_seen),
             "final_state": m.intervals[-1].state if m.intervals else "UNKNOWN",
             "bootups": m.bootup_count, "error_control": m.error_control,
-            "heartbeat_period_ms": _period_ms(m, res.model.end),
-            **_configured_vs_measured(m, res.model.end),
+            "heartbeat_period_ms": _period_ms(m, res.model.end_of(m.channel)),
+            **_configured_vs_measured(m, res.model.end_of(m.channel)),
             "boot": boot_report.node_boot(res, m.channel, m.node),
         } for m in res.nodes())
         findings.extend({"input": f.input, "rule": f.rule, "name": f.name,

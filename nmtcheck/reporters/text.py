@@ -63,7 +63,7 @@ def _node_table(res: InputResult) -> list[str]:
     rows = [("node", "final state", "control", "boot-ups", "1017h ms", "median ms", "jitter ms",
              "consumer ms", "worst gap ms")]
     for m in nodes:
-        c = configured_vs_measured(m, res.model.end)
+        c = configured_vs_measured(m, res.model.end_of(m.channel))
         consumer = _ms(c.consumer_ms) + (f" (node {c.consumer_node})"
                                          if c.consumer_node is not None else "")
         rows.append((f"{m.channel}/{m.node}", final_state(m), m.error_control,

@@ -228,7 +228,8 @@
   /* Zoom to a finding's moment (a window of an eighth of the recording, or the current
      one if that is narrower) and mark it. */
   Timeline.prototype.showMoment = function (groupId, k) {
-    var t = data.groups[groupId].occurrences[k].time;
+    // a later capture's timeline counts from its own first frame (spec.shift seconds later)
+    var t = data.groups[groupId].occurrences[k].time - (this.spec.shift || 0);
     var span = Math.min(this.v1 - this.v0, Math.max(this.total / 8, 0.01));
     this.focus = { group: groupId, k: k };
     this.setView(t - span / 2, t + span / 2);

@@ -1,0 +1,220 @@
+"""Several captures in one input (nmtcheck/captures.py): `cat run1.asc run2.asc`, candump
+logs joined out of order. Where time starts again, each recording is checked as the trace
+it is: the findings of the joined file are those of its parts, no more and no fewer."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SAMPLES, Checker, candump, run_cli
+
+from nmtcheck.captures import RESTART_S, Captures
+from nmtcheck.frames import FrameBatch
+from nmtcheck.readers import InputStats
+
+# Pairs of recordings from real stacks, each joined in the order that makes time go back
+# (the second was recorded earlier, or both count from 0 s). Healthy with faulty, faulty
+# with healthy: a joined file found faults of one in the other (H001 "for the rest of the
+# trace", S001 against the other's states), and a second boot-up was a spontaneous reboot.
+PAIRS = [
+    ("heartbeat_loss.asc", "healthy.asc"),
+    ("healthy.asc", "heartbeat_loss.asc"),
+    ("pdo_preop.asc", "ignored_command.asc"),
+    ("reset_no_bootup.asc", "healthy.asc"),
+    ("lely/unplugged_heartbeat.log", "lely/healthy.log"),
+    ("lely/healthy.log", "lely/unplugged_heartbeat.log"),
+    ("canopen_master/unplugged.log", "canopen_master/healthy.log"),
+    ("canopen_master/reboot.log", "canopen_master/healthy.log"),
+    ("canopennode/healthy.log", "canopennode/healthy.log"),
+    ("canopennode/self_start.log", "canopennode/late_master.log"),
+]
+
+
+def _findings(checker: Checker, text: str, suffix: str,
+              **kw: object) -> Counter[tuple[str, int | None, str]]:
+    res = checker.run(text, suffix=suffix, **kw)  # type: ignore[arg-type]
+    return Counter((f.rule, f.node, f.message) for f in res.findings if f.rule != "I005")
+
+
+@pytest.mark.parametrize(("first", "second"), PAIRS)
+def test_joined_recordings_give_the_findings_of_their_parts(
+        checker: Checker, first: str, second: str) -> None:
+    a, b = (SAMPLES / first).read_text(), (SAMPLES / second).read_text()
+    suffix = Path(first).suffix
+    res = checker.run(a + b, suffix=suffix)
+    assert len(res.stats.restarts) == 1, res.stats.restarts
+    joined = Counter((f.rule, f.node, f.message) for f in res.findings if f.rule != "I005")
+    assert joined == _findings(checker, a, suffix) + _findings(checker, b, suffix)
+    # the second recording's findings point into it, on its own channel
+    first_lines = len(a.splitlines())
+    (idx, line, _t) = res.stats.restarts[0]
+    assert line == next(i for i, text in enumerate(b.splitlines(), first_lines + 1)
+                        if _is_frame_line(text, suffix))
+    for f in res.findings:
+        if f.rule == "I005":
+            assert "time starts again at line" in f.message and "2 captures" in f.message
+        elif f.line and f.line > first_lines:
+            assert f.channel is not None and f.channel.endswith("(capture 2)"), f
+            assert f.frame_index is not None and f.frame_index >= idx
+        else:
+            assert f.channel is None or "capture" not in f.channel, f
+
+
+def _is_frame_line(text: str, suffix: str) -> bool:
+    """A frame record of the samples' candump -L or ASC text."""
+    if suffix == ".log":
+        return text.startswith("(")
+    parts = text.split()
+    return len(parts) > 3 and parts[0].replace(".", "").isdigit() and parts[3] in ("Rx", "Tx")
+
+
+def test_the_files_configuration_applies_to_every_capture(checker: Checker) -> None:
+    """The network file names channel `can0`; its second capture `can0 (capture 2)` is the
+    same network: its consumer times, master and expected nodes hold there too."""
+    folder = SAMPLES / "canopennode"
+    healthy = (folder / "healthy.log").read_text()
+    network = (folder / "network.toml").read_text()
+    res = checker.run(healthy + healthy, network=network)
+    assert [f.rule for f in res.findings] == ["I005"]
+    masters = {cm.name: cm.master for cm in res.model.channels}
+    assert set(masters) == {"can0", "can0 (capture 2)"}
+    assert masters["can0"] == masters["can0 (capture 2)"] and masters["can0"] is not None
+    assert masters["can0"].source == "network"
+    # a node the file expects and neither recording has: missing in each of them
+    extra = network + "\n[nodes.9]\nheartbeat_ms = 100\n"
+    res = checker.run(healthy + healthy, network=extra, select="N001")
+    got = [(f.channel, f.node, f.line) for f in res.findings]
+    n = len(healthy.splitlines())
+    assert got == [("can0", 9, 1), ("can0 (capture 2)", 9, n + 1)], got
+
+
+def test_a_small_step_back_is_no_new_capture(checker: Checker) -> None:
+    """A merged log whose frames go back by milliseconds is one recording: I005 warns,
+    the channels keep their names."""
+    beats = [(0.1 * i, "701#05") for i in range(30)]
+    beats[10] = (0.85, "701#05")  # 50 ms before the frame ahead of it
+    res = checker.run(candump(beats), select="I005")
+    assert res.stats.backwards_timestamps == 1 and res.stats.restarts == []
+    assert [cm.name for cm in res.model.channels] == ["can0"]
+    assert "may be unreliable" in res.findings[0].message
+
+
+def test_three_captures_and_a_channel_only_the_second_has(checker: Checker) -> None:
+    """Three recordings from 0 s each; can1 appears first in the second and keeps its
+    name there, and is `can1 (capture 3)` in the third."""
+    boot = [(0.0, "701#00"), *[(0.1 * i, "701#05") for i in range(1, 30)]]
+    both = "".join(x + y for x, y in zip(candump(boot).splitlines(True),
+                                         candump(boot, "can1").splitlines(True), strict=True))
+    text = candump(boot) + both + both
+    res = checker.run(text)
+    assert len(res.stats.restarts) == 2
+    assert sorted(cm.name for cm in res.model.channels) == [
+        "can0", "can0 (capture 2)", "can0 (capture 3)", "can1", "can1 (capture 3)"]
+    assert [f.rule for f in res.findings] == ["I005"], res.findings
+    spans = {cm.name: (cm.start, cm.end) for cm in res.model.channels}
+    assert spans["can1"] == spans["can0 (capture 2)"] == (1000.0, 1002.9)
+
+
+def test_channel_option_takes_every_capture_of_the_channel(tmp_path: Path) -> None:
+    log = tmp_path / "joined.log"
+    folder = SAMPLES / "canopennode"
+    log.write_text((folder / "healthy.log").read_text() * 2)
+    res = run_cli("check", str(log), "--channel", "can0", "--format", "json",
+                  "--fail-on", "never", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    names = {n["channel"] for n in report["nodes"]}
+    assert names == {"can0", "can0 (capture 2)"}, names
+    n = len((folder / "healthy.log").read_text().splitlines())
+    assert report["inputs"][0]["restarts"] == [
+        {"frame_index": n, "line": n + 1, "time": report["inputs"][0]["restarts"][0]["time"]}]
+
+
+def _batch(ts: list[float], chan: list[int], first: int = 0) -> FrameBatch:
+    n = len(ts)
+    return FrameBatch(ts=np.asarray(ts, np.float64), chan=np.asarray(chan, np.int32),
+                      can_id=np.full(n, 0x701, np.uint32), ext=np.zeros(n, bool),
+                      rtr=np.zeros(n, bool), err=np.zeros(n, bool), fd=np.zeros(n, bool),
+                      dlc=np.ones(n, np.int16), data=np.zeros((n, 8), np.uint8),
+                      index=np.arange(first, first + n, dtype=np.int64),
+                      line=np.arange(first + 1, first + n + 1, dtype=np.int64))
+
+
+def test_restarts_are_found_across_and_within_batches() -> None:
+    """A restart at a batch's first row, a restart at a batch's last row (the next
+    batch's frames confirm it), two in one batch, jitter that goes back by less than
+    RESTART_S and one frame written seconds late: each later capture's frames get its
+    channel codes, and only those."""
+    stats = InputStats(path="x")
+    a, b = stats.channel_code("can0"), stats.channel_code("can1")
+    captures = Captures(stats)
+    batches = [
+        _batch([10.0, 11.0, 12.0], [a, a, b]),
+        # 0.5 after 1.0: jitter; 5.0 after 6.0 ... 0.0: written late, time goes on after it
+        _batch([0.0, 1.0, 0.5, 2.0, 6.0, 0.0, 6.1, 6.2, 0.1, 0.2, 0.3, 0.4, 1.5],
+               [a, b, a, a, a, a, a, a, a, b, a, a, b], first=3),
+        _batch([1.6, 1.7, 1.8, 1.9], [a, a, a, a], first=16),
+    ]
+    out = list(captures.split(iter(batches)))
+    names = [[stats.channels[c] for c in x.chan.tolist()] for x in out]
+    two, three, four = (f"{{}} (capture {k})" for k in (2, 3, 4))
+    assert names == [
+        ["can0", "can0", "can1"],
+        [two.format("can0"), two.format("can1"), *[two.format("can0")] * 6,
+         three.format("can0"), three.format("can1"), three.format("can0"),
+         three.format("can0"), three.format("can1")],
+        [three.format("can0")] * 4]
+    assert [(c.number, c.first_index, c.start, c.end) for c in captures.list] == [
+        (1, 0, 10.0, 12.0), (2, 3, 0.0, 6.2), (3, 11, 0.1, 1.9)]
+    assert 0.5 < RESTART_S < 6.0  # the jitter stays, the late frame would be a restart
+    assert four.format("can0") not in stats.channels
+    assert batches[1].chan.tolist()[:2] == [a, b]  # the reader's batch is unchanged
+
+
+def test_a_restart_at_a_batch_end_waits_for_the_next_batch() -> None:
+    """The last frame of a batch goes back; the next batch's first frames stay back: a
+    capture from that frame. At the input's end, too few frames confirm nothing."""
+    stats = InputStats(path="x")
+    a = stats.channel_code("can0")
+    captures = Captures(stats)
+    batches = [_batch([10.0, 11.0, 12.0, 0.0], [a] * 4),
+               _batch([0.1, 0.2, 0.3, 0.4, 0.5, 13.0, 0.0], [a] * 7, first=4)]
+    out = list(captures.split(iter(batches)))
+    assert [c.first_index for c in captures.list] == [0, 3]
+    assert [stats.channels[c] for c in out[0].chan.tolist()] == ["can0"] * 3 + [
+        "can0 (capture 2)"]
+    assert set(out[1].chan.tolist()) == {stats.channels.index("can0 (capture 2)")}
+
+
+def test_a_single_capture_passes_its_batches_unchanged() -> None:
+    stats = InputStats(path="x")
+    a = stats.channel_code("can0")
+    batch = _batch([0.0, 0.5, 0.4, 3.0], [a] * 4)
+    (out,) = Captures(stats).split(iter([batch]))
+    assert out is batch and stats.channels == ["can0"]
+
+
+def test_each_capture_has_a_timeline_of_its_own_span(checker: Checker) -> None:
+    """The HTML timelines: the second recording (10 s earlier than the first, candump
+    epoch stamps) counts from its own first frame and spans its own length, with its
+    finding's marker on it; the first keeps its whole length. Drawn from the input's
+    start and length, the second's bars and markers lay before the axis."""
+    from nmtcheck.reporters import html
+
+    first = [(0.1 * i, "701#05") for i in range(50)]  # 4.9 s
+    second = [(0.1 * i, "702#05") for i in range(20)] + [(3.0, "702#05")]  # a 1.1 s gap
+    text = candump([(10.0 + t, f) for t, f in first]) + candump(second)
+    res = checker.run(text, select="H001")
+    assert [(f.rule, f.channel) for f in res.findings] == [("H001", "can0 (capture 2)")]
+    tl = {t["channel"]: t for t in html.report_context([res], {"fail_on": "error"})["timelines"]}
+    assert tl["can0"]["duration"] == pytest.approx(4.9) and tl["can0"]["shift"] == 0.0
+    two = tl["can0 (capture 2)"]
+    assert two["duration"] == pytest.approx(3.0) and two["shift"] == pytest.approx(-10.0)
+    (row,) = two["rows"]
+    assert row["iv"] and all(0.0 <= iv[0] <= iv[1] <= 3.0 + 1e-6 for iv in row["iv"])
+    ((t, _g, _k),) = row["marks"]
+    assert 1.9 < t < 3.0
