@@ -23,13 +23,18 @@ from nmtcheck.frames import FrameBatch
 from nmtcheck.model import CaptureSpan
 from nmtcheck.readers import InputStats
 
-# Time going back by more than this starts a new capture. Frames of a merged log (two
-# channels, a buffered USB adapter) go back by milliseconds; a new recording goes back to
-# its own start, seconds to days earlier.
+# A channel's time going back by more than this starts a new capture, where it goes back
+# to the start of the capture or before (within RESTART_S of it). Frames of a merged log
+# (a buffered USB adapter) go back by milliseconds; a new recording goes back to its own
+# start, seconds to days earlier. A clock step in the middle of a recording (NTP) goes
+# back less than the recording's length: no new recording, I005 warns of it.
 RESTART_S = 1.0
-# ... and stays back: the CONFIRM frames after the first one are earlier too. One frame
-# written late (a stamp seconds off, then time goes on as before) starts no capture.
+# ... and stays back: the channel's CONFIRM frames after the first one are earlier too.
+# One frame written late (a stamp seconds off, then time goes on as before) starts no
+# capture.
 CONFIRM = 3
+# Never more captures than this in one input: past it, time going back is I005's alone.
+MAX_CAPTURES = 1000
 
 
 @dataclass
@@ -45,7 +50,10 @@ class Capture:
 
 class Captures:
     """Splits the batches into captures as they pass, renaming the channels of later ones
-    (`channel_spans` then tells the timeline each channel's span)."""
+    (`channel_spans` then tells the timeline each channel's span).
+
+    Each channel's time is its own: two channels whose loggers' clocks differ, merged
+    into one file, go back and forth against each other but never against themselves."""
 
     def __init__(self, stats: InputStats) -> None:
         self.stats = stats
@@ -53,75 +61,114 @@ class Captures:
         self.of_channel: dict[int, int] = {}  # channel code -> its capture's number
         self._codes: dict[int, int] = {}  # in the current capture: the reader's code -> ours
         self._latest = -np.inf  # the latest time of the current capture
+        # per reader's channel code, its latest time in the current capture
+        self._own = np.full(0, -np.inf)
 
     def split(self, batches: Iterator[FrameBatch]) -> Iterator[FrameBatch]:
-        """The batches with the channel codes of their captures. A batch whose last frames
-        may begin a capture is held until the next one's first frames confirm it or not
-        (rare: the others go on at once)."""
+        """The batches with the channel codes of their captures. A batch in which time goes
+        back is held until the next one's first frames can confirm a capture that begins
+        near its end (rare: the others go on at once)."""
         held: FrameBatch | None = None
         for batch in batches:
             if not len(batch):
                 continue
             if held is not None:
-                yield self._batch(held, batch.ts[:CONFIRM])
+                yield self._batch(held, batch)
                 held = None
-            tail = batch.ts[-CONFIRM:]
-            if float(tail.min()) < max(self._latest, float(batch.ts.max())) - RESTART_S:
-                held = batch  # (the batch's maximum is at least the running one there)
+            if self._in_order(batch):
+                yield self._batch(batch, None, in_order=True)
             else:
-                yield self._batch(batch, tail[:0])
+                held = batch
         if held is not None:
-            yield self._batch(held, held.ts[:0])
+            yield self._batch(held, None)
 
-    def _batch(self, batch: FrameBatch, after: np.ndarray) -> FrameBatch:
-        """`batch` split into captures (`after`: the next frames' times, up to CONFIRM)."""
+    def _in_order(self, batch: FrameBatch) -> bool:
+        """In order, the usual case: no frame goes back by RESTART_S against any before."""
         ts = batch.ts
+        return ts[0] >= self._latest - RESTART_S and bool((ts[1:] >= ts[:-1]).all())
+
+    def _batch(self, batch: FrameBatch, after: FrameBatch | None,
+               in_order: bool = False) -> FrameBatch:
+        """`batch` split into captures (`after`: the next batch, None at the input's end)."""
+        ts, chan = batch.ts, batch.chan
         if not self.list:
             self._begin(batch, 0)
         pos, starts = 0, [0]
-        if ts[0] >= self._latest - RESTART_S and bool((ts[1:] >= ts[:-1]).all()):
-            pos = len(ts)  # in order, the usual case: the running maximum is not needed
-            self._latest = max(self._latest, float(ts[-1]))
-            self.list[-1].end = self._latest
-        ahead = np.concatenate([ts, after, np.full(CONFIRM, np.inf)])  # inf: the input ends
+        if in_order:
+            self._note(ts, chan)
+            pos = len(ts)
         while pos < len(ts):
-            # a frame more than RESTART_S before the latest one so far (itself included:
-            # it is never below itself), and the CONFIRM frames after it too, starts a
-            # capture
-            latest = np.maximum.accumulate(ts[pos:])
-            np.maximum(latest, self._latest, out=latest)
-            limit = latest - RESTART_S
-            back = np.flatnonzero(ts[pos:] < limit)
-            for k in range(1, CONFIRM + 1):
-                back = back[ahead[pos + back + k] < limit[back]]
-            stop = pos + int(back[0]) if len(back) else len(ts)
-            if stop > pos:
-                self._latest = float(latest[stop - pos - 1])
-                self.list[-1].end = self._latest
+            stop = pos + self._restart(ts[pos:], chan[pos:], after)
+            self._note(ts[pos:stop], chan[pos:stop])
             if stop < len(ts):
                 self._begin(batch, stop)
                 starts.append(stop)
             pos = stop
         if len(self.list) == 1:
-            self._own(batch.chan, 1)
+            self._own_codes(chan, 1)
             return batch
-        chan = batch.chan.copy()
+        out = chan.copy()
         first = self.list[-1].number - len(starts) + 1  # the capture of the batch's row 0
         for k, lo in enumerate(starts):
             hi = starts[k + 1] if k + 1 < len(starts) else len(ts)
             if k:
                 self._codes = {}
             if hi > lo:  # (a capture that begins at the batch's first row: none before it)
-                chan[lo:hi] = self._own(chan[lo:hi], first + k)
-        return replace(batch, chan=chan)
+                out[lo:hi] = self._own_codes(chan[lo:hi], first + k)
+        return replace(batch, chan=out)
+
+    def _note(self, ts: np.ndarray, chan: np.ndarray) -> None:
+        """Take frames of the current capture into its latest times, overall and per
+        channel."""
+        if not len(ts):
+            return
+        top = int(chan.max())
+        if top >= len(self._own):
+            self._own = np.concatenate([self._own, np.full(top + 1 - len(self._own), -np.inf)])
+        if int(chan.min()) == top:  # one channel, the usual case
+            self._own[top] = max(self._own[top], float(ts.max()))
+        else:
+            np.maximum.at(self._own, chan, ts)
+        self._latest = max(self._latest, float(ts.max()))
+        self.list[-1].end = self._latest
+
+    def _restart(self, ts: np.ndarray, chan: np.ndarray, after: FrameBatch | None) -> int:
+        """The row of `ts` where the next capture begins (len(ts): none there): the first
+        frame more than RESTART_S before its channel's latest so far, within RESTART_S of
+        the capture's start or before it, whose channel's next CONFIRM frames (this
+        batch's, then `after`'s) are too."""
+        if len(self.list) >= MAX_CAPTURES:
+            return len(ts)
+        limit = self.list[-1].start + RESTART_S
+        latest = np.maximum.accumulate(ts)  # a channel's latest is never above the input's
+        np.maximum(latest, self._latest, out=latest)
+        rows = np.flatnonzero((ts < latest - RESTART_S) & (ts <= limit))
+        found = len(ts)
+        for code in np.unique(chan[rows]).tolist():
+            mine = np.flatnonzero(chan == code)
+            t = ts[mine]
+            own = float(self._own[code]) if code < len(self._own) else -np.inf
+            before = np.maximum.accumulate(np.concatenate([[own], t[:-1]]))
+            ahead = [t, np.full(CONFIRM, np.inf)]  # inf: the input ends
+            if after is not None:
+                ahead.insert(1, after.ts[after.chan == code][:CONFIRM])
+            t_ahead = np.concatenate(ahead)
+            for k in np.flatnonzero((t < before - RESTART_S) & (t <= limit)).tolist():
+                if int(mine[k]) >= found:
+                    break
+                if bool((t_ahead[k + 1:k + 1 + CONFIRM] < before[k] - RESTART_S).all()):
+                    found = int(mine[k])
+                    break
+        return found
 
     def _begin(self, batch: FrameBatch, row: int) -> None:
         self.list.append(Capture(len(self.list) + 1, int(batch.index[row]),
                                  int(batch.line[row]), float(batch.ts[row]),
                                  float(batch.ts[row])))
         self._latest = float(batch.ts[row])
+        self._own[:] = -np.inf
 
-    def _own(self, chan: np.ndarray, number: int) -> np.ndarray:
+    def _own_codes(self, chan: np.ndarray, number: int) -> np.ndarray:
         """`chan` with each channel code as capture `number` has it: a channel that an
         earlier capture had gets a code (and name) of its own."""
         first = int(chan[0])

@@ -218,3 +218,65 @@ def test_each_capture_has_a_timeline_of_its_own_span(checker: Checker) -> None:
     assert row["iv"] and all(0.0 <= iv[0] <= iv[1] <= 3.0 + 1e-6 for iv in row["iv"])
     ((t, _g, _k),) = row["marks"]
     assert 1.9 < t < 3.0
+
+
+def test_a_clock_step_within_a_recording_is_no_new_capture(checker: Checker) -> None:
+    """NTP steps the logger's clock back 1.5 s in the middle of a 12 s recording (the
+    CANopenNode master unplugged): time goes back, but not to the recording's start.
+    Split there, the second part lost the master the first part showed and the 1017h
+    values written in it, and the master's heartbeat timeout was no longer found (a
+    review: FAIL became PASS). It stays one trace; I005 warns."""
+    folder = SAMPLES / "canopennode"
+    lines = (folder / "master_unplugged.log").read_text().splitlines(keepends=True)
+    stepped = lines[:234] + [_shifted(line, -1.5) for line in lines[234:]]
+    res = checker.run("".join(stepped), network=(folder / "network.toml").read_text())
+    assert res.stats.restarts == [] and [cm.name for cm in res.model.channels] == ["can0"]
+    assert any(f.rule == "H001" and f.node == 1 for f in res.findings)
+    assert "may be unreliable" in next(f.message for f in res.findings if f.rule == "I005")
+
+
+def _shifted(line: str, by: float) -> str:
+    stamp, rest = line.split(")", 1)
+    return f"({float(stamp[1:]) + by:.6f}){rest}"
+
+
+def test_two_loggers_clocks_merged_are_no_captures(checker: Checker) -> None:
+    """can1's logger runs 2 s behind can0's, the two merged in bursts of 8 frames: time
+    goes back 2 s at every burst of can1, but no channel's own time goes back. A review
+    found 69 captures (12,500 in 200,000 frames, 35 times slower) and 251 errors."""
+    a = [(0.1 * i, "701#05") for i in range(100)]
+    b = [(0.1 * i - 2.0, "702#05") for i in range(100)]
+    text = "".join(candump(a[k:k + 8]) + candump(b[k:k + 8], "can1")
+                   for k in range(0, 100, 8))
+    res = checker.run(text, select="I005,H001")
+    assert res.stats.restarts == [] and sorted(cm.name for cm in res.model.channels) == [
+        "can0", "can1"]
+    assert res.stats.backwards_timestamps == 13
+
+
+def test_the_channel_option_on_a_later_capture_keeps_the_files_nodes(
+        checker: Checker, tmp_path: Path) -> None:
+    """`--channel "can0 (capture 2)"` with a network file that puts its nodes on `can0`:
+    they did transmit there (a review found N001 for every node)."""
+    folder = SAMPLES / "canopennode"
+    log = tmp_path / "joined.log"
+    log.write_text((folder / "healthy.log").read_text() * 2)
+    net = tmp_path / "net.toml"
+    net.write_text((folder / "network.toml").read_text().replace(
+        "[nodes.2]", '[nodes.2]\nchannel = "can0"'))
+    res = run_cli("check", "--isolated", str(log), "--network", str(net), "--channel",
+                  "can0 (capture 2)", "--format", "json", "--fail-on", "never", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout)
+    assert [f["rule"] for f in report["findings"]] == ["I005"], report["findings"]
+    assert {n["channel"] for n in report["nodes"]} == {"can0 (capture 2)"}
+
+
+def test_captures_are_capped(checker: Checker, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past MAX_CAPTURES, time going back is I005's alone."""
+    from nmtcheck import captures
+
+    monkeypatch.setattr(captures, "MAX_CAPTURES", 2)
+    run = [(0.1 * i, "701#05") for i in range(30)]
+    res = checker.run(candump(run) * 3)
+    assert len(res.stats.restarts) == 1 and len(res.model.channels) == 2

@@ -228,8 +228,9 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     the file. Frames are kept in file order; the message gives the count and the
     first place. One finding per input, at the first frame that goes back.
 
-    Where time goes back by more than a second, a new recording begins: from there
-    on the frames are a capture of their own, checked as a trace of its own, and a
+    Where a channel's time goes back by more than a second, to the start of the
+    recording or before it, and stays back, a new recording begins: from there on
+    the frames are a capture of their own, checked as a trace of its own, and a
     channel an earlier capture had is named `NAME (capture K)` there (the network
     file's configuration for NAME applies to it). The message names where each
     capture begins.

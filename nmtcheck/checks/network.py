@@ -25,13 +25,16 @@ def missing_node(model: InputModel, p: Params) -> Iterator[Problem]:
 
     **Example.** `[nodes.8]` in the network file and no frame from node 8.
     """
-    names = [cm.name for cm in model.channels]
+    # the input's channels by their logged names (`--channel` may have left out some)
+    stats = model.stats
+    logged = ({stats.log_channel(c) for c in stats.channels} if stats is not None
+              else {cm.network_name for cm in model.channels})
     first = model.decoded.first_frame_at_or_after([model.start])[0] if model.expected else None
     line = first.line if first is not None and first.idx == 0 else None  # frame 0's line
     for node, channel in model.expected:
         # a channel of the files is also each of its later captures' (nmtcheck/captures.py)
         on = [c for c in model.channels if channel is None or c.network_name == channel]
-        if channel is not None and channel not in names:  # the log does not have it
+        if channel is not None and channel not in logged:  # the log does not have it
             yield Problem(channel, node, model.start, f"node {node} is in the network "
                           f"description but never transmits on {channel}", 0, line)
         for cm in on:
