@@ -33,8 +33,16 @@ RESTART_S = 1.0
 # One frame written late (a stamp seconds off, then time goes on as before) starts no
 # capture.
 CONFIRM = 3
-# Never more captures than this in one input: past it, time going back is I005's alone.
+# Never more captures or clock steps than this in one input: past it, time going back is
+# I005's alone.
 MAX_CAPTURES = 1000
+# A channel's time that goes back within the recording and stays back is the logger's
+# clock stepped back (NTP): the frames after it are timed as if it had not, continuing
+# from the latest frame before it. Unless the frame it goes back to is one the input
+# already had (its time written before, to the microsecond: a log pasted in overlapping
+# pieces): then the rest is another capture. Looked for among the last HISTORY frames.
+HISTORY = 1 << 16
+MAX_REPEAT_LOOKS = 64  # frames going back looked at for a repeat, per search
 
 
 @dataclass
@@ -63,6 +71,9 @@ class Captures:
         self._latest = -np.inf  # the latest time of the current capture
         # per reader's channel code, its latest time in the current capture
         self._own = np.full(0, -np.inf)
+        self._offset = 0.0  # added to every time since the clock stepped back
+        self._recent = np.full(0, np.nan)  # the times of the last HISTORY frames
+        self._recent_ids = np.zeros(0, np.uint32)  # and their CAN-IDs
 
     def split(self, batches: Iterator[FrameBatch]) -> Iterator[FrameBatch]:
         """The batches with the channel codes of their captures. A batch in which time goes
@@ -81,29 +92,48 @@ class Captures:
                 held = batch
         if held is not None:
             yield self._batch(held, None)
+        if self.stats.clock_steps:  # the input's last time as the frames are timed
+            self.stats.end = self._latest
 
     def _in_order(self, batch: FrameBatch) -> bool:
         """In order, the usual case: no frame goes back by RESTART_S against any before."""
         ts = batch.ts
-        return ts[0] >= self._latest - RESTART_S and bool((ts[1:] >= ts[:-1]).all())
+        return (ts[0] + self._offset >= self._latest - RESTART_S
+                and bool((ts[1:] >= ts[:-1]).all()))
 
     def _batch(self, batch: FrameBatch, after: FrameBatch | None,
                in_order: bool = False) -> FrameBatch:
-        """`batch` split into captures (`after`: the next batch, None at the input's end)."""
-        ts, chan = batch.ts, batch.chan
+        """`batch` split into captures and its times past clock steps made continuous
+        (`after`: the next batch, None at the input's end)."""
+        chan = batch.chan
+        ts = batch.ts + self._offset if self._offset else batch.ts
         if not self.list:
-            self._begin(batch, 0)
+            self._begin(batch, 0, ts)
         pos, starts = 0, [0]
         if in_order:
-            self._note(ts, chan)
+            self._note(ts, chan, batch.can_id)
             pos = len(ts)
         while pos < len(ts):
-            stop = pos + self._restart(ts[pos:], chan[pos:], after)
-            self._note(ts[pos:stop], chan[pos:stop])
+            back, new = self._back(ts[pos:], chan[pos:], batch.can_id[pos:], after)
+            stop = pos + back
+            self._note(ts[pos:stop], chan[pos:stop], batch.can_id[pos:stop])
             if stop < len(ts):
-                self._begin(batch, stop)
-                starts.append(stop)
+                if ts is batch.ts:
+                    ts = ts.copy()
+                if new:  # another recording: its own times
+                    ts[stop:] -= self._offset
+                    self._offset = 0.0
+                    self._begin(batch, stop, ts)
+                    starts.append(stop)
+                else:  # the clock stepped back: go on from the latest time
+                    step = self._latest - float(ts[stop])
+                    ts[stop:] += step
+                    self._offset += step
+                    self.stats.clock_steps.append(
+                        (int(batch.index[stop]), int(batch.line[stop]), step))
             pos = stop
+        if ts is not batch.ts:
+            batch = replace(batch, ts=ts)
         if len(self.list) == 1:
             self._own_codes(chan, 1)
             return batch
@@ -117,7 +147,7 @@ class Captures:
                 out[lo:hi] = self._own_codes(chan[lo:hi], first + k)
         return replace(batch, chan=out)
 
-    def _note(self, ts: np.ndarray, chan: np.ndarray) -> None:
+    def _note(self, ts: np.ndarray, chan: np.ndarray, can_id: np.ndarray) -> None:
         """Take frames of the current capture into its latest times, overall and per
         channel."""
         if not len(ts):
@@ -131,18 +161,25 @@ class Captures:
             np.maximum.at(self._own, chan, ts)
         self._latest = max(self._latest, float(ts.max()))
         self.list[-1].end = self._latest
+        if len(ts) >= HISTORY:
+            self._recent, self._recent_ids = ts[-HISTORY:], can_id[-HISTORY:]
+        else:
+            self._recent = np.concatenate([self._recent, ts])[-HISTORY:]
+            self._recent_ids = np.concatenate([self._recent_ids, can_id])[-HISTORY:]
 
-    def _restart(self, ts: np.ndarray, chan: np.ndarray, after: FrameBatch | None) -> int:
-        """The row of `ts` where the next capture begins (len(ts): none there): the first
-        frame more than RESTART_S before its channel's latest so far, within RESTART_S of
-        the capture's start or before it, whose channel's next CONFIRM frames (this
-        batch's, then `after`'s) are too."""
-        if len(self.list) >= MAX_CAPTURES:
-            return len(ts)
-        limit = self.list[-1].start + RESTART_S
+    def _back(self, ts: np.ndarray, chan: np.ndarray, can_id: np.ndarray,
+              after: FrameBatch | None) -> tuple[int, bool]:
+        """The row of `ts` where a channel's time goes back (len(ts): nowhere), and
+        whether another recording begins there: the first frame more than RESTART_S
+        before its channel's latest so far whose channel's next CONFIRM frames (this
+        batch's, then `after`'s) are too. Another recording where it goes back to within
+        RESTART_S of the capture's start or before it, or to a time the input already
+        had; else the clock stepped back."""
+        if len(self.list) + len(self.stats.clock_steps) >= MAX_CAPTURES:
+            return len(ts), False
         latest = np.maximum.accumulate(ts)  # a channel's latest is never above the input's
         np.maximum(latest, self._latest, out=latest)
-        rows = np.flatnonzero((ts < latest - RESTART_S) & (ts <= limit))
+        rows = np.flatnonzero(ts < latest - RESTART_S)
         found = len(ts)
         for code in np.unique(chan[rows]).tolist():
             mine = np.flatnonzero(chan == code)
@@ -151,22 +188,51 @@ class Captures:
             before = np.maximum.accumulate(np.concatenate([[own], t[:-1]]))
             ahead = [t, np.full(CONFIRM, np.inf)]  # inf: the input ends
             if after is not None:
-                ahead.insert(1, after.ts[after.chan == code][:CONFIRM])
+                ahead.insert(1, after.ts[after.chan == code][:CONFIRM] + self._offset)
             t_ahead = np.concatenate(ahead)
-            for k in np.flatnonzero((t < before - RESTART_S) & (t <= limit)).tolist():
+            for k in np.flatnonzero(t < before - RESTART_S).tolist():
                 if int(mine[k]) >= found:
                     break
                 if bool((t_ahead[k + 1:k + 1 + CONFIRM] < before[k] - RESTART_S).all()):
                     found = int(mine[k])
                     break
-        return found
+        repeat = self._repeat(ts, can_id, latest, found)
+        if repeat < found:  # a piece pasted again, by however little time it goes back
+            return repeat, True
+        if found == len(ts):
+            return found, False
+        return found, (float(ts[found]) <= self.list[-1].start + RESTART_S
+                       or self._seen(ts, can_id, found))
 
-    def _begin(self, batch: FrameBatch, row: int) -> None:
+    def _repeat(self, ts: np.ndarray, can_id: np.ndarray, latest: np.ndarray,
+                upto: int) -> int:
+        """The first row before `upto` where time goes back (by any amount) to frames the
+        input already had (`_seen`); `upto` if none. Only rows whose time some frame
+        before had are looked at, the first MAX_REPEAT_LOOKS of them."""
+        before = np.concatenate([[self._latest], latest[:-1]])
+        back = np.flatnonzero(ts[:upto] < before[:upto])
+        if not len(back):
+            return upto
+        back = back[np.isin(ts[back], np.concatenate([self._recent, ts]))][:MAX_REPEAT_LOOKS]
+        return next((r for r in back.tolist() if self._seen(ts, can_id, r)), upto)
+
+    def _seen(self, ts: np.ndarray, can_id: np.ndarray, row: int) -> bool:
+        """Whether the frame at `row` and the CONFIRM after it (in the batch) each have a
+        time and CAN-ID of a frame before `row`."""
+        if row + CONFIRM >= len(ts):
+            return False
+        seen_ts = np.concatenate([self._recent, ts[:row]])[-HISTORY:]
+        seen_id = np.concatenate([self._recent_ids, can_id[:row]])[-HISTORY:]
+        return all(bool(((seen_ts == t) & (seen_id == i)).any()) for t, i in zip(
+            ts[row:row + CONFIRM + 1].tolist(), can_id[row:row + CONFIRM + 1].tolist(),
+            strict=True))
+
+    def _begin(self, batch: FrameBatch, row: int, ts: np.ndarray) -> None:
         self.list.append(Capture(len(self.list) + 1, int(batch.index[row]),
-                                 int(batch.line[row]), float(batch.ts[row]),
-                                 float(batch.ts[row])))
-        self._latest = float(batch.ts[row])
+                                 int(batch.line[row]), float(ts[row]), float(ts[row])))
+        self._latest = float(ts[row])
         self._own[:] = -np.inf
+        self._recent, self._recent_ids = self._recent[:0], self._recent_ids[:0]
 
     def _own_codes(self, chan: np.ndarray, number: int) -> np.ndarray:
         """`chan` with each channel code as capture `number` has it: a channel that an

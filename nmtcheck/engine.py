@@ -177,6 +177,21 @@ def known_masters(network: Network | None, channels: list[str],
     return out
 
 
+def _inherit_masters(model: InputModel, masters: dict[str, Master]) -> bool:
+    """Give a later capture's channel whose start-up shows no master the master its
+    channel's first capture showed (the same network: nmtcheck/captures.py); whether
+    any was given. A capture that begins after the master's start-up cannot show it."""
+    first = {cm.name: cm.master for cm in model.channels if cm.network_name == cm.name}
+    given = False
+    for cm in model.channels:
+        found = first.get(cm.network_name) if cm.network_name != cm.name else None
+        if found is not None and cm.master is None and cm.name not in masters:
+            masters[cm.name] = Master(found.node, found.source,
+                                      f"as in {cm.log_name}: {found.detail}".rstrip(": "))
+            given = True
+    return given
+
+
 def _configs(network: Network | None, stats: InputStats
              ) -> dict[tuple[str | None, int], NodeConfig]:
     """The files' node configurations by (channel, node-ID); a channel's are also those of
@@ -223,6 +238,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         params = replace(timeline_params(profile), order_only=stats.order_only)
         masters = known_masters(network, stats.channels, stats.log_channel)
         model = build(decoded, stats.channels, start, end, params, configs, masters, spans)
+        if _inherit_masters(model, masters):
+            model = build(decoded, stats.channels, start, end, params, configs, masters, spans)
         if decoded.ec_runs or decoded.ec_guard_runs:  # a long log: a node whose dropped
             tolerance = profile["H003"].params["tolerance"]  # runs a limit cuts is read whole
             silence = float(profile.timeline.get("silence_min_ms", 100.0)) / 1000.0

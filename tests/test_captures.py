@@ -220,19 +220,38 @@ def test_each_capture_has_a_timeline_of_its_own_span(checker: Checker) -> None:
     assert 1.9 < t < 3.0
 
 
-def test_a_clock_step_within_a_recording_is_no_new_capture(checker: Checker) -> None:
+def test_a_clock_step_within_a_recording_is_spliced(checker: Checker) -> None:
     """NTP steps the logger's clock back 1.5 s in the middle of a 12 s recording (the
-    CANopenNode master unplugged): time goes back, but not to the recording's start.
-    Split there, the second part lost the master the first part showed and the 1017h
-    values written in it, and the master's heartbeat timeout was no longer found (a
-    review: FAIL became PASS). It stays one trace; I005 warns."""
+    CANopenNode master unplugged): time goes back, but not to the recording's start, and
+    stays back. Split there, the second part lost the master the first part showed and
+    the 1017h values written in it, and the master's heartbeat timeout was no longer
+    found (a review: FAIL became PASS); read as one trace with time going back, the
+    timeline went wrong (S001 and more). The frames after the step are timed as if it
+    had not been: the findings are the recording's, I005 names the step."""
     folder = SAMPLES / "canopennode"
+    network = (folder / "network.toml").read_text()
     lines = (folder / "master_unplugged.log").read_text().splitlines(keepends=True)
     stepped = lines[:234] + [_shifted(line, -1.5) for line in lines[234:]]
-    res = checker.run("".join(stepped), network=(folder / "network.toml").read_text())
+    res = checker.run("".join(stepped), network=network)
+    whole = checker.run("".join(lines), network=network)
     assert res.stats.restarts == [] and [cm.name for cm in res.model.channels] == ["can0"]
-    assert any(f.rule == "H001" and f.node == 1 for f in res.findings)
-    assert "may be unreliable" in next(f.message for f in res.findings if f.rule == "I005")
+    ((idx, line, step),) = res.stats.clock_steps
+    assert (idx, line) == (234, 235) and 1.4 < step < 1.6
+    assert sorted((f.rule, f.node, f.line) for f in res.findings if f.rule != "I005") == sorted(
+        (f.rule, f.node, f.line) for f in whole.findings)
+    (i005,) = [f for f in res.findings if f.rule == "I005"]
+    assert "clock stepped back 1.5" in i005.message and "line 235" in i005.message
+
+
+def test_a_log_pasted_in_overlapping_pieces_is_two_captures(checker: Checker) -> None:
+    """Two pieces of one recording pasted one after the other, the second beginning
+    seconds before the first ends: its frames are ones the input already had (time and
+    CAN-ID to the microsecond), so it is a capture of its own, not a clock step."""
+    lines = (SAMPLES / "canopennode" / "healthy.log").read_text().splitlines(keepends=True)
+    n = len(lines)
+    res = checker.run("".join(lines[:2 * n // 3] + lines[n // 2:]))
+    assert len(res.stats.restarts) == 1 and res.stats.clock_steps == []
+    assert [f.rule for f in res.findings] == ["I005"]
 
 
 def _shifted(line: str, by: float) -> str:
@@ -280,3 +299,38 @@ def test_captures_are_capped(checker: Checker, monkeypatch: pytest.MonkeyPatch) 
     run = [(0.1 * i, "701#05") for i in range(30)]
     res = checker.run(candump(run) * 3)
     assert len(res.stats.restarts) == 1 and len(res.model.channels) == 2
+
+
+def test_a_few_lines_pasted_twice_are_a_capture_of_their_own(checker: Checker) -> None:
+    """Two screens of a terminal pasted with 20 lines in both: time goes back less than a
+    second, to frames the input already had (time and CAN-ID to the microsecond). Read
+    as one trace, the repeated answers gave G001 ("toggle bit repeats"), a repeated
+    boot-up B003 and a repeated guarding answer C003: a review found 15 of 45 healthy
+    and faulty real-stack logs with errors they do not have. The second piece is a
+    capture of its own; the recording's own errors stay."""
+    for log in ("healthy.log", "power_cycle.log"):
+        lines = (SAMPLES / "canopennode" / log).read_text().splitlines(keepends=True)
+        k = 280
+        res = checker.run("".join(lines[:k] + lines[k - 20:]))
+        whole = checker.run("".join(lines))
+        assert len(res.stats.restarts) == 1, log
+        assert res.stats.restarts[0][1] == k + 1
+        errors = sorted((f.rule, f.node) for f in res.findings if f.severity == "error")
+        assert errors == sorted((f.rule, f.node) for f in whole.findings
+                                if f.severity == "error"), (log, res.findings)
+
+
+def test_a_later_capture_keeps_the_master_its_channel_showed(checker: Checker) -> None:
+    """Lely's manager resets every node at its start-up, which shows it is the master;
+    a piece of the log pasted again from the middle starts after that. Its capture takes
+    the master the channel's first capture showed: the master's own heartbeats after its
+    `reset node` broadcast are no B001 (a review found one)."""
+    lines = (SAMPLES / "lely" / "reset_all" / "reset_all.log").read_text().splitlines(
+        keepends=True)
+    res = checker.run("".join(lines[:300] + lines[249:]))
+    assert len(res.stats.restarts) == 1
+    masters = {cm.name: cm.master for cm in res.model.channels}
+    assert masters["vcan0"] is not None and masters["vcan0 (capture 2)"] is not None
+    assert masters["vcan0 (capture 2)"].node == masters["vcan0"].node == 1
+    assert "as in vcan0" in masters["vcan0 (capture 2)"].detail
+    assert [f.rule for f in res.findings if f.severity == "error"] == []

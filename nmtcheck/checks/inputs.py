@@ -229,11 +229,14 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     first place. One finding per input, at the first frame that goes back.
 
     Where a channel's time goes back by more than a second, to the start of the
-    recording or before it, and stays back, a new recording begins: from there on
-    the frames are a capture of their own, checked as a trace of its own, and a
-    channel an earlier capture had is named `NAME (capture K)` there (the network
-    file's configuration for NAME applies to it). The message names where each
-    capture begins.
+    recording or before it, and stays back, or by any amount to frames the input
+    already had (a log pasted in overlapping pieces), a new recording begins: from there on the
+    frames are a capture of their own, checked as a trace of its own, and a channel
+    an earlier capture had is named `NAME (capture K)` there (the network file's
+    configuration for NAME applies to it). Where it goes back by more than a second
+    within the recording and stays back, the logger's clock stepped back (NTP): the
+    frames after it are timed as if it had not, continuing from the latest frame
+    before it. The message names each capture's start and each clock step.
 
     **Why it matters.** Merged or re-ordered logs make every timing rule
     unreliable: gaps, early heartbeats and command windows are measured between
@@ -256,15 +259,22 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     where = f" (first at line {line})" if line and stats.format in TEXT_FORMATS else (
         f" (first at frame {idx})" if idx is not None else "")
     said = f"timestamps go backwards {_plural(stats.backwards_timestamps, 'time')}{where}"
-    if not stats.restarts:
+    explained = len(stats.restarts) + len(stats.clock_steps)
+    if not explained:
         said += ": frames are kept in file order, timing findings may be unreliable"
-    else:  # new recordings in the input (nmtcheck/captures.py)
+    if stats.restarts:  # new recordings in the input (nmtcheck/captures.py)
         at = ", ".join(_place(stats, i, ln) for i, ln, _t in stats.restarts[:3])
         said += (f": time starts again at {at}{', …' if len(stats.restarts) > 3 else ''}, "
                  f"{len(stats.restarts) + 1} captures, each checked as a trace of its own "
                  "(a later capture's channels are named 'NAME (capture K)')")
-        if stats.backwards_timestamps > len(stats.restarts):
-            said += "; the smaller steps back may make timing findings unreliable"
+    if stats.clock_steps:  # the logger's clock stepped back within a recording
+        at = ", ".join(f"{step:.3f} s at {_place(stats, i, ln)}"
+                       for i, ln, step in stats.clock_steps[:3])
+        said += (f"{';' if stats.restarts else ':'} the logger's clock stepped back {at}"
+                 f"{', …' if len(stats.clock_steps) > 3 else ''}: the frames after a step "
+                 "are timed as if it had not, that much later than their stamps")
+    if explained and stats.backwards_timestamps > explained:
+        said += "; the smaller steps back may make timing findings unreliable"
     yield Problem(None, None, ts, said, idx, line or None)
 
 

@@ -83,6 +83,9 @@ class InputStats:
     # time; and each of its channels' name in the log
     restarts: list[tuple[int, int, float]] = field(default_factory=list)
     capture_channels: dict[str, str] = field(default_factory=dict)
+    # where the logger's clock stepped back within a recording: frame index, line, and
+    # the seconds the frames after it are timed later than their stamps (captures.py)
+    clock_steps: list[tuple[int, int, float]] = field(default_factory=list)
     _chan_codes: dict[str, int] = field(default_factory=dict, repr=False)
 
     def channel_code(self, name: str) -> int:

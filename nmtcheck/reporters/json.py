@@ -82,6 +82,9 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             # where time starts again: a later capture in the input (nmtcheck/captures.py)
             "restarts": [{"frame_index": i, "line": line or None, "time": _r(t)}
                          for i, line, t in s.restarts],
+            # where the logger's clock stepped back: later frames are timed `seconds` later
+            "clock_steps": [{"frame_index": i, "line": line or None, "seconds": _r(step)}
+                            for i, line, step in s.clock_steps],
             "error": res.error, "start_utc": utc_start(res),
             "not_evaluated": [{"rule": code, "reason": why}
                               for code, why in res.not_evaluated.items()],
