@@ -74,6 +74,7 @@ class Captures:
         self._offset = 0.0  # added to every time since the clock stepped back
         self._recent = np.full(0, np.nan)  # the times of the last HISTORY frames
         self._recent_ids = np.zeros(0, np.uint32)  # and their CAN-IDs
+        self._left = 0  # the notes of left-out frames (`InputStats.left_out`) taken so far
 
     def split(self, batches: Iterator[FrameBatch]) -> Iterator[FrameBatch]:
         """The batches with the channel codes of their captures. A batch in which time goes
@@ -107,20 +108,30 @@ class Captures:
         (`after`: the next batch, None at the input's end)."""
         chan = batch.chan
         ts = batch.ts + self._offset if self._offset else batch.ts
+        cuts = self._left_out_rows(batch)
         if not self.list:
             self._begin(batch, 0, ts)
+            cuts = [r for r in cuts if r > 0]
         pos, starts = 0, [0]
-        if in_order:
+        if cuts and cuts[0] == 0:  # frames left out between the last batch and this one
+            ts = ts - self._offset if self._offset else ts.copy()
+            self._offset = 0.0
+            self._begin(batch, 0, ts)
+            starts.append(0)
+            cuts = cuts[1:]
+        if in_order and not cuts:
             self._note(ts, chan, batch.can_id)
             pos = len(ts)
         while pos < len(ts):
-            back, new = self._back(ts[pos:], chan[pos:], batch.can_id[pos:], after)
+            cut = next((r for r in cuts if r > pos), len(ts))
+            back, new = self._back(ts[pos:cut], chan[pos:cut], batch.can_id[pos:cut],
+                                   after if cut == len(ts) else None)
             stop = pos + back
             self._note(ts[pos:stop], chan[pos:stop], batch.can_id[pos:stop])
             if stop < len(ts):
                 if ts is batch.ts:
                     ts = ts.copy()
-                if new:  # another recording: its own times
+                if new or stop == cut:  # another recording, or a piece after left-out ones
                     ts[stop:] -= self._offset
                     self._offset = 0.0
                     self._begin(batch, stop, ts)
@@ -146,6 +157,25 @@ class Captures:
             if hi > lo:  # (a capture that begins at the batch's first row: none before it)
                 out[lo:hi] = self._own_codes(chan[lo:hi], first + k)
         return replace(batch, chan=out)
+
+    def _left_out_rows(self, batch: FrameBatch) -> list[int]:
+        """The rows of `batch` that come first after a note that frames were left out
+        (`[snip]`, `...`: `InputStats.left_out`): each begins a capture, as a log pasted
+        in pieces is (a timeout across the left-out frames would be none)."""
+        pending = self.stats.left_out[self._left:]
+        if not pending or not batch.line[-1]:
+            return []
+        rows = np.searchsorted(batch.line, pending, side="right")
+        taken = int(np.count_nonzero(rows < len(batch)))  # the others: the next batch's
+        self._left += taken
+        out: list[int] = []
+        for row, line in zip(rows[:taken].tolist(), pending[:taken], strict=True):
+            if row == 0 and not self.list:  # before the input's first frame: nothing left out
+                continue
+            if (not out or row != out[-1]) and len(self.list) + len(out) < MAX_CAPTURES:
+                out.append(row)
+                self.stats.left_out_restarts.append((line, int(batch.line[row])))
+        return out
 
     def _note(self, ts: np.ndarray, chan: np.ndarray, can_id: np.ndarray) -> None:
         """Take frames of the current capture into its latest times, overall and per

@@ -334,3 +334,32 @@ def test_a_later_capture_keeps_the_master_its_channel_showed(checker: Checker) -
     assert masters["vcan0 (capture 2)"].node == masters["vcan0"].node == 1
     assert "as in vcan0" in masters["vcan0 (capture 2)"].detail
     assert [f.rule for f in res.findings if f.severity == "error"] == []
+
+
+@pytest.mark.parametrize("note", ["[... snip ...]", "...", "--- cut ---", "  [...]"])
+def test_a_note_that_frames_were_left_out_begins_a_capture(checker: Checker,
+                                                           note: str) -> None:
+    """A log pasted with a piece left out (`[... snip ...]` in place of two seconds): the
+    timeouts across the left-out frames were H001 and G002 errors on a healthy network
+    (a review: 44 of 45 real-stack logs FAILed so). The piece after the note is a
+    capture of its own; I005 names the note's line. A note above the first frame leaves
+    nothing out."""
+    lines = (SAMPLES / "lely" / "healthy.log").read_text().splitlines(keepends=True)
+    text = "".join([note + "\n", *lines[:200], note + "\n", *lines[260:]])
+    res = checker.run(text)
+    assert [f.rule for f in res.findings] == ["I005"], res.findings
+    assert res.stats.left_out_restarts == [(202, 203)]
+    assert len(res.stats.restarts) == 1 and res.stats.restarts[0][1] == 203
+    assert "frames were left out at line 202" in res.findings[0].message
+    assert sorted(cm.name for cm in res.model.channels) == ["vcan0", "vcan0 (capture 2)"]
+
+
+def test_a_note_between_two_whole_recordings_and_time_going_back(checker: Checker) -> None:
+    """Both at once: `...` between two pastes of one log. One capture begins after the
+    note; I005 names the note, and the time that went back there needs nothing else."""
+    text = (SAMPLES / "canopennode" / "healthy.log").read_text()
+    res = checker.run(text + "...\n" + text)
+    assert len(res.stats.restarts) == 1 and res.stats.left_out_restarts
+    (i005,) = [f for f in res.findings if f.rule == "I005"]
+    assert "left out" in i005.message and "may be unreliable" not in i005.message
+    assert [f.rule for f in res.findings] == ["I005"]

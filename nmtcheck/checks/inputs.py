@@ -230,7 +230,9 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
 
     Where a channel's time goes back by more than a second, to the start of the
     recording or before it, and stays back, or by any amount to frames the input
-    already had (a log pasted in overlapping pieces), a new recording begins: from there on the
+    already had (a log pasted in overlapping pieces), or after a note that frames
+    were left out between two frames (`[... snip ...]`, `...`; then I005 fires
+    without time going back), a new recording begins: from there on the
     frames are a capture of their own, checked as a trace of its own, and a channel
     an earlier capture had is named `NAME (capture K)` there (the network file's
     configuration for NAME applies to it). Where it goes back by more than a second
@@ -249,7 +251,11 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     logs of one session joined in the wrong order.
     """
     stats = model.stats
-    if stats is None or not stats.backwards_timestamps:
+    if stats is None or not (stats.backwards_timestamps or stats.restarts):
+        return
+    if not stats.backwards_timestamps:  # captures after notes of left-out frames only
+        idx, line, ts = stats.restarts[0]
+        yield Problem(None, None, float(ts), _left_out(stats), int(idx), int(line))
         return
     first = stats.first_backwards
     if first is None:
@@ -259,12 +265,16 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     where = f" (first at line {line})" if line and stats.format in TEXT_FORMATS else (
         f" (first at frame {idx})" if idx is not None else "")
     said = f"timestamps go backwards {_plural(stats.backwards_timestamps, 'time')}{where}"
-    explained = len(stats.restarts) + len(stats.clock_steps)
+    after_notes = {first for _note, first in stats.left_out_restarts}
+    back = [r for r in stats.restarts if r[1] not in after_notes]
+    explained = len(stats.restarts) + len(stats.clock_steps)  # each may explain one step
     if not explained:
         said += ": frames are kept in file order, timing findings may be unreliable"
-    if stats.restarts:  # new recordings in the input (nmtcheck/captures.py)
-        at = ", ".join(_place(stats, i, ln) for i, ln, _t in stats.restarts[:3])
-        said += (f": time starts again at {at}{', …' if len(stats.restarts) > 3 else ''}, "
+    if stats.left_out_restarts:
+        said += ": " + _left_out(stats)
+    if back:  # new recordings in the input (nmtcheck/captures.py)
+        at = ", ".join(_place(stats, i, ln) for i, ln, _t in back[:3])
+        said += (f": time starts again at {at}{', …' if len(back) > 3 else ''}, "
                  f"{len(stats.restarts) + 1} captures, each checked as a trace of its own "
                  "(a later capture's channels are named 'NAME (capture K)')")
     if stats.clock_steps:  # the logger's clock stepped back within a recording
@@ -276,6 +286,15 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     if explained and stats.backwards_timestamps > explained:
         said += "; the smaller steps back may make timing findings unreliable"
     yield Problem(None, None, ts, said, idx, line or None)
+
+
+def _left_out(stats: InputStats) -> str:
+    """What I005 says of the captures that begin after a note of left-out frames."""
+    lines = [note for note, _first in stats.left_out_restarts]
+    at = ", ".join(str(n) for n in lines[:3]) + (", …" if len(lines) > 3 else "")
+    return (f"frames were left out at line{'s' if len(lines) > 1 else ''} {at} (a note "
+            f"such as `[snip]` or `...`): {len(stats.restarts) + 1} captures, each checked as "
+            "a trace of its own (a later capture's channels are named 'NAME (capture K)')")
 
 
 def _place(stats: InputStats, idx: int, line: int) -> str:

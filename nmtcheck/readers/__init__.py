@@ -86,6 +86,10 @@ class InputStats:
     # where the logger's clock stepped back within a recording: frame index, line, and
     # the seconds the frames after it are timed later than their stamps (captures.py)
     clock_steps: list[tuple[int, int, float]] = field(default_factory=list)
+    # the lines of notes that frames were left out (`[snip]`, `...`), in file order; and
+    # those of them after which a capture begins, with its first frame's line (captures.py)
+    left_out: list[int] = field(default_factory=list)
+    left_out_restarts: list[tuple[int, int]] = field(default_factory=list)
     _chan_codes: dict[str, int] = field(default_factory=dict, repr=False)
 
     def channel_code(self, name: str) -> int:
@@ -133,10 +137,14 @@ class InputStats:
         if len(self.skipped_lines) < MAX_SKIPPED_LINES_KEPT:
             self.skipped_lines.append(line)
 
-    def note(self, count: int = 1) -> None:
-        """Count lines that are only a note or a comment: non-frame records, not skips."""
+    def note(self, count: int = 1, raw: bytes | None = None, line: int = 0) -> None:
+        """Count lines that are only a note or a comment: non-frame records, not skips. A
+        note `raw` at `line` that frames were left out there is kept (`left_out`)."""
         self.ignored += count
         self.notes += count
+        if (raw is not None and line and len(self.left_out) < MAX_LEFT_OUT
+                and is_left_out_line(raw)):
+            self.left_out.append(line)
 
 
 _DECIMAL_DIGITS = b"0123456789"
@@ -159,6 +167,22 @@ _NOTE_LINE = re.compile(
     rb"|[\[(<{-]*\s*(?:\.{2,}|\xe2\x80\xa6)?\s*(?:snip(?:ped)?|cut|omitted|truncated)\b"
     rb"[^\w]*(?:\.{2,}|\xe2\x80\xa6)?[\])>}-]*$"  # [snip], --- cut ---, ... snipped ...
     rb")", re.IGNORECASE)
+
+
+# Notes that say frames were left out here (`...`, `[...]`, `[snip]`, `--- cut ---`): what
+# follows is no continuation of what came before (nmtcheck/captures.py)
+_LEFT_OUT = re.compile(
+    rb"(?:"
+    rb"[\[(<{]?\s*(?:(?:\.\s*){2,}|(?:\xe2\x80\xa6\s*)+)[\])>}]?$"
+    rb"|[\[(<{-]*\s*(?:\.{2,}|\xe2\x80\xa6)?\s*(?:snip(?:ped)?|cut|omitted|truncated)\b"
+    rb"[^\w]*(?:\.{2,}|\xe2\x80\xa6)?[\])>}-]*$"
+    rb")", re.IGNORECASE)
+MAX_LEFT_OUT = 10000  # notes of frames left out kept per input (the rest only counted)
+
+
+def is_left_out_line(line: bytes) -> bool:
+    """A note that frames were left out here: `...`, `[...]`, `…`, `[snip]`, `--- cut ---`."""
+    return _LEFT_OUT.match(line.strip()) is not None
 
 
 def is_note_line(line: bytes) -> bool:

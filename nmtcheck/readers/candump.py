@@ -153,7 +153,7 @@ def _parse_general(raw: bytes, stats: InputStats, stamped: bool = True, lineno: 
         _count_drops(raw, stats, lineno)
         return None
     if is_note_line(raw):
-        stats.note()  # a comment, a shell prompt, `...`: no record
+        stats.note(raw=raw, line=lineno)  # a comment, a shell prompt, `...`: no record
         return None
     ts, iface, frame = _fields(raw, parts, stamped)
     hash_pos = frame.find(b"#")

@@ -474,7 +474,7 @@ class _LineParser:
             return None
         if is_note_line(raw):
             self.explaining = False
-            stats.note()  # a comment, a shell prompt, `...`: no record
+            stats.note(raw=raw, line=lineno)  # a comment, a prompt, `...`: no record
             return None
         clock = self.clock
         try:
