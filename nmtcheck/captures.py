@@ -29,6 +29,10 @@ from nmtcheck.readers import InputStats
 # start, seconds to days earlier. A clock step in the middle of a recording (NTP) goes
 # back less than the recording's length: no new recording, I005 warns of it.
 RESTART_S = 1.0
+# A channel's time that goes back by more than this (and less than to a recording's
+# start) and stays back is the logger's clock stepped back; a merged log's frames go
+# back by milliseconds.
+STEP_S = 0.05
 # ... and stays back: the channel's CONFIRM frames after the first one are earlier too.
 # One frame written late (a stamp seconds off, then time goes on as before) starts no
 # capture.
@@ -99,7 +103,7 @@ class Captures:
     def _in_order(self, batch: FrameBatch) -> bool:
         """In order, the usual case: no frame goes back by RESTART_S against any before."""
         ts = batch.ts
-        return (ts[0] + self._offset >= self._latest - RESTART_S
+        return (ts[0] + self._offset >= self._latest - STEP_S
                 and bool((ts[1:] >= ts[:-1]).all()))
 
     def _batch(self, batch: FrameBatch, after: FrameBatch | None,
@@ -200,17 +204,17 @@ class Captures:
     def _back(self, ts: np.ndarray, chan: np.ndarray, can_id: np.ndarray,
               after: FrameBatch | None) -> tuple[int, bool]:
         """The row of `ts` where a channel's time goes back (len(ts): nowhere), and
-        whether another recording begins there: the first frame more than RESTART_S
+        whether another recording begins there: the first frame more than STEP_S
         before its channel's latest so far whose channel's next CONFIRM frames (this
-        batch's, then `after`'s) are too. Another recording where it goes back to within
-        RESTART_S of the capture's start or before it, or to a time the input already
-        had; else the clock stepped back."""
+        batch's, then `after`'s) are too. Another recording where it goes back by more
+        than RESTART_S, to within RESTART_S of the capture's start or before it, or to a
+        time the input already had; else the clock stepped back."""
         if len(self.list) + len(self.stats.clock_steps) >= MAX_CAPTURES:
             return len(ts), False
         latest = np.maximum.accumulate(ts)  # a channel's latest is never above the input's
         np.maximum(latest, self._latest, out=latest)
-        rows = np.flatnonzero(ts < latest - RESTART_S)
-        found = len(ts)
+        rows = np.flatnonzero(ts < latest - STEP_S)
+        found, drop = len(ts), 0.0
         for code in np.unique(chan[rows]).tolist():
             mine = np.flatnonzero(chan == code)
             t = ts[mine]
@@ -220,19 +224,19 @@ class Captures:
             if after is not None:
                 ahead.insert(1, after.ts[after.chan == code][:CONFIRM] + self._offset)
             t_ahead = np.concatenate(ahead)
-            for k in np.flatnonzero(t < before - RESTART_S).tolist():
+            for k in np.flatnonzero(t < before - STEP_S).tolist():
                 if int(mine[k]) >= found:
                     break
-                if bool((t_ahead[k + 1:k + 1 + CONFIRM] < before[k] - RESTART_S).all()):
-                    found = int(mine[k])
+                if bool((t_ahead[k + 1:k + 1 + CONFIRM] < before[k] - STEP_S).all()):
+                    found, drop = int(mine[k]), float(before[k] - t[k])
                     break
         repeat = self._repeat(ts, can_id, latest, found)
         if repeat < found:  # a piece pasted again, by however little time it goes back
             return repeat, True
         if found == len(ts):
             return found, False
-        return found, (float(ts[found]) <= self.list[-1].start + RESTART_S
-                       or self._seen(ts, can_id, found))
+        to_start = drop > RESTART_S and float(ts[found]) <= self.list[-1].start + RESTART_S
+        return found, to_start or self._seen(ts, can_id, found)
 
     def _repeat(self, ts: np.ndarray, can_id: np.ndarray, latest: np.ndarray,
                 upto: int) -> int:

@@ -363,3 +363,18 @@ def test_a_note_between_two_whole_recordings_and_time_going_back(checker: Checke
     (i005,) = [f for f in res.findings if f.rule == "I005"]
     assert "left out" in i005.message and "may be unreliable" not in i005.message
     assert [f.rule for f in res.findings] == ["I005"]
+
+
+def test_a_clock_step_back_under_a_second_is_spliced_too(checker: Checker) -> None:
+    """A step of 0.5 s in the python-canopen master's broadcast recording: the TPDOs
+    before it in the file were judged by the states of heartbeats after it whose stamps
+    were earlier (a review found S001 on 8 TPDOs of operational nodes)."""
+    folder = SAMPLES / "canopen_master"
+    network = (folder / "network.toml").read_text()
+    lines = (folder / "broadcast.log").read_text().splitlines(keepends=True)
+    res = checker.run("".join(lines[:227] + [_shifted(line, -0.5) for line in lines[227:]]),
+                      network=network)
+    whole = checker.run("".join(lines), network=network)
+    assert len(res.stats.clock_steps) == 1 and res.stats.restarts == []
+    assert [(f.rule, f.node) for f in res.findings if f.rule != "I005"] == [
+        (f.rule, f.node) for f in whole.findings]

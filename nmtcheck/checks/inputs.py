@@ -235,7 +235,7 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     without time going back), a new recording begins: from there on the
     frames are a capture of their own, checked as a trace of its own, and a channel
     an earlier capture had is named `NAME (capture K)` there (the network file's
-    configuration for NAME applies to it). Where it goes back by more than a second
+    configuration for NAME applies to it). Where it goes back by more than 50 ms
     within the recording and stays back, the logger's clock stepped back (NTP): the
     frames after it are timed as if it had not, continuing from the latest frame
     before it. The message names each capture's start and each clock step.
