@@ -333,6 +333,7 @@ def test_note_follows(text: bytes, k: int, note: bool) -> None:
     "# boot-up of node 1", "#", "// comment", "$ candump can0", "$", "user@host:~$ candump -L can0",
     "pi@raspberrypi:~ $ candump -ta can0", "root@box:/tmp# candump any",
     "[user@host ~]$ candump can0", "(venv) user@host:~/ws$ candump can0", "PS C:\\> candump can0",
+    "C:\\Users\\me> type run.log", "D:\\logs>ssh pi candump -L can0", "C:\\>",
     "...", "....", "…", "[...]", "(...)", ". . .", "[snip]", "--- snip ---", "```", "```text",
     "~~~", "^C", "\t# indented comment", "   ...",
 ])

@@ -161,6 +161,7 @@ _NOTE_LINE = re.compile(
     rb"|(?:\([^()\s]*\)\s*)?[\w.-]+@[\w.-]+(?::\S*)?\s*[$#%>](?:\s|$)"  # user@host:~$ cmd
     rb"|\[[^\]]*@[^\]]*\]\s*[$#%](?:\s|$)"  # [user@host dir]$ cmd
     rb"|PS [A-Za-z]:\\[^>]*>"  # PowerShell: PS C:\> cmd
+    rb"|[A-Za-z]:\\[^>]*>"  # cmd.exe: C:\Users\me> type run.log
     rb"|```|~~~"  # a markdown code fence
     rb"|\^C$"  # the terminal's echo of the Ctrl-C that ended `candump`
     rb"|[\[(<{]?\s*(?:(?:\.\s*){2,}|(?:\xe2\x80\xa6\s*)+)[\])>}]?$"  # `...`, `....`, `[...]`, `…`
