@@ -48,7 +48,7 @@ from nmtcheck.model import (
 from nmtcheck.network import Network
 from nmtcheck.nmt import UNKNOWN
 from nmtcheck.profiles import Profile, RuleSettings
-from nmtcheck.readers import InputStats, open_input, printable_path
+from nmtcheck.readers import CUT_IF_DAMAGED, InputStats, open_input, printable_path
 from nmtcheck.sdo_transfers import SdoSpool, tee
 from nmtcheck.timeline import build
 
@@ -468,7 +468,8 @@ def _without_cut_frame(batches: Iterator[FrameBatch], stats: InputStats,
     written ends so; read as a frame it would be a malformed NMT command (C002) or
     heartbeat (C003) and fail the gate. It is a skipped record and the input is truncated
     (I002). A short frame on a last line with its newline, or a whole frame on one
-    without (a pasted log saved without a final newline), is read as it is."""
+    without (a pasted log saved without a final newline), is read as it is. In a
+    compressed log whose stream is damaged, the last line read is where it was cut."""
     if cut_line is None:  # the input ends with a newline, the usual case
         yield from batches
         return
@@ -479,6 +480,8 @@ def _without_cut_frame(batches: Iterator[FrameBatch], stats: InputStats,
         held = batch
     if held is None:
         return
+    if cut_line == CUT_IF_DAMAGED:  # a compressed log: cut where its stream is damaged
+        cut_line = int(held.line[-1]) if stats.truncated and len(held) else None
     if len(held) and int(held.line[-1]) == cut_line and _short(held):
         held = replace(held, **{f.name: getattr(held, f.name)[:-1] for f in fields(held)})
         stats.frames -= 1

@@ -7,6 +7,7 @@ a newline that holds a whole frame (a pasted log saved without one) is read."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -73,3 +74,28 @@ def test_strict_makes_a_cut_last_line_an_input_error(tmp_path: Path) -> None:
     log.write_text("(1.000000) can0 701#00\n(1.100000) can0 000#01")
     res = run_cli("check", "--strict", str(log), cwd=tmp_path)
     assert res.returncode == 2 and f"{log}:2: " in res.stderr and "cut off" in res.stderr
+
+
+def test_a_compressed_log_cut_while_written(tmp_path: Path) -> None:
+    """`candump -L can0 | gzip > run.log.gz` killed, or copied while written: the stream
+    is damaged (I002) and its last line read is cut (`704#` of `704#05`): a skipped
+    record, not a C003 error. A whole compressed log keeps its findings."""
+    import gzip
+
+    text = (SAMPLES / "canopennode" / "healthy.log").read_bytes()
+    end = text.index(b"704#05", len(text) // 2) + len(b"704#")
+    whole = gzip.compress(text)
+    cut = gzip.compress(text[:end])
+    # a stream cut inside the compressed data: its deflate blocks up to the cut
+    damaged = cut[:-8]  # no CRC and size trailer: the decompressor reports the damage
+    log = tmp_path / "run.log.gz"
+    log.write_bytes(damaged)
+    res = run_cli("check", "--isolated", str(log), "--format", "json", "--fail-on", "never",
+                  cwd=tmp_path)
+    report = json.loads(res.stdout)
+    rules = [f["rule"] for f in report["findings"]]
+    assert report["inputs"][0]["truncated"] and "I002" in rules, rules
+    assert not {"C002", "C003"} & set(rules), rules
+    (tmp_path / "whole.log.gz").write_bytes(whole)
+    res = run_cli("check", "--isolated", str(tmp_path / "whole.log.gz"), cwd=tmp_path)
+    assert res.returncode == 0, res.stdout

@@ -661,7 +661,8 @@ def printable_path(path: str) -> str:
 class OpenedInput:
     stats: InputStats
     batches: Generator[FrameBatch, None, None]  # close() it to close the file early
-    # the line number of a last line without a newline in a plain text file (else None):
+    # the line number of a last line without a newline in a plain text file (else None;
+    # CUT_IF_DAMAGED: a compressed one's last line, if its stream turns out damaged):
     # where a recording killed mid-write, or a file copied while it was written, ends
     cut_line: int | None = None
 
@@ -690,9 +691,16 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
     buffered = io.BufferedReader(_Prefixed(head, stream), buffer_size=1 << 20)
     source = Source(display, buffered, _stream_errors(compression), compression,
                     None if compression or path == "-" else path, options or {})
-    cut = (unterminated_line(raw) if fmt in TEXT_FORMATS and not compression and path != "-"
-           else None)
+    cut = None
+    if fmt in TEXT_FORMATS and path != "-":
+        cut = (unterminated_line(raw) if not compression
+               else CUT_IF_DAMAGED if compression != "utf-16" else None)
     return OpenedInput(stats, _batches(reader, raw, source, stats, start, damage), cut)
+
+
+# `OpenedInput.cut_line` of a compressed text log: where its stream is damaged (cut off
+# while it was written or copied), its last line read is where it was cut
+CUT_IF_DAMAGED = -1
 
 
 def unterminated_line(raw: IO[bytes]) -> int | None:
