@@ -3,13 +3,15 @@
 `cat run1.asc run2.asc`, candump logs joined in the wrong order, a logger that appends a
 new session whose stamps start from zero: the file holds two recordings whose times
 overlap. Checked as one trace, every node of the first seems to fall silent "for the rest
-of the trace" and the second's PDOs are judged against the first's states. A jump back
-of more than RESTART_S in the frame times is no jitter of a merged log: from there on
-the frames are a capture of their own. A channel that an earlier capture had is then a
+of the trace" and the second's PDOs are judged against the first's states. Where a
+channel's time goes back to the recording's start (or to frames the input already had,
+or after a note that frames were left out), the frames are a capture of their own; where
+it goes back less, the logger's clock stepped back and later times are made continuous.
+A channel that an earlier capture had is then a
 channel of its own (`can0 (capture 2)`), with the capture's start and end as its trace
 span, so that every rule sees each recording as the trace it is; the files' network and
 device configuration still apply to it under its logged name (`InputStats.log_channel`).
-Frames stay in file order and keep their stamps; I005 still reports the jump.
+Frames stay in file order; I005 still reports the jump.
 """
 
 from __future__ import annotations
@@ -101,7 +103,7 @@ class Captures:
             self.stats.end = self._latest
 
     def _in_order(self, batch: FrameBatch) -> bool:
-        """In order, the usual case: no frame goes back by RESTART_S against any before."""
+        """In order, the usual case: no frame goes back by STEP_S against any before."""
         ts = batch.ts
         return (ts[0] + self._offset >= self._latest - STEP_S
                 and bool((ts[1:] >= ts[:-1]).all()))
@@ -118,9 +120,7 @@ class Captures:
             cuts = [r for r in cuts if r > 0]
         pos, starts = 0, [0]
         if cuts and cuts[0] == 0:  # frames left out between the last batch and this one
-            ts = ts - self._offset if self._offset else ts.copy()
-            self._offset = 0.0
-            self._begin(batch, 0, ts)
+            ts = self._another(batch, 0, ts)
             starts.append(0)
             cuts = cuts[1:]
         if in_order and not cuts:
@@ -133,14 +133,12 @@ class Captures:
             stop = pos + back
             self._note(ts[pos:stop], chan[pos:stop], batch.can_id[pos:stop])
             if stop < len(ts):
-                if ts is batch.ts:
-                    ts = ts.copy()
                 if new or stop == cut:  # another recording, or a piece after left-out ones
-                    ts[stop:] -= self._offset
-                    self._offset = 0.0
-                    self._begin(batch, stop, ts)
+                    ts = self._another(batch, stop, ts)
                     starts.append(stop)
                 else:  # the clock stepped back: go on from the latest time
+                    if ts is batch.ts:
+                        ts = ts.copy()
                     step = self._latest - float(ts[stop])
                     ts[stop:] += step
                     self._offset += step
@@ -260,6 +258,16 @@ class Captures:
         return all(bool(((seen_ts == t) & (seen_id == i)).any()) for t, i in zip(
             ts[row:row + CONFIRM + 1].tolist(), can_id[row:row + CONFIRM + 1].tolist(),
             strict=True))
+
+    def _another(self, batch: FrameBatch, row: int, ts: np.ndarray) -> np.ndarray:
+        """Begin a capture at `row`; `ts` with the frames from there on at their own
+        times (another recording: no earlier clock step applies to it)."""
+        if ts is batch.ts:
+            ts = ts.copy()
+        ts[row:] -= self._offset
+        self._offset = 0.0
+        self._begin(batch, row, ts)
+        return ts
 
     def _begin(self, batch: FrameBatch, row: int, ts: np.ndarray) -> None:
         self.list.append(Capture(len(self.list) + 1, int(batch.index[row]),

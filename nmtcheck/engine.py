@@ -12,6 +12,7 @@ import difflib
 import gc
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, fields, replace
+from functools import partial
 from typing import Any, Protocol, cast
 
 import numpy as np
@@ -237,9 +238,12 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         configs = _configs(network, stats)
         params = replace(timeline_params(profile), order_only=stats.order_only)
         masters = known_masters(network, stats.channels, stats.log_channel)
-        model = build(decoded, stats.channels, start, end, params, configs, masters, spans)
+        # the model from the decoded frames (`masters` may gain a later capture's)
+        rebuild = partial(build, decoded, stats.channels, start, end, params, configs,
+                          masters, spans)
+        model = rebuild()
         if _inherit_masters(model, masters):
-            model = build(decoded, stats.channels, start, end, params, configs, masters, spans)
+            model = rebuild()
         if decoded.ec_runs or decoded.ec_guard_runs:  # a long log: a node whose dropped
             tolerance = profile["H003"].params["tolerance"]  # runs a limit cuts is read whole
             silence = float(profile.timeline.get("silence_min_ms", 100.0)) / 1000.0
@@ -249,14 +253,12 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                 if not unsafe:
                     break
                 decoded.restore_ec(keys)
-                model = build(decoded, stats.channels, start, end, params, configs, masters,
-                              spans)
+                model = rebuild()
                 unsafe = unsafe_nodes(model, tolerance, silence)
             late = _boot_evidence_in_runs(model, spool, network, profile, max_findings)
             if late:
                 decoded.restore_ec(late)
-                model = build(decoded, stats.channels, start, end, params, configs, masters,
-                              spans)
+                model = rebuild()
         decoded.events = decoded.events[:0].copy()  # the SDO rows are paired into the model
         model.stats = stats
         model.expected = network.expected() if network else []

@@ -151,6 +151,16 @@ _DECIMAL_DIGITS = b"0123456789"
 _HEX_DIGITS = b"0123456789abcdefABCDEF"
 
 
+# Notes that say frames were left out here (`...`, `[...]`, `[snip]`, `--- cut ---`): what
+# follows is no continuation of what came before (nmtcheck/captures.py)
+_LEFT_OUT_NOTES = (
+    rb"[\[(<{]?\s*(?:(?:\.\s*){2,}|(?:\xe2\x80\xa6\s*)+)[\])>}]?$"  # `...`, `[...]`, `…`
+    rb"|[\[(<{-]*\s*(?:\.{2,}|\xe2\x80\xa6)?\s*(?:snip(?:ped)?|cut|omitted|truncated)\b"
+    rb"[^\w]*(?:\.{2,}|\xe2\x80\xa6)?[\])>}-]*$")  # [snip], --- cut ---, ... snipped ...
+_LEFT_OUT = re.compile(rb"(?:" + _LEFT_OUT_NOTES + rb")", re.IGNORECASE)
+MAX_LEFT_OUT = 10000  # notes of frames left out kept per input (the rest only counted)
+
+
 # Lines that are only a note or a comment, as people paste logs (SPEC §1, "Logs as people
 # paste them"): non-frame records, never skipped records. Matched against the line without
 # its leading and trailing white space. No log format's record starts like one of these.
@@ -164,21 +174,8 @@ _NOTE_LINE = re.compile(
     rb"|[A-Za-z]:\\[^>]*>"  # cmd.exe: C:\Users\me> type run.log
     rb"|```|~~~"  # a markdown code fence
     rb"|\^C$"  # the terminal's echo of the Ctrl-C that ended `candump`
-    rb"|[\[(<{]?\s*(?:(?:\.\s*){2,}|(?:\xe2\x80\xa6\s*)+)[\])>}]?$"  # `...`, `....`, `[...]`, `…`
-    rb"|[\[(<{-]*\s*(?:\.{2,}|\xe2\x80\xa6)?\s*(?:snip(?:ped)?|cut|omitted|truncated)\b"
-    rb"[^\w]*(?:\.{2,}|\xe2\x80\xa6)?[\])>}-]*$"  # [snip], --- cut ---, ... snipped ...
+    rb"|" + _LEFT_OUT_NOTES +
     rb")", re.IGNORECASE)
-
-
-# Notes that say frames were left out here (`...`, `[...]`, `[snip]`, `--- cut ---`): what
-# follows is no continuation of what came before (nmtcheck/captures.py)
-_LEFT_OUT = re.compile(
-    rb"(?:"
-    rb"[\[(<{]?\s*(?:(?:\.\s*){2,}|(?:\xe2\x80\xa6\s*)+)[\])>}]?$"
-    rb"|[\[(<{-]*\s*(?:\.{2,}|\xe2\x80\xa6)?\s*(?:snip(?:ped)?|cut|omitted|truncated)\b"
-    rb"[^\w]*(?:\.{2,}|\xe2\x80\xa6)?[\])>}-]*$"
-    rb")", re.IGNORECASE)
-MAX_LEFT_OUT = 10000  # notes of frames left out kept per input (the rest only counted)
 
 
 def is_left_out_line(line: bytes) -> bool:
