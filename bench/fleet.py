@@ -57,7 +57,7 @@ def run(executor: str, logs: Path, results: Path, dask_defaults: bool = False) -
     from nmtcheck.engine import select_rules
     from nmtcheck.fleet import executors
     from nmtcheck.fleet.run import FleetOptions, run_fleet
-    from nmtcheck.profiles import load_profile
+    from nmtcheck.settings.profiles import load_profile
 
     saved = dict(executors.DASK_CONFIG)
     if dask_defaults:
@@ -95,7 +95,7 @@ def per_task(log: Path, repeat: int) -> None:
     from nmtcheck.fleet.dataset import Dataset
     from nmtcheck.fleet.storage import expand
     from nmtcheck.fleet.tasks import TaskConfig
-    from nmtcheck.profiles import load_profile
+    from nmtcheck.settings.profiles import load_profile
 
     profile = load_profile("default")
     codes = [r.code for r in select_rules(profile, [], [])]

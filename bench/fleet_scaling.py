@@ -80,7 +80,7 @@ def dump_stats():
         json.dump(stats, f)
 import atexit
 atexit.register(dump_stats)  # the command ends through its atexit handlers (cli.command)
-from nmtcheck.cli import command
+from nmtcheck.cli.main import command
 sys.argv = ["nmtcheck", *sys.argv[1:]]
 command()
 """

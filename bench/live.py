@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import nmtcheck
 from nmtcheck.engine import select_rules
 from nmtcheck.live.session import Session
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 
 def latency_trial(k: int) -> float:

@@ -12,8 +12,8 @@ from typing import Any
 from mkdocs.structure.files import File, Files
 
 from nmtcheck.checks import RULES
-from nmtcheck.cli import rule_doc
-from nmtcheck.profiles import load_profile
+from nmtcheck.cli.main import rule_doc
+from nmtcheck.settings.profiles import load_profile
 
 RULES_DIR = "reference/rules"
 RULES_INDEX = f"{RULES_DIR}/index.md"

@@ -1,3 +1,3 @@
-from nmtcheck.cli import command
+from nmtcheck.cli.main import command
 
 command()

@@ -127,8 +127,8 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
     """Check logs as `nmtcheck check` does (no configuration file is read: pass what you
     need). Errors are raised as nmtcheck.errors.InputError / UsageError."""
     from nmtcheck.engine import MAX_FINDINGS_PER_RULE, check_inputs, select_rules, summary
-    from nmtcheck.network import load_network
-    from nmtcheck.profiles import DEFAULT_PROFILE, load_profile
+    from nmtcheck.settings.network import load_network
+    from nmtcheck.settings.profiles import DEFAULT_PROFILE, load_profile
     from nmtcheck.reporters.json import report_dict
 
     if isinstance(paths, (str, PathLike)):

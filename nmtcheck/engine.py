@@ -17,10 +17,10 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
-from nmtcheck import boot as boot_stage
-from nmtcheck import causes as cause_stage
-from nmtcheck.boot import BootAnalysis
-from nmtcheck.captures import Captures, channel_spans
+from nmtcheck.processes import boot as boot_stage
+from nmtcheck.explain import causes as cause_stage
+from nmtcheck.processes.boot import BootAnalysis
+from nmtcheck.readers.captures import Captures, channel_spans
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import (
     SEVERITIES,
@@ -32,13 +32,13 @@ from nmtcheck.checks.base import (
     Problems,
     Rule,
 )
-from nmtcheck.decode import FrameAt, decode
-from nmtcheck.ec_compact import unsafe_nodes
+from nmtcheck.timeline.decode import FrameAt, decode
+from nmtcheck.timeline.ec_compact import unsafe_nodes
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
-from nmtcheck.evaluated import finding_bases
-from nmtcheck.evaluated import not_evaluated as rules_not_evaluated
-from nmtcheck.frames import FrameBatch
-from nmtcheck.model import (
+from nmtcheck.explain.evaluated import finding_bases
+from nmtcheck.explain.evaluated import not_evaluated as rules_not_evaluated
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.timeline.model import (
     InputModel,
     Master,
     NodeConfig,
@@ -46,12 +46,12 @@ from nmtcheck.model import (
     TimelineParams,
     Timeout,
 )
-from nmtcheck.network import Network
-from nmtcheck.nmt import UNKNOWN
-from nmtcheck.profiles import Profile, RuleSettings
+from nmtcheck.settings.network import Network
+from nmtcheck.protocol.nmt import UNKNOWN
+from nmtcheck.settings.profiles import Profile, RuleSettings
 from nmtcheck.readers import CUT_IF_DAMAGED, InputStats, open_input, printable_path
-from nmtcheck.sdo_transfers import SdoSpool, tee
-from nmtcheck.timeline import build
+from nmtcheck.processes.sdo_transfers import SdoSpool, tee
+from nmtcheck.timeline.build import build
 
 
 @dataclass
@@ -167,7 +167,7 @@ def timeline_params(profile: Profile) -> TimelineParams:
 def known_masters(network: Network | None, channels: list[str],
                   log_name: Callable[[str], str] = str) -> dict[str, Master]:
     """Each channel's master as the network file or a device file names it (SPEC §2);
-    `log_name`: the name the files know a channel by (a later capture's: nmtcheck/captures.py)."""
+    `log_name`: the name the files know a channel by (a later capture's: nmtcheck/readers/captures.py)."""
     out: dict[str, Master] = {}
     if network is None:
         return out
@@ -180,7 +180,7 @@ def known_masters(network: Network | None, channels: list[str],
 
 def _inherit_masters(model: InputModel, masters: dict[str, Master]) -> bool:
     """Give a later capture's channel whose start-up shows no master the master its
-    channel's first capture showed (the same network: nmtcheck/captures.py); whether
+    channel's first capture showed (the same network: nmtcheck/readers/captures.py); whether
     any was given. A capture that begins after the master's start-up cannot show it."""
     first = {cm.name: cm.master for cm in model.channels if cm.network_name == cm.name}
     given = False
@@ -196,7 +196,7 @@ def _inherit_masters(model: InputModel, masters: dict[str, Master]) -> bool:
 def _configs(network: Network | None, stats: InputStats
              ) -> dict[tuple[str | None, int], NodeConfig]:
     """The files' node configurations by (channel, node-ID); a channel's are also those of
-    its later captures' channels (nmtcheck/captures.py)."""
+    its later captures' channels (nmtcheck/readers/captures.py)."""
     configs = network.configs() if network else {}
     for own, name in stats.capture_channels.items():
         configs.update({(own, n): cfg for (ch, n), cfg in list(configs.items()) if ch == name})
@@ -510,7 +510,7 @@ def not_evaluated(model: InputModel, codes: list[str], order_only: bool,
                   network: Network | None) -> dict[str, str]:
     """The selected rules that could not be evaluated on this input, with the reason:
     those that need time on an input without timestamps (SPEC §1, I006), and those that
-    lack the configuration they compare with (nmtcheck/evaluated.py)."""
+    lack the configuration they compare with (nmtcheck/explain/evaluated.py)."""
     out = {c: f"no timestamps: {TIME_RULES[c]}" for c in codes
            if order_only and c in TIME_RULES}
     found = rules_not_evaluated(model, [c for c in codes if c not in out], network is not None)
@@ -673,7 +673,7 @@ def _check_in_worker(path: str, index: int, profile: Profile, codes: list[str],
 def _locate(model: InputModel, problems: list[tuple[Rule, Problem]]) -> None:
     """Give moment findings the first frame at or after their moment."""
     moments = [p for _r, p in problems if p.frame_index is None]
-    # a later capture's moment lies after its first frame (nmtcheck/captures.py)
+    # a later capture's moment lies after its first frame (nmtcheck/readers/captures.py)
     firsts = {cm.name: cm.first_index - 1 for cm in model.channels if cm.first_index}
     found = model.decoded.first_frame_at_or_after(
         [p.time for p in moments],

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.frames import FrameBatch
-from nmtcheck.network import Network, load_network
-from nmtcheck.profiles import load_profile
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.settings.network import Network, load_network
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import InputStats, open_input
 
 REPO = Path(__file__).resolve().parent.parent

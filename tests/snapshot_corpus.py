@@ -44,8 +44,8 @@ from typing import Any
 from conftest import SAMPLES
 from traces import HEALTHY_NET, healthy
 
-from nmtcheck.network import Network, load_network
-from nmtcheck.profiles import Profile, load_profile
+from nmtcheck.settings.network import Network, load_network
+from nmtcheck.settings.profiles import Profile, load_profile
 
 GENERATED = 240  # traces drawn from seeds 0..GENERATED-1
 

@@ -14,10 +14,10 @@ from typing import Any
 import pytest
 from test_boot_flood import NETWORKS, _log, boot_nodes
 
-from nmtcheck import boot
+from nmtcheck.processes import boot
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.network import load_network
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.network import load_network
+from nmtcheck.settings.profiles import load_profile
 
 REFUSED = "80171000" "02000106"  # abort 06010002h: attempt to write a read-only object
 CONFIRMED = "60171000" "00000000"

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from conftest import Checker
 
-from nmtcheck import boot
+from nmtcheck.processes import boot
 from nmtcheck.engine import InputResult
 
 NETWORKS = {

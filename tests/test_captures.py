@@ -1,4 +1,4 @@
-"""Several captures in one input (nmtcheck/captures.py): `cat run1.asc run2.asc`, candump
+"""Several captures in one input (nmtcheck/readers/captures.py): `cat run1.asc run2.asc`, candump
 logs joined out of order. Where time starts again, each recording is checked as the trace
 it is: the findings of the joined file are those of its parts, no more and no fewer."""
 
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from conftest import SAMPLES, Checker, candump, run_cli
 
-from nmtcheck.captures import RESTART_S, Captures
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.captures import RESTART_S, Captures
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats
 
 # Pairs of recordings from real stacks, each joined in the order that makes time go back
@@ -293,7 +293,7 @@ def test_the_channel_option_on_a_later_capture_keeps_the_files_nodes(
 
 def test_captures_are_capped(checker: Checker, monkeypatch: pytest.MonkeyPatch) -> None:
     """Past MAX_CAPTURES, time going back is I005's alone."""
-    from nmtcheck import captures
+    from nmtcheck.readers import captures
 
     monkeypatch.setattr(captures, "MAX_CAPTURES", 2)
     run = [(0.1 * i, "701#05") for i in range(30)]

@@ -18,7 +18,7 @@ from conftest import SAMPLES, Checker
 from conftest import read_columns as read
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import Drop
 from nmtcheck.reporters import text
 

@@ -10,7 +10,7 @@ import pytest
 from conftest import SAMPLES, assert_one_line_error
 from conftest import run_cli as run
 
-from nmtcheck.config import find_config
+from nmtcheck.settings.config import find_config
 
 HB_LOSS = SAMPLES / "heartbeat_loss.log"
 

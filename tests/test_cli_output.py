@@ -15,7 +15,7 @@ from conftest import SAMPLES, candump
 from nmtcheck.checks import RULES
 from nmtcheck.engine import select_rules
 from nmtcheck.errors import UsageError
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 HB_LOSS = SAMPLES / "heartbeat_loss.log"
 HEALTHY = SAMPLES / "healthy.log"

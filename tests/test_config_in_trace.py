@@ -6,7 +6,7 @@ import pytest
 from conftest import SAMPLES, candump
 
 from nmtcheck.engine import check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 
 def hb(node: int, start: float, stop: float, period: float, state: str = "7F"
@@ -160,7 +160,7 @@ def test_pdo_cob_id_from_the_network_dcf(checker, tmp_path) -> None:  # type: ig
 
 def test_healthy_sample_with_the_exported_dcfs() -> None:
     """samples/network.toml points at DCFs exported by canopen: values read, verdict clean."""
-    from nmtcheck.network import load_network
+    from nmtcheck.settings.network import load_network
 
     net = load_network(str(SAMPLES / "network.toml"))
     assert {n: cfg.heartbeat_ms for n, (cfg, _c) in net.nodes.items()} == {

@@ -20,7 +20,7 @@ import pytest
 from conftest import CORPUS, needs_corpus
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, open_input
 
 THIRD = CORPUS / "third_party"

@@ -9,7 +9,7 @@ import pytest
 from conftest import CORPUS, shared_file
 
 from nmtcheck.engine import check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 THIRD = CORPUS / "third_party"
 # Paths under ../shared/corpus/third_party/; without ../shared, the ones copied into

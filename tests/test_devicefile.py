@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 from conftest import CORPUS, DATA, SAMPLES, candump, needs_corpus, shared_file, shared_path
 
-from nmtcheck.devicefile import load_device_file
+from nmtcheck.protocol.devicefile import load_device_file
 from nmtcheck.errors import UsageError
-from nmtcheck.network import load_network
+from nmtcheck.settings.network import load_network
 
 EDS = CORPUS / "eds"
 # the whole EDS/DCF corpus, or without ../shared the permissive files copied to tests/data
@@ -59,7 +59,7 @@ def _corpus(*names: str) -> list[Path]:
 
 def test_canopen_and_ini_readers_agree(tmp_path: Path) -> None:
     """The fallback gives the same values and notes as canopen where canopen can read the file."""
-    from nmtcheck import devicefile
+    from nmtcheck.protocol import devicefile
 
     for path in [LELY_MASTER, SLAVE, *SAMPLES.glob("devices/*.dcf"),
                  *_corpus("oresat/imu.dcf", "python-canopen/sample.eds", "lely/co-nmt-slave.dcf")]:

@@ -22,8 +22,8 @@ import pytest
 from conftest import CORPUS, REPO, SAMPLES
 
 from nmtcheck.engine import check_input, select_rules
-from nmtcheck.frames import FrameBatch
-from nmtcheck.profiles import load_profile
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import InputStats, blocks, open_input
 from nmtcheck.readers.blocks import REFERENCE_ENV
 

@@ -230,7 +230,7 @@ def test_parallel_check_survives_a_dead_worker(tmp_path: Path,
     """`nmtcheck check -j`: the pool is forked, so a patched check_input reaches the workers."""
     import nmtcheck.engine as engine
     from nmtcheck.errors import InputError
-    from nmtcheck.profiles import load_profile
+    from nmtcheck.settings.profiles import load_profile
 
     real = engine.check_input
 
@@ -291,7 +291,7 @@ def test_duckdb_reads_the_dataset_without_nmtcheck(tmp_path: Path) -> None:
 
 
 def test_plain_check_imports_no_fleet_dependency(tmp_path: Path) -> None:
-    code = ("import sys\nfrom nmtcheck.cli import main\n"
+    code = ("import sys\nfrom nmtcheck.cli.main import main\n"
             f"sys.argv = ['nmtcheck', 'check', {str(SAMPLES / 'healthy.log')!r}, '-q']\n"
             "try:\n    main()\nexcept SystemExit:\n    pass\n"
             "print(sorted(m for m in ('pandas', 'pyarrow', 'fsspec', 'dask', 'distributed')"
@@ -351,7 +351,7 @@ def test_tasks_in_flight_stay_within_the_window(tmp_path: Path,
     """A long listing never becomes as many pending tasks: at most 2 per worker slot."""
     from nmtcheck.engine import select_rules
     from nmtcheck.fleet import executors, run
-    from nmtcheck.profiles import load_profile
+    from nmtcheck.settings.profiles import load_profile
 
     root = fleet_dir(tmp_path, LOGS * 3)
     seen: list[int] = []
@@ -433,7 +433,7 @@ fsspec.register_implementation("slowstore", SlowStore, clobber=True)
 for i in range(40):
     SlowStore().pipe(f"/bucket/log{i:02d}.log", b"(1.0) can0 701#05\n")
 sys.argv = ["nmtcheck", "check", "slowstore://bucket/*.log"]
-from nmtcheck.cli import main
+from nmtcheck.cli.main import main
 main()
 """
 

@@ -181,7 +181,7 @@ def test_the_command_starts_the_fork_server_before_its_imports_and_traces_each_p
     workers = {m["pid"] for m in marks if m["phase"] == "worker"}
     assert server not in workers and len(workers) <= 2
     # not the command (a program calling the CLI): the run starts the server itself
-    res, marks = _trace(tmp_path, "-c", "from nmtcheck.cli import main; main()", *args,
+    res, marks = _trace(tmp_path, "-c", "from nmtcheck.cli.main import main; main()", *args,
                         "--force")
     assert res.returncode == 1, res.stderr
     assert "prestart" not in {m["phase"] for m in marks}
@@ -242,7 +242,7 @@ def test_a_run_refused_after_the_fork_server_started_leaves_no_process(tmp_path:
             os.kill(pid, 9)
 
 
-BLAS_PROBE = ("import os, sys; sys.argv[0] = {argv0!r}; import nmtcheck.cli; "
+BLAS_PROBE = ("import os, sys; sys.argv[0] = {argv0!r}; import nmtcheck.cli.main; "
               "print(os.environ.get('OPENBLAS_NUM_THREADS'), "
               "getattr(sys.modules['__main__'].__spec__, 'name', None))")
 
@@ -281,7 +281,7 @@ def test_the_fork_server_has_one_blas_thread_and_the_program_keeps_its_environme
 CONSOLE_SCRIPT = """\
 import re
 import sys
-from nmtcheck.cli import main
+from nmtcheck.cli.main import main
 if __name__ == "__main__":
     sys.argv[0] = re.sub(r"(-script\\.pyw|\\.exe)?$", "", sys.argv[0])
     sys.exit(main())
@@ -303,7 +303,7 @@ def test_workers_of_the_console_script_do_not_import_the_command_line_again(
                          env=ENV)
     assert res.returncode == 1, res.stderr[-2000:]
     assert imported(res.stderr, "nmtcheck.fleet.preload") == 1  # the server
-    assert imported(res.stderr, "nmtcheck.cli") == 1  # the driver only
+    assert imported(res.stderr, "nmtcheck.cli.main") == 1  # the driver only
 
 
 @pytest.mark.skipif(not LINUX, reason="the fork server is POSIX")

@@ -19,7 +19,7 @@ import pytest
 from conftest import SAMPLES
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 SAMPLE_NAMES = sorted(p.stem for p in SAMPLES.glob("*.log"))
 

@@ -34,8 +34,8 @@ from test_readers_pcap import (
 )
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.frames import FrameBatch
-from nmtcheck.profiles import load_profile
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import open_input
 
 THIRD = CORPUS / "third_party"

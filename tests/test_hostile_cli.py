@@ -301,7 +301,7 @@ sys.path.insert(0, sys.argv[1])
 from hostile_logs import TEXT_WRITERS, format_of, network_frames
 from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import NmtcheckError
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 profile = load_profile("default")
 rules = select_rules(profile, [], [])
 tmp, writers = sys.argv[2], sys.argv[3:]

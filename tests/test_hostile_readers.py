@@ -37,8 +37,8 @@ from hypothesis import strategies as st
 
 from nmtcheck.engine import InputResult, check_input, select_rules
 from nmtcheck.errors import InputError, NmtcheckError
-from nmtcheck.frames import FrameBatch
-from nmtcheck.profiles import load_profile
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import FORMATS, MAX_TIMESTAMP_S, InputStats, open_input
 from nmtcheck.reporters import renderer
 

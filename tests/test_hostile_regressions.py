@@ -20,7 +20,7 @@ from hostile_logs import BINARY_WRITERS, TEXT_WRITERS, mcap_json, network_frames
 
 from nmtcheck.engine import InputResult, check_input, select_rules
 from nmtcheck.errors import InputError
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 PROFILE = load_profile("default")
 RULES = select_rules(PROFILE, [], [])
@@ -136,7 +136,7 @@ def test_mcap_record_claiming_4_gib_is_read_in_pieces(tmp_path: Path) -> None:
     damaged = whole[:cut] + b"\x06" + struct.pack("<Q", (4 << 30) - 1) + whole[cut + 9:]
     (tmp_path / "big.mcap").write_bytes(damaged)
     code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30));"
-            "from nmtcheck.cli import main; sys.argv = ['nmtcheck', 'check', '--format', "
+            "from nmtcheck.cli.main import main; sys.argv = ['nmtcheck', 'check', '--format', "
             "'json', 'big.mcap']; main()")
     res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
                          text=True, timeout=120,

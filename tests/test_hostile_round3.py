@@ -153,7 +153,7 @@ def test_a_hostile_file_name_and_channel_inject_nothing(tmp_path: Path) -> None:
 def test_live_lines_and_node_table_are_escaped() -> None:
     from nmtcheck.live.display import Display
     from nmtcheck.live.tracker import LiveFinding, NodeState
-    from nmtcheck.model import NodeConfig
+    from nmtcheck.timeline.model import NodeConfig
 
     out = io.StringIO()
     display = Display(out, table=True)
@@ -374,7 +374,7 @@ def test_an_overloaded_session_drops_counts_says_so_and_stays_bounded(tmp_path: 
     from nmtcheck.engine import select_rules
     from nmtcheck.live.frames import LiveFrame
     from nmtcheck.live.session import Session
-    from nmtcheck.profiles import load_profile
+    from nmtcheck.settings.profiles import load_profile
 
     profile = load_profile("default")
     notes: list[int] = []

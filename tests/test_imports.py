@@ -1,6 +1,6 @@
 """The module structure others rely on: the subcommand modules never import the command line
 module (no import circle: cli.py registers them on its group), and the split of model.py
-keeps every name `from nmtcheck.model import X` gave before."""
+keeps every name `from nmtcheck.timeline.model import X` gave before."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 SUBCOMMAND_MODULES = ("nmtcheck.fleet.commands", "nmtcheck.live.command")
 
-# Every public name nmtcheck.model defined before the tables moved to tables.py and
+# Every public name nmtcheck.timeline.model defined before the tables moved to tables.py and
 # node_events.py (commit 2bbb2a2, model.py of 1,031 lines).
 MODEL_NAMES = (
     "NmtFrame", "Command", "QUERY_GROUP", "known_cs", "reset_cs", "NmtTable", "plain_rows",
@@ -26,14 +26,14 @@ MODEL_NAMES = (
 
 
 def cli_imports(source: str) -> list[int]:
-    """Lines of `source` that import nmtcheck.cli, at the top or inside a function."""
+    """Lines of `source` that import nmtcheck.cli.main, at the top or inside a function."""
     lines = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Import):
-            hit = any(a.name == "nmtcheck.cli" or a.name.startswith("nmtcheck.cli.")
+            hit = any(a.name == "nmtcheck.cli.main" or a.name.startswith("nmtcheck.cli.main.")
                       for a in node.names)
         elif isinstance(node, ast.ImportFrom):
-            hit = node.module == "nmtcheck.cli" or (
+            hit = node.module == "nmtcheck.cli.main" or (
                 node.module == "nmtcheck" and any(a.name == "cli" for a in node.names))
         else:
             continue
@@ -45,13 +45,13 @@ def cli_imports(source: str) -> list[int]:
 def test_cli_imports_finds_lazy_and_top_level_imports() -> None:
     """The scan sees the forms the circle took (a lazy import inside a function) and no
     look-alike module (cli_common)."""
-    source = ("import nmtcheck.cli\n"
-              "from nmtcheck.cli_common import write_stdout\n"
+    source = ("import nmtcheck.cli.main\n"
+              "from nmtcheck.cli.common import write_stdout\n"
               "def f():\n"
-              "    from nmtcheck.cli import _load\n"
+              "    from nmtcheck.cli.main import _load\n"
               "    from nmtcheck import cli, errors\n")
     assert cli_imports(source) == [1, 4, 5]
-    assert cli_imports("from nmtcheck.cli_common import EXIT_OK\nimport nmtcheck.clicks\n") == []
+    assert cli_imports("from nmtcheck.cli.common import EXIT_OK\nimport nmtcheck.clicks\n") == []
 
 
 @pytest.mark.parametrize("module", SUBCOMMAND_MODULES)
@@ -64,9 +64,9 @@ def test_subcommand_module_never_imports_cli(module: str) -> None:
 
 @pytest.mark.parametrize("module", SUBCOMMAND_MODULES)
 def test_subcommand_module_loads_without_cli(module: str) -> None:
-    """Imported alone in a fresh interpreter, nothing it imports pulls in nmtcheck.cli."""
+    """Imported alone in a fresh interpreter, nothing it imports pulls in nmtcheck.cli.main."""
     code = (f"import sys, {module}\n"
-            "print('nmtcheck.cli' in sys.modules, 'nmtcheck.cli_common' in sys.modules)")
+            "print('nmtcheck.cli.main' in sys.modules, 'nmtcheck.cli.common' in sys.modules)")
     res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
                          text=True, check=True)
     loaded_cli, loaded_common = res.stdout.split()
@@ -77,7 +77,7 @@ def test_subcommand_module_loads_without_cli(module: str) -> None:
 
 
 def test_subcommands_registered_on_the_group() -> None:
-    from nmtcheck.cli import cli
+    from nmtcheck.cli.main import cli
     from nmtcheck.fleet.commands import fleet
     from nmtcheck.live.command import monitor
 
@@ -87,8 +87,9 @@ def test_subcommands_registered_on_the_group() -> None:
 
 
 def test_cli_still_gives_the_moved_helpers() -> None:
-    """`from nmtcheck.cli import write_reports` (tests, scripts) gives cli_common's."""
-    from nmtcheck import cli, cli_common
+    """`from nmtcheck.cli.main import write_reports` (tests, scripts) gives cli_common's."""
+    from nmtcheck.cli.main import main as cli
+    from nmtcheck.cli.main import common as cli_common
 
     for name in ("EXIT_OK", "EXIT_FINDINGS", "EXIT_ERROR", "resolve_settings",
                  "load_profile_network", "check_outputs", "write_atomically", "write_reports",
@@ -98,9 +99,11 @@ def test_cli_still_gives_the_moved_helpers() -> None:
 
 
 def test_model_gives_every_name_it_gave_before() -> None:
-    """The tables moved out are the same objects through nmtcheck.model (an isinstance
+    """The tables moved out are the same objects through nmtcheck.timeline.model (an isinstance
     check or a `field(default_factory=EcTable.empty)` sees one class, not two)."""
-    from nmtcheck import model, node_events, tables
+    from nmtcheck.timeline.build import model
+    from nmtcheck.timeline.build import node_events
+    from nmtcheck.timeline.build import tables
 
     missing = [name for name in MODEL_NAMES if not hasattr(model, name)]
     assert missing == []
@@ -108,15 +111,15 @@ def test_model_gives_every_name_it_gave_before() -> None:
     for name in MODEL_NAMES:
         home = next((m for m in (tables, node_events) if hasattr(m, name)), model)
         assert getattr(model, name) is getattr(home, name), name
-    assert tables.EcTable.__module__ == "nmtcheck.tables"
-    assert node_events.WriteTable.__module__ == "nmtcheck.node_events"
+    assert tables.EcTable.__module__ == "nmtcheck.timeline.tables"
+    assert node_events.WriteTable.__module__ == "nmtcheck.timeline.node_events"
     assert model.NodeModel(0, "can0", 1, model.NodeConfig()).ec.__class__ is tables.EcTable
 
 
 def test_model_names_import_in_a_fresh_interpreter() -> None:
-    """`from nmtcheck.model import X` for every name, as the other modules write it (no
+    """`from nmtcheck.timeline.model import X` for every name, as the other modules write it (no
     import circle between model.py and the table modules)."""
-    code = f"from nmtcheck.model import {', '.join(MODEL_NAMES)}"
+    code = f"from nmtcheck.timeline.model import {', '.join(MODEL_NAMES)}"
     res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
                          text=True)
     assert res.returncode == 0, res.stderr

@@ -24,8 +24,8 @@ from nmtcheck.engine import check_input, select_rules
 from nmtcheck.live.frames import LiveFrame, candump_line
 from nmtcheck.live.session import CONFIRM_TOLERANCE_S, BusClock, Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.network import load_network
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.network import load_network
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import InputStats
 from nmtcheck.readers.candump import _parse_line
 

@@ -18,8 +18,8 @@ from nmtcheck.live.follow import follow
 from nmtcheck.live.frames import LiveFrame
 from nmtcheck.live.session import Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.network import load_network
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.network import load_network
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import InputStats
 from nmtcheck.readers.candump import _parse_line
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from nmtcheck.engine import select_rules
 from nmtcheck.live.frames import LiveFrame
 from nmtcheck.live.session import Session
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 NODES = range(2, 7)
 PERIOD = 0.5  # s, every node's heartbeat

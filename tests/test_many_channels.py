@@ -20,18 +20,20 @@ import numpy as np
 import pytest
 from conftest import Checker
 
-from nmtcheck import boot, timeline
+from nmtcheck.processes import boot
+
+from nmtcheck.timeline.build import build as timeline
 from nmtcheck.checks import state
-from nmtcheck.decode import KIND_EMCY, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.timeline.decode import KIND_EMCY, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
 from nmtcheck.engine import InputResult, check_input, select_rules
 from nmtcheck.errors import UsageError
-from nmtcheck.model import InputModel, NodeConfig, NodeModel
-from nmtcheck.nmt import EPS, OFFLINE, OPERATIONAL, PRE_OPERATIONAL, STATE_INDEX, STOPPED
-from nmtcheck.node_events import EmcyTable, SdoEventTable, WriteTable
-from nmtcheck.profiles import load_profile
+from nmtcheck.timeline.model import InputModel, NodeConfig, NodeModel
+from nmtcheck.protocol.nmt import EPS, OFFLINE, OPERATIONAL, PRE_OPERATIONAL, STATE_INDEX, STOPPED
+from nmtcheck.timeline.node_events import EmcyTable, SdoEventTable, WriteTable
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import streamer
-from nmtcheck.sdo_transfers import SdoSpool
-from nmtcheck.tables import CommandTable, EcTable, IntervalTable, NmtTable, shared_empty
+from nmtcheck.processes.sdo_transfers import SdoSpool
+from nmtcheck.timeline.tables import CommandTable, EcTable, IntervalTable, NmtTable, shared_empty
 
 
 def channels_log(channels: int) -> str:

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from conftest import REPO, candump
 
-from nmtcheck.decode import SCRATCH, ChunkStore, ColumnSpool, decode, removed_on_exit
+from nmtcheck.timeline.decode import SCRATCH, ChunkStore, ColumnSpool, decode, removed_on_exit
 from nmtcheck.readers import open_input
 
 

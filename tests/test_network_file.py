@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from nmtcheck.errors import UsageError
-from nmtcheck.network import load_network
+from nmtcheck.settings.network import load_network
 
 DEVICES = Path(__file__).resolve().parent / "data" / "devices"
 MASTER_DCF = DEVICES / "lely_master.dcf"  # 1F80h = 0x00000003

@@ -18,10 +18,10 @@ from pathlib import Path
 import pytest
 from conftest import REPO, SAMPLES
 
-from nmtcheck.cli import write_atomically, write_reports
+from nmtcheck.cli.main import write_atomically, write_reports
 from nmtcheck.engine import check_inputs
 from nmtcheck.errors import UsageError
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import format_for_path, streamer
 
 

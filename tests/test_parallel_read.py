@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from conftest import CORPUS, SAMPLES
 
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, blocks, forked, open_input
 from nmtcheck.readers.blocks import REFERENCE_ENV, THREADS_ENV
 

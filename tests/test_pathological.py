@@ -16,7 +16,7 @@ from test_memory import peak_rss_mb
 
 from nmtcheck.checks import RULES
 from nmtcheck.engine import InputResult, check_input
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import html, streamer
 from nmtcheck.reporters import json as json_report
 

@@ -18,7 +18,7 @@ import pytest
 from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import BatchBuilder
+from nmtcheck.readers.frames import BatchBuilder
 from nmtcheck.readers import InputStats, candump, open_input
 
 T0 = 1_700_000_000.0

@@ -22,7 +22,7 @@ import pytest
 from conftest import CORPUS, REPO, needs_corpus
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, detect_format, mf4, open_input
 
 pytest.importorskip("asammdf")
@@ -224,7 +224,7 @@ def test_without_asammdf_the_install_command_is_named(written: Path,
 
 
 def test_without_asammdf_the_command_exits_2(written: Path, tmp_path: Path) -> None:
-    code = ("import sys; sys.modules['asammdf'] = None; from nmtcheck.cli import main; "
+    code = ("import sys; sys.modules['asammdf'] = None; from nmtcheck.cli.main import main; "
             f"sys.argv = ['nmtcheck', 'check', {str(written)!r}]; main()")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

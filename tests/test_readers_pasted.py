@@ -24,7 +24,7 @@ from conftest import DATA, read_columns, run_cli
 
 from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import InputError
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import (
     InputStats,
     blocks,

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from conftest import REPO
 
-from nmtcheck.cli import rule_table
-from nmtcheck.profiles import load_profile
+from nmtcheck.cli.main import rule_table
+from nmtcheck.settings.profiles import load_profile
 
 RULE_INDEX = REPO / "docs" / "reference" / "rules" / "index.md"
 

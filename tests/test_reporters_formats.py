@@ -21,7 +21,7 @@ from lxml import etree
 from nmtcheck.checks import RULES
 from nmtcheck.engine import InputResult, check_input, select_rules
 from nmtcheck.errors import UsageError
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import (
     auto_format,
     format_for_path,

@@ -15,7 +15,7 @@ from conftest import REPO
 
 from nmtcheck import __version__
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import MODULES, renderer
 
 GOLD = Path(__file__).resolve().parent / "gold"

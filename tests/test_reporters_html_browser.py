@@ -25,8 +25,8 @@ import pytest
 from conftest import REPO, SAMPLES
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.nmt import UNKNOWN
-from nmtcheck.profiles import load_profile
+from nmtcheck.protocol.nmt import UNKNOWN
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import html as html_reporter
 from nmtcheck.reporters.common import group_findings
 

@@ -15,7 +15,7 @@ from conftest import SAMPLES, Checker, candump
 from lxml import etree
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import renderer
 
 HEALTHY = SAMPLES / "healthy.log"

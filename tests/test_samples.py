@@ -9,7 +9,7 @@ import pytest
 from conftest import SAMPLES
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 EXPECTED = {
     "healthy": [],

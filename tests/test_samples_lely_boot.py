@@ -18,8 +18,8 @@ import pytest
 from conftest import SAMPLES
 
 from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.network import load_network
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.network import load_network
+from nmtcheck.settings.profiles import load_profile
 
 BOOT = SAMPLES / "lely" / "boot"
 TOLERANCE_S = 0.001

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nmtcheck import sdo_transfers as st
+from nmtcheck.processes import sdo_transfers as st
 
 
 def frames(*rows: tuple[float, str, str]) -> np.ndarray:
@@ -79,7 +79,7 @@ def test_block_download_segment_40h_is_no_upload_request() -> None:
 
 
 def test_spool_spills_per_server_and_reads_back_in_file_order() -> None:
-    from nmtcheck.frames import FrameBatch
+    from nmtcheck.readers.frames import FrameBatch
 
     n = 1000
     can_id = np.where(np.arange(n) % 2 == 0, 0x602, 0x582).astype(np.uint32)

@@ -28,7 +28,7 @@ import pytest
 from snapshot_corpus import GENERATED, Trace, corpus, generated, inputs, outcome
 
 from nmtcheck.engine import check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 SNAPSHOTS = Path(__file__).resolve().parent / "snapshots"
 UPDATE = bool(os.environ.get("NMTCHECK_UPDATE_SNAPSHOTS"))

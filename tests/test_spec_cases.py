@@ -15,7 +15,7 @@ from conftest import Checker
 from snapshot_corpus import SPEC_CASES, inputs, master_view, spec_trace, stale_indices, text_of
 
 from nmtcheck.engine import check_input, select_rules
-from nmtcheck.profiles import load_profile
+from nmtcheck.settings.profiles import load_profile
 
 RULES = select_rules(load_profile("default"), [], [])
 

@@ -1,6 +1,6 @@
 """Boot-process rules P001-P008: the CiA 302-2 boot-slave process (SPEC §8.4).
 
-The reconstruction (`nmtcheck/boot.py`) runs once per input before the rules, only on
+The reconstruction (`nmtcheck/processes/boot.py`) runs once per input before the rules, only on
 channels where a manager is configured or the log shows a boot signature; each rule
 reports its own code's findings from it. P rules are exempt from the UNKNOWN rule: a
 probed node may never transmit.
@@ -12,9 +12,9 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nmtcheck import boot
+from nmtcheck.processes import boot
 from nmtcheck.checks.base import Param, Params, Problems, input_rule
-from nmtcheck.model import InputModel
+from nmtcheck.timeline.model import InputModel
 
 
 def _found(model: InputModel, code: str) -> Iterator[Problems]:

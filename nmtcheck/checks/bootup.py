@@ -8,9 +8,9 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, batch, rule
-from nmtcheck.decode import KIND_EC, KIND_NAMES, NodeFrames
-from nmtcheck.model import EcFrame, EcTable, NodeModel
-from nmtcheck.nmt import (
+from nmtcheck.timeline.decode import KIND_EC, KIND_NAMES, NodeFrames
+from nmtcheck.timeline.model import EcFrame, EcTable, NodeModel
+from nmtcheck.protocol.nmt import (
     BOOTUP,
     EC_KIND_NAMES,
     EPS,

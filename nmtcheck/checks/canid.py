@@ -19,7 +19,7 @@ from nmtcheck.checks.base import (
     rule,
     run_starts,
 )
-from nmtcheck.model import (
+from nmtcheck.timeline.model import (
     ChannelModel,
     EcFrame,
     EcTable,
@@ -28,7 +28,7 @@ from nmtcheck.model import (
     NodeModel,
     known_cs,
 )
-from nmtcheck.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE, is_one_of
+from nmtcheck.protocol.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE, is_one_of
 
 
 @input_rule("C001", "restricted-can-id", "error",

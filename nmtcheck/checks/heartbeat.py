@@ -7,8 +7,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
-from nmtcheck.model import NodeModel, SmallEc
-from nmtcheck.nmt import (
+from nmtcheck.timeline.model import NodeModel, SmallEc
+from nmtcheck.protocol.nmt import (
     BOOTUP,
     EPS,
     HEARTBEAT,

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, input_rule
-from nmtcheck.model import InputModel
+from nmtcheck.timeline.model import InputModel
 from nmtcheck.readers import TEXT_FORMATS, InputStats
 
 LINES_SHOWN = 5
@@ -272,7 +272,7 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
         said += ": frames are kept in file order, timing findings may be unreliable"
     if stats.left_out_restarts:
         said += ": " + _left_out(stats)
-    if back:  # new recordings in the input (nmtcheck/captures.py)
+    if back:  # new recordings in the input (nmtcheck/readers/captures.py)
         at = ", ".join(_place(stats, i, ln) for i, ln, _t in back[:3])
         said += (f": time starts again at {at}{', …' if len(back) > 3 else ''}, "
                  f"{len(stats.restarts) + 1} captures, each checked as a trace of its own "

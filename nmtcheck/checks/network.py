@@ -7,8 +7,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Params, Problem, input_rule, rule
-from nmtcheck.model import EcFrame, InputModel, NodeModel
-from nmtcheck.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
+from nmtcheck.timeline.model import EcFrame, InputModel, NodeModel
+from nmtcheck.protocol.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
 
 
 @input_rule("N001", "missing-node", "error", exempt_from_unknown=True, scope="node")
@@ -32,7 +32,7 @@ def missing_node(model: InputModel, p: Params) -> Iterator[Problem]:
     first = model.decoded.first_frame_at_or_after([model.start])[0] if model.expected else None
     line = first.line if first is not None and first.idx == 0 else None  # frame 0's line
     for node, channel in model.expected:
-        # a channel of the files is also each of its later captures' (nmtcheck/captures.py)
+        # a channel of the files is also each of its later captures' (nmtcheck/readers/captures.py)
         on = [c for c in model.channels if channel is None or c.network_name == channel]
         if channel is not None and channel not in logged:  # the log does not have it
             yield Problem(channel, node, model.start, f"node {node} is in the network "

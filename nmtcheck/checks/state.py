@@ -24,9 +24,9 @@ from nmtcheck.checks.base import (
     input_rule,
     rule,
 )
-from nmtcheck.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
-from nmtcheck.model import InputModel, NodeModel
-from nmtcheck.nmt import (
+from nmtcheck.timeline.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.timeline.model import InputModel, NodeModel
+from nmtcheck.protocol.nmt import (
     BOOTUP,
     COMMAND_STATE,
     EPS,

@@ -194,7 +194,7 @@ def summary_cmd(results: str, outputs: tuple[str, ...], fmt: str, rules: tuple[s
         writers.append((path, kind))
     s = summarise(results, parse_storage_options(storage_options),
                   [r.upper() for r in rules], top, latest_only=not all_checks)
-    from nmtcheck.cli_common import write_atomically
+    from nmtcheck.cli.common import write_atomically
 
     for path, kind in writers:
         try:

@@ -3,7 +3,7 @@
 The fork server imports what a task needs (nmtcheck.fleet.preload: 0.2 s of CPU) before it
 can fork the first worker. Started when the driver reaches run_fleet, that import came
 after the command line's own imports (0.16 s) and was waited for, serially. Imported by
-nmtcheck/cli.py before its heavy imports, this module looks at the command line and, for
+nmtcheck/cli/main.py before its heavy imports, this module looks at the command line and, for
 `nmtcheck check ... --results DS` with a local executor, starts the server at once: its
 imports then run on another core while the driver imports, parses and lists. Anything it
 cannot recognise it leaves to run_fleet (warm_up), which starts the server if needed.
@@ -105,7 +105,7 @@ def _fork_helper(code: str, keep: set[int]) -> int:
 
         forkserver._forkserver.__init__()  # type: ignore[misc]
         resource_tracker._resource_tracker.__init__()  # type: ignore[misc]
-        sys.modules.pop("nmtcheck.cli", None)  # half imported here: never the workers'
+        sys.modules.pop("nmtcheck.cli.main", None)  # half imported here: never the workers'
         exec(code, {"__name__": "__main__", "__builtins__": __builtins__})
         status = 0
     except SystemExit as exc:  # the fork server ends so when its last client has gone

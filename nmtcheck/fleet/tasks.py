@@ -32,9 +32,9 @@ class TaskConfig:
 
     results: str
     storage_options: dict[str, Any]
-    profile: Any  # nmtcheck.profiles.Profile
+    profile: Any  # nmtcheck.settings.profiles.Profile
     rule_codes: list[str]
-    network: Any  # nmtcheck.network.Network | None
+    network: Any  # nmtcheck.settings.network.Network | None
     input_format: str | None
     strict: bool
     channel: str | None
@@ -83,7 +83,7 @@ def batch_id(ids: list[str]) -> str:
 def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> BatchCounts:
     """Fetch the batch (concurrently), check each log, write the batch's Parquet files
     (findings, node_stats, boot, then inputs: the commit record), return the counts."""
-    from nmtcheck.decode import SCRATCH
+    from nmtcheck.timeline.decode import SCRATCH
 
     token = SCRATCH.set(worker_scratch())
     try:
@@ -111,7 +111,7 @@ def worker_scratch() -> str | None:
 
 
 def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> BatchCounts:
-    from nmtcheck.decode import spill_directory  # below SCRATCH, made with signals held
+    from nmtcheck.timeline.decode import spill_directory  # below SCRATCH, made with signals held
 
     os.environ["NMTCHECK_THREADS"] = "1"
     from nmtcheck.checks import BY_CODE
@@ -273,7 +273,7 @@ def boot_rows(res: Any) -> list[dict[str, Any]]:
 
     import numpy as np
 
-    from nmtcheck.boot import LETTERS, STATUSES
+    from nmtcheck.processes.boot import LETTERS, STATUSES
 
     b = getattr(res, "boot", None)
     if b is None:
@@ -334,7 +334,7 @@ def node_rows(res: Any, key: dict[str, Any], date: str,
     import numpy as np
 
     from nmtcheck.fleet.dataset import STATE_COLUMNS
-    from nmtcheck.nmt import HEARTBEAT, STATES
+    from nmtcheck.protocol.nmt import HEARTBEAT, STATES
 
     out = []
     for m in res.nodes():

@@ -4,7 +4,7 @@ bounded deques, and the entries a live H001, G002, B001 or B002 gets the moment 
 A live finding can only look back: its window is [a0 - causes_before_ms, now], never the
 frames after it (the `reboot` kind, the `boot_process` of the boot analysis and whatever
 follows come with the offline check of the recording, whose reports carry the full
-`causes`). Entries have the offline schema (`nmtcheck.causes`), without frame index and
+`causes`). Entries have the offline schema (`nmtcheck.explain.causes`), without frame index and
 line (a live frame has neither). Memory: each deque holds at most the longest window
 (`reset_window_ms` of B002, 10 s by default) and at most MAXLEN entries, so a flood of
 EMCYs or error frames costs the same as a few.
@@ -15,8 +15,8 @@ from __future__ import annotations
 from collections import deque
 from typing import Any
 
-from nmtcheck import emcy
-from nmtcheck.causes import (
+from nmtcheck.protocol import emcy
+from nmtcheck.explain.causes import (
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_OVERFLOW,
     NMT_NAMES,
@@ -24,7 +24,7 @@ from nmtcheck.causes import (
     capped,
     cause_entry,
 )
-from nmtcheck.nmt import EPS
+from nmtcheck.protocol.nmt import EPS
 
 RULES = ("H001", "G002", "B001", "B002")  # the live rules of SPEC §8.6's list (no live S004)
 MAXLEN = 1024  # entries per deque

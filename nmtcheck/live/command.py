@@ -16,7 +16,7 @@ from typing import Any
 
 import click
 
-from nmtcheck.cli_common import (
+from nmtcheck.cli.common import (
     EXIT_ERROR,
     EXIT_FINDINGS,
     EXIT_OK,

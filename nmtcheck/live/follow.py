@@ -27,7 +27,7 @@ from nmtcheck.live.display import Display
 from nmtcheck.live.frames import LiveFrame
 from nmtcheck.live.session import Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.profiles import Profile
+from nmtcheck.settings.profiles import Profile
 from nmtcheck.readers import READ_PIECE, InputStats, split_lines
 from nmtcheck.readers.candump import _parse_line, sniff
 

@@ -21,9 +21,9 @@ from nmtcheck.engine import Finding, InputResult, select_rules
 from nmtcheck.live.frames import from_message
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding, NodeState
-from nmtcheck.model import Interval
-from nmtcheck.network import Network, load_network
-from nmtcheck.profiles import DEFAULT_PROFILE, Profile, load_profile
+from nmtcheck.timeline.model import Interval
+from nmtcheck.settings.network import Network, load_network
+from nmtcheck.settings.profiles import DEFAULT_PROFILE, Profile, load_profile
 from nmtcheck.reporters import renderer
 
 MAX_ERRORS_KEPT = 10

@@ -26,8 +26,8 @@ from nmtcheck.engine import MAX_FINDINGS_PER_RULE, Finding, InputResult, check_i
 from nmtcheck.errors import UsageError
 from nmtcheck.live.frames import LiveFrame, candump_line, to_message
 from nmtcheck.live.tracker import LiveFinding, NodeState, Tracker
-from nmtcheck.network import Network
-from nmtcheck.profiles import Profile
+from nmtcheck.settings.network import Network
+from nmtcheck.settings.profiles import Profile
 
 TICK_S = 0.005  # how often the timer looks at the deadlines
 GRACE_S = 0.015  # a frame may reach us this late: a timeout fires only once it is this old

@@ -21,9 +21,9 @@ from typing import Any
 from nmtcheck.checks.base import Rule
 from nmtcheck.live.causes import Recent
 from nmtcheck.live.frames import LiveFrame
-from nmtcheck.model import NodeConfig
-from nmtcheck.network import Network
-from nmtcheck.nmt import (
+from nmtcheck.timeline.model import NodeConfig
+from nmtcheck.settings.network import Network
+from nmtcheck.protocol.nmt import (
     COMMAND_STATE,
     EPS,
     OFFLINE,
@@ -35,8 +35,8 @@ from nmtcheck.nmt import (
     UNKNOWN,
     state_name,
 )
-from nmtcheck.profiles import Profile
-from nmtcheck.timeline import MISSED
+from nmtcheck.settings.profiles import Profile
+from nmtcheck.timeline.build import MISSED
 
 SCAN_S = 0.001  # bus time between two looks at every node's deadlines while frames come
 RECENT_INTERVALS = 32  # the period of a node with no configured producer time: their median

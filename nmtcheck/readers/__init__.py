@@ -24,7 +24,7 @@ from typing import IO, Any, NamedTuple, cast
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import BatchBuilder, FrameBatch
+from nmtcheck.readers.frames import BatchBuilder, FrameBatch
 
 MAX_SKIPPED_LINES_KEPT = 10
 HEAD_BYTES = 65536
@@ -79,7 +79,7 @@ class InputStats:
     # the frame index stands for the time: no usable timestamps (set by the engine, SPEC §1)
     order_only: bool = False
     strict: bool = False
-    # where a later capture begins in the input (nmtcheck/captures.py): frame index, line,
+    # where a later capture begins in the input (nmtcheck/readers/captures.py): frame index, line,
     # time; and each of its channels' name in the log
     restarts: list[tuple[int, int, float]] = field(default_factory=list)
     capture_channels: dict[str, str] = field(default_factory=dict)
@@ -102,7 +102,7 @@ class InputStats:
 
     def capture_channel(self, name: str, number: int) -> int:
         """The code of channel `name` (as logged) in the input's capture `number` (> 1):
-        `can0 (capture 2)`, a channel of its own (nmtcheck/captures.py)."""
+        `can0 (capture 2)`, a channel of its own (nmtcheck/readers/captures.py)."""
         own = f"{name} (capture {number})"
         self.capture_channels[own] = name
         return self.channel_code(own)
@@ -152,7 +152,7 @@ _HEX_DIGITS = b"0123456789abcdefABCDEF"
 
 
 # Notes that say frames were left out here (`...`, `[...]`, `[snip]`, `--- cut ---`): what
-# follows is no continuation of what came before (nmtcheck/captures.py)
+# follows is no continuation of what came before (nmtcheck/readers/captures.py)
 _LEFT_OUT_NOTES = (
     rb"[\[(<{]?\s*(?:(?:\.\s*){2,}|(?:\xe2\x80\xa6\s*)+)[\])>}]?$"  # `...`, `[...]`, `…`
     rb"|[\[(<{-]*\s*(?:\.{2,}|\xe2\x80\xa6)?\s*(?:snip(?:ped)?|cut|omitted|truncated)\b"

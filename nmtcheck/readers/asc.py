@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmtcheck.frames import BatchBuilder, FrameBatch
+from nmtcheck.readers.frames import BatchBuilder, FrameBatch
 from nmtcheck.readers import (
     InputStats,
     Row,

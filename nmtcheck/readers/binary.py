@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nmtcheck.frames import BATCH_SIZE, FrameBatch
+from nmtcheck.readers.frames import BATCH_SIZE, FrameBatch
 from nmtcheck.readers import InputStats, account
 
 _FIRST_WINDOW = 16

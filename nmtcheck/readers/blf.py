@@ -45,7 +45,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, Source, account
 
 SIGNATURE = b"LOBJ"

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import BatchBuilder, FrameBatch
+from nmtcheck.readers.frames import BatchBuilder, FrameBatch
 from nmtcheck.readers import MAX_LINE_BYTES, OVERLONG_LINE, Source, forked
 
 if TYPE_CHECKING:

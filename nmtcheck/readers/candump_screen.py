@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import (
     MAX_TIMESTAMP_S,
     InputStats,

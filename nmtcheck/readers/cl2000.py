@@ -21,7 +21,7 @@ import calendar
 from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
 
 CHANNEL = "1"

@@ -22,7 +22,7 @@ import binascii
 from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import (
     InputStats,
     Row,

@@ -32,7 +32,7 @@ from typing import IO, Any
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, Source
 from nmtcheck.readers.binary import (
     BatchCollector,

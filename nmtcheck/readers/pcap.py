@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, Source
 from nmtcheck.readers.binary import (
     BatchCollector,

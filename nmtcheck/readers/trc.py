@@ -33,7 +33,7 @@ from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 
 from nmtcheck.errors import InputError
-from nmtcheck.frames import FrameBatch
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import (
     InputStats,
     Row,

@@ -21,13 +21,15 @@ import jinja2
 import numpy as np
 from markupsafe import Markup
 
-from nmtcheck import __version__, boot_report
-from nmtcheck.boot import LETTERS
+from nmtcheck import __version__
+
+from nmtcheck.reporters import boot_report
+from nmtcheck.processes.boot import LETTERS
 from nmtcheck.engine import Finding, InputResult
-from nmtcheck.gaps import Gaps
-from nmtcheck.model import NodeModel
-from nmtcheck.nmt import HEARTBEAT, STATES
-from nmtcheck.nmt import SOURCES as TIMELINE_SOURCES
+from nmtcheck.timeline.gaps import Gaps
+from nmtcheck.timeline.model import NodeModel
+from nmtcheck.protocol.nmt import HEARTBEAT, STATES
+from nmtcheck.protocol.nmt import SOURCES as TIMELINE_SOURCES
 from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
@@ -270,7 +272,7 @@ def _histogram(intervals: Gaps) -> dict[str, Any] | None:
 
 def _timeline_begins(res: InputResult, start: float) -> dict[str, float]:
     """Where each channel's timeline begins in an input of several captures (each at its
-    capture's first frame: nmtcheck/captures.py); empty for one capture, whose
+    capture's first frame: nmtcheck/readers/captures.py); empty for one capture, whose
     timelines all begin at the input's first frame, `start`."""
     if not res.stats.restarts:
         return {}

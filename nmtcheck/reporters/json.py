@@ -7,10 +7,12 @@ import math
 from collections.abc import Iterator
 from typing import Any
 
-from nmtcheck import __version__, boot_report
+from nmtcheck import __version__
+
+from nmtcheck.reporters import boot_report
 from nmtcheck.engine import InputResult, summary
-from nmtcheck.model import NodeModel
-from nmtcheck.nmt import SOURCES, STATES
+from nmtcheck.timeline.model import NodeModel
+from nmtcheck.protocol.nmt import SOURCES, STATES
 from nmtcheck.reporters.common import (
     configured_vs_measured,
     fail_on,
@@ -79,7 +81,7 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "dropped": s.dropped, "backwards": s.backwards_timestamps,
             "backwards_timestamps": s.backwards_timestamps, "truncated": s.truncated,
             "skipped_lines": s.skipped_lines, "channels": s.channels,
-            # where time starts again: a later capture in the input (nmtcheck/captures.py)
+            # where time starts again: a later capture in the input (nmtcheck/readers/captures.py)
             "restarts": [{"frame_index": i, "line": line or None, "time": _r(t)}
                          for i, line, t in s.restarts],
             # where the logger's clock stepped back: later frames are timed `seconds` later

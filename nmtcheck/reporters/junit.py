@@ -18,7 +18,7 @@ import xml.etree.ElementTree as ET
 from nmtcheck import __version__
 from nmtcheck.checks.base import Rule, is_failing_severity
 from nmtcheck.engine import Finding, InputResult
-from nmtcheck.evaluated import NODE_REASONS, node_reason
+from nmtcheck.explain.evaluated import NODE_REASONS, node_reason
 from nmtcheck.reporters.common import (
     checked_rules,
     duration,

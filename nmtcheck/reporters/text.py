@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from itertools import groupby, islice
 
-from nmtcheck import boot_report
+from nmtcheck.reporters import boot_report
 from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
     config_line,

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nmtcheck.model import InputModel, NodeConfig, NodeModel
-from nmtcheck.nmt import BOOTUP, HEARTBEAT
+from nmtcheck.timeline.model import InputModel, NodeConfig, NodeModel
+from nmtcheck.protocol.nmt import BOOTUP, HEARTBEAT
 
 if TYPE_CHECKING:
     from nmtcheck.engine import Finding

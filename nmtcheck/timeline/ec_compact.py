@@ -43,11 +43,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nmtcheck.nmt import GUARD, HEARTBEAT, OFFLINE, REQUEST, STATES
+from nmtcheck.protocol.nmt import GUARD, HEARTBEAT, OFFLINE, REQUEST, STATES
 
 if TYPE_CHECKING:
-    from nmtcheck.decode import ColumnSpool
-    from nmtcheck.model import InputModel
+    from nmtcheck.timeline.decode import ColumnSpool
+    from nmtcheck.timeline.model import InputModel
 
 _STATES = (0x04, 0x05, 0x7F)
 EPS = 1e-9

@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from nmtcheck import boot_config
-from nmtcheck.devicefile import DeviceValues, load_device_file
+from nmtcheck.processes import boot_config
+from nmtcheck.protocol.devicefile import DeviceValues, load_device_file
 from nmtcheck.errors import UsageError
-from nmtcheck.model import NodeConfig
+from nmtcheck.timeline.model import NodeConfig
 
 if sys.version_info >= (3, 11):
     import tomllib

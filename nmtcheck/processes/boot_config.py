@@ -141,7 +141,7 @@ class MasterDcf:
     """The manager's DCF: the objects of SPEC §8.1.1, compact storage included."""
 
     def __init__(self, path: str) -> None:
-        from nmtcheck.devicefile import _Ini
+        from nmtcheck.protocol.devicefile import _Ini
 
         try:
             self._ini = _Ini(Path(path))
@@ -161,7 +161,7 @@ class MasterDcf:
 
 def node_dcf_identity(path: str, node: int) -> dict[str, int]:
     """The identity a node's own EDS/DCF gives (SPEC §8.2.2 item 3; 0 / missing: none)."""
-    from nmtcheck.devicefile import _Ini
+    from nmtcheck.protocol.devicefile import _Ini
 
     try:
         ini = _Ini(Path(path))

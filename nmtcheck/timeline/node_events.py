@@ -18,8 +18,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from nmtcheck import emcy, sdo
-from nmtcheck.tables import blank, column, plain_rows, shared_empty
+from nmtcheck.protocol import emcy
+
+from nmtcheck.protocol import sdo
+from nmtcheck.timeline.tables import blank, column, plain_rows, shared_empty
 
 
 @dataclass

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from nmtcheck.boot import NodeBootReport
+    from nmtcheck.processes.boot import NodeBootReport
     from nmtcheck.engine import Finding, InputResult
 
 CAUSE_RULES = ("H001", "G002", "B001", "B002", "S004")
@@ -78,7 +78,7 @@ def _detail(rep: NodeBootReport, findings: list[Finding]) -> str:
             return mine[0].message
         return rep.reason or ""
     if rep.status == "incomplete" and x is not None:
-        from nmtcheck.boot import describe_step
+        from nmtcheck.processes.boot import describe_step
 
         last = next((s for s in reversed(x.steps) if s.row >= 0), None)
         what = describe_step(last) if last is not None else "its anchor"

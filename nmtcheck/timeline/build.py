@@ -17,9 +17,9 @@ from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
-from nmtcheck.decode import KIND_TPDO, Decoded, node_groups
-from nmtcheck.frames import node_key
-from nmtcheck.model import (
+from nmtcheck.timeline.decode import KIND_TPDO, Decoded, node_groups
+from nmtcheck.readers.frames import node_key
+from nmtcheck.timeline.model import (
     CaptureSpan,
     ChannelModel,
     CommandTable,
@@ -36,7 +36,7 @@ from nmtcheck.model import (
     Timeout,
     reset_cs,
 )
-from nmtcheck.nmt import (
+from nmtcheck.protocol.nmt import (
     BOOTUP,
     COMMAND_NAMES,
     COMMAND_STATE,
@@ -56,8 +56,8 @@ from nmtcheck.nmt import (
     between,
     is_one_of,
 )
-from nmtcheck.sdo_config import pair_sdo_writes, write_validity
-from nmtcheck.tables import shared_empty
+from nmtcheck.processes.sdo_config import pair_sdo_writes, write_validity
+from nmtcheck.timeline.tables import shared_empty
 
 
 def build(decoded: Decoded, channels: list[str], start: float, end: float,
@@ -69,7 +69,7 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
     `masters`: the NMT master of a channel (by name) known from the network or device
     files; on other channels it is inferred from the start-up pattern (SPEC §2).
     `captures`: the channels of a later capture in the input, by code, with their span:
-    each is the trace of its own recording (nmtcheck/captures.py).
+    each is the trace of its own recording (nmtcheck/readers/captures.py).
     """
     # each channel's rows, found once: a log may have tens of thousands of channels
     ev_rows, nmt_rows = _rows_by_channel(decoded.events["chan"]), _rows_by_channel(

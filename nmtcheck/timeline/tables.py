@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, TypeVar, cast
 import numpy as np
 from numpy.typing import DTypeLike
 
-from nmtcheck.nmt import (
+from nmtcheck.protocol.nmt import (
     COMMAND_NAMES,
     COMMAND_STATE,
     EC_KIND_NAMES,
@@ -32,7 +32,7 @@ from nmtcheck.nmt import (
 )
 
 if TYPE_CHECKING:
-    from nmtcheck.ec_compact import GapRuns, GuardRuns
+    from nmtcheck.timeline.ec_compact import GapRuns, GuardRuns
 
 _NO_ROWS: dict[np.dtype[Any], np.ndarray] = {}  # per dtype: see column()
 _T = TypeVar("_T")

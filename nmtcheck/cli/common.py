@@ -20,11 +20,11 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import click
 
-from nmtcheck.config import Config, discover
+from nmtcheck.settings.config import Config, discover
 from nmtcheck.engine import check_patterns
 from nmtcheck.errors import UsageError
-from nmtcheck.network import Network, load_network
-from nmtcheck.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
+from nmtcheck.settings.network import Network, load_network
+from nmtcheck.settings.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
 from nmtcheck.reporters import FORMATS
 
 if TYPE_CHECKING:

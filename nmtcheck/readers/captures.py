@@ -21,8 +21,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from nmtcheck.frames import FrameBatch
-from nmtcheck.model import CaptureSpan
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.timeline.model import CaptureSpan
 from nmtcheck.readers import InputStats
 
 # A channel's time going back by more than this starts a new capture, where it goes back

@@ -29,12 +29,12 @@ from typing import Any
 
 import numpy as np
 
-from nmtcheck import sdo
-from nmtcheck import sdo_transfers as st
-from nmtcheck.boot_config import BootConfig, Expected, NodeBoot
-from nmtcheck.model import ChannelModel, InputModel, NodeModel
-from nmtcheck.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST
-from nmtcheck.tables import blank
+from nmtcheck.protocol import sdo
+from nmtcheck.processes import sdo_transfers as st
+from nmtcheck.processes.boot_config import BootConfig, Expected, NodeBoot
+from nmtcheck.timeline.model import ChannelModel, InputModel, NodeModel
+from nmtcheck.protocol.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST
+from nmtcheck.timeline.tables import blank
 
 # Lely's co_nmt_es2str (src/co/nmt.c)
 LETTERS = {

@@ -35,7 +35,7 @@ import click
 from nmtcheck import __version__
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import Rule, fails
-from nmtcheck.cli_common import (
+from nmtcheck.cli.common import (
     EXIT_ERROR,
     EXIT_FINDINGS,
     EXIT_OK,
@@ -46,7 +46,7 @@ from nmtcheck.cli_common import (
     write_reports,
     write_stdout,
 )
-from nmtcheck.config import discover
+from nmtcheck.settings.config import discover
 from nmtcheck.engine import (
     MAX_FINDINGS_PER_RULE,
     InputResult,
@@ -62,7 +62,7 @@ from nmtcheck.fleet.commands import (
     fleet_requested,
 )
 from nmtcheck.live.command import monitor as live_monitor
-from nmtcheck.profiles import DEFAULT_PROFILE, Profile, load_profile
+from nmtcheck.settings.profiles import DEFAULT_PROFILE, Profile, load_profile
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
 from nmtcheck.readers import open_input
 from nmtcheck.reporters import (
@@ -76,7 +76,7 @@ from nmtcheck.reporters.common import plural, spreadsheet_safe
 from nmtcheck.safe_text import escape_controls
 
 # The helpers that moved to cli_common.py (so that the monitor and fleet commands need not
-# import this module) stay importable from here: `from nmtcheck.cli import write_reports`.
+# import this module) stay importable from here: `from nmtcheck.cli.main import write_reports`.
 __all__ = [
     "EXIT_ERROR",
     "EXIT_FINDINGS",

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from nmtcheck.decode import (
+from nmtcheck.timeline.decode import (
     KIND_RPDO,
     KIND_TPDO,
     Decoded,
@@ -26,9 +26,9 @@ from nmtcheck.decode import (
     NodeFrames,
     node_frame_lines,
 )
-from nmtcheck.frames import RPDO_BASES, TPDO_BASES
-from nmtcheck.gaps import Gaps
-from nmtcheck.nmt import (
+from nmtcheck.readers.frames import RPDO_BASES, TPDO_BASES
+from nmtcheck.timeline.gaps import Gaps
+from nmtcheck.protocol.nmt import (
     BOOTUP,
     EC_KIND_NAMES,
     EPS,
@@ -39,7 +39,7 @@ from nmtcheck.nmt import (
     between,
     is_one_of,
 )
-from nmtcheck.node_events import (
+from nmtcheck.timeline.node_events import (
     ConfigWrite,
     EmcyTable,
     NodeEvent,
@@ -47,7 +47,7 @@ from nmtcheck.node_events import (
     SdoEventTable,
     WriteTable,
 )
-from nmtcheck.tables import (
+from nmtcheck.timeline.tables import (
     Command,
     CommandTable,
     EcFrame,
@@ -62,7 +62,7 @@ from nmtcheck.tables import (
     shared_empty,
 )
 
-# The tables moved to tables.py and node_events.py are re-exported: `from nmtcheck.model
+# The tables moved to tables.py and node_events.py are re-exported: `from nmtcheck.timeline.model
 # import X` keeps working for every name it gave before (tests/test_imports.py).
 __all__ = [
     "QUERY_GROUP",
@@ -494,7 +494,7 @@ class ChannelModel:
     nodes: dict[int, NodeModel]
     master: Master | None = None
     master_note: str = ""  # why no master is known, or how it was chosen
-    # the channel's trace span: the input's, or its capture's (nmtcheck/captures.py)
+    # the channel's trace span: the input's, or its capture's (nmtcheck/readers/captures.py)
     start: float = 0.0
     end: float = 0.0
     log_name: str = ""  # its name in the log and the files ("" : `name`)
@@ -508,7 +508,7 @@ class ChannelModel:
 
 
 class CaptureSpan(NamedTuple):
-    """A channel of a later capture in the input (nmtcheck/captures.py): the name it has
+    """A channel of a later capture in the input (nmtcheck/readers/captures.py): the name it has
     in the log, its capture's span and where that capture begins."""
 
     log_name: str

@@ -33,9 +33,9 @@ from typing import Any, BinaryIO, NamedTuple
 import numpy as np
 from numpy.typing import DTypeLike
 
-from nmtcheck import ec_compact
+from nmtcheck.timeline.build import ec_compact
 from nmtcheck.errors import NmtcheckError
-from nmtcheck.frames import (
+from nmtcheck.readers.frames import (
     EC_BASE,
     EMCY_BASE,
     MAX_NODE_ID,
