@@ -36,11 +36,11 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from run import parse_size  # noqa: E402
 
-from nmtcheck.timeline.build import ec_compact  # noqa: E402
 from nmtcheck.engine import check_input, select_rules  # noqa: E402
+from nmtcheck.reporters import renderer  # noqa: E402
 from nmtcheck.settings.network import load_network  # noqa: E402
 from nmtcheck.settings.profiles import load_profile  # noqa: E402
-from nmtcheck.reporters import renderer  # noqa: E402
+from nmtcheck.timeline import ec_compact  # noqa: E402
 
 DATE = re.compile(r"\d{4}-\d\d-\d\dT[0-9:.]+(Z|[+-]\d\d:\d\d)?")
 OPTIONS: dict[str, object] = {"fail_on": "error", "quiet": False,

@@ -1,4 +1,4 @@
-"""Pathological logs: nmtcheck's time and peak memory when every frame is an event (issue #16).
+"""Pathological logs: nmtcheck's time and peak memory when every frame is an event.
 
     python bench/pathological.py --sizes 1M                     # every kind and output
     python bench/pathological.py --sizes 1M,5M --kinds clean,flapping --outputs json
@@ -594,7 +594,7 @@ def main() -> None:
             args.results.write_text(args.results.read_text().rstrip() + "\n\n" + title + text)
         else:
             args.results.write_text(
-                "# Pathological logs (issue #16)\n\nGoal: any 5 M-frame log, however many "
+                "# Pathological logs\n\nGoal: any 5 M-frame log, however many "
                 "events, state changes, commands or findings it holds, in seconds and under "
                 "500 MB (peak RSS of the whole process tree). Regenerate with the command "
                 "below; `--append --label After` adds a section.\n\n" + title + text)

@@ -12,7 +12,7 @@ from typing import Any
 from mkdocs.structure.files import File, Files
 
 from nmtcheck.checks import RULES
-from nmtcheck.cli.main import rule_doc
+from nmtcheck.cli.rules import rule_doc
 from nmtcheck.settings.profiles import load_profile
 
 RULES_DIR = "reference/rules"

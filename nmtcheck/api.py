@@ -20,6 +20,10 @@ from typing import Any
 
 import pandas as pd
 
+from nmtcheck.fleet.results import Results, read_results
+
+__all__ = ["Report", "Results", "check", "read_results"]
+
 FINDING_COLUMNS = ["input", "path", "rule", "name", "severity", "channel", "node", "time",
                    "frame_index", "line", "message"]
 TIMELINE_COLUMNS = ["input", "path", "channel", "node", "state", "start", "end", "source"]
@@ -126,10 +130,11 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
           max_findings: int | None = None) -> Report:
     """Check logs as `nmtcheck check` does (no configuration file is read: pass what you
     need). Errors are raised as nmtcheck.errors.InputError / UsageError."""
-    from nmtcheck.engine import MAX_FINDINGS_PER_RULE, check_inputs, select_rules, summary
+    from nmtcheck.engine import check_inputs, select_rules
+    from nmtcheck.reporters.json import report_dict
+    from nmtcheck.results import MAX_FINDINGS_PER_RULE, summary
     from nmtcheck.settings.network import load_network
     from nmtcheck.settings.profiles import DEFAULT_PROFILE, load_profile
-    from nmtcheck.reporters.json import report_dict
 
     if isinstance(paths, (str, PathLike)):
         paths = [paths]
@@ -170,41 +175,3 @@ def _boot_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:
     rows = [{"input": i, "path": path_of.get(i), **dict.fromkeys(names), **r}
             for i, res in enumerate(results) for r in boot_rows(res)]
     return _frame(rows, ["input", "path", *names])
-
-
-@dataclass
-class Results:
-    """A fleet's results dataset as DataFrames (see nmtcheck.fleet.dataset for the schema)."""
-
-    runs: pd.DataFrame
-    inputs: pd.DataFrame
-    findings: pd.DataFrame
-    node_stats: pd.DataFrame
-    schema_version: int
-    boot: pd.DataFrame = field(default_factory=pd.DataFrame)  # SPEC_BOOT §8.5
-
-
-def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | None = None,
-                 latest: bool = True) -> Results:
-    """The dataset `nmtcheck check --results URL` wrote. With `latest` (default) each log's
-    newest check only: older checks of a log that changed since, or by an older nmtcheck or
-    profile, are left out."""
-    from nmtcheck.errors import UsageError
-    from nmtcheck.fleet.dataset import MARKER, SCHEMA_VERSION, TABLES, Dataset
-    from nmtcheck.fleet.dataset import latest as newest
-
-    ds = Dataset(str(url), storage_options)
-    if not ds.fs.exists(ds.path(MARKER)):
-        raise UsageError(f"{url}: not an nmtcheck results dataset (no {MARKER})")
-    import pyarrow as pa
-
-    # integer columns with missing values (a finding's node) stay integers: pandas' Int64
-    ints = {pa.int64(): pd.Int64Dtype()}.get
-    tables = {t: ds.read(t).to_pandas(types_mapper=ints) for t in TABLES}
-    for df in tables.values():
-        if "date" in df.columns:
-            df["date"] = df["date"].astype(str)
-    if latest:
-        tables = newest(tables)
-    return Results(tables["runs"], tables["inputs"], tables["findings"], tables["node_stats"],
-                   SCHEMA_VERSION, tables["boot"])

@@ -11,19 +11,14 @@ from __future__ import annotations
 import difflib
 import gc
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from functools import partial
 from typing import Any, Protocol, cast
 
 import numpy as np
 
-from nmtcheck.processes import boot as boot_stage
-from nmtcheck.explain import causes as cause_stage
-from nmtcheck.processes.boot import BootAnalysis
-from nmtcheck.readers.captures import Captures, channel_spans
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import (
-    SEVERITIES,
     Check,
     Located,
     NodeCheck,
@@ -32,12 +27,26 @@ from nmtcheck.checks.base import (
     Problems,
     Rule,
 )
-from nmtcheck.timeline.decode import FrameAt, decode
-from nmtcheck.timeline.ec_compact import unsafe_nodes
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
+from nmtcheck.explain import causes as cause_stage
 from nmtcheck.explain.evaluated import finding_bases
 from nmtcheck.explain.evaluated import not_evaluated as rules_not_evaluated
+from nmtcheck.processes import boot as boot_stage
+from nmtcheck.processes.sdo_transfers import SdoSpool, tee
+from nmtcheck.protocol.nmt import UNKNOWN
+from nmtcheck.readers import CUT_IF_DAMAGED, InputStats, open_input, printable_path
+from nmtcheck.readers.captures import Captures, channel_spans
 from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.results import (
+    MAX_FINDINGS_PER_RULE,
+    Finding,
+    InputResult,
+    Omitted,
+)
+from nmtcheck.settings.network import Network
+from nmtcheck.settings.profiles import Profile, RuleSettings
+from nmtcheck.timeline.build import build
+from nmtcheck.timeline.decode import FrameAt, decode
 from nmtcheck.timeline.model import (
     InputModel,
     Master,
@@ -46,64 +55,7 @@ from nmtcheck.timeline.model import (
     TimelineParams,
     Timeout,
 )
-from nmtcheck.settings.network import Network
-from nmtcheck.protocol.nmt import UNKNOWN
-from nmtcheck.settings.profiles import Profile, RuleSettings
-from nmtcheck.readers import CUT_IF_DAMAGED, InputStats, open_input, printable_path
-from nmtcheck.processes.sdo_transfers import SdoSpool, tee
-from nmtcheck.timeline.build import build
-
-
-@dataclass
-class Finding:
-    input: int
-    rule: str
-    name: str
-    severity: str
-    channel: str | None  # None: the input itself (I-rules)
-    node: int | None
-    time: float
-    frame_index: int | None
-    line: int | None
-    message: str
-    # configured | measured: where the limit of a time rule came from (SPEC §7), else None
-    basis: str | None = None
-    # SPEC §8: P findings' Lely-compatible letter and proving frame; the events that may
-    # explain H001, G002, B001 (a), B002 and S004 findings (None: the field does not apply)
-    boot_letter: str | None = None
-    evidence: dict[str, Any] | None = None
-    causes: list[dict[str, Any]] | None = None
-    causes_omitted: int | None = None
-
-
-MAX_FINDINGS_PER_RULE = 10000  # per input; the rest is counted, never silently dropped
-
-
-@dataclass
-class Omitted:
-    """Findings of one rule past the per-rule cap: counted and stated in every report."""
-
-    rule: str
-    name: str
-    severity: str
-    count: int
-
-
-@dataclass
-class InputResult:
-    index: int
-    stats: InputStats
-    model: InputModel
-    findings: list[Finding] = field(default_factory=list)
-    omitted: list[Omitted] = field(default_factory=list)
-    # selected rules that could not be evaluated on this input: code -> reason (SPEC §7)
-    not_evaluated: dict[str, str] = field(default_factory=dict)
-    error: str | None = None  # why the input could not be read (then it has nothing else)
-    boot: BootAnalysis | None = None  # the CiA 302-2 boot processes (SPEC §8.5)
-
-    def nodes(self) -> list[NodeModel]:
-        return list(self.model.nodes())
-
+from nmtcheck.timeline.readback import unsafe_nodes
 
 EXACT = 100  # the specificity of a whole code or a rule name
 
@@ -167,7 +119,8 @@ def timeline_params(profile: Profile) -> TimelineParams:
 def known_masters(network: Network | None, channels: list[str],
                   log_name: Callable[[str], str] = str) -> dict[str, Master]:
     """Each channel's master as the network file or a device file names it (SPEC §2);
-    `log_name`: the name the files know a channel by (a later capture's: nmtcheck/readers/captures.py)."""
+    `log_name`: the name the files know a channel by (a later capture's:
+    nmtcheck/readers/captures.py)."""
     out: dict[str, Master] = {}
     if network is None:
         return out
@@ -687,13 +640,3 @@ def _locate(model: InputModel, problems: list[tuple[Rule, Problem]]) -> None:
             hit = last[1] if last is not None else None
         if hit is not None:
             p.frame_index, p.line = hit
-
-
-def summary(results: list[InputResult]) -> dict[str, int]:
-    counts = dict.fromkeys(SEVERITIES, 0)
-    for res in results:
-        for f in res.findings:
-            counts[f.severity] += 1
-        for o in res.omitted:  # left out of the reports, not out of the verdict
-            counts[o.severity] += o.count
-    return counts

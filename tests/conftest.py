@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.readers import InputStats, open_input
 from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.results import InputResult
 from nmtcheck.settings.network import Network, load_network
 from nmtcheck.settings.profiles import load_profile
-from nmtcheck.readers import InputStats, open_input
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared"  # the steering folder beside the checkout: not in a clone

@@ -14,8 +14,9 @@ from typing import Any
 import pytest
 from test_boot_flood import NETWORKS, _log, boot_nodes
 
-from nmtcheck.processes import boot
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.processes import boot, boot_steps
+from nmtcheck.results import InputResult
 from nmtcheck.settings.network import load_network
 from nmtcheck.settings.profiles import load_profile
 
@@ -126,14 +127,14 @@ def test_mixed_failures_agree_with_the_per_process_path(
     keep-alive), half their configuration downloads refused, with a small cap: past it,
     the processes failed by a refusal alone are judged as columns, not evaluated."""
     evaluated = {"capped": 0, "all": 0}
-    real = boot._evaluate
+    real = boot_steps.evaluate
     which = "capped"
 
     def counting(*args: Any) -> None:
         evaluated[which] += 1
         real(*args)
 
-    monkeypatch.setattr(boot, "_evaluate", counting)
+    monkeypatch.setattr(boot, "evaluate", counting)
     capped = 0
     for seed in range(6):
         text = _with_refusals(_log(seed, 0.5), seed)

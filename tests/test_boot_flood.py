@@ -1,4 +1,4 @@
-"""Boot-process floods (issue 22): the processes `boot._plainly_judged` judges at once, as
+"""Boot-process floods (issue 22): the processes `boot.plainly_judged` judges at once, as
 columns, come out exactly as the full per-process evaluation judges them.
 
 Each log is a random mix of boot processes (boot-ups, resets, the manager's boot-up,
@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from conftest import Checker
 
-from nmtcheck.processes import boot
-from nmtcheck.engine import InputResult
+from nmtcheck.processes import boot, boot_steps
+from nmtcheck.results import InputResult
 
 NETWORKS = {
     "none": None,
@@ -145,26 +145,26 @@ def _outcome(checker: Checker, log: str, network: str | None) -> Any:
 def test_vectorised_judgement_agrees_with_full_evaluation(
         checker: Checker, monkeypatch: pytest.MonkeyPatch, starts: float) -> None:
     judged = {"ok": 0, "incomplete": 0, "processes": 0}
-    real = boot._plainly_judged
+    real = boot_steps.plainly_judged
 
-    def counting(*args: Any) -> boot._Plain:
+    def counting(*args: Any) -> boot_steps.Plain:
         found = real(*args)
         judged["ok"] += int(found.ok.sum())
         judged["incomplete"] += int(found.incomplete.sum())
         judged["processes"] += len(found.ok)
         return found
 
-    def nothing(nd: Any, c: boot._Procs, *args: Any) -> boot._Plain:
+    def nothing(nd: Any, c: boot_steps.Procs, *args: Any) -> boot_steps.Plain:
         n = len(c)
-        return boot._Plain(np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, np.int16),
+        return boot_steps.Plain(np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, np.int16),
                            np.full(n, np.nan), np.full(n, -1, np.int64), np.zeros(n, np.int64))
 
     for seed in range(12):
         log = _log(seed, starts)
         for network in NETWORKS.values():
-            monkeypatch.setattr(boot, "_plainly_judged", counting)
+            monkeypatch.setattr(boot, "plainly_judged", counting)
             fast = _outcome(checker, log, network)
-            monkeypatch.setattr(boot, "_plainly_judged", nothing)
+            monkeypatch.setattr(boot, "plainly_judged", nothing)
             assert _outcome(checker, log, network) == fast, (seed, network)
     # the comparison is worth something only if the columns judged many processes
     if starts > 0.5:

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from conftest import SAMPLES, Checker, candump, run_cli
 
+from nmtcheck.readers import InputStats
 from nmtcheck.readers.captures import RESTART_S, Captures
 from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import InputStats
 
 # Pairs of recordings from real stacks, each joined in the order that makes time go back
 # (the second was recorded earlier, or both count from 0 s). Healthy with faulty, faulty

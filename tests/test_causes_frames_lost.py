@@ -17,10 +17,11 @@ import can
 from conftest import SAMPLES, Checker
 from conftest import read_columns as read
 
-from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.settings.profiles import load_profile
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.readers import Drop
 from nmtcheck.reporters import text
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 LOG = (SAMPLES / "heartbeat_loss.log").read_text().splitlines(keepends=True)
 DROP = "DROPCOUNT: dropped 17 CAN frames on 'can0' socket (total drops 17)\n"

@@ -80,9 +80,9 @@ def test_concise_names_the_channel_when_there_are_several(tmp_path: Path) -> Non
 
 
 def test_concise_line_is_empty_for_binary_formats() -> None:
-    from nmtcheck.engine import Finding, InputResult
     from nmtcheck.readers import InputStats
     from nmtcheck.reporters.concise import finding_line
+    from nmtcheck.results import Finding, InputResult
 
     stats = InputStats(path="run.blf", format="blf", start=10.0, channels=["1"])
     res = InputResult(0, stats, None)  # type: ignore[arg-type]

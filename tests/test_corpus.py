@@ -20,8 +20,8 @@ import pytest
 from conftest import CORPUS, needs_corpus
 
 from nmtcheck.errors import InputError
-from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, open_input
+from nmtcheck.readers.frames import FrameBatch
 
 THIRD = CORPUS / "third_party"
 

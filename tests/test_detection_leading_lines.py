@@ -31,9 +31,9 @@ from hostile_logs import TEXT_WRITERS, format_of, network_frames
 
 from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import InputError
+from nmtcheck.readers import FORMATS, MAX_LEADING_LINES, TEXT_FORMATS, detect_format, open_input
 from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.settings.profiles import load_profile
-from nmtcheck.readers import FORMATS, MAX_LEADING_LINES, TEXT_FORMATS, detect_format, open_input
 
 # A note without a comment mark: a skipped record. (A `# ...` line is a comment, a non-frame
 # record: tests/test_readers_pasted.py.)

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from conftest import CORPUS, DATA, SAMPLES, candump, needs_corpus, shared_file, shared_path
 
-from nmtcheck.protocol.devicefile import load_device_file
 from nmtcheck.errors import UsageError
+from nmtcheck.protocol.devicefile import load_device_file
 from nmtcheck.settings.network import load_network
 
 EDS = CORPUS / "eds"

@@ -19,15 +19,16 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from nmtcheck.timeline.build import ec_compact
-from nmtcheck.timeline.decode import ColumnSpool
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.fleet.tasks import node_rows
 from nmtcheck.readers.frames import node_key
-from nmtcheck.timeline.gaps import Gaps
+from nmtcheck.reporters import renderer
+from nmtcheck.results import InputResult
 from nmtcheck.settings.network import load_network
 from nmtcheck.settings.profiles import load_profile
-from nmtcheck.reporters import renderer
+from nmtcheck.spool import ColumnSpool
+from nmtcheck.timeline import ec_compact
+from nmtcheck.timeline.gaps import Gaps
 
 FORCED = ec_compact.Compaction(above=0, chunk=53, margin=8, protect_s=1.0, min_run=1)
 TIGHT = ec_compact.Compaction(above=0, chunk=31, margin=4, protect_s=0.0, min_run=1)
@@ -250,8 +251,8 @@ def test_timestamps_that_go_backwards_give_the_same_report(
 
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
 def test_a_full_temporary_disk_is_one_line_naming_tmpdir() -> None:
-    from nmtcheck.timeline.decode import write_spill
     from nmtcheck.errors import NmtcheckError
+    from nmtcheck.spool import write_spill
 
     with open("/dev/full", "ab") as f, pytest.raises(NmtcheckError, match="set TMPDIR"):
         write_spill(np.zeros(1 << 16), f, "/tmp/nmtcheck-x")

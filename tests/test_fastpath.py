@@ -22,10 +22,10 @@ import pytest
 from conftest import CORPUS, REPO, SAMPLES
 
 from nmtcheck.engine import check_input, select_rules
-from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import InputStats, blocks, open_input
 from nmtcheck.readers.blocks import REFERENCE_ENV
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.settings.profiles import load_profile
 
 THIRD = CORPUS / "third_party"
 TEXT_LOGS = sorted(SAMPLES.glob("*.log")) + sorted(SAMPLES.glob("*.asc")) + (

@@ -18,7 +18,8 @@ import can
 import pytest
 from conftest import SAMPLES
 
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.results import InputResult
 from nmtcheck.settings.profiles import load_profile
 
 SAMPLE_NAMES = sorted(p.stem for p in SAMPLES.glob("*.log"))

@@ -33,10 +33,11 @@ from test_readers_pcap import (
     socketcan,
 )
 
-from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.settings.profiles import load_profile
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.readers import open_input
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 THIRD = CORPUS / "third_party"
 SAMPLE_LOGS = sorted(SAMPLES.glob("*.log"))

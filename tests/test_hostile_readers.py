@@ -35,12 +35,13 @@ from hostile_logs import (
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import InputError, NmtcheckError
-from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import FORMATS, MAX_TIMESTAMP_S, InputStats, open_input
+from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.reporters import renderer
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 EXPLORE = os.environ.get("NMTCHECK_HYPOTHESIS") == "explore"
 

@@ -18,8 +18,9 @@ from pathlib import Path
 import pytest
 from hostile_logs import BINARY_WRITERS, TEXT_WRITERS, mcap_json, network_frames
 
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import InputError
+from nmtcheck.results import InputResult
 from nmtcheck.settings.profiles import load_profile
 
 PROFILE = load_profile("default")

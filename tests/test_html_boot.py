@@ -14,11 +14,11 @@ from conftest import REPO, Checker
 # it comes back)
 from test_rules_boot import C1_LOG, P001_LOG, P001_NET
 
-from nmtcheck.processes.boot import LETTERS
 from nmtcheck.engine import check_input, select_rules
+from nmtcheck.processes.boot_records import LETTERS
+from nmtcheck.reporters import html
 from nmtcheck.settings.network import load_network
 from nmtcheck.settings.profiles import load_profile
-from nmtcheck.reporters import html
 
 OPTIONS: dict[str, object] = {"fail_on": "error"}
 

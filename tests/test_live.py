@@ -24,10 +24,10 @@ from nmtcheck.engine import check_input, select_rules
 from nmtcheck.live.frames import LiveFrame, candump_line
 from nmtcheck.live.session import CONFIRM_TOLERANCE_S, BusClock, Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.settings.network import load_network
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import InputStats
 from nmtcheck.readers.candump import _parse_line
+from nmtcheck.settings.network import load_network
+from nmtcheck.settings.profiles import load_profile
 
 PROFILE = load_profile("default")
 RULES = select_rules(PROFILE, [], [])

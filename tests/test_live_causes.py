@@ -18,10 +18,10 @@ from nmtcheck.live.follow import follow
 from nmtcheck.live.frames import LiveFrame
 from nmtcheck.live.session import Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.settings.network import load_network
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import InputStats
 from nmtcheck.readers.candump import _parse_line
+from nmtcheck.settings.network import load_network
+from nmtcheck.settings.profiles import load_profile
 
 PROFILE = load_profile("default")
 RULES = select_rules(PROFILE, [], [])

@@ -247,7 +247,7 @@ def test_monitor_bus_error_mid_session(tmp_path: Path, monkeypatch: pytest.Monke
                                        capsys: pytest.CaptureFixture[str]) -> None:
     """The bus fails under the session (a virtual bus shut down, as an unplugged adapter):
     one line naming the channel, the reports of what was seen, exit 2."""
-    from nmtcheck.cli.main import main as cli
+    from nmtcheck.cli import main as cli
     from nmtcheck.live import bus as live_bus
 
     channel = f"err-{id(tmp_path)}"
@@ -313,7 +313,7 @@ def test_monitor_two_channels_duration(tmp_path: Path, monkeypatch: pytest.Monke
     """Two channels (each its own CANopen network), --duration ends the session; node 5
     falls silent on one channel only; the recording holds both and `check` of it gives
     the report's findings."""
-    from nmtcheck.cli.main import main as cli
+    from nmtcheck.cli import main as cli
 
     a, b = f"a-{id(tmp_path)}", f"b-{id(tmp_path)}"
     txa, txb = can.Bus(interface="virtual", channel=a), can.Bus(interface="virtual", channel=b)
@@ -378,7 +378,7 @@ def test_monitor_usage_errors(args: list[str], message: str, tmp_path: Path,
                               capsys: pytest.CaptureFixture[str]) -> None:
     """Bad options fail before the session; a session that hears nothing is exit 2 too
     (as `check` of an empty log): one line, never a traceback."""
-    from nmtcheck.cli.main import main as cli
+    from nmtcheck.cli import main as cli
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("CAN_INTERFACE", raising=False)

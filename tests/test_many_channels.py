@@ -20,19 +20,20 @@ import numpy as np
 import pytest
 from conftest import Checker
 
-from nmtcheck.processes import boot
-
-from nmtcheck.timeline.build import build as timeline
 from nmtcheck.checks import state
-from nmtcheck.timeline.decode import KIND_EMCY, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import UsageError
-from nmtcheck.timeline.model import InputModel, NodeConfig, NodeModel
-from nmtcheck.protocol.nmt import EPS, OFFLINE, OPERATIONAL, PRE_OPERATIONAL, STATE_INDEX, STOPPED
-from nmtcheck.timeline.node_events import EmcyTable, SdoEventTable, WriteTable
-from nmtcheck.settings.profiles import load_profile
-from nmtcheck.reporters import streamer
+from nmtcheck.processes import boot_records
 from nmtcheck.processes.sdo_transfers import SdoSpool
+from nmtcheck.protocol.nmt import EPS, OFFLINE, OPERATIONAL, PRE_OPERATIONAL, STATE_INDEX, STOPPED
+from nmtcheck.reporters import streamer
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
+from nmtcheck.timeline import build as timeline
+from nmtcheck.timeline import error_control, intervals
+from nmtcheck.timeline.decode import KIND_EMCY, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.timeline.model import InputModel, NodeConfig, NodeModel
+from nmtcheck.timeline.node_events import EmcyTable, SdoEventTable, WriteTable
 from nmtcheck.timeline.tables import CommandTable, EcTable, IntervalTable, NmtTable, shared_empty
 
 
@@ -183,7 +184,7 @@ def test_grace_since_matches_the_walk_on_every_interval_pattern() -> None:
 
 
 def _trivial_nodes(res: InputResult) -> list[NodeModel]:
-    return [m for m in res.model.nodes() if timeline._only_bootups(m)]
+    return [m for m in res.model.nodes() if intervals.only_bootups(m)]
 
 
 def test_trivial_node_shortcuts_match_the_full_paths(checker: Checker) -> None:
@@ -197,14 +198,14 @@ def test_trivial_node_shortcuts_match_the_full_paths(checker: Checker) -> None:
         start, end, obey = res.model.start, res.model.end, res.model.timeline.obey_s
         for m in _trivial_nodes(res):
             trivial += 1
-            full = timeline._intervals(m, start, end, obey, {})
+            full = intervals.node_intervals(m, start, end, obey, {})
             for name in ("start", "end", "state", "source"):
                 assert np.array_equal(getattr(m.intervals, name), getattr(full, name))
             spans = m.unproven_spans
-            assert not timeline._self_start_queries(m, end) and m.unproven_spans == spans
+            assert not error_control._self_start_queries(m, end) and m.unproven_spans == spans
             a, b = m.heartbeat_pairs()
             assert not len(a) and not len(b) and m.heartbeat_gaps().count == 0
-            bounds, medians = timeline._segment_medians(m)
+            bounds, medians = error_control._segment_medians(m)
             assert np.array_equal(bounds, m.seg_bounds) and np.array_equal(
                 medians, m.seg_median, equal_nan=True) and m.median_s is None
     assert trivial > 60, trivial
@@ -307,7 +308,8 @@ def test_shared_empty_tables_stay_empty(checker: Checker) -> None:
                 assert value.size == 0, (cls, name)
     assert shared_empty(EcTable).runs is None
     assert NodeConfig() == timeline._NO_CONFIG
-    assert boot.Spans.empty().last_step == [] and boot.Spans.empty() is not boot.Spans.empty()
+    spans = boot_records.Spans
+    assert spans.empty().last_step == [] and spans.empty() is not spans.empty()
 
 
 def heartbeat_log(rng: random.Random, channels: int = 40) -> str:
@@ -345,7 +347,7 @@ def _node_state(m: NodeModel) -> tuple[object, ...]:
 
 def test_small_node_lists_match_the_numpy_paths(checker: Checker,
                                                 monkeypatch: pytest.MonkeyPatch) -> None:
-    """A small plain node (a boot-up and a few heartbeats, `timeline._small`): its period,
+    """A small plain node (a boot-up and a few heartbeats, `error_control.small_ec`): its period,
     segment medians, H001 timeouts, self-starts, unproven spans, intervals and every
     finding (H002, H003, C003, C004, S005 return early from the lists) are the numpy
     paths', on random logs of many channels, with findings fired and nodes silent."""
@@ -357,7 +359,7 @@ def test_small_node_lists_match_the_numpy_paths(checker: Checker,
         for net in (None, network):
             fast = checker.run(text, network=net)
             with monkeypatch.context() as mp:
-                mp.setattr(timeline, "SMALL_NODE_FRAMES", 0)  # every node the numpy way
+                mp.setattr(error_control, "SMALL_NODE_FRAMES", 0)  # every node the numpy way
                 full = checker.run(text, network=net)
             assert not any(m.small for m in full.model.nodes())
             small += sum(1 for m in fast.model.nodes() if m.small is not None)

@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 from conftest import REPO, candump
 
-from nmtcheck.timeline.decode import SCRATCH, ChunkStore, ColumnSpool, decode, removed_on_exit
 from nmtcheck.readers import open_input
+from nmtcheck.spool import SCRATCH, ChunkStore, ColumnSpool, removed_on_exit
+from nmtcheck.timeline.decode import decode
 
 
 def write_pdo_log(path: Path, frames: int) -> None:

@@ -21,8 +21,8 @@ from conftest import REPO, SAMPLES
 from nmtcheck.cli.main import write_atomically, write_reports
 from nmtcheck.engine import check_inputs
 from nmtcheck.errors import UsageError
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import format_for_path, streamer
+from nmtcheck.settings.profiles import load_profile
 
 
 def run(*args: str, cwd: Path, env: dict[str, str] | None = None
@@ -153,7 +153,7 @@ def test_stdout_on_a_full_device_is_one_line_and_exit_2(tmp_path: Path, args: li
 def test_third_party_logging_never_reaches_stderr(tmp_path: Path) -> None:
     """asammdf logs its own errors (and canopen, python-can theirs): only nmtcheck's one
     line may reach stderr."""
-    code = ("import logging, sys; from nmtcheck import cli, cli_common; "
+    code = ("import logging, sys; from nmtcheck.cli import main as cli, common as cli_common; "
             "load = cli_common.load_profile; "
             "cli_common.load_profile = lambda *a: (logging.getLogger('asammdf').error("
             "'NoneType: None'),"

@@ -24,9 +24,9 @@ import numpy as np
 import pytest
 from conftest import CORPUS, SAMPLES
 
-from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, blocks, forked, open_input
 from nmtcheck.readers.blocks import REFERENCE_ENV, THREADS_ENV
+from nmtcheck.readers.frames import FrameBatch
 
 THIRD = CORPUS / "third_party"
 TEXT_LOGS = sorted(SAMPLES.glob("*.log")) + sorted(SAMPLES.glob("*.asc")) + (

@@ -15,10 +15,11 @@ import pytest
 from test_memory import peak_rss_mb
 
 from nmtcheck.checks import RULES
-from nmtcheck.engine import InputResult, check_input
-from nmtcheck.settings.profiles import load_profile
+from nmtcheck.engine import check_input
 from nmtcheck.reporters import html, streamer
 from nmtcheck.reporters import json as json_report
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 CODES = ("05", "7F", "04")  # OPERATIONAL, PRE-OPERATIONAL, STOPPED: every heartbeat changes
 

@@ -20,12 +20,12 @@ import pytest
 from conftest import Checker, candump
 from test_memory import peak_rss_mb
 
-from nmtcheck.protocol import sdo
 from nmtcheck.checks import canid
 from nmtcheck.checks.state import _first_late
-from nmtcheck.timeline.model import ConfigWrite, NodeConfig, NodeModel, WriteTable
+from nmtcheck.protocol import sdo
 from nmtcheck.protocol.nmt import EPS
-from nmtcheck.timeline.build import _timed_from
+from nmtcheck.timeline.error_control import _timed_from
+from nmtcheck.timeline.model import ConfigWrite, NodeConfig, NodeModel, WriteTable
 
 
 def write_frames(path: Path, frames: int, kind: str) -> None:

@@ -18,8 +18,8 @@ import pytest
 from conftest import read_columns as read
 
 from nmtcheck.errors import InputError
-from nmtcheck.readers.frames import BatchBuilder
 from nmtcheck.readers import InputStats, candump, open_input
+from nmtcheck.readers.frames import BatchBuilder
 
 T0 = 1_700_000_000.0
 

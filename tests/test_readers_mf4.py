@@ -22,8 +22,8 @@ import pytest
 from conftest import CORPUS, REPO, needs_corpus
 
 from nmtcheck.errors import InputError
-from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers import InputStats, detect_format, mf4, open_input
+from nmtcheck.readers.frames import FrameBatch
 
 pytest.importorskip("asammdf")
 

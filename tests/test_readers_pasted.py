@@ -24,7 +24,6 @@ from conftest import DATA, read_columns, run_cli
 
 from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import InputError
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.readers import (
     InputStats,
     blocks,
@@ -33,6 +32,7 @@ from nmtcheck.readers import (
     note_follows,
 )
 from nmtcheck.readers.blocks import REFERENCE_ENV
+from nmtcheck.settings.profiles import load_profile
 
 PASTED = DATA / "pasted"
 

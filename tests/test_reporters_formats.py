@@ -19,9 +19,8 @@ from conftest import SAMPLES, Checker, candump, shared_file
 from lxml import etree
 
 from nmtcheck.checks import RULES
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.errors import UsageError
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import (
     auto_format,
     format_for_path,
@@ -33,6 +32,8 @@ from nmtcheck.reporters import (
     sarif,
 )
 from nmtcheck.reporters.common import group_findings, heartbeat_stats
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 SARIF_SCHEMA = "schemas/sarif-schema-2.1.0.json"  # ../shared/schemas, or its copy in tests/data
 SAMPLE_NAMES = ["healthy", "heartbeat_loss", "pdo_preop", "guard_toggle", "ignored_command",

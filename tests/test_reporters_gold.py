@@ -14,9 +14,10 @@ import pytest
 from conftest import REPO
 
 from nmtcheck import __version__
-from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.settings.profiles import load_profile
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.reporters import MODULES, renderer
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 GOLD = Path(__file__).resolve().parent / "gold"
 SUFFIX = {"text": "txt", "concise": "concise.txt", "json": "json", "csv": "csv", "html": "html",

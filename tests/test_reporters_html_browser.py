@@ -24,11 +24,12 @@ from typing import Any
 import pytest
 from conftest import REPO, SAMPLES
 
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.protocol.nmt import UNKNOWN
-from nmtcheck.settings.profiles import load_profile
 from nmtcheck.reporters import html as html_reporter
 from nmtcheck.reporters.common import group_findings
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 SAMPLE_NAMES = ["healthy", "heartbeat_loss", "pdo_preop", "guard_toggle", "ignored_command",
                 "reset_no_bootup"]

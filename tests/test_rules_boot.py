@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 from conftest import Checker
 
-from nmtcheck.engine import InputResult
+from nmtcheck.results import InputResult
 
 BOOT_TOML = "master = 1\n[boot]\nmanager = true\n[nodes.2]\n"
 M1_TOML = "master = 1\n"

@@ -10,7 +10,7 @@ import pytest
 from conftest import Checker, candump
 from traces import HEALTHY_NET, hb, healthy, profile
 
-from nmtcheck.engine import InputResult
+from nmtcheck.results import InputResult
 
 
 def found(res: InputResult) -> list[tuple[str, int | None, float]]:

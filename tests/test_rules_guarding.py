@@ -14,8 +14,8 @@ from conftest import Checker, candump
 from traces import HEALTHY_NET, hb, healthy, profile
 
 from nmtcheck.checks.guarding import _BadToggle
-from nmtcheck.timeline.model import TimelineParams
 from nmtcheck.protocol.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST
+from nmtcheck.timeline.model import TimelineParams
 
 
 def guard(node: int, t0: float, toggles: str, state: int = 0x7F, period: float = 0.1,
@@ -199,8 +199,8 @@ def test_the_array_classification_of_guarding_is_the_walks(
     """`_classify_guarding` answers with array operations where the walk's other test is
     not reached; on random nodes (guarding, heartbeats, both, boot-ups, time going
     backwards, 1017h = 0 in force) it gives the walk's kinds, frame for frame."""
-    from nmtcheck.timeline.build import build as timeline
     from nmtcheck.protocol.nmt import MALFORMED
+    from nmtcheck.timeline import error_control as timeline
 
     walk = timeline._classify_guarding_walk
     walked: list[int] = []
@@ -305,7 +305,8 @@ def _toggle_errors_walk(ec: Any, pos: np.ndarray, resets: list[int]) -> list[_Ba
 def test_guarding_timeouts_and_toggles_match_their_walks() -> None:
     """G002's stretches and G001's array judgement give what walking every frame gives."""
     from nmtcheck.checks.guarding import _toggle_errors
-    from nmtcheck.timeline.build import _guard_timeouts, _guard_walk
+    from nmtcheck.timeline.error_control import _guard_walk
+    from nmtcheck.timeline.error_control import guard_timeouts as _guard_timeouts
 
     params = TimelineParams(response_timeout_s=1.0)
     timeouts = toggles = 0

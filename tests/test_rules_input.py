@@ -14,9 +14,10 @@ import pytest
 from conftest import SAMPLES, Checker, candump
 from lxml import etree
 
-from nmtcheck.engine import InputResult, check_input, select_rules
-from nmtcheck.settings.profiles import load_profile
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.reporters import renderer
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import load_profile
 
 HEALTHY = SAMPLES / "healthy.log"
 HB_LOSS = SAMPLES / "heartbeat_loss.log"

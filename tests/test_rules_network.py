@@ -5,7 +5,7 @@ from __future__ import annotations
 from conftest import Checker, candump
 from traces import HEALTHY_NET, hb, healthy
 
-from nmtcheck.engine import InputResult
+from nmtcheck.results import InputResult
 
 
 def found(res: InputResult) -> list[tuple[str, int | None, float]]:

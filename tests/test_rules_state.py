@@ -11,7 +11,7 @@ import pytest
 from conftest import Checker, candump
 from traces import HEALTHY_NET, hb, healthy, profile
 
-from nmtcheck.engine import InputResult
+from nmtcheck.results import InputResult
 
 
 def every(t0: float, t1: float, frame: str, period: float = 0.02) -> list[tuple[float, str]]:

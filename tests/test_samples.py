@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 from conftest import SAMPLES
 
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.results import InputResult
 from nmtcheck.settings.profiles import load_profile
 
 EXPECTED = {

@@ -17,7 +17,8 @@ from typing import Any
 import pytest
 from conftest import SAMPLES
 
-from nmtcheck.engine import InputResult, check_input, select_rules
+from nmtcheck.engine import check_input, select_rules
+from nmtcheck.results import InputResult
 from nmtcheck.settings.network import load_network
 from nmtcheck.settings.profiles import load_profile
 

@@ -7,7 +7,7 @@ import pytest
 from conftest import Checker, candump
 from traces import hb, healthy
 
-from nmtcheck.engine import InputResult
+from nmtcheck.results import InputResult
 
 
 def ivs(res: InputResult, node: int, chan: int = 0) -> list[tuple[str, float, float, str]]:

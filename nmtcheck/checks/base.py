@@ -17,7 +17,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from nmtcheck.timeline.model import ChannelModel, InputModel, Master, NodeModel, TimelineParams, Timeout
+from nmtcheck.timeline.model import (
+    ChannelModel,
+    InputModel,
+    Master,
+    NodeModel,
+    TimelineParams,
+    Timeout,
+)
 
 SEVERITIES = ("error", "warning", "info")  # the one order: most severe first
 

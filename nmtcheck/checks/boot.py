@@ -12,8 +12,8 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from nmtcheck.processes import boot
 from nmtcheck.checks.base import Param, Params, Problems, input_rule
+from nmtcheck.processes import boot_records as boot
 from nmtcheck.timeline.model import InputModel
 
 

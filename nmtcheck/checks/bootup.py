@@ -8,8 +8,6 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, batch, rule
-from nmtcheck.timeline.decode import KIND_EC, KIND_NAMES, NodeFrames
-from nmtcheck.timeline.model import EcFrame, EcTable, NodeModel
 from nmtcheck.protocol.nmt import (
     BOOTUP,
     EC_KIND_NAMES,
@@ -19,6 +17,8 @@ from nmtcheck.protocol.nmt import (
     MALFORMED,
     is_one_of,
 )
+from nmtcheck.timeline.decode import KIND_EC, KIND_NAMES, NodeFrames
+from nmtcheck.timeline.model import EcFrame, EcTable, NodeModel
 
 _NEVER = np.iinfo(np.int64).max  # a frame index after every frame
 

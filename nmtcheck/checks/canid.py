@@ -19,6 +19,7 @@ from nmtcheck.checks.base import (
     rule,
     run_starts,
 )
+from nmtcheck.protocol.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE, is_one_of
 from nmtcheck.timeline.model import (
     ChannelModel,
     EcFrame,
@@ -28,7 +29,6 @@ from nmtcheck.timeline.model import (
     NodeModel,
     known_cs,
 )
-from nmtcheck.protocol.nmt import BOOTUP, GUARD, HEARTBEAT, MALFORMED, STATE_OF_CODE, is_one_of
 
 
 @input_rule("C001", "restricted-can-id", "error",

@@ -8,8 +8,8 @@ from typing import NamedTuple
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
-from nmtcheck.timeline.model import EcTable, NodeModel
 from nmtcheck.protocol.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, REQUEST, between
+from nmtcheck.timeline.model import EcTable, NodeModel
 
 
 @rule("G001", "guard-toggle", "error")

@@ -7,7 +7,6 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Param, Params, count_note, rule, run_starts
-from nmtcheck.timeline.model import NodeModel, SmallEc
 from nmtcheck.protocol.nmt import (
     BOOTUP,
     EPS,
@@ -18,6 +17,7 @@ from nmtcheck.protocol.nmt import (
     between,
     state_name,
 )
+from nmtcheck.timeline.model import NodeModel, SmallEc
 
 
 @rule("H001", "heartbeat-timeout", "error",

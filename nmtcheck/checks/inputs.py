@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, input_rule
-from nmtcheck.timeline.model import InputModel
 from nmtcheck.readers import TEXT_FORMATS, InputStats
+from nmtcheck.timeline.model import InputModel
 
 LINES_SHOWN = 5
 

@@ -7,8 +7,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Found, NodeContext, Params, Problem, input_rule, rule
-from nmtcheck.timeline.model import EcFrame, InputModel, NodeModel
 from nmtcheck.protocol.nmt import BOOTUP, EPS, HEARTBEAT, between, state_name
+from nmtcheck.timeline.model import EcFrame, InputModel, NodeModel
 
 
 @input_rule("N001", "missing-node", "error", exempt_from_unknown=True, scope="node")

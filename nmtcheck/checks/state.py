@@ -24,8 +24,6 @@ from nmtcheck.checks.base import (
     input_rule,
     rule,
 )
-from nmtcheck.timeline.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
-from nmtcheck.timeline.model import InputModel, NodeModel
 from nmtcheck.protocol.nmt import (
     BOOTUP,
     COMMAND_STATE,
@@ -43,6 +41,8 @@ from nmtcheck.protocol.nmt import (
     is_one_of,
     state_name,
 )
+from nmtcheck.timeline.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
+from nmtcheck.timeline.model import InputModel, NodeModel
 
 _STATE_OF_CODE = np.full(128, -1, np.int8)  # state index of a 7-bit state code, -1 if none
 for _code, _state in STATE_OF_CODE.items():

@@ -4,7 +4,7 @@ profile and the network) and the way reports are written (`-o` checked before th
 written atomically; standard output errors as one line).
 
 Its own module so that `nmtcheck check`/`timeline`/`rules` (cli.py), `nmtcheck monitor`
-(live/command.py) and `nmtcheck fleet` (fleet/commands.py) share them without importing
+(cli/monitor.py) and `nmtcheck fleet` (cli/fleet.py) share them without importing
 one another: cli.py registers the other two on its group, and they never import cli.py.
 """
 
@@ -20,16 +20,16 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import click
 
-from nmtcheck.settings.config import Config, discover
 from nmtcheck.engine import check_patterns
 from nmtcheck.errors import UsageError
+from nmtcheck.reporters import FORMATS
+from nmtcheck.settings.config import Config, discover
 from nmtcheck.settings.network import Network, load_network
 from nmtcheck.settings.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
-from nmtcheck.reporters import FORMATS
 
 if TYPE_CHECKING:
-    from nmtcheck.engine import InputResult
     from nmtcheck.reporters import Streamer
+    from nmtcheck.results import InputResult
 
 EXIT_OK, EXIT_FINDINGS, EXIT_ERROR = 0, 1, 2
 

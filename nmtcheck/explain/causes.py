@@ -15,14 +15,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from nmtcheck.protocol import emcy
+from nmtcheck.protocol.nmt import BOOTUP, EPS, REQUEST
 from nmtcheck.timeline.decode import key_rows
 from nmtcheck.timeline.ec_compact import expanded
-from nmtcheck.protocol.nmt import BOOTUP, EPS, REQUEST
 
 if TYPE_CHECKING:
-    from nmtcheck.processes.boot import BootFinding
-    from nmtcheck.engine import Finding, InputResult
+    from nmtcheck.processes.boot_records import BootFinding
     from nmtcheck.processes.sdo_transfers import SdoSpool
+    from nmtcheck.results import Finding, InputResult
 
 
 KINDS = ("reboot", "emcy", "emcy_other", "error_frames", "frames_lost", "silence", "nmt",

@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nmtcheck.timeline.model import InputModel, NodeConfig, NodeModel
 from nmtcheck.protocol.nmt import BOOTUP, HEARTBEAT
+from nmtcheck.timeline.model import InputModel, NodeConfig, NodeModel
 
 if TYPE_CHECKING:
-    from nmtcheck.engine import Finding
+    from nmtcheck.results import Finding
 
 CONFIGURED, MEASURED = "configured", "measured"
 

@@ -191,7 +191,7 @@ class ResilientPool:
             # go below a directory of this pool's, removed once its workers have ended: a
             # worker that dies (a crash, the OOM killer) cannot clean up after itself, and
             # what it spilled can be 40 bytes per frame of its log.
-            from nmtcheck.timeline.decode import spill_directory
+            from nmtcheck.spool import spill_directory
 
             try:
                 self._tmp = spill_directory("nmtcheck-workers-")

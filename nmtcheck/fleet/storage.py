@@ -536,7 +536,7 @@ def local_copies(args: Sequence[str], storage_options: dict[str, Any] | None
     if not remote:
         yield list(args), {}
         return
-    from nmtcheck.timeline.decode import removed_on_exit, spill_directory
+    from nmtcheck.spool import removed_on_exit, spill_directory
 
     listed = {src: [fi.url for fi in expand([src], None, storage_options)] for src in remote}
     urls = list(dict.fromkeys(url for found in listed.values() for url in found))

@@ -36,7 +36,7 @@ def summarise(results: str, storage_options: dict[str, Any] | None = None,
     """The summary's tables. The unit a rule's worst list ranks is the device where the log
     has one (`--path-pattern`), else the log itself: `device` or `log` says which, never a
     path in the `device` column."""
-    from nmtcheck.api import read_results
+    from nmtcheck.fleet.results import read_results
 
     res = read_results(results, storage_options=storage_options, latest=latest_only)
     inputs, findings = res.inputs, res.findings

@@ -83,7 +83,7 @@ def batch_id(ids: list[str]) -> str:
 def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> BatchCounts:
     """Fetch the batch (concurrently), check each log, write the batch's Parquet files
     (findings, node_stats, boot, then inputs: the commit record), return the counts."""
-    from nmtcheck.timeline.decode import SCRATCH
+    from nmtcheck.spool import SCRATCH
 
     token = SCRATCH.set(worker_scratch())
     try:
@@ -111,7 +111,7 @@ def worker_scratch() -> str | None:
 
 
 def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> BatchCounts:
-    from nmtcheck.timeline.decode import spill_directory  # below SCRATCH, made with signals held
+    from nmtcheck.spool import spill_directory  # below SCRATCH, made with signals held
 
     os.environ["NMTCHECK_THREADS"] = "1"
     from nmtcheck.checks import BY_CODE
@@ -273,7 +273,7 @@ def boot_rows(res: Any) -> list[dict[str, Any]]:
 
     import numpy as np
 
-    from nmtcheck.processes.boot import LETTERS, STATUSES
+    from nmtcheck.processes.boot_records import LETTERS, STATUSES
 
     b = getattr(res, "boot", None)
     if b is None:

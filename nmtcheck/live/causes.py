@@ -15,7 +15,6 @@ from __future__ import annotations
 from collections import deque
 from typing import Any
 
-from nmtcheck.protocol import emcy
 from nmtcheck.explain.causes import (
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_OVERFLOW,
@@ -24,6 +23,7 @@ from nmtcheck.explain.causes import (
     capped,
     cause_entry,
 )
+from nmtcheck.protocol import emcy
 from nmtcheck.protocol.nmt import EPS
 
 RULES = ("H001", "G002", "B001", "B002")  # the live rules of SPEC §8.6's list (no live S004)

@@ -12,8 +12,9 @@ import sys
 import threading
 from typing import TextIO
 
+from nmtcheck.live.session import Outcome
 from nmtcheck.live.tracker import LiveFinding, NodeState
-from nmtcheck.safe_text import escape_controls
+from nmtcheck.safe_text import escape_controls, escape_lines
 
 _UP_CLEAR = "\x1b[{n}F\x1b[J"  # cursor up n lines to column 0, clear to the end
 
@@ -104,3 +105,31 @@ class Display:
         if self.table and self._rows:
             self.out.write("\n".join(self._rows) + "\n")
             self._drawn = len(self._rows)
+
+
+def live_summary(outcome: Outcome, ended: str) -> str:
+    """How the live findings compare with the offline check of the recording; the ones
+    after the last recorded frame are stated in full (no report can hold them)."""
+    res = outcome.result
+    start = res.stats.start if res is not None else None
+    c = outcome.counts()
+    lines = [f"nmtcheck: session ended: {ended}; {res.stats.frames if res else 0} frames; "
+             f"{len(outcome.live)} live finding(s): {c['confirmed']} confirmed by the "
+             f"offline check of the recording, {c['clock-only']} after its last frame "
+             f"(seen by the clock only), {c['not-confirmed']} not confirmed"
+             + (f", {c['withdrawn']} withdrawn" if c["withdrawn"] else "")
+             + (f" ({c['provisional']} of them provisional: a heartbeat period measured "
+                f"so far)" if c["provisional"] else "")]
+    if outcome.live_dropped:
+        lines.append(f"nmtcheck: {outcome.live_dropped} more live findings were not kept")
+    if outcome.dropped:
+        lines.append(f"nmtcheck: {outcome.dropped} frame(s) dropped: received faster than the "
+                     "checks ran (I004 in every report; the findings around them may be the "
+                     "monitor's loss, not the network's)")
+    for lf in outcome.live:
+        if lf.confirmed != "confirmed":
+            what = {"clock-only": "after the last recorded frame",
+                    "withdrawn": "withdrawn (a frame stamped before it came late)"}.get(
+                lf.confirmed, "not confirmed by the offline check")
+            lines.append(f"  {what}: {finding_line(lf, start)}")
+    return escape_lines(lines)  # a channel's newline or ESC is shown, never sent

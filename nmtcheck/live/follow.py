@@ -21,15 +21,15 @@ import threading
 from collections.abc import Iterator
 from typing import IO, Any
 
-from nmtcheck.engine import InputResult
 from nmtcheck.errors import InputError
 from nmtcheck.live.display import Display
 from nmtcheck.live.frames import LiveFrame
 from nmtcheck.live.session import Session
 from nmtcheck.live.tracker import LiveFinding
-from nmtcheck.settings.profiles import Profile
 from nmtcheck.readers import READ_PIECE, InputStats, split_lines
 from nmtcheck.readers.candump import _parse_line, sniff
+from nmtcheck.results import InputResult
+from nmtcheck.settings.profiles import Profile
 
 FOLLOW_POLL_S = 0.1  # a followed file is looked at this often once its end is reached
 
@@ -41,7 +41,7 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
     """Follow `stream` (standard input when None) to its end or Ctrl-C, or the file `path`
     as it grows (`tail -F`) until Ctrl-C; the results of `check` over everything read, as
     `check_inputs` returns them."""
-    from nmtcheck.live.command import live_summary
+    from nmtcheck.live.display import live_summary
     from nmtcheck.live.signals import ended_by, ending_on_signals
 
     name = path if path is not None else "<stdin>"

@@ -17,14 +17,15 @@ from typing import Any
 import can
 
 from nmtcheck.checks.base import SEVERITIES
-from nmtcheck.engine import Finding, InputResult, select_rules
+from nmtcheck.engine import select_rules
 from nmtcheck.live.frames import from_message
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding, NodeState
-from nmtcheck.timeline.model import Interval
+from nmtcheck.reporters import renderer
+from nmtcheck.results import Finding, InputResult
 from nmtcheck.settings.network import Network, load_network
 from nmtcheck.settings.profiles import DEFAULT_PROFILE, Profile, load_profile
-from nmtcheck.reporters import renderer
+from nmtcheck.timeline.model import Interval
 
 MAX_ERRORS_KEPT = 10
 ERROR_BACKOFF_S = 0.05  # after that many bus errors, each one waits this long

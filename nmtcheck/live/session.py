@@ -22,10 +22,11 @@ from pathlib import Path
 from typing import IO, Any
 
 from nmtcheck.checks.base import Rule
-from nmtcheck.engine import MAX_FINDINGS_PER_RULE, Finding, InputResult, check_input
+from nmtcheck.engine import check_input
 from nmtcheck.errors import UsageError
 from nmtcheck.live.frames import LiveFrame, candump_line, to_message
 from nmtcheck.live.tracker import LiveFinding, NodeState, Tracker
+from nmtcheck.results import MAX_FINDINGS_PER_RULE, Finding, InputResult
 from nmtcheck.settings.network import Network
 from nmtcheck.settings.profiles import Profile
 

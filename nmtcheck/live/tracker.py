@@ -21,8 +21,6 @@ from typing import Any
 from nmtcheck.checks.base import Rule
 from nmtcheck.live.causes import Recent
 from nmtcheck.live.frames import LiveFrame
-from nmtcheck.timeline.model import NodeConfig
-from nmtcheck.settings.network import Network
 from nmtcheck.protocol.nmt import (
     COMMAND_STATE,
     EPS,
@@ -35,8 +33,10 @@ from nmtcheck.protocol.nmt import (
     UNKNOWN,
     state_name,
 )
+from nmtcheck.settings.network import Network
 from nmtcheck.settings.profiles import Profile
-from nmtcheck.timeline.build import MISSED
+from nmtcheck.timeline.error_control import MISSED
+from nmtcheck.timeline.model import NodeConfig
 
 SCAN_S = 0.001  # bus time between two looks at every node's deadlines while frames come
 RECENT_INTERVALS = 32  # the period of a node with no configured producer time: their median

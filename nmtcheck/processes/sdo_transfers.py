@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmtcheck.timeline.decode import ColumnSpool, spill_directory, write_spill
 from nmtcheck.readers.frames import MAX_NODE_ID, SDO_RX_BASE, SDO_TX_BASE, FrameBatch, node_key
+from nmtcheck.spool import ColumnSpool, spill_directory, write_spill
 
 SDO_DTYPE = np.dtype([("ts", "f8"), ("idx", "i8"), ("line", "i8"), ("req", "?"),
                       ("dlc", "i1"), ("data", "u1", (8,))])  # 34 bytes a frame

@@ -26,16 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmtcheck.readers.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import (
-    InputStats,
-    Row,
-    Source,
-    account,
-    batches_of,
-    is_text,
-    plausible_time,
-)
 from nmtcheck.readers.blocks import (
     HIGH,
     MAX_EXACT,
@@ -58,6 +48,11 @@ from nmtcheck.readers.blocks import (
     parsed_blocks,
     reference_path,
 )
+from nmtcheck.readers.detect import is_text
+from nmtcheck.readers.frames import BatchBuilder, FrameBatch
+from nmtcheck.readers.records import plausible_time
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats, Row, account, batches_of
 
 FLAG_REMOTE = 0x10  # <MessageFlags> bit 4
 FLAG_EDL = 0x1000  # bit 12: an FD frame

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from nmtcheck.readers.frames import BATCH_SIZE, FrameBatch
-from nmtcheck.readers import InputStats, account
+from nmtcheck.readers.stats import InputStats, account
 
 _FIRST_WINDOW = 16
 

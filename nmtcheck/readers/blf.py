@@ -46,7 +46,8 @@ import numpy as np
 
 from nmtcheck.errors import InputError
 from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import InputStats, Source, account
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats, account
 
 SIGNATURE = b"LOBJ"
 FILE_SIGNATURE = b"LOGG"

@@ -26,8 +26,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 import numpy as np
 
 from nmtcheck.errors import InputError
+from nmtcheck.readers import forked
 from nmtcheck.readers.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import MAX_LINE_BYTES, OVERLONG_LINE, Source, forked
+from nmtcheck.readers.source import MAX_LINE_BYTES, OVERLONG_LINE, Source
 
 if TYPE_CHECKING:
     from concurrent.futures import Future

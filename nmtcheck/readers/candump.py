@@ -32,20 +32,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmtcheck.readers.frames import BatchBuilder, FrameBatch
-from nmtcheck.readers import (
-    MAX_TIMESTAMP_S,
-    InputStats,
-    Row,
-    Source,
-    account,
-    batches_of,
-    is_note_line,
-    is_text,
-    note_follows,
-    peek,
-    plausible_time,
-)
 from nmtcheck.readers.blocks import (
     Block,
     LineWords,
@@ -59,6 +45,11 @@ from nmtcheck.readers.blocks import (
     parsed_blocks,
     reference_path,
 )
+from nmtcheck.readers.detect import is_text
+from nmtcheck.readers.frames import BatchBuilder, FrameBatch
+from nmtcheck.readers.records import MAX_TIMESTAMP_S, is_note_line, note_follows, plausible_time
+from nmtcheck.readers.source import Source, peek
+from nmtcheck.readers.stats import InputStats, Row, account, batches_of
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF

@@ -48,20 +48,6 @@ from typing import Any
 
 import numpy as np
 
-from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import (
-    MAX_TIMESTAMP_S,
-    InputStats,
-    Row,
-    Source,
-    batches_of,
-    is_note_line,
-    is_text,
-    note_follows,
-    peek,
-    plausible_time,
-    unsigned,
-)
 from nmtcheck.readers.blocks import (
     Block,
     LineWords,
@@ -70,6 +56,17 @@ from nmtcheck.readers.blocks import (
     reference_path,
 )
 from nmtcheck.readers.candump import ParsedLines, read_parsed_blocks
+from nmtcheck.readers.detect import is_text
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.readers.records import (
+    MAX_TIMESTAMP_S,
+    is_note_line,
+    note_follows,
+    plausible_time,
+    unsigned,
+)
+from nmtcheck.readers.source import Source, peek
+from nmtcheck.readers.stats import InputStats, Row, batches_of
 
 _U64 = np.uint64
 

@@ -18,12 +18,24 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
 from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.timeline.model import CaptureSpan
-from nmtcheck.readers import InputStats
+from nmtcheck.readers.stats import InputStats
+
+
+class CaptureSpan(NamedTuple):
+    """A channel of a later capture in the input (this module): the name it has
+    in the log, its capture's span and where that capture begins."""
+
+    log_name: str
+    start: float
+    end: float
+    first_index: int
+    first_line: int
+
 
 # A channel's time going back by more than this starts a new capture, where it goes back
 # to the start of the capture or before (within RESTART_S of it). Frames of a merged log

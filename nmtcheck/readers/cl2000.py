@@ -21,8 +21,11 @@ import calendar
 from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
+from nmtcheck.readers.detect import is_text
 from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import InputStats, Row, Source, batches_of, is_text, unsigned
+from nmtcheck.readers.records import unsigned
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats, Row, batches_of
 
 CHANNEL = "1"
 FULL_TIME_DIGITS = 17  # YYYYMMDDhhmmsskkk

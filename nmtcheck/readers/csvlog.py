@@ -22,16 +22,11 @@ import binascii
 from collections.abc import Iterator
 
 from nmtcheck.errors import InputError
+from nmtcheck.readers.detect import is_text
 from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import (
-    InputStats,
-    Row,
-    Source,
-    batches_of,
-    is_text,
-    plausible_time,
-    unsigned,
-)
+from nmtcheck.readers.records import plausible_time, unsigned
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats, Row, batches_of
 
 PYTHON_CAN_HEADER = b"timestamp,arbitration_id,extended,remote,error,dlc,data"
 DEFAULT_CHANNEL = "1"  # python-can's CSV has no channel column

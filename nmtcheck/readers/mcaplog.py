@@ -32,8 +32,6 @@ from typing import IO, Any
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import InputStats, Source
 from nmtcheck.readers.binary import (
     BatchCollector,
     ChannelNames,
@@ -44,6 +42,9 @@ from nmtcheck.readers.binary import (
     strided_rows,
     zero_beyond,
 )
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_FOOTER = 0x02

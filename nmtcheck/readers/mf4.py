@@ -24,9 +24,11 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.readers.frames import BATCH_SIZE, FrameBatch
-from nmtcheck.readers import MAX_TIMESTAMP_S, InputStats, Source
 from nmtcheck.readers.binary import BatchCollector, ChannelNames, Frames, zero_beyond
+from nmtcheck.readers.frames import BATCH_SIZE, FrameBatch
+from nmtcheck.readers.records import MAX_TIMESTAMP_S
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats
 
 INSTALL_HINT = "pip install '.[mf4]' in the nmtcheck checkout"
 FRAME_GROUPS = ("CAN_DataFrame", "CAN_RemoteFrame", "CAN_ErrorFrame")
@@ -124,7 +126,7 @@ def read(source: Source, stats: InputStats) -> Iterator[FrameBatch]:
     except ImportError:
         raise InputError(source.path, "reading MF4 needs the optional asammdf package: "
                          + INSTALL_HINT) from None
-    from nmtcheck.timeline.decode import removed_on_exit, spill_directory
+    from nmtcheck.spool import removed_on_exit, spill_directory
 
     # asammdf's own temporary files go here too: it copies an unfinalized MF4 whole, and
     # left that copy in /tmp when the file turned out damaged

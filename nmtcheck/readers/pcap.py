@@ -27,8 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.errors import InputError
-from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import InputStats, Source
 from nmtcheck.readers.binary import (
     BatchCollector,
     ChannelNames,
@@ -38,6 +36,9 @@ from nmtcheck.readers.binary import (
     strided_rows,
     zero_beyond,
 )
+from nmtcheck.readers.frames import FrameBatch
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats
 
 LINKTYPE_CAN_SOCKETCAN = 227
 LINKTYPE_LINUX_SLL = 113

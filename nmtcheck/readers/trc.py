@@ -33,16 +33,11 @@ from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 
 from nmtcheck.errors import InputError
+from nmtcheck.readers.detect import is_text
 from nmtcheck.readers.frames import FrameBatch
-from nmtcheck.readers import (
-    InputStats,
-    Row,
-    Source,
-    batches_of,
-    is_text,
-    plausible_time,
-    unsigned,
-)
+from nmtcheck.readers.records import plausible_time, unsigned
+from nmtcheck.readers.source import Source
+from nmtcheck.readers.stats import InputStats, Row, batches_of
 
 DEFAULT_CHANNEL = "1"  # versions without a bus column log one bus
 STATUS_ID = b"FFFFFFFF"  # version 1.x bus-status lines use this ID

@@ -8,8 +8,8 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar, cast
 
-from nmtcheck.engine import InputResult
 from nmtcheck.errors import UsageError
+from nmtcheck.results import InputResult
 
 _T = TypeVar("_T")
 Renderer = Callable[[list[InputResult], dict[str, object]], str]

@@ -7,8 +7,8 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from nmtcheck.processes.boot import NodeBootReport
-    from nmtcheck.engine import Finding, InputResult
+    from nmtcheck.processes.boot_records import NodeBootReport
+    from nmtcheck.results import Finding, InputResult
 
 CAUSE_RULES = ("H001", "G002", "B001", "B002", "S004")
 

@@ -12,10 +12,10 @@ import numpy as np
 
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import SEVERITIES, Rule, fails
-from nmtcheck.engine import Finding, InputResult, summary
+from nmtcheck.results import Finding, InputResult, summary
+from nmtcheck.safe_text import escape_controls, escape_matching
 from nmtcheck.timeline.gaps import Gaps
 from nmtcheck.timeline.model import ChannelModel, NodeModel
-from nmtcheck.safe_text import escape_controls, escape_matching
 
 SEVERITY_ORDER = SEVERITIES  # most severe first (one order, in checks.base)
 # Rules whose findings may name no node (a CAN-ID or a frame on 000h belongs to the network):

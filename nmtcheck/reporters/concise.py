@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import re
 
-from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
     measured_mark,
     node_label,
@@ -24,6 +23,7 @@ from nmtcheck.reporters.common import (
     unreadable,
     verdict_line,
 )
+from nmtcheck.results import Finding, InputResult
 from nmtcheck.safe_text import escape_lines
 
 

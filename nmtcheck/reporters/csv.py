@@ -5,8 +5,8 @@ from __future__ import annotations
 import csv
 import io
 
-from nmtcheck.engine import InputResult
 from nmtcheck.reporters.common import spreadsheet_safe as safe
+from nmtcheck.results import InputResult
 
 COLUMNS = ["input", "path", "rule", "name", "severity", "channel", "node", "time", "offset",
            "frame_index", "line", "message"]

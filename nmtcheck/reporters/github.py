@@ -6,7 +6,6 @@ line follows so the job log still reads on its own.
 
 from __future__ import annotations
 
-from nmtcheck.engine import InputResult
 from nmtcheck.reporters.common import (
     measured_mark,
     offset,
@@ -15,6 +14,7 @@ from nmtcheck.reporters.common import (
     verdict_line,
     where_label,
 )
+from nmtcheck.results import InputResult
 
 COMMANDS = {"error": "error", "warning": "warning", "info": "notice"}
 

@@ -22,14 +22,10 @@ import numpy as np
 from markupsafe import Markup
 
 from nmtcheck import __version__
-
-from nmtcheck.reporters import boot_report
-from nmtcheck.processes.boot import LETTERS
-from nmtcheck.engine import Finding, InputResult
-from nmtcheck.timeline.gaps import Gaps
-from nmtcheck.timeline.model import NodeModel
+from nmtcheck.processes.boot_records import LETTERS
 from nmtcheck.protocol.nmt import HEARTBEAT, STATES
 from nmtcheck.protocol.nmt import SOURCES as TIMELINE_SOURCES
+from nmtcheck.reporters import boot_report
 from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
@@ -56,7 +52,10 @@ from nmtcheck.reporters.common import (
     where_label,
 )
 from nmtcheck.reporters.json import report_sections
+from nmtcheck.results import Finding, InputResult
 from nmtcheck.safe_text import dumps_finite
+from nmtcheck.timeline.gaps import Gaps
+from nmtcheck.timeline.model import NodeModel
 
 # Colours of the NMT states on the timeline and in the legend (colour-blind safe-ish:
 # the fault states are the dark/saturated ones, and wide intervals carry their name).

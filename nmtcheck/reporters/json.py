@@ -8,11 +8,8 @@ from collections.abc import Iterator
 from typing import Any
 
 from nmtcheck import __version__
-
-from nmtcheck.reporters import boot_report
-from nmtcheck.engine import InputResult, summary
-from nmtcheck.timeline.model import NodeModel
 from nmtcheck.protocol.nmt import SOURCES, STATES
+from nmtcheck.reporters import boot_report
 from nmtcheck.reporters.common import (
     configured_vs_measured,
     fail_on,
@@ -20,7 +17,9 @@ from nmtcheck.reporters.common import (
     utc_start,
     verdict,
 )
+from nmtcheck.results import InputResult, summary
 from nmtcheck.safe_text import dumps_finite
+from nmtcheck.timeline.model import NodeModel
 
 REPORT_VERSION = 1
 

@@ -17,7 +17,6 @@ import xml.etree.ElementTree as ET
 
 from nmtcheck import __version__
 from nmtcheck.checks.base import Rule, is_failing_severity
-from nmtcheck.engine import Finding, InputResult
 from nmtcheck.explain.evaluated import NODE_REASONS, node_reason
 from nmtcheck.reporters.common import (
     checked_rules,
@@ -30,6 +29,7 @@ from nmtcheck.reporters.common import (
     verdict_word,
     xml_safe,
 )
+from nmtcheck.results import Finding, InputResult
 
 
 def _finding_text(res: InputResult, f: Finding) -> str:

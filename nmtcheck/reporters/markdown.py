@@ -6,7 +6,6 @@ rule and node (with a count), and the nodes folded away in `<details>`.
 
 from __future__ import annotations
 
-from nmtcheck.engine import InputResult, summary
 from nmtcheck.reporters.common import (
     counts_phrase,
     duration,
@@ -23,6 +22,7 @@ from nmtcheck.reporters.common import (
     verdict_word,
     where_label,
 )
+from nmtcheck.results import InputResult, summary
 from nmtcheck.safe_text import escape_controls
 
 BADGES = {"PASS": "✅", "FAIL": "❌", "NOT GATED": "⚪"}

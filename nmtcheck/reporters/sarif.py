@@ -12,8 +12,8 @@ from typing import Any
 
 from nmtcheck import __version__
 from nmtcheck.checks.base import Rule
-from nmtcheck.engine import InputResult
 from nmtcheck.reporters.common import checked_rules, offset
+from nmtcheck.results import InputResult
 from nmtcheck.safe_text import dumps_finite
 
 SCHEMA_URI = "https://json.schemastore.org/sarif-2.1.0.json"

@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 from collections import Counter
 
-from nmtcheck.engine import InputResult
 from nmtcheck.reporters.common import verdict_line
+from nmtcheck.results import InputResult
 
 
 def rule_counts(results: list[InputResult]) -> list[tuple[str, str, str, int]]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from itertools import groupby, islice
 
 from nmtcheck.reporters import boot_report
-from nmtcheck.engine import Finding, InputResult
 from nmtcheck.reporters.common import (
     config_line,
     configured_vs_measured,
@@ -20,6 +19,7 @@ from nmtcheck.reporters.common import (
     verdict_line,
     where_label,
 )
+from nmtcheck.results import Finding, InputResult
 from nmtcheck.safe_text import escape_lines
 
 MAX_EVENTS_SHOWN = 50

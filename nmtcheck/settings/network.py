@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from nmtcheck.errors import UsageError
 from nmtcheck.processes import boot_config
 from nmtcheck.protocol.devicefile import DeviceValues, load_device_file
-from nmtcheck.errors import UsageError
 from nmtcheck.timeline.model import NodeConfig
 
 if sys.version_info >= (3, 11):

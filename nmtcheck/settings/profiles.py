@@ -50,7 +50,7 @@ def registry_profile() -> Profile:
 
 def builtin_dir() -> Path:
     """Where the shipped profiles are: package data when installed, `rules/` in a checkout."""
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parent.parent  # the nmtcheck package
     installed = here / "rules"
     return installed if (installed / "default.toml").is_file() else here.parent / "rules"
 

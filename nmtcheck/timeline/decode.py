@@ -21,20 +21,12 @@ One streaming pass over the frame batches keeps:
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
-import os
-import signal
-import tempfile
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, BinaryIO, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import DTypeLike
 
-from nmtcheck.timeline.build import ec_compact
-from nmtcheck.errors import NmtcheckError
 from nmtcheck.readers.frames import (
     EC_BASE,
     EMCY_BASE,
@@ -50,6 +42,11 @@ from nmtcheck.readers.frames import (
     is_restricted_id,
     node_key,
 )
+from nmtcheck.spool import (
+    ChunkStore,
+    ColumnSpool,
+)
+from nmtcheck.timeline import ec_compact
 
 KIND_TPDO = 1
 KIND_RPDO = 2
@@ -78,222 +75,6 @@ EMCY_COLUMNS: dict[str, type] = {
 EC_COLUMNS: dict[str, type] = {
     "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "rtr": np.bool_,
     "dlc": np.int16, "value": np.uint8}
-
-STORE_BUDGET_BYTES = 8 << 20  # per store; past it chunks go to a temporary directory
-
-
-_SIGNALS = {getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP")
-            if hasattr(signal, name)}
-
-
-# Where a check's temporary files go (spilled columns, a spooled MF4 stream, a fleet task's
-# fetched logs); None: tempfile's default. A fleet task in a Dask worker sets the worker's
-# own directory (fleet.tasks.worker_scratch), which Dask removes even after a crash.
-SCRATCH: contextvars.ContextVar[str | None] = contextvars.ContextVar("nmtcheck_scratch",
-                                                                    default=None)
-
-
-def spill_directory(prefix: str = "nmtcheck-") -> tempfile.TemporaryDirectory[str]:
-    """A temporary directory for spilled columns (or a worker pool's files), made with
-    the terminating signals held back: one that came between making the directory and
-    registering its clean-up would leave the directory behind (the CLI turns these
-    signals into an exception)."""
-    if not hasattr(signal, "pthread_sigmask"):
-        return tempfile.TemporaryDirectory(prefix=prefix, dir=SCRATCH.get())
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
-    try:
-        return tempfile.TemporaryDirectory(prefix=prefix, dir=SCRATCH.get())
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
-
-
-@contextlib.contextmanager
-def removed_on_exit(tmp: tempfile.TemporaryDirectory[str]) -> Iterator[str]:
-    """`with tmp` whose removal the terminating signals cannot cut short: a second Ctrl-C
-    during the rmtree of a directory of fetched logs left most of them behind."""
-    try:
-        yield tmp.name
-    finally:
-        with signals_deferred():
-            tmp.cleanup()
-
-
-@contextlib.contextmanager
-def signals_deferred() -> Iterator[None]:
-    """The terminating signals that come during the block are handled after it, by their
-    own handlers. Python runs handlers in the main thread whichever thread the signal
-    reached (numpy's BLAS threads, a fetch pool), so a thread's signal mask is not
-    enough; elsewhere than the main thread the block just runs."""
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    came: list[int] = []
-    previous = {sig: signal.signal(sig, lambda signum, _frame: came.append(signum))
-                for sig in _SIGNALS}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():  # None: one set outside Python
-            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
-        for sig in dict.fromkeys(came):
-            signal.raise_signal(sig)
-
-
-def write_spill(col: np.ndarray, f: BinaryIO | str, directory: str) -> None:
-    """Append a column to a spill file; a full or unwritable temporary directory is the
-    user's to fix (TMPDIR), so it ends the run with one line, not an internal error."""
-    try:
-        np.ascontiguousarray(col).tofile(f)
-    except OSError as e:
-        why = e.strerror or str(e)
-        raise NmtcheckError(
-            f"cannot write temporary data to {directory} ({why}; a full disk?): a long log "
-            "spills about 40 bytes per frame there; set TMPDIR to a directory with more "
-            "room") from None
-
-
-class ColumnSpool:
-    """Columns appended batch by batch and read back whole once: the error-control
-    frames. Past a small budget they go to one file per column, so the decoder keeps
-    no growing heap of small arrays (which glibc could not give back)."""
-
-    def __init__(self, dtypes: Mapping[str, DTypeLike], budget: int = 4 << 20) -> None:
-        self._dtypes = dtypes
-        self._parts: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
-        self._size = 0
-        self._rows = 0
-        self._budget = budget
-        self._tmp: tempfile.TemporaryDirectory[str] | None = None
-
-    @property
-    def dtypes(self) -> Mapping[str, DTypeLike]:
-        return self._dtypes
-
-    def __len__(self) -> int:
-        """Rows appended so far."""
-        return self._rows
-
-    def append(self, cols: dict[str, np.ndarray]) -> None:
-        for name, col in cols.items():
-            self._parts[name].append(col.astype(self._dtypes[name], copy=False))
-            self._size += col.nbytes
-        self._rows += len(next(iter(cols.values())))
-        if self._size > self._budget:
-            self._flush()
-
-    def chunks(self, size: int) -> Iterator[dict[str, np.ndarray]]:
-        """Every row so far, `size` rows at a time in order; the spool keeps them (it can
-        be read again: `ec_compact.restore`)."""
-        if self._tmp is not None:
-            self._flush()
-        else:  # small: one part per column, in memory
-            self._parts = {name: [np.concatenate(parts) if parts else np.empty(
-                0, self._dtypes[name])] for name, parts in self._parts.items()}
-        for start in range(0, self._rows, size):
-            count = min(size, self._rows - start)
-            if self._tmp is None:
-                yield {name: parts[0][start:start + count] for name, parts in self._parts.items()}
-                continue
-            yield {name: np.fromfile(os.path.join(self._tmp.name, name),
-                                     np.dtype(self._dtypes[name]), count=count,
-                                     offset=start * np.dtype(self._dtypes[name]).itemsize)
-                   for name in self._dtypes}
-
-    def _flush(self) -> None:
-        if self._tmp is None:
-            self._tmp = spill_directory()
-        for name, parts in self._parts.items():
-            with open(os.path.join(self._tmp.name, name), "ab") as f:
-                for part in parts:
-                    write_spill(part, f, self._tmp.name)
-            parts.clear()
-        self._size = 0
-
-    def column(self, name: str) -> np.ndarray:
-        """One whole column; the parts it was made of are released."""
-        dtype = self._dtypes[name]
-        parts = self._parts[name]
-        if self._tmp is not None:  # the rest to the file too, then one read: no copy
-            path = os.path.join(self._tmp.name, name)
-            with open(path, "ab") as f:
-                for part in parts:
-                    write_spill(part, f, self._tmp.name)
-            parts.clear()
-            col = np.fromfile(path, dtype)
-            os.remove(path)
-            return col
-        col = np.concatenate(parts) if parts else np.empty(0, dtype)
-        parts.clear()
-        return col
-
-    def close(self) -> None:
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
-
-
-_Spilled = tuple[str, np.dtype, tuple[int, ...]]  # a column on disk: path, dtype, shape
-
-
-class ChunkStore:
-    """Append-only columnar chunks, kept in memory up to a budget, then on disk.
-
-    A spilled chunk is one raw file per column (`ndarray.tofile`): no archive,
-    no checksum, read back with `np.fromfile` at disk-cache speed.
-    """
-
-    def __init__(self, budget: int = STORE_BUDGET_BYTES) -> None:
-        self._budget = budget
-        self._in_memory = 0
-        self._chunks: list[dict[str, np.ndarray] | dict[str, _Spilled]] = []
-        self._ts_max: list[float] = []  # per chunk, to skip chunks that end before a moment
-        self._tmp: tempfile.TemporaryDirectory[str] | None = None
-
-    def __len__(self) -> int:
-        """How many chunks it holds (0: nothing was stored)."""
-        return len(self._chunks)
-
-    @property
-    def spilled(self) -> int:
-        """How many chunks live on disk."""
-        return sum(1 for c in self._chunks if isinstance(next(iter(c.values())), tuple))
-
-    def append(self, **cols: np.ndarray) -> None:
-        ts = cols.get("ts")
-        self._ts_max.append(float(ts.max()) if ts is not None and ts.size else np.inf)
-        size = sum(a.nbytes for a in cols.values())
-        if self._in_memory + size <= self._budget:
-            self._chunks.append(cols)
-            self._in_memory += size
-            return
-        if self._tmp is None:
-            self._tmp = spill_directory()
-        spilled: dict[str, _Spilled] = {}
-        for name, col in cols.items():
-            path = os.path.join(self._tmp.name, f"chunk{len(self._chunks)}.{name}")
-            write_spill(col, path, self._tmp.name)
-            spilled[name] = (path, col.dtype, col.shape)
-        self._chunks.append(spilled)
-
-    def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
-        return self.reaching(-np.inf)
-
-    def reaching(self, ts: float) -> Iterator[dict[str, np.ndarray]]:
-        """The chunks holding a time >= ts (others are not even read back from disk)."""
-        for chunk, ts_max in zip(self._chunks, self._ts_max, strict=True):
-            if ts_max >= ts:
-                yield {name: np.fromfile(col[0], col[1]).reshape(col[2])
-                       if isinstance(col, tuple) else col for name, col in chunk.items()}
-
-    def close(self) -> None:
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
-        self._chunks.clear()
-        self._ts_max.clear()
-
 
 class FirstTx(NamedTuple):
     """A node's first transmitted frame."""

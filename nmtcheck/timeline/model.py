@@ -18,16 +18,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from nmtcheck.timeline.decode import (
-    KIND_RPDO,
-    KIND_TPDO,
-    Decoded,
-    FirstTx,
-    NodeFrames,
-    node_frame_lines,
-)
-from nmtcheck.readers.frames import RPDO_BASES, TPDO_BASES
-from nmtcheck.timeline.gaps import Gaps
 from nmtcheck.protocol.nmt import (
     BOOTUP,
     EC_KIND_NAMES,
@@ -39,6 +29,16 @@ from nmtcheck.protocol.nmt import (
     between,
     is_one_of,
 )
+from nmtcheck.readers.frames import RPDO_BASES, TPDO_BASES
+from nmtcheck.timeline.decode import (
+    KIND_RPDO,
+    KIND_TPDO,
+    Decoded,
+    FirstTx,
+    NodeFrames,
+    node_frame_lines,
+)
+from nmtcheck.timeline.gaps import Gaps
 from nmtcheck.timeline.node_events import (
     ConfigWrite,
     EmcyTable,
@@ -505,17 +505,6 @@ class ChannelModel:
     def network_name(self) -> str:
         """The name the network and device files know the channel by."""
         return self.log_name or self.name
-
-
-class CaptureSpan(NamedTuple):
-    """A channel of a later capture in the input (nmtcheck/readers/captures.py): the name it has
-    in the log, its capture's span and where that capture begins."""
-
-    log_name: str
-    start: float
-    end: float
-    first_index: int
-    first_line: int
 
 
 @dataclass

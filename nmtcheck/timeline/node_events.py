@@ -18,9 +18,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from nmtcheck.protocol import emcy
-
-from nmtcheck.protocol import sdo
+from nmtcheck.protocol import emcy, sdo
 from nmtcheck.timeline.tables import blank, column, plain_rows, shared_empty
 
 

@@ -380,3 +380,14 @@ class IntervalTable:
         for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
                                 self.source.tolist(), strict=True):
             yield Interval(a, b, STATES[st], SOURCES[so])
+
+
+def next_of(marks: np.ndarray, after: np.ndarray, values: np.ndarray | None = None,
+             none: float = np.iinfo(np.int64).max) -> np.ndarray:
+    """Per entry of `after`, the first of the sorted `marks` greater than it (or that
+    mark's entry of `values`), `none` where there is none."""
+    k = np.searchsorted(marks, after, side="right")
+    if not len(marks):
+        return np.full(len(after), none)
+    got = (marks if values is None else values)[np.minimum(k, len(marks) - 1)]
+    return np.where(k < len(marks), got, none)

@@ -25,13 +25,14 @@ from nmtcheck.cli.common import (
     write_reports,
     write_stdout,
 )
-from nmtcheck.engine import MAX_FINDINGS_PER_RULE, select_rules, summary
+from nmtcheck.engine import select_rules
 from nmtcheck.errors import NmtcheckError, UsageError
-from nmtcheck.live.display import Display, finding_line
+from nmtcheck.live.display import Display, live_summary
 from nmtcheck.live.session import Outcome, Session, check_record
 from nmtcheck.live.tracker import LiveFinding
 from nmtcheck.reporters import FORMATS, auto_format, format_for_path, streamer
-from nmtcheck.safe_text import escape_controls, escape_lines
+from nmtcheck.results import MAX_FINDINGS_PER_RULE, summary
+from nmtcheck.safe_text import escape_controls
 
 REFRESH_S = 0.25  # node table redraws
 HUMAN_FORMATS = ("text", "concise", "markdown")
@@ -191,31 +192,3 @@ def finish(outcome: Outcome, files: list[tuple[str, Any]], stdout_render: Any,
     click.echo(live_summary(outcome, ended), err=True)
     write_reports(results, files, options)
     return EXIT_FINDINGS if fails(summary(results), fail_on) else EXIT_OK
-
-
-def live_summary(outcome: Outcome, ended: str) -> str:
-    """How the live findings compare with the offline check of the recording; the ones
-    after the last recorded frame are stated in full (no report can hold them)."""
-    res = outcome.result
-    start = res.stats.start if res is not None else None
-    c = outcome.counts()
-    lines = [f"nmtcheck: session ended: {ended}; {res.stats.frames if res else 0} frames; "
-             f"{len(outcome.live)} live finding(s): {c['confirmed']} confirmed by the "
-             f"offline check of the recording, {c['clock-only']} after its last frame "
-             f"(seen by the clock only), {c['not-confirmed']} not confirmed"
-             + (f", {c['withdrawn']} withdrawn" if c["withdrawn"] else "")
-             + (f" ({c['provisional']} of them provisional: a heartbeat period measured "
-                f"so far)" if c["provisional"] else "")]
-    if outcome.live_dropped:
-        lines.append(f"nmtcheck: {outcome.live_dropped} more live findings were not kept")
-    if outcome.dropped:
-        lines.append(f"nmtcheck: {outcome.dropped} frame(s) dropped: received faster than the "
-                     "checks ran (I004 in every report; the findings around them may be the "
-                     "monitor's loss, not the network's)")
-    for lf in outcome.live:
-        if lf.confirmed != "confirmed":
-            what = {"clock-only": "after the last recorded frame",
-                    "withdrawn": "withdrawn (a frame stamped before it came late)"}.get(
-                lf.confirmed, "not confirmed by the offline check")
-            lines.append(f"  {what}: {finding_line(lf, start)}")
-    return escape_lines(lines)  # a channel's newline or ESC is shown, never sent

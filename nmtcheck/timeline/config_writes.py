@@ -8,8 +8,8 @@ from collections.abc import Callable
 import numpy as np
 
 from nmtcheck.protocol import sdo
-from nmtcheck.timeline.model import NodeModel, SdoEventTable, WriteTable
 from nmtcheck.protocol.nmt import BOOTUP
+from nmtcheck.timeline.model import NodeModel, SdoEventTable, WriteTable
 
 _PDO_OBJECTS = np.asarray([i for i in sdo.CONFIG_OBJECTS if i not in (0x1016, 0x1017, 0x100C,
                                                                       0x100D)])

@@ -1,0 +1,161 @@
+"""What the LOG arguments of `check` and `timeline` stand for: quoted globs expanded,
+directories walked for the logs below them, URLs fetched into local copies (and named by
+their URL again in every result), and the options both commands take to read them."""
+
+from __future__ import annotations
+
+import contextlib
+import glob
+import os
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import click
+
+from nmtcheck.engine import check_inputs
+from nmtcheck.errors import InputError, UsageError
+from nmtcheck.readers import FORMATS as INPUT_FORMATS
+from nmtcheck.readers import open_input
+from nmtcheck.reporters.common import plural
+from nmtcheck.results import InputResult
+
+
+def input_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """Options shared by `check` and `timeline`."""
+    for opt in reversed([
+        click.option("--input-format", type=click.Choice(INPUT_FORMATS), default=None,
+                     help="Log format (default: detected from the content)."),
+        click.option("--rules", "rules_profile", default=None,
+                     help="Rule profile: a name in rules/ or a TOML file "
+                          "[default: the configuration's, else 'default']."),
+        click.option("--network", "network_file", default=None,
+                     help="Network description (TOML): expected nodes and their timing."),
+        click.option("--config", "config_file", default=None, metavar="FILE",
+                     help="Configuration file (nmtcheck.toml or a pyproject.toml with "
+                          "[tool.nmtcheck]) [default: found upward from the current "
+                          "directory, up to the repository root]."),
+        click.option("--isolated", is_flag=True,
+                     help="Ignore every configuration file."),
+        click.option("--dcf", multiple=True, metavar="NODE=PATH",
+                     help="EDS/DCF file of a node (adds it to the network). Repeatable."),
+        click.option("--strict", is_flag=True, help="The first unparseable record is fatal."),
+        click.option("--channel", default=None, help="Only this channel (e.g. can0, 1)."),
+        click.option("--topic", "topics", multiple=True,
+                     help="MCAP: only these topics (each topic is a channel). Repeatable."),
+    ]):
+        f = opt(f)
+    return f
+
+
+def named_check_inputs(names: dict[str, str], logs: tuple[str, ...], *args: Any, **kw: Any
+                       ) -> list[InputResult]:
+    """check_inputs, with each fetched copy (`names`: copy -> URL) named by its URL in
+    the results and in any error, never by its temporary path."""
+    try:
+        results = check_inputs(logs, *args, **kw)
+    except InputError as exc:
+        raise InputError(names.get(exc.path, exc.path), by_url(exc.message, names),
+                         exc.line) from None
+    except UsageError as exc:  # --channel not in the log names the log
+        raise UsageError(by_url(str(exc), names)) from None
+    for res in results:
+        res.stats.path = names.get(res.stats.path, res.stats.path)
+        if res.error is not None:
+            res.error = by_url(res.error, names)
+    return results
+
+
+def by_url(text: str, names: dict[str, str]) -> str:
+    """`text` with each fetched copy's path replaced by its URL."""
+    for copy, url in names.items():
+        text = text.replace(copy, url)
+    return text
+
+
+@contextlib.contextmanager
+def remote_logs(logs: tuple[str, ...], storage_options: tuple[str, ...], follow: bool = False
+                ) -> Iterator[tuple[tuple[str, ...], dict[str, str]]]:
+    """LOG arguments with each URL (s3://..., gs://...) fetched into a temporary local copy
+    for the time of the check (fleet.storage.local_copies), and {copy: URL} to name the
+    copies in the reports. Without a URL, nothing is imported and `--storage-option` is a
+    usage error (it would be ignored)."""
+    from nmtcheck.fleet.prestart import is_remote
+
+    if not any(is_remote(a) for a in logs):
+        if storage_options:
+            raise UsageError("--storage-option is for URLs: a LOG such as s3://bucket/log.mf4, "
+                             "or --results")
+        yield logs, {}
+        return
+    if follow:
+        raise UsageError("--follow reads a local file as it grows, not a URL")
+    from nmtcheck.fleet.storage import local_copies, parse_storage_options
+
+    with local_copies(logs, parse_storage_options(storage_options)) as (copies, names):
+        yield tuple(copies), names
+
+
+def expand_inputs(args: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
+    """The LOG arguments as files (`expand_logs`), a directory standing for every log below
+    it, recursively, in name order (as ruff takes a directory); and the files below those
+    directories whose content is no log format (or empty): skipped and counted, not errors.
+    Hidden files and directories (`.git`) are not looked at."""
+    out: list[str] = []
+    not_logs: list[str] = []
+    for arg in expand_logs(args):
+        if arg == "-" or not os.path.isdir(arg):
+            out.append(arg)
+            continue
+        found = []
+        for root, dirs, names in os.walk(arg):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            found += [os.path.join(root, n) for n in sorted(names) if not n.startswith(".")]
+        logs = [p for p in found if is_log(p)]
+        not_logs += [p for p in found if p not in set(logs)]
+        if not logs:
+            raise UsageError(f"{arg}: no log file below this directory"
+                             + (f" ({plural(len(found), 'file')} whose content is no log "
+                                "format)" if found else ""))
+        out += logs
+    return tuple(out), not_logs
+
+
+# Suffixes that only logs have: a file below a directory named so whose content is no
+# log format is a damaged or empty recording (a cut-off .blf, a 0-byte .mf4), not some
+# other file, and checking it fails the gate; `.log`, `.txt` and `.csv` are left to the
+# content (build.log, README.txt).
+LOG_SUFFIXES = tuple(suffix + packed
+                     for suffix in (".asc", ".blf", ".mf4", ".trc", ".mcap", ".pcap", ".pcapng")
+                     for packed in ("", ".gz", ".bz2", ".xz", ".zst"))
+
+
+def is_log(path: str) -> bool:
+    """Whether the content of `path` is a log format nmtcheck reads (detected from the
+    first bytes, as `check` does). A file that cannot be opened counts as a log: checking
+    it names the reason; so does one whose suffix only logs have (LOG_SUFFIXES)."""
+    try:
+        opened = open_input(path)
+    except InputError as exc:
+        if path.lower().endswith(LOG_SUFFIXES):
+            return True
+        return not exc.message.startswith(("unknown log format", "empty file"))
+    opened.batches.close()
+    return True
+
+
+def expand_logs(logs: tuple[str, ...]) -> tuple[str, ...]:
+    """LOG arguments with the glob patterns the shell left alone (quoted, or from a CI
+    config) expanded, sorted; a pattern's matches are the files it names, not directories.
+    `-` (standard input) may come once."""
+    out: list[str] = []
+    for arg in logs:
+        if arg == "-" or os.path.lexists(arg) or not glob.has_magic(arg):
+            out.append(arg)
+            continue
+        matches = sorted(m for m in glob.glob(arg, recursive=True) if not os.path.isdir(m))
+        if not matches:
+            raise UsageError(f"{arg}: no log file matches this pattern")
+        out.extend(matches)
+    if out.count("-") > 1:
+        raise UsageError("-: standard input can be read only once")
+    return tuple(out)

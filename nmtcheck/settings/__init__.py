@@ -1,0 +1,2 @@
+"""What the user configures: configuration files, rule profiles and the network
+description."""
