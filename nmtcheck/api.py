@@ -6,6 +6,7 @@
     report.timeline   # state intervals (start/end + _offset, _utc);  report.nodes
     report.boot       # one row per CiA 302-2 boot process (SPEC_BOOT §8.5), as the fleet's
                       # `boot` table: status, Lely letter and its text, proving frame
+    report.sync       # one row per channel with SYNC; report.pdo_streams: one per stream
     results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats, boot
 
 The columns are the JSON report's field names, so code written against one reads the other.
@@ -31,9 +32,11 @@ NODE_COLUMNS = ["input", "path", "channel", "node", "first_seen", "last_seen", "
                 "bootups", "error_control", "heartbeat_period_ms"]
 
 
-@dataclass
+@dataclass(repr=False)
 class Report:
-    """The result of `check`: DataFrames of the JSON report's lists, and the summary."""
+    """The result of `check`: DataFrames of the JSON report's lists, and the summary.
+    `print(report)` gives a short summary (the verdict, the counts, the tables' sizes),
+    as a DataFrame prints a shortened view; the tables themselves are its attributes."""
 
     findings: pd.DataFrame
     timeline: pd.DataFrame
@@ -43,6 +46,10 @@ class Report:
     results: list[Any] = field(repr=False)  # the engine's InputResults
     # one row per boot process (the fleet dataset's `boot` columns, with input and path)
     boot: pd.DataFrame = field(default_factory=pd.DataFrame)
+    # SPEC §9.4.1: one row per channel with SYNC (`channels[i].sync` flattened), one row
+    # per PDO stream (`pdo_streams[]`, its consumers a list)
+    sync: pd.DataFrame = field(default_factory=pd.DataFrame)
+    pdo_streams: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def failed(self, fail_on: str = "error") -> bool:
         """What `nmtcheck check --fail-on` would decide: a finding at or above `fail_on`."""
@@ -62,6 +69,20 @@ class Report:
         from nmtcheck.reporters.json import render
 
         return render(self.results, {})
+
+    def __repr__(self) -> str:
+        from nmtcheck.reporters.common import counts_phrase, plural
+
+        word = "FAIL" if self.failed() else "PASS"
+        n = len(self.inputs)
+        bad = (int(self.inputs["error"].notna().sum())
+               if "error" in self.inputs.columns else 0)
+        tables = ", ".join(f"{name}: {plural(len(getattr(self, name)), 'row')}"
+                           for name in ("findings", "timeline", "nodes", "inputs", "boot",
+                                        "sync", "pdo_streams"))
+        return (f"<nmtcheck Report: {word} (--fail-on error): "
+                f"{counts_phrase(self.summary)} in {n} input{'s' if n != 1 else ''}"
+                + (f", {bad} could not be read" if bad else "") + f"; {tables}>")
 
     def _repr_html_(self) -> str:
         """A notebook's view: the verdict, the counts and the findings table."""
@@ -155,6 +176,9 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
 
     inputs = _frame([{"input": i, **r} for i, r in enumerate(doc["inputs"])],
                     ["input", "path", "format", "frames"])
+    if "start_utc" in inputs.columns:  # as findings.time_utc: a time, not a string
+        inputs["start_utc"] = pd.to_datetime(inputs["start_utc"], utc=True,
+                                             format="ISO8601").astype("datetime64[ns, UTC]")
     starts = [(r["start"], r.get("start_utc") is not None) for r in doc["inputs"]]
     return Report(boot=_with_times(_boot_frame(results, path_of), starts, ("start",)),
                   findings=_with_times(_frame(with_path(doc["findings"]), FINDING_COLUMNS),
@@ -162,7 +186,16 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
                   timeline=_with_times(_frame(with_path(doc["timeline"]), TIMELINE_COLUMNS),
                                        starts, ("start", "end")),
                   nodes=_frame(with_path(doc["nodes"]), NODE_COLUMNS),
-                  inputs=inputs, summary=summary(results), results=results)
+                  inputs=inputs, summary=summary(results), results=results,
+                  sync=_frame(with_path([{"input": c["input"], "channel": c["name"],
+                                          **c["sync"]} for c in doc["channels"]
+                                         if c.get("sync")]), ["input", "path", "channel"]),
+                  pdo_streams=_frame([{**_flat({k: v for k, v in r.items()
+                                                if k != "consumers"}),
+                                       "consumers": r["consumers"],
+                                       "path": path_of.get(r["input"])}
+                                      for r in doc["pdo_streams"]],
+                                     ["input", "path", "channel", "cob_id", "kind"]))
 
 
 def _boot_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:

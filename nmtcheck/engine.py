@@ -29,9 +29,12 @@ from nmtcheck.checks.base import (
 )
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.explain import causes as cause_stage
-from nmtcheck.explain.evaluated import finding_bases
+from nmtcheck.explain.evaluated import finding_bases, partly_evaluated
 from nmtcheck.explain.evaluated import not_evaluated as rules_not_evaluated
 from nmtcheck.processes import boot as boot_stage
+from nmtcheck.processes import emcy as emcy_stage
+from nmtcheck.processes import pdo as pdo_stage
+from nmtcheck.processes import sync as sync_stage
 from nmtcheck.processes.sdo_transfers import SdoSpool, tee
 from nmtcheck.protocol.nmt import UNKNOWN
 from nmtcheck.readers import CUT_IF_DAMAGED, InputStats, open_input, printable_path
@@ -165,6 +168,9 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
     opened = open_input(path, input_format, strict, reader_options)
     pdo_ids = {c for cfg, _channel in (network.nodes.values() if network else ())
                for c in [*cfg.tpdo_cob_ids.values(), *cfg.rpdo_cob_ids.values()] if c is not None}
+    pdo_ids |= {t.cob_id & 0x7FF for keys in (network.comm_nodes.values() if network else ())
+                for t in [*keys.tpdo.values(), *keys.rpdo.values()]  # PDOs above 4 too
+                if t.cob_id is not None and not t.cob_id & 0xA0000000}
     stats = opened.stats
     selected = [r.code for r in rules]
     spool = SdoSpool()  # the SDO and error frames, per server (SPEC §8.3.1, §8.6)
@@ -172,7 +178,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
     batches = tee(captures.split(_in_order(
         _without_cut_frame(opened.batches, stats, opened.cut_line), stats)), spool)
     decoded = decode(_counted(batches, progress) if progress else batches, pdo_ids,
-                     protect_s=timeline_params(profile).obey_s)
+                     protect_s=timeline_params(profile).obey_s,
+                     sync_cob_ids=sync_stage.sync_cob_ids(network))
     collecting = _pause_collector()
     try:
         if stats.frames == 0:
@@ -223,6 +230,13 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                               if channel in (cm.name, cm.network_name)]
         result = InputResult(index, stats, model)
         result.boot = boot_stage.run(model, spool, network, profile, max_findings)
+        # SPEC §9.1: the SYNC of each channel and the EMCYs of each node, for the Y and E
+        # rules and the reports
+        sync_stage.attach(model, sync_stage.analyse(model, network))
+        pdo_stage.attach(model, pdo_stage.analyse(
+            model, network, spool, float(profile.timeline.get("sdo_timeout_ms", 1000.0)) / 1e3))
+        emcy_stage.attach(model, emcy_stage.analyse(
+            model, network, emcy_stage.resolution(stats, profile.timeline)))
         problems: list[tuple[Rule, Problem]] = []
         nodes: dict[tuple[str | None, int], NodeModel] = {
             (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
@@ -242,6 +256,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
         finding_bases(model, result.findings)
         cause_stage.attach(result, spool, profile)
         result.not_evaluated = not_evaluated(model, selected, stats.order_only, network)
+        result.partly_evaluated = partly_evaluated(
+            model, [c for c in selected if c not in result.not_evaluated])
         return result
     finally:
         if collecting:
@@ -351,7 +367,13 @@ TIME_RULES = {"H001": "heartbeat timeouts need time", "H002": "heartbeat spacing
               "H003": "heartbeat periods need time", "H004": "consumer times need time",
               "G002": "guarding response times need time",
               "G003": "guarding intervals need time",
-              "S004": "obey_ms: whether a report came too late needs time"}
+              "S004": "obey_ms: whether a report came too late needs time",
+              "Y001": "SYNC timeouts need time", "Y005": "SYNC periods need time",
+              "Y004": "the synchronous window needs time",
+              "D001": "event timers need time", "D002": "inhibit times need time",
+              "D004": "RPDO deadlines need time",
+              "E001": "EMCY inhibit times need time",
+              "I007": "recording gaps need time"}
 # the time windows of the rules that need only order: a frame index stands for the time,
 # so each window is made empty (grace, obey) or endless (explaining, repeating, awaiting)
 _ORDER_ONLY_PARAMS = {("B001", "bootup_timeout_ms"): float("inf"),

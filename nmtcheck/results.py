@@ -34,6 +34,10 @@ class Finding:
     evidence: dict[str, Any] | None = None
     causes: list[dict[str, Any]] | None = None
     causes_omitted: int | None = None
+    # SPEC §9.3: what came after the effect began (the master's reset after a timeout, the
+    # node's EMCY that reports it), each with its role; None where `causes` is None
+    reactions: list[dict[str, Any]] | None = None
+    reactions_omitted: int | None = None
 
 
 MAX_FINDINGS_PER_RULE = 10000  # per input; the rest is counted, never silently dropped
@@ -58,6 +62,15 @@ class InputResult:
     omitted: list[Omitted] = field(default_factory=list)
     # selected rules that could not be evaluated on this input: code -> reason (SPEC §7)
     not_evaluated: dict[str, str] = field(default_factory=dict)
+    # rules that judged part of it and skipped the rest: code -> reason and scope (§9.1.3)
+    partly_evaluated: dict[str, str] = field(default_factory=dict)
+    # SPEC §9.3.6: each EMCY event's chain, by (channel, node, frame index); the causes of
+    # each timeline interval that begins with a change no NMT command explains, by
+    # (channel, node, the interval's start rounded to 1 ns)
+    event_causes: dict[tuple[str, int, int], list[dict[str, Any]]] = field(
+        default_factory=dict)
+    interval_causes: dict[tuple[str, int, float], list[dict[str, Any]]] = field(
+        default_factory=dict)
     error: str | None = None  # why the input could not be read (then it has nothing else)
     boot: BootAnalysis | None = None  # the CiA 302-2 boot processes (SPEC §8.5)
 

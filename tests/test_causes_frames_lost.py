@@ -150,13 +150,18 @@ def test_blf_data_lost_outside_the_window_is_no_cause(tmp_path: Path) -> None:
 
 def test_blf_data_lost_counts_by_its_own_time_not_the_next_frame(tmp_path: Path) -> None:
     # both before frame 91 (776.340984 s, outside the window that ends at 776.316 s): the
-    # object at 776.300 s is inside, the one at 776.330 s is not
+    # object at 776.300 s is inside, the one at 776.330 s is not. Both come after the H001
+    # (775.816 s): a drop then cannot have hidden the heartbeat whose absence fired it, so
+    # the one inside the window is a reaction on the bus (SPEC §9.3.3), not a cause
     inside = check(blf_with_losses(tmp_path / "in.blf", {91: (1795299776.300, 5)}))
-    [c] = lost(h001_of(inside))
-    assert (c["time"], c["frame_index"], c["count"]) == (1795299776.3, 91, 5)
+    assert lost(h001_of(inside)) == []
+    [c] = [r for r in h001_of(inside).reactions or [] if r["kind"] == "frames_lost"]
+    assert (c["time"], c["frame_index"], c["count"], c["role"]) == (
+        1795299776.3, 91, 5, "bus")
     outside = check(blf_with_losses(tmp_path / "out.blf", {91: (1795299776.330, 5)}))
     assert [d.frame for d in outside.stats.drops] == [91]
     assert lost(h001_of(outside)) == []
+    assert [r for r in h001_of(outside).reactions or [] if r["kind"] == "frames_lost"] == []
 
 
 def _obj(otype: int, body: bytes, ts_10us: int) -> bytes:

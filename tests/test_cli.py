@@ -99,7 +99,8 @@ def test_json_report_has_spec_fields(tmp_path: Path) -> None:
             "message"} <= set(f)
     assert (f["rule"], f["name"], f["severity"], f["node"]) == ("H001", "heartbeat-timeout",
                                                                "error", 3)
-    assert rep["summary"] == {"error": 1, "warning": 0, "info": 0, "verdict": "fail"}
+    assert rep["summary"] == {"error": 1, "warning": 0, "info": 0, "verdict": "fail",
+                              "order_only": []}
     # The timeout's frame is the first frame at or after the moment it expired.
     assert f["line"] == f["frame_index"] + 1
     offline = [iv for iv in rep["timeline"] if iv["state"] == "OFFLINE"]
@@ -128,7 +129,8 @@ def test_timeline_formats(tmp_path: Path) -> None:
 def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
     res = run("rules", cwd=tmp_path)
     assert res.returncode == 0
-    assert len(res.stdout.strip().splitlines()) == 36  # SPEC §3 and group P (§8.4)
+    # SPEC §3 (I007 since 2026-12-07), group P (§8.4), groups Y, D and E (§9.2)
+    assert len(res.stdout.strip().splitlines()) == 51
     doc = run("rules", "H001", cwd=tmp_path)
     assert "heartbeat-timeout" in doc.stdout and "timeout_factor" in doc.stdout
     assert "Why it matters" in doc.stdout and "Example" in doc.stdout

@@ -118,7 +118,8 @@ def test_missing_device_file_is_a_usage_error(tmp_path: Path) -> None:
 
 def test_dcf_heartbeat_drives_h001_and_h003(checker, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """Node 2's DCF says 100 ms; it heartbeats every 300 ms: H003, and with the factor
-    rule on the configured period every gap is an H001 timeout."""
+    rule on the configured period every gap is an H001 timeout: an assumed limit (no
+    consumer time is known), said once with the count (SPEC §7)."""
     dcf = shared_file("corpus/eds/lely/co-nmt-slave.dcf")
     frames = [(0.0, "702#00")] + [(0.3 * i, "702#7F") for i in range(1, 9)]
     net = f'[nodes.2]\ndcf = "{dcf}"\n'
@@ -126,7 +127,9 @@ def test_dcf_heartbeat_drives_h001_and_h003(checker, tmp_path: Path) -> None:  #
     assert found == [("H003", 2, 2.4)]
     assert checker.findings(candump(frames), select="H003") == []  # nothing configured
     h001 = checker.findings(candump(frames), network=net, select="H001")
-    assert h001[0] == ("H001", 2, 0.45) and len(h001) == 7  # the boot-up starts no gap
+    assert h001 == [("H001", 2, 0.45)]  # the boot-up starts no gap
+    [f] = checker.run(candump(frames), network=net, select="H001").findings
+    assert f.basis == "assumed" and "7 times in a row" in f.message
 
 
 def test_compact_storage_as_lely_dcfgen_writes_it() -> None:

@@ -3,7 +3,11 @@
 * `mkdocs build --strict` passes (a broken link or a missing page fails it), every rule
   of the registry has its generated page and the CLI reference is generated;
 * every ```sh block of README.md and docs/ marked `<!-- run: exit=N -->` is run against
-  the samples, line by line, and each `nmtcheck` command must exit with N;
+  the samples, line by line, and each `nmtcheck` command must exit with N. The commands
+  of one page run in order in a scratch folder of that page, where `samples/` (and the
+  checkout's other folders) are the checkout's: what they write (`-o report.html`,
+  `--results results`) stays there. `< FILE` at the end of a line is its standard input
+  (else it has none);
 * every ```python block marked `<!-- run: python -->` runs in a fresh interpreter from
   the repository root without an error. Blocks that need hardware or a server (a PCAN
   adapter, an S3 endpoint) are not marked.
@@ -11,6 +15,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
 import os
@@ -79,13 +84,40 @@ def test_python_example_runs(where: str, code: str) -> None:
     assert proc.returncode == 0, (where, proc.stdout[-2000:], proc.stderr[-2000:])
 
 
+LINKED = ("samples", "rules", "docs", "tests", "bench")  # in a page's scratch folder
+
+
+@pytest.fixture(scope="module")
+def page_folders() -> dict[str, Path]:
+    """The scratch folder of each page whose commands ran so far."""
+    return {}
+
+
+def _page_folder(where: str, folders: dict[str, Path], factory: pytest.TempPathFactory
+                 ) -> Path:
+    page = where.rsplit(":", 1)[0]
+    if page not in folders:
+        folder = folders[page] = factory.mktemp("page")
+        for name in LINKED:
+            (folder / name).symlink_to(REPO / name, target_is_directory=True)
+    return folders[page]
+
+
 @pytest.mark.parametrize(("where", "cmd", "code"), EXAMPLES,
                          ids=[f"{w}:{c}" for w, c, _ in EXAMPLES])
-def test_example_runs(where: str, cmd: str, code: int) -> None:
+def test_example_runs(where: str, cmd: str, code: int, page_folders: dict[str, Path],
+                      tmp_path_factory: pytest.TempPathFactory) -> None:
     argv = shlex.split(cmd, comments=True)
     assert argv[0] == "nmtcheck", f"{where}: only nmtcheck commands are run: {cmd}"
-    proc = subprocess.run([sys.executable, "-m", "nmtcheck", *argv[1:]], cwd=REPO,
-                          capture_output=True, text=True, timeout=120)
+    cwd = _page_folder(where, page_folders, tmp_path_factory)
+    stdin: int | None = subprocess.DEVNULL
+    source = None
+    if len(argv) > 2 and argv[-2] == "<":
+        source, argv = cwd / argv[-1], argv[:-2]
+    with open(source, "rb") if source is not None else contextlib.nullcontext() as f:
+        proc = subprocess.run([sys.executable, "-m", "nmtcheck", *argv[1:]], cwd=cwd,
+                              stdin=f if f is not None else stdin, capture_output=True,
+                              text=True, timeout=120)
     assert proc.returncode == code, (where, cmd, proc.stdout[-2000:], proc.stderr[-2000:])
     assert "Traceback" not in proc.stderr
 

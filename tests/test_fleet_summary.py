@@ -95,7 +95,10 @@ def test_without_a_device_field_the_summary_counts_and_lists_logs(fleets: Path) 
     assert "0 devices" not in res.stdout and "worst devices" not in res.stdout
     h001 = lines.index("H001: worst logs")
     assert lines[h001 + 1].split()[:4] == ["log", "findings", "logs", "nodes"]
-    assert lines[h001 + 2].split()[:2] == [str(fleets / "flat" / "self_1017.log"), "24"]
+    # self_1017's 24 gaps over an assumed timeout are one H001 (issue 38): a tie at 1
+    rows = [line.split()[:2] for line in lines[h001 + 2:h001 + 10]]
+    assert [str(fleets / "flat" / "self_1017.log"), "1"] in rows
+    assert all(count == "1" for _log, count in rows[:3])
     page = (fleets / "flat.html").read_text()
     assert "0 devices" not in page and "Worst devices" not in page
     assert "8 logs, no device names" in page and "<h3>Worst logs</h3>" in page

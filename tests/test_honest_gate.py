@@ -118,16 +118,16 @@ def test_a_directory_means_every_log_below_it(tmp_path: Path) -> None:
     (logs / "day1" / "a.log").write_bytes(HB_LOSS.read_bytes())
     (logs / "b.asc").write_bytes((SAMPLES / "healthy.asc").read_bytes())
     (logs / "notes.txt").write_text("what we did on day 1\n")  # no log format: skipped
-    (logs / "empty.log").write_text("")
+    (logs / "network.toml").write_text("[nodes.3]\n")  # no log format: skipped
     (logs / ".hidden.log").write_bytes(HB_LOSS.read_bytes())  # hidden: not looked at
     res = run("check", "logs", "--format", "json", cwd=tmp_path)
     assert res.returncode == 1, res.stderr
     doc = json.loads(res.stdout)
     assert [i["path"] for i in doc["inputs"]] == ["logs/b.asc", "logs/day1/a.log"]
-    assert doc["not_logs"] == ["logs/empty.log", "logs/notes.txt"]
+    assert doc["not_logs"] == ["logs/network.toml", "logs/notes.txt"]
     text = run("check", "logs", cwd=tmp_path).stdout
     assert text.startswith("2 files below the directories given are no log (skipped): "
-                           "logs/empty.log, logs/notes.txt")
+                           "logs/network.toml, logs/notes.txt")
     (tmp_path / "nologs").mkdir()
     (tmp_path / "nologs" / "x.txt").write_text("hello\n")
     assert_one_line_error(run("check", "nologs", cwd=tmp_path), "nologs",
@@ -135,10 +135,11 @@ def test_a_directory_means_every_log_below_it(tmp_path: Path) -> None:
 
 
 def test_a_damaged_recording_below_a_directory_fails_the_gate(tmp_path: Path) -> None:
-    """A file whose suffix only logs have (.blf, .mf4, .asc, ...) but whose content is no
-    log format is a cut-off or empty recording, not some other file: skipped, it let the
-    gate pass. It is an unreadable input, exit 2, named. notes.txt and build.log whose
-    content is no log stay skipped."""
+    """A file whose suffix a recorder writes (.log, .blf, .mf4, .asc, ...) but whose
+    content is no log format is a cut-off or empty recording, not some other file:
+    skipped, it let the gate pass. It is an unreadable input, exit 2, named (SPEC §4,
+    amended 2026-12-07: `.log` too, candump -l's own suffix). notes.txt whose content is
+    no log stays skipped."""
     logs = tmp_path / "logs"
     logs.mkdir()
     (logs / "a.log").write_bytes(HEALTHY.read_bytes())
@@ -150,8 +151,9 @@ def test_a_damaged_recording_below_a_directory_fails_the_gate(tmp_path: Path) ->
     assert res.returncode == 2, res.stderr
     doc = json.loads(res.stdout)
     assert [(i["path"], i["error"] is None) for i in doc["inputs"]] == [
-        ("logs/a.log", True), ("logs/cut.blf", False), ("logs/empty.MF4", False)]
-    assert doc["not_logs"] == ["logs/build.log", "logs/notes.txt"]
+        ("logs/a.log", True), ("logs/build.log", False), ("logs/cut.blf", False),
+        ("logs/empty.MF4", False)]
+    assert doc["not_logs"] == ["logs/notes.txt"]
     assert "nmtcheck: logs/cut.blf: unknown log format" in res.stderr
 
 
@@ -165,7 +167,12 @@ def test_rules_without_what_they_need_are_not_evaluated_not_passed(tmp_path: Pat
     assert reasons == {"H003": "no producer time configured or written",
                        "H004": "no heartbeat consumer time (1016h) configured or written",
                        "G003": "no guard time/life time factor configured or written",
-                       "N001": "no network file (--network): no node is expected"}
+                       "N001": "no network file (--network): no node is expected",
+                       "D001": "no TPDO of type 254/255 with a known non-zero event timer",
+                       "D002": "no TPDO of type 254/255 with a known non-zero inhibit time",
+                       "D003": "no TPDO with a known synchronous transmission type",
+                       "D004": "no RPDO with a known non-zero event timer (deadline)",
+                       "D005": "no PDO mapping known"}
     junit = etree.fromstring(reports["junit"].encode())
     skipped = [c for c in junit.iter("testcase") if c.find("skipped") is not None]
     assert {c.get("name").split()[0] for c in skipped} == set(reasons)
@@ -186,7 +193,9 @@ def test_with_the_network_file_they_are_evaluated(tmp_path: Path) -> None:
     res = run("check", str(HEALTHY), "--network", str(SAMPLES / "network.toml"),
               "--format", "json", cwd=tmp_path)
     (inp,) = json.loads(res.stdout)["inputs"]
-    assert {e["rule"] for e in inp["not_evaluated"]} == {"H004"}  # no 1016h in the DCFs
+    # no 1016h in the DCFs; their TPDOs are event-driven with an event timer and a mapping,
+    # but none has an inhibit time, none is synchronous, and no RPDO has a deadline
+    assert {e["rule"] for e in inp["not_evaluated"]} == {"H004", "D002", "D003", "D004"}
 
 
 def test_no_timestamps_lists_the_time_rules(checker: Checker) -> None:
@@ -213,12 +222,14 @@ def test_a_measured_limit_says_so_and_names_the_missing_configuration(tmp_path: 
     assert "H001" in text and "limit measured" not in text
 
 
-def test_a_producer_time_written_by_sdo_is_a_configured_basis(checker: Checker) -> None:
+def test_a_producer_time_written_by_sdo_is_an_assumed_basis(checker: Checker) -> None:
+    """SPEC §7 (amended 2026-12-07): 1.5 x a producer time written by SDO is nmtcheck's
+    assumption about a consumer the log never shows (issue 38, item 3)."""
     frames = [(0.0, "703#00"), (0.01, "603#2B17100064000000"), (0.011, "583#6017100000000000")]
     frames += [(0.1 * i, "703#7F") for i in range(1, 6)] + [(1.5, "703#7F")]
     res = checker.run(candump(frames), select="H001,H002")
     bases = {(f.rule, f.basis) for f in res.findings}
-    assert bases == {("H001", "configured")}
+    assert bases == {("H001", "assumed")}
 
 
 # 6. -o is checked before any log is read ---------------------------------------------------

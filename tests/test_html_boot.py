@@ -12,7 +12,7 @@ from conftest import REPO, Checker
 # SPEC_BOOT §8.7 vectors, as tests/test_rules_boot.py holds them: P001 (node 2's product
 # code differs from 1F86h, letter M) and C1 (node 5's heartbeat stops; its EMCY 8140h when
 # it comes back)
-from test_rules_boot import C1_LOG, P001_LOG, P001_NET
+from test_rules_boot import C1_LOG, C2_LOG, P001_LOG, P001_NET
 
 from nmtcheck.engine import check_input, select_rules
 from nmtcheck.processes.boot_records import LETTERS
@@ -94,21 +94,39 @@ def test_failed_boot_row_has_status_letter_and_proving_frame(checker: Checker) -
 
 
 def test_causes_under_the_finding_and_on_the_timeline(checker: Checker) -> None:
-    res = checker.run(C1_LOG.strip() + "\n")
+    """C2 (SPEC §9.3.7): node 2's B002 has the boot-up cluster as its cause, listed under
+    the finding and marked on node 2's timeline row."""
+    res = checker.run(C2_LOG.strip() + "\n")
     page = html.render([res], OPTIONS)
     m = re.search(r'<div class="causes" data-causes="1">(.*?)</div>', page, re.S)
     assert m is not None
-    assert 'data-kind="emcy"' in m.group(1) and "8140h recovered from bus" in m.group(1)
-    assert "line 5" in m.group(1)
+    assert 'data-kind="bootup_cluster"' in m.group(1) and "boot-ups of node(s) 3, 4" in m.group(1)
+    assert "line 7" in m.group(1)
     data = json.loads(_parse(page).data)
-    rows = [r for tl in data["timelines"] for r in tl["rows"] if r["node"] == 5]
+    rows = [r for tl in data["timelines"] for r in tl["rows"] if r["node"] == 2]
     (row,) = rows
     start = res.stats.start or 0.0
-    assert [c[0] for c in row["causes"]] == [round(11.0 - start, 6)]
+    assert [c[0] for c in row["causes"]] == [round(11.5 - start, 6)]
     gid = row["causes"][0][1]
-    assert data["groups"][gid]["rule"] == "H001"
+    assert data["groups"][gid]["rule"] == "B002"
     cause = data["groups"][gid]["occurrences"][0]["causes"][0]
-    assert cause["kind"] == "emcy" and cause["code"] == "8140h"
+    assert cause["kind"] == "bootup_cluster" and cause["end"] == round(11.54 - start, 6)
+
+
+def test_reactions_are_folded_under_the_finding(checker: Checker) -> None:
+    """C1 (SPEC §9.3.7): node 5's EMCY came after its heartbeat timeout: no cause, one
+    reaction (the node's report) in a folded <details>, not on the timeline as a cause."""
+    res = checker.run(C1_LOG.strip() + "\n")
+    page = html.render([res], OPTIONS)
+    assert '<div class="causes" data-causes' not in page
+    m = re.search(r'<details class="reactions" data-reactions="1">(.*?)</details>', page, re.S)
+    assert m is not None
+    assert "after the effect began: 1 event(s)" in m.group(1)
+    assert 'data-kind="emcy"' in m.group(1) and "8140h recovered from bus" in m.group(1)
+    assert "[report]" in m.group(1) and "line 5" in m.group(1)
+    data = json.loads(_parse(page).data)
+    (row,) = [r for tl in data["timelines"] for r in tl["rows"] if r["node"] == 5]
+    assert row["causes"] == []
 
 
 def test_no_boot_section_without_a_manager(checker: Checker) -> None:
@@ -125,14 +143,16 @@ def test_findings_of_other_rules_have_no_causes(checker: Checker) -> None:
 
 
 def test_cause_and_boot_text_is_escaped(checker: Checker) -> None:
-    res = checker.run(C1_LOG.strip() + "\n")
-    f = next(f for f in res.findings if f.rule == "H001")
-    assert f.causes
-    f.causes[0]["text"] = "<img src=x onerror=alert(1)></script>"
-    page = html.render([res], OPTIONS)
-    assert "<img src=x" not in page
-    assert "&lt;img src=x onerror=alert(1)&gt;&lt;/script&gt;" in page
-    assert "\\u003cimg src=x" in page  # and in the page data
+    for log, rule, field in ((C2_LOG, "B002", "causes"), (C1_LOG, "H001", "reactions")):
+        res = checker.run(log.strip() + "\n")
+        f = next(f for f in res.findings if f.rule == rule)
+        entries = getattr(f, field)
+        assert entries
+        entries[0]["text"] = "<img src=x onerror=alert(1)></script>"
+        page = html.render([res], OPTIONS)
+        assert "<img src=x" not in page
+        assert "&lt;img src=x onerror=alert(1)&gt;&lt;/script&gt;" in page
+        assert "\\u003cimg src=x" in page  # and in the page data
 
 
 def test_lely_mandatory_sample() -> None:

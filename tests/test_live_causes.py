@@ -96,16 +96,19 @@ def test_emcy_of_another_node_before_the_gap(tmp_path: Path) -> None:
 
 
 def test_a_live_finding_cannot_look_ahead(tmp_path: Path) -> None:
-    """SPEC_BOOT C1: node 5's EMCY 8140h comes after its timeout. The offline H001 lists
-    it; the live one, which fired before the EMCY was on the bus, cannot."""
+    """SPEC_BOOT C1 (as §9.3.7 amends it): node 5's EMCY 8140h comes after its timeout.
+    The offline H001 lists it as a reaction (the node's report); the live one, which fired
+    before the EMCY was on the bus, cannot."""
     text = ("(10.000000) can0 705#05\n(10.100000) can0 705#05\n(10.200000) can0 705#05\n"
             "(10.300000) can0 705#05\n(11.000000) can0 085#4081110000000000\n"
             "(11.010000) can0 705#05\n")
     live, result, _printed = replay(text, tmp_path)
     [h] = [lf for lf in live if lf.rule == "H001"]
-    assert h.causes == []
+    assert h.causes == [] and h.reactions == []
     [off] = [f for f in result.findings if f.rule == "H001"]
-    assert [(c["kind"], c["code"]) for c in off.causes] == [("emcy", "8140h")]
+    assert off.causes == []
+    assert [(c["kind"], c["code"], c["role"]) for c in off.reactions or []] == [
+        ("emcy", "8140h", "report")]
 
 
 @pytest.mark.parametrize("path", [SAMPLES / "lely" / "mandatory" / "mandatory_lost.log",

@@ -64,7 +64,7 @@ def test_invalid_master_is_a_usage_error(tmp_path: Path, value: str) -> None:
 
 @pytest.mark.parametrize(("text", "message"), [
     ("[channels.can0]\nmastr = 1\n",
-     r": \[channels\.can0\] mastr: unknown key \(known: master, boot\)"),
+     r": \[channels\.can0\] mastr: unknown key \(known: master, boot, sync\)"),
     ("channels = 3\n", r": channels: expected \[channels\.NAME\] tables"),
     ("[channels]\ncan0 = 1\n", r": \[channels\.can0\]: expected a table"),
     ("masters = 1\n", r": unknown key 'masters'"),

@@ -166,14 +166,17 @@ def test_junit_validates_and_lists_every_rule_for_every_node() -> None:
     etree.XMLSchema(etree.fromstring(JUNIT_XSD.encode())).assertValid(root)
     suites = root.findall("testsuite")
     assert [s.get("name") for s in suites] == [str(SAMPLES / f"{n}.log") for n in SAMPLE_NAMES]
-    node_rules = [r for r in RULES if r.code != "C001" and not r.code.startswith("I")]
-    input_rules = [r for r in RULES if r.code.startswith("I")]
+    node_rules = [r for r in RULES if r.scope in ("node", "network+node")]
+    network_rules = [r for r in RULES if r.scope in ("network", "network+node")]
+    input_rules = [r for r in RULES if r.scope == "input"]
     for res, suite in zip(ALL, suites, strict=True):
         cases = suite.findall("testcase")
         assert int(suite.get("tests")) == len(cases)
         assert int(suite.get("failures")) == len(suite.findall("testcase/failure"))
-        # + network C001, C002, + one case per input rule (classname `input`)
-        assert len(cases) == len(res.nodes()) * len(node_rules) + 2 + len(input_rules)
+        # + the network's rules (C001, C002, the SYNC rules), + one case per input rule
+        # (classname `input`)
+        assert len(cases) == (len(res.nodes()) * len(node_rules) + len(network_rules)
+                              + len(input_rules))
         names = {(c.get("classname"), c.get("name")) for c in cases}
         assert {("input", f"{r.code} {r.name}") for r in input_rules} <= names
         for m in res.nodes():

@@ -84,8 +84,12 @@ def test_h001_configured_period_beats_measured_one(checker: Checker) -> None:
     # heartbeats every 100 ms but 1017h says 50 ms: timeout 75 ms; the boot-up starts no gap
     fr = [(0.0, "702#00")] + hb(2, 0.1, 0.5)
     net = "[nodes.2]\nheartbeat_ms = 50\n"
-    assert checker.findings(candump(fr), select="H001", network=net) == [
-        ("H001", 2, 0.175), ("H001", 2, 0.275), ("H001", 2, 0.375)]
+    # every interval exceeds that assumed timeout (no consumer time): one finding with the
+    # count (issue 38, item 3), at the first gap's expiry
+    res = checker.run(candump(fr), select="H001", network=net)
+    assert [(f.rule, f.node, round(f.time - 1000.0, 3), f.basis) for f in res.findings] == [
+        ("H001", 2, 0.175, "assumed")]
+    assert "exceeds the assumed timeout 3 times in a row" in res.findings[0].message
 
 
 def test_h001_timeout_factor_from_profile(checker: Checker) -> None:

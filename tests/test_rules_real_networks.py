@@ -213,8 +213,12 @@ def test_file_value_of_an_object_never_written_holds_across_resets(checker: Chec
     fr = [(0.0, "702#00")] + [(0.1 * i, "702#7F") for i in range(1, 20)]
     fr += [(2.0, "000#8102"), (2.001, "702#00")] + [(2.001 + 0.5 * i, "702#7F")
                                                     for i in range(1, 12)]
-    got = checker.findings(candump(fr), select="H001", network="[nodes.2]\nheartbeat_ms = 100\n")
-    assert got[0] == ("H001", 2, 2.651) and len(got) == 10  # each 0.5 s gap, 1.5 x 100 ms
+    res = checker.run(candump(fr), select="H001", network="[nodes.2]\nheartbeat_ms = 100\n")
+    # each 0.5 s gap exceeds 1.5 x 100 ms, a timeout assumed (no consumer time): one finding
+    # with the count (issue 38)
+    (f,) = res.findings
+    assert (f.rule, f.node, round(f.time - 1000.0, 3), f.basis) == ("H001", 2, 2.651, "assumed")
+    assert "exceeds the assumed timeout 10 times in a row" in f.message
 
 
 # -- H004 (SPEC §3) ----------------------------------------------------------------------

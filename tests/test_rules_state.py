@@ -139,7 +139,8 @@ def test_s003_sdo_and_emcy_while_stopped_complete_list(checker: Checker) -> None
     fr = node2() + [(1.7, "602#4000100000000000"), (1.7005, "582#4300100091010000"),
                     (1.702, "082#0010010000000000")]
     res = checker.run(candump(sorted(fr)))
-    assert found(res) == [("S003", 2, 1.701)]
+    # the EMCY (1000h, register 01h) is never reset: the node is still in error (E003)
+    assert found(res) == [("S003", 2, 1.701), ("E003", 2, 1.702)]
     assert "(2 frames)" in res.findings[0].message
 
 
@@ -160,7 +161,8 @@ def test_s003_returning_from_offline_is_no_new_entry(checker: Checker) -> None:
     # node 2 is STOPPED, falls silent (H001 -> OFFLINE) and then sends an EMCY: that EMCY
     # ends OFFLINE, the node is back in STOPPED and the EMCY is not within the grace time
     fr = node2(end=2.0) + [(2.5, "082#0010010000000000")]
-    assert checker.findings(candump(sorted(fr))) == [("H001", 2, 2.05), ("S003", 2, 2.5)]
+    assert checker.findings(candump(sorted(fr))) == [("H001", 2, 2.05), ("E003", 2, 2.5),
+                                                     ("S003", 2, 2.5)]
 
 
 # --- S004 -------------------------------------------------------------------------------

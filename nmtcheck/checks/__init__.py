@@ -20,6 +20,7 @@ from nmtcheck.checks.canid import (
     restricted_can_id,
     unknown_nmt_state,
 )
+from nmtcheck.checks.emcy import emcy_active_at_end, emcy_inhibit_violation, emcy_malformed
 from nmtcheck.checks.guarding import (
     guard_interval_exceeded,
     guard_no_response,
@@ -36,17 +37,33 @@ from nmtcheck.checks.inputs import (
     frames_lost,
     no_timestamps,
     nothing_to_check,
+    recording_gap,
     skipped_records,
     timestamps_backwards,
     truncated_input,
 )
 from nmtcheck.checks.network import duplicate_node_id, missing_node
+from nmtcheck.checks.pdo import (
+    pdo_length_mismatch,
+    reserved_transmission_type,
+    rpdo_deadline_missed,
+    sync_tpdo_count,
+    tpdo_event_timer_exceeded,
+    tpdo_inhibit_violation,
+)
 from nmtcheck.checks.state import (
     comm_while_stopped,
     command_not_obeyed,
     pdo_to_not_operational,
     pdo_while_not_operational,
     unexplained_state_change,
+)
+from nmtcheck.checks.sync import (
+    sync_counter_sequence,
+    sync_frame_invalid,
+    sync_pdo_outside_window,
+    sync_period_mismatch,
+    sync_timeout,
 )
 
 RULES: list[Rule] = [
@@ -80,12 +97,27 @@ RULES: list[Rule] = [
     mandatory_slave_not_booted,
     start_before_boot_complete,
     boot_stalled,
+    sync_timeout,
+    sync_frame_invalid,
+    sync_counter_sequence,
+    sync_pdo_outside_window,
+    sync_period_mismatch,
+    tpdo_event_timer_exceeded,
+    tpdo_inhibit_violation,
+    sync_tpdo_count,
+    rpdo_deadline_missed,
+    pdo_length_mismatch,
+    reserved_transmission_type,
+    emcy_inhibit_violation,
+    emcy_malformed,
+    emcy_active_at_end,
     nothing_to_check,
     truncated_input,
     skipped_records,
     frames_lost,
     timestamps_backwards,
     no_timestamps,
+    recording_gap,
 ]
 
 BY_CODE: dict[str, Rule] = {r.code: r for r in RULES}

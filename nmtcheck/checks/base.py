@@ -221,5 +221,13 @@ def run_starts(join: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return first, np.diff(np.append(first, n))
 
 
+def flagged_runs(join: np.ndarray, flagged: np.ndarray) -> list[tuple[int, int]]:
+    """`run_starts`, keeping only the runs whose first item is flagged, as (first, length)
+    pairs: a rule walks its findings, never every run of a long stream."""
+    first, length = run_starts(join)
+    keep = flagged[first] if len(first) else np.zeros(0, bool)
+    return list(zip(first[keep].tolist(), length[keep].tolist(), strict=True))
+
+
 def count_note(n: int, what: str = "frames") -> str:
     return f" ({n} {what})" if n > 1 else ""

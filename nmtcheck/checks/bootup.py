@@ -19,6 +19,7 @@ from nmtcheck.protocol.nmt import (
 )
 from nmtcheck.timeline.decode import KIND_EC, KIND_NAMES, NodeFrames
 from nmtcheck.timeline.model import EcFrame, EcTable, NodeModel
+from nmtcheck.timeline.moments import at, span
 
 _NEVER = np.iinfo(np.int64).max  # a frame index after every frame
 
@@ -106,8 +107,14 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float, grace
     awaited = np.full(len(rpos), bool(m.config.expected))
     if m.first_tx is not None:
         awaited |= r_idx > m.first_tx.idx
-    no_boot = (~has_other & ~has_sign & ~restarted & (boot_ts - r_ts > timeout + EPS)
-               & (ctx.end > r_ts + timeout + EPS) & awaited)
+    # the wait for the boot-up does not count a recording gap (SPEC §3 I007): it counts
+    # again from the gap's end
+    deadline = r_ts + timeout
+    for gap in ctx.channel.recording_gaps:
+        cut = (r_ts <= gap.start + EPS) & (gap.start < deadline)
+        deadline = np.where(cut, gap.end + timeout, deadline)
+    no_boot = (~has_other & ~has_sign & ~restarted & (boot_ts > deadline + EPS)
+               & (ctx.end > deadline + EPS) & awaited)
     found = has_other | has_sign | no_boot
     found &= ~is_one_of(r_idx, m.own_command_idx)  # the master's own: never a finding for it
     found = np.flatnonzero(found)
@@ -115,7 +122,7 @@ def _no_bootup_after_reset(m: NodeModel, ctx: NodeContext, timeout: float, grace
         return
     at_other, at_sign = has_other[found], has_sign[found]
     choose = [at_other, at_sign]
-    time = np.select(choose, [other.ts[found], sign.ts[found]], r_ts[found] + timeout)
+    time = np.select(choose, [other.ts[found], sign.ts[found]], deadline[found])
     frame = np.select(choose, [other.idx[found], sign.idx[found]], -1)
     line = np.select(choose, [other.line[found], sign.line[found]], -1)
     # what was seen: a node-frame kind (> 0), -1 - an error-control kind, or 0: nothing
@@ -174,6 +181,21 @@ def _time_went_back(between: np.ndarray, ts: float) -> bool:
     return bool(len(between)) and float(between.max()) > ts + EPS
 
 
+def _power_on(m: NodeModel) -> tuple[int, int]:
+    """N's stale boot-up (SPEC §2: its power-on boot-up, sent after a reset command that
+    then made N boot again; the timeline marks it, `intervals.mark_power_on_bootups`)
+    and the boot-up that answers that reset, as positions in `m.ec`; (-1, -1): none.
+    Neither is B003 nor B002, and the stale one answers no reset."""
+    ec = m.ec
+    if not ec.stale.any():
+        return -1, -1
+    boots = ec.where(BOOTUP)
+    stale = boots[ec.stale[boots]]
+    if not stale.size or stale[0] != boots[0]:  # only N's first frame can be one
+        return -1, -1
+    return int(boots[0]), int(boots[1])
+
+
 def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFrame]]:
     """Runs of 00h frames that follow each other within the window with no reset between.
 
@@ -181,7 +203,9 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
     B002: two resets sent back to back (Lely's `000#8100` then `000#8200`) are answered
     by two boot-ups, no repeat. In a log without timestamps (no window) a repeat is a
     00h right after N's previous 00h, with no other report of N between: a node that
-    reported another state in between booted again (B002), it did not heartbeat 00h."""
+    reported another state in between booted again (B002), it did not heartbeat 00h.
+    A stale power-on boot-up (`_power_on`) is left out: the boot-up after it answers the
+    reset it came after, it repeats nothing."""
     runs: list[list[EcFrame]] = []
     if m.order_only:
         reports = (m.ec.kind == HEARTBEAT) | (m.ec.kind == GUARD)
@@ -191,10 +215,13 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
     reset_ts = m.commands.reset_ts.tolist()
     ri = 0
     unanswered: deque[float] = deque()
+    power_on, _answer = _power_on(m)
     for b in m.bootups:
         while ri < len(resets) and resets[ri] < b.idx:
             unanswered.append(reset_ts[ri])
             ri += 1
+        if b.pos == power_on:
+            continue
         while unanswered and b.ts - unanswered[0] > reset_window + EPS:
             unanswered.popleft()
         explained = bool(unanswered)
@@ -235,10 +262,38 @@ def bootup_repeated(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found
     """
     if m.kind_counts()[BOOTUP] < 2:  # a repeat needs two
         return
+    untimed = m.order_only
     for run in _repeats(m, _auto_window_s(m, p["repeat_window_ms"]),
                         ctx.timeline.reset_window_s):
-        yield (run[1].ts, f"node {m.node} sent boot-up (00h) {len(run)} times in a row over "
-               f"{run[-1].ts - run[0].ts:.3f} s without a reset command", run[1])
+        over = span(run[-1].ts - run[0].ts, untimed)
+        reset = _answered_reset(m, run[0])
+        if reset is None:
+            yield (run[1].ts, f"node {m.node} sent boot-up (00h) {len(run)} times in a row "
+                   f"over {over} without a reset command", run[1])
+            continue
+        name, r_ts, r_line = reset
+        more = f"{len(run) - 1} more time{'s' if len(run) > 2 else ''}"
+        yield (run[1].ts, f"after {name} at {at(r_ts, ctx.start, untimed, 3)} (line {r_line}), "
+               f"node {m.node} sent boot-up (00h) {more} in a row over {over} without a reset "
+               "command", run[1])
+
+
+def _answered_reset(m: NodeModel, first: EcFrame) -> tuple[str, float, int] | None:
+    """The reset command to N that boot-up `first` answered (the latest one before it, with
+    no other boot-up of N between): its name, time and line; None if none."""
+    cmds = m.commands
+    resets = np.flatnonzero(cmds.is_reset)
+    if not resets.size:
+        return None
+    idx = cmds.idx[resets]
+    k = int(np.searchsorted(idx, first.idx)) - 1
+    if k < 0:
+        return None
+    boots = m.ec.idx[m.ec.kind == BOOTUP]
+    if bool(((boots > idx[k]) & (boots < first.idx)).any()):
+        return None
+    pos = int(resets[k])
+    return cmds.name(pos), float(cmds.ts[pos]), int(cmds.line[pos])
 
 
 @rule("B002", "unexpected-bootup", "warning",
@@ -270,17 +325,20 @@ def unexpected_bootup(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
     ri = 0
     ec = m.ec
     pos = ec.where(BOOTUP)  # as columns: a frame is made only for a finding
+    power_on, answer = _power_on(m)
     for b_pos, b_ts, b_idx in zip(pos.tolist(), ec.ts[pos].tolist(), ec.idx[pos].tolist(),
                                   strict=True):
         while ri < len(r_idx) and r_idx[ri] < b_idx:
             unanswered.append(r_ts[ri])
             ri += 1
+        if b_pos == power_on:  # stale (SPEC §2): it answers no reset, and is N's first
+            continue
         unanswered = [t for t in unanswered if b_ts - t <= window + EPS]
         if unanswered:
             unanswered.pop(0)
             continue
-        if b_pos in repeated:
-            continue
+        if b_pos in repeated or b_pos == answer:  # the answer to a broadcast reset that
+            continue  # came before N had been seen (not applied to N): no B002 either
         if m.first_tx.idx < b_idx:
             yield (b_ts, f"node {m.node} sent a boot-up with no reset command before it "
                    f"(spontaneous reboot?)", ec[b_pos])

@@ -30,7 +30,8 @@ def guard_toggle(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found]:
         return
     ec = m.ec
     pos = ec.where(GUARD, BOOTUP)  # heartbeats and requests play no part
-    bad = _toggle_errors(ec, pos, m.commands.reset_idx)
+    bad = _toggle_errors(ec, pos, m.commands.reset_idx,
+                         _processed_resets(m, pos, ctx.timeline.obey_s))
     # consecutive offending responses within one timeline interval: one finding
     iv = m.interval_indices(ec.ts[[b.pos for b in bad]])
     number = np.asarray([b.number for b in bad])
@@ -48,16 +49,50 @@ class _BadToggle(NamedTuple):
     why: str
 
 
-def _toggle_errors(ec: EcTable, pos: np.ndarray, resets: np.ndarray) -> list[_BadToggle]:
+def _processed_resets(m: NodeModel, pos: np.ndarray, obey_s: float) -> np.ndarray | None:
+    """Per frame at `pos` (guarding responses and boot-ups), how many reset commands to N
+    N had processed before it; None where that is every reset before it in the file (no
+    stale response: most nodes).
+
+    A stale response (SPEC §2: within `obey_ms` of the latest command to N, reporting the
+    state from before it) left N before N processed that command: a reset command whose
+    stale window holds the response (or that is its latest command: a log without
+    timestamps) comes after it, so the response keeps the toggle sequence of before the
+    reset, and the reset counts for the next response (Lely, CANopenNode: `70N#85` 0.1 ms
+    after `000#810N`). What was processed before one frame was before the next too. Time
+    that goes back: the running maximum of the commands' times."""
+    ec, cmds = m.ec, m.commands
+    stale = np.flatnonzero(ec.stale[pos] & (ec.kind[pos] == GUARD))
+    if not stale.size or not cmds.is_reset.any():
+        return None
+    r_idx, r_ts = cmds.reset_idx, cmds.reset_ts
+    done = np.searchsorted(r_idx, ec.idx[pos], side="left")
+    if m.order_only:  # no time: the stale window is up to the report (`_stale_until`)
+        at = ec.idx[pos[stale]]
+        latest = cmds.idx[np.maximum(np.searchsorted(cmds.idx, at, side="left") - 1, 0)]
+        after = np.searchsorted(r_idx, latest, side="left")
+    else:
+        after = np.searchsorted(np.maximum.accumulate(r_ts), ec.ts[pos[stale]] - obey_s - EPS,
+                                side="left")
+    done[stale] = np.minimum(done[stale], after)
+    processed: np.ndarray = np.maximum.accumulate(done)
+    return processed
+
+
+def _toggle_errors(ec: EcTable, pos: np.ndarray, resets: np.ndarray,
+                   processed: np.ndarray | None = None) -> list[_BadToggle]:
     """The guarding responses among `pos` (responses and boot-ups) whose toggle bit is
     wrong. Each response is judged by the frame before it among `pos` and the reset
     commands between them: after a boot-up or reset it must have toggle 0, after a
     response the other toggle than that response's (the first of all is free).
-    `resets`: file positions, in file order (`Commands.reset_idx`)."""
+    `resets`: file positions, in file order (`Commands.reset_idx`). `processed`: per
+    frame, the resets N processed before it where stale responses make that fewer than
+    those before it in the file (`_processed_resets`)."""
     kind, idx, value = ec.kind[pos], ec.idx[pos], ec.value[pos]
     toggle = (value >> 7).astype(np.int64)
     boot = kind == BOOTUP
-    resets_before = np.searchsorted(resets, idx, side="left")
+    resets_before = (np.searchsorted(resets, idx, side="left") if processed is None
+                     else processed)
     reset_between = resets_before > np.concatenate([[0], resets_before[:-1]])
     expected = np.full(len(pos), -1, np.int64)  # -1: anything goes
     expected[1:] = np.where(boot[:-1], 0, 1 - toggle[:-1])
@@ -119,7 +154,11 @@ def guard_interval_exceeded(m: NodeModel, ctx: NodeContext, p: Params) -> Iterat
     a, b = reqs[:-1], reqs[1:]
     # node life time in force at each request (files, or 100Ch/100Dh written by SDO)
     life = m.config_series(ec.ts[a], lambda cfg: cfg.life_time_s)
-    late = (ec.ts[b] - ec.ts[a] > life + EPS) & ~between(resets, ec.idx[a], ec.idx[b])
+    apart = ec.ts[b] - ec.ts[a]
+    for gap in ctx.channel.recording_gaps:  # (SPEC §3 I007) counted again from its end
+        cut = (ec.ts[a] <= gap.start + EPS) & (ec.ts[b] >= gap.end - EPS)
+        apart = np.where(cut, np.maximum(gap.start - ec.ts[a], ec.ts[b] - gap.end), apart)
+    late = (apart > life + EPS) & ~between(resets, ec.idx[a], ec.idx[b])
     if ec.guard_runs is not None:  # a long log: a dropped run between two kept requests
         late &= ~np.isin(b, ec.guard_runs.pos)  # lies within the life time (ec_compact);
     late = np.flatnonzero(late)  # its pair keeps its place, so the pairs around stay apart

@@ -17,7 +17,7 @@ from nmtcheck.protocol.nmt import (
     between,
     state_name,
 )
-from nmtcheck.timeline.model import NodeModel, SmallEc
+from nmtcheck.timeline.model import NodeModel, SmallEc, Timeout
 
 
 @rule("H001", "heartbeat-timeout", "error",
@@ -38,7 +38,12 @@ def heartbeat_timeout(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
     confirmed 1017h = 0 ends it without a finding (a timeout that expired before
     still counts). The trace continuing past the timeout after N's last heartbeat
     counts too. One finding per gap, at the moment the timeout expired; the node
-    is OFFLINE from then until its next frame.
+    is OFFLINE from then until its next frame. A timeout made of a configured
+    producer time x `timeout_factor`, with no consumer time known, is assumed
+    (`basis` assumed: the log does not show what a consumer waits): where every
+    interval of a run of N's heartbeats exceeds the same assumed timeout, the run
+    is one finding with its count. Time inside a recording gap (I007) does not
+    count: the timeout counts again from the gap's end.
 
     **Why it matters.** This is the heartbeat event of CiA 301: every consumer of
     N raises EMCY 8130h and applies its error behaviour (1029h), CiA 302 masters
@@ -47,20 +52,63 @@ def heartbeat_timeout(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Fou
     **Example.** `703#05` every 100 ms, then nothing for 0.4 s: with the median
     period 0.1 s and factor 1.5 the timeout expires 0.15 s after the last one.
     """
-    for t in m.timeouts:
-        if t.rule != "H001":
-            continue
-        if t.gap_s is None:
-            what = f"no heartbeat from node {m.node} for the rest of the trace"
-        else:
-            what = f"no heartbeat from node {m.node} for {t.gap_s:.3f} s"
+    timeouts = [t for t in m.timeouts if t.rule == "H001"]
+    i = 0
+    while i < len(timeouts):
+        t = timeouts[i]
         cfg = m.config_at(t.after_ts)
         if cfg.consumer_timeout_ms:
             whose = f" of node {cfg.consumer_node}" if cfg.consumer_node is not None else ""
             limit = f"consumer time {t.limit_s:.3f} s{whose}"
+        elif cfg.heartbeat_ms is not None and cfg.heartbeat_ms > 0:  # SPEC §7 `assumed`
+            limit = (f"timeout {t.limit_s:.3f} s assumed: {p['timeout_factor']:g} x producer "
+                     f"time {cfg.heartbeat_ms / 1000.0:.3f} s, no consumer time known")
+            run = _assumed_run(m, timeouts, i)
+            if run > 1:  # every gap of the node exceeds the same assumed limit: one finding
+                last = timeouts[i + run - 1]
+                gaps = [x.gap_s for x in timeouts[i:i + run] if x.gap_s is not None]
+                yield (t.moment, f"node {m.node}'s heartbeat interval exceeds the assumed "
+                       f"timeout {run} times in a row ({_range(gaps)}, every interval from "
+                       f"{t.after_ts - ctx.start:.3f} s to {_until(last, ctx)}) ({limit})", t)
+                i += run
+                continue
         else:
             limit = f"timeout {t.limit_s:.3f} s"
+        if t.gap_s is None:
+            what = f"no heartbeat from node {m.node} for the rest of the trace"
+        else:
+            what = f"no heartbeat from node {m.node} for {t.gap_s:.3f} s"
         yield t.moment, f"{what} ({limit})", t
+        i += 1
+
+
+def _assumed_run(m: NodeModel, timeouts: list[Timeout], i: int) -> int:
+    """How many timeouts from `timeouts[i]` on are gaps that follow each other (each
+    starts at the heartbeat that ended the one before) under the same assumed limit (a
+    producer time x the factor, no consumer time): the node's every interval there
+    exceeds it, a limit the log cannot confirm (SPEC §7 `assumed`), said once with a
+    count as N002 counts repeats."""
+    j = i + 1
+    while j < len(timeouts):
+        a, b = timeouts[j - 1], timeouts[j]
+        if (a.gap_s is None or abs(b.after_ts - (a.after_ts + a.gap_s)) > EPS
+                or abs(b.limit_s - a.limit_s) > EPS):
+            break
+        cfg = m.config_at(b.after_ts)
+        if cfg.consumer_timeout_ms or not (cfg.heartbeat_ms or 0) > 0:
+            break
+        j += 1
+    return j - i
+
+
+def _range(gaps: list[float]) -> str:
+    lo, hi = min(gaps, default=0.0), max(gaps, default=0.0)
+    return f"{lo:.3f} s" if abs(hi - lo) < 0.0005 else f"{lo:.3f} to {hi:.3f} s"
+
+
+def _until(t: Timeout, ctx: NodeContext) -> str:
+    return ("the end of the trace" if t.gap_s is None
+            else f"{t.after_ts + t.gap_s - ctx.start:.3f} s")
 
 
 @rule("H002", "heartbeat-too-early", "warning",

@@ -231,8 +231,9 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     Where a channel's time goes back by more than a second, to the start of the
     recording or before it, and stays back, or by any amount to frames the input
     already had (a log pasted in overlapping pieces), or after a note that frames
-    were left out between two frames (`[... snip ...]`, `...`; then I005 fires
-    without time going back), a new recording begins: from there on the
+    were left out between two frames (`[... snip ...]`, `...`: an edit made on
+    purpose, which the input summary names and which is no finding), a new
+    recording begins: from there on the
     frames are a capture of their own, checked as a trace of its own, and a channel
     an earlier capture had is named `NAME (capture K)` there (the network file's
     configuration for NAME applies to it). Where it goes back by more than 50 ms
@@ -251,11 +252,9 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     logs of one session joined in the wrong order.
     """
     stats = model.stats
-    if stats is None or not (stats.backwards_timestamps or stats.restarts):
-        return
-    if not stats.backwards_timestamps:  # captures after notes of left-out frames only
-        idx, line, ts = stats.restarts[0]
-        yield Problem(None, None, float(ts), _left_out(stats), int(idx), int(line))
+    # captures after notes of left-out frames only are the user's own edit, no finding:
+    # the text report's input summary says so (InputStats.left_out_text)
+    if stats is None or not stats.backwards_timestamps:
         return
     first = stats.first_backwards
     if first is None:
@@ -270,8 +269,8 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     explained = len(stats.restarts) + len(stats.clock_steps)  # each may explain one step
     if not explained:
         said += ": frames are kept in file order, timing findings may be unreliable"
-    if stats.left_out_restarts:
-        said += ": " + _left_out(stats)
+    if (left_out := stats.left_out_text()) is not None:
+        said += ": " + left_out
     if back:  # new recordings in the input (nmtcheck/readers/captures.py)
         at = ", ".join(_place(stats, i, ln) for i, ln, _t in back[:3])
         said += (f": time starts again at {at}{', …' if len(back) > 3 else ''}, "
@@ -286,15 +285,6 @@ def timestamps_backwards(model: InputModel, p: dict[str, Any]) -> Iterator[Probl
     if explained and stats.backwards_timestamps > explained:
         said += "; the smaller steps back may make timing findings unreliable"
     yield Problem(None, None, ts, said, idx, line or None)
-
-
-def _left_out(stats: InputStats) -> str:
-    """What I005 says of the captures that begin after a note of left-out frames."""
-    lines = [note for note, _first in stats.left_out_restarts]
-    at = ", ".join(str(n) for n in lines[:3]) + (", …" if len(lines) > 3 else "")
-    return (f"frames were left out at line{'s' if len(lines) > 1 else ''} {at} (a note "
-            f"such as `[snip]` or `...`): {len(stats.restarts) + 1} captures, each checked as "
-            "a trace of its own (a later capture's channels are named 'NAME (capture K)')")
 
 
 def _place(stats: InputStats, idx: int, line: int) -> str:
@@ -329,3 +319,43 @@ def no_timestamps(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     yield Problem(None, None, ts, f"no timestamps ({why}): frames checked in file order "
                   "only; heartbeat, guarding and other timing rules were not evaluated "
                   "(record with candump -L or -ta)", idx, line or None)
+
+
+@input_rule("I007", "recording-gap", "warning", exempt_from_unknown=True, scope="network")
+def recording_gap(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
+    """No frame at all on a channel for longer than every heartbeat and guarding limit
+    running there, then its producers resume: the recorder's gap, or the network's.
+
+    **What it checks.** No frame of any kind is recorded (on any channel of the input)
+    for longer than every H001 timeout and G002 response timeout running on the channel
+    at its start (at least one running), and frames follow it. A log cannot tell a
+    recorder that was off (a clock step forward, two recordings joined with `cat`, a
+    logger that paused) from a network that was off. H001, G002, G003 and B001's
+    boot-up timeout do not count the time inside the gap: their limits count again from
+    its end, so a node that stays silent after it is judged from there. A single node
+    falling silent while others send is H001, never I007. One finding per gap and
+    channel, at the gap's end (the frame that resumes it), naming its span and the nodes
+    whose limits ran out inside it.
+
+    **Why it matters.** Judged as a network, every producer would time out at once and
+    fail a gate on what may be the recorder's doing; not judged at all, a network that
+    was off would pass. The warning says which it cannot tell.
+
+    **Example.** A candump log whose clock steps forward by 100 s in the middle: every
+    node's heartbeat "stops" for 100 s, then all go on in phase.
+    """
+    for cm in model.channels:
+        for gap in cm.recording_gaps:
+            names = ", ".join(str(n) for n in gap.nodes)
+            who = (f"node {names} is" if len(gap.nodes) == 1 else
+                   f"nodes {names} are" if gap.nodes else "no node is")
+            yield Problem(cm.name, None, gap.end,
+                          f"no frame recorded on {cm.name} for {gap.seconds:.3f} s, from "
+                          f"{gap.start - cm.start:.6f} s to {gap.end - cm.start:.6f} s: "
+                          f"longer than every heartbeat or guarding limit running there "
+                          f"(at most {gap.limit_s:.3f} s), then the channel goes on: the "
+                          "log cannot tell a recorder that was off or a clock step from a "
+                          f"network that was off; {who} not judged for it "
+                          "(limits count again from its end)",
+                          gap.end_idx, gap.end_line or None)
+

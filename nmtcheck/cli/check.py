@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import click
 
@@ -22,6 +24,7 @@ from nmtcheck.cli.common import (
     write_stdout,
 )
 from nmtcheck.cli.fleet import FLEET_OPTION_NAMES, fleet_options, fleet_requested
+from nmtcheck.cli.helptext import LOGS_HELP, DocumentedCommand, complete_paths
 from nmtcheck.cli.inputs import expand_inputs, input_options, named_check_inputs, remote_logs
 from nmtcheck.engine import select_rules
 from nmtcheck.reporters import (
@@ -35,14 +38,16 @@ from nmtcheck.results import MAX_FINDINGS_PER_RULE, summary
 from nmtcheck.safe_text import escape_controls
 
 
-class FleetGroupedCommand(click.Command):
+class FleetGroupedCommand(DocumentedCommand):
     """`check --help`: the fleet options (nmtcheck/fleet/) in a section of their own, after
-    the options of an ordinary check."""
+    the options of an ordinary check; LOGS in the Arguments section, not among them."""
 
     def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         rows: list[tuple[str, str]] = []
         fleet_rows: list[tuple[str, str]] = []
         for param in self.get_params(ctx):
+            if isinstance(param, click.Argument):
+                continue
             record = param.get_help_record(ctx)
             if record is not None:
                 (fleet_rows if param.name in FLEET_OPTION_NAMES else rows).append(record)
@@ -55,8 +60,9 @@ class FleetGroupedCommand(click.Command):
                 formatter.write_dl(fleet_rows)
 
 
-@click.command(cls=FleetGroupedCommand)
-@click.argument("logs", nargs=-1, required=False)
+@click.command(cls=FleetGroupedCommand, arguments={"LOGS": LOGS_HELP},
+               short_help="Check logs: findings, reports and the gate's exit code.")
+@click.argument("logs", nargs=-1, required=False, shell_complete=complete_paths)
 @input_options
 @fleet_options
 @click.option("--format", "fmt", default=None,
@@ -131,11 +137,11 @@ def _check_logs(logs: tuple[str, ...], names: dict[str, str], profile: Any, rule
                 statistics: bool, max_findings: int, input_format: str | None, strict: bool,
                 channel: str | None, topics: tuple[str, ...]) -> None:
     """The rest of `check` without --results: check the logs, write the reports, exit."""
-    logs, not_logs = expand_inputs(logs)
+    logs, not_logs, not_regular = expand_inputs(logs)
     if "-" in logs:
         jobs = 1  # worker processes do not share this process's standard input
     reader_options: dict[str, object] = {"topics": list(topics)} if topics else {}
-    progress = (ProgressBar(len(logs)) if sys.stderr.isatty() and not quiet and not follow
+    progress = (ProgressBar(len(logs)) if progress_wanted(sys.stderr, quiet, follow)
                 else None)
     try:
         if follow:  # nmtcheck/live/follow.py: live findings, then this same check
@@ -159,7 +165,8 @@ def _check_logs(logs: tuple[str, ...], names: dict[str, str], profile: Any, rule
                                   "rules": {r.code: profile[r.code].severity for r in rules},
                                   "network_notes": list(network.notes) if network else [],
                                   "max_findings": max_findings,
-                                  "config": config_info, "not_logs": not_logs}
+                                  "config": config_info, "not_logs": not_logs,
+                                  "not_regular": not_regular}
     write_reports(results, files, options)
     report = stdout_render(results, options)
     painting = not statistics and colour.wanted(color, sys.stdout)
@@ -175,25 +182,61 @@ def _check_logs(logs: tuple[str, ...], names: dict[str, str], profile: Any, rule
         sys.exit(EXIT_FINDINGS)
 
 
-class ProgressBar:
-    """Frames checked so far, on stderr (tqdm), shown only once a run takes over a second."""
 
-    def __init__(self, inputs: int) -> None:
+def progress_wanted(stream: Any, quiet: bool, follow: bool,
+                    environ: Mapping[str, str] = os.environ) -> bool:
+    """Whether `check` shows a progress bar on `stream` (stderr): on a terminal only,
+    never in a CI log (`CI` set, as CI services set it, also where they give the job a
+    terminal) nor on a dumb one, never with -q or --follow."""
+    if quiet or follow or environ.get("CI") or environ.get("TERM") == "dumb":
+        return False
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):  # no stream, or a closed one
+        return False
+
+
+class ProgressBar:
+    """Frames checked so far, on stderr (tqdm): shown once a run takes over `delay`
+    seconds, then redrawn every TICK_S, also while no frame arrives (a slow
+    decompression, the rules after the read): its clock runs, so a long check never
+    looks hung. Cleared when the run ends."""
+
+    TICK_S = 0.5
+
+    def __init__(self, inputs: int, file: IO[str] | None = None, delay: float = 1.0) -> None:
         from tqdm import tqdm
 
-        self._bar = tqdm(unit=" frames", unit_scale=True, file=sys.stderr, leave=False,
-                         delay=1.0, mininterval=0.5, dynamic_ncols=True,
+        # miniters=0: every update may redraw (no more often than TICK_S), update(0) too
+        self._bar = tqdm(unit=" frames", unit_scale=True, file=file or sys.stderr,
+                         leave=False, delay=delay, mininterval=self.TICK_S, miniters=0,
+                         dynamic_ncols=True,
                          bar_format="{desc}{n_fmt} frames [{elapsed}, {rate_fmt}]")
         self._inputs = inputs
         self._started = 0
+        self._lock = threading.Lock()  # the bar's count is not thread-safe
+        self._stop = threading.Event()
+        self._ticker = threading.Thread(target=self._tick, name="nmtcheck-progress",
+                                        daemon=True)
+        self._ticker.start()
+
+    def _tick(self) -> None:
+        while not self._stop.wait(self.TICK_S):
+            with self._lock:
+                self._bar.update(0)
 
     def start_input(self, path: str) -> None:
-        self._started += 1
-        self._bar.set_description(f"[{self._started}/{self._inputs}] {Path(path).name}",
-                                  refresh=False)
+        with self._lock:
+            self._started += 1
+            self._bar.set_description(f"[{self._started}/{self._inputs}] {Path(path).name}",
+                                      refresh=False)
 
     def frames(self, n: int) -> None:
-        self._bar.update(n)
+        with self._lock:
+            self._bar.update(n)
 
     def close(self) -> None:
-        self._bar.close()
+        self._stop.set()
+        self._ticker.join()
+        with self._lock:
+            self._bar.close()

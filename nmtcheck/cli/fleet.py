@@ -13,6 +13,7 @@ from typing import Any
 
 import click
 
+from nmtcheck.cli.helptext import DocumentedCommand
 from nmtcheck.errors import UsageError
 from nmtcheck.safe_text import escape_controls
 
@@ -158,12 +159,15 @@ def render_outcome(out: Any, results: str, quiet: bool) -> str:
     return "\n".join(lines)
 
 
-@click.group(name="fleet")
+@click.group(name="fleet", short_help="Report on a fleet's results dataset.")
 def fleet() -> None:
     """Report on a fleet's results dataset (written by `nmtcheck check --results`)."""
 
 
-@fleet.command(name="summary")
+@fleet.command(name="summary", cls=DocumentedCommand,
+               arguments={"RESULTS": "The results dataset `nmtcheck check --results` wrote: "
+                                     "a folder or a URL (s3://bucket/results)."},
+               short_help="The fleet at a glance: worst devices and nodes per rule.")
 @click.argument("results")
 @click.option("-o", "--output", "outputs", multiple=True,
               help="Also write the summary to PATH (.html, .csv, .txt). Repeatable.")

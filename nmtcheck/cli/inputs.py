@@ -7,8 +7,9 @@ from __future__ import annotations
 import contextlib
 import glob
 import os
+import stat
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, NamedTuple
 
 import click
 
@@ -16,6 +17,7 @@ from nmtcheck.engine import check_inputs
 from nmtcheck.errors import InputError, UsageError
 from nmtcheck.readers import FORMATS as INPUT_FORMATS
 from nmtcheck.readers import open_input
+from nmtcheck.readers.opening import FRAME_LIKE
 from nmtcheck.reporters.common import plural
 from nmtcheck.results import InputResult
 
@@ -95,48 +97,87 @@ def remote_logs(logs: tuple[str, ...], storage_options: tuple[str, ...], follow:
         yield tuple(copies), names
 
 
-def expand_inputs(args: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
+class Expanded(NamedTuple):
+    """The LOG arguments as `expand_inputs` found them."""
+
+    logs: tuple[str, ...]  # the inputs to check, in order
+    not_logs: list[str]  # files below a directory that are no log: skipped, counted
+    not_regular: list[str]  # of those, the FIFOs, sockets and devices: never opened
+
+
+def expand_inputs(args: tuple[str, ...]) -> Expanded:
     """The LOG arguments as files (`expand_logs`), a directory standing for every log below
     it, recursively, in name order (as ruff takes a directory); and the files below those
-    directories whose content is no log format (or empty): skipped and counted, not errors.
-    Hidden files and directories (`.git`) are not looked at."""
+    directories that are no log: skipped and counted, not errors (SPEC §4). A file there
+    whose name carries a log suffix (LOG_SUFFIXES) is an input whatever its content, so an
+    empty or damaged recording is an unreadable input, never passed over. Only regular
+    files are read (a FIFO, a socket or a device below a directory is named and skipped,
+    never opened), each real file once however many links reach it. Hidden files and
+    directories (`.git`) are not looked at."""
     out: list[str] = []
     not_logs: list[str] = []
+    not_regular: list[str] = []
+    seen: set[tuple[int, int]] = set()  # (device, inode) of every file taken
     for arg in expand_logs(args):
         if arg == "-" or not os.path.isdir(arg):
             out.append(arg)
+            with contextlib.suppress(OSError):
+                st = os.stat(arg)
+                seen.add((st.st_dev, st.st_ino))
             continue
         found = []
         for root, dirs, names in os.walk(arg):
             dirs[:] = sorted(d for d in dirs if not d.startswith("."))
             found += [os.path.join(root, n) for n in sorted(names) if not n.startswith(".")]
-        logs = [p for p in found if is_log(p)]
-        not_logs += [p for p in found if p not in set(logs)]
+        logs: list[str] = []
+        for path in found:
+            try:
+                st = os.stat(path)
+            except OSError:  # a link to nothing, a file gone since: checking it names why
+                logs.append(path)
+                continue
+            if not stat.S_ISREG(st.st_mode):  # opening a FIFO would wait for a writer
+                not_logs.append(path)
+                not_regular.append(path)
+            elif (st.st_dev, st.st_ino) in seen:  # a hard or symbolic link to a file taken
+                continue
+            elif is_log(path):
+                seen.add((st.st_dev, st.st_ino))
+                logs.append(path)
+            else:
+                not_logs.append(path)
         if not logs:
             raise UsageError(f"{arg}: no log file below this directory"
                              + (f" ({plural(len(found), 'file')} whose content is no log "
                                 "format)" if found else ""))
         out += logs
-    return tuple(out), not_logs
+    return Expanded(tuple(out), not_logs, not_regular)
 
 
-# Suffixes that only logs have: a file below a directory named so whose content is no
-# log format is a damaged or empty recording (a cut-off .blf, a 0-byte .mf4), not some
-# other file, and checking it fails the gate; `.log`, `.txt` and `.csv` are left to the
-# content (build.log, README.txt).
+# Suffixes of the files that candump and the other recorders nmtcheck reads write (SPEC
+# §4): a file below a directory named so whose content is no log format is a damaged or
+# empty recording (a cut-off .blf, a 0-byte .mf4, `candump -l`'s .log killed before its
+# first frame), not some other file, and checking it fails the gate. `.txt` is left to the
+# content: a log when a line of it looks like a CAN frame (README.txt is no log).
 LOG_SUFFIXES = tuple(suffix + packed
-                     for suffix in (".asc", ".blf", ".mf4", ".trc", ".mcap", ".pcap", ".pcapng")
+                     for suffix in (".log", ".asc", ".blf", ".mf4", ".trc", ".mcap", ".pcap",
+                                    ".pcapng", ".csv")
                      for packed in ("", ".gz", ".bz2", ".xz", ".zst"))
+TEXT_SUFFIXES = tuple(".txt" + packed for packed in ("", ".gz", ".bz2", ".xz", ".zst"))
 
 
 def is_log(path: str) -> bool:
-    """Whether the content of `path` is a log format nmtcheck reads (detected from the
-    first bytes, as `check` does). A file that cannot be opened counts as a log: checking
-    it names the reason; so does one whose suffix only logs have (LOG_SUFFIXES)."""
+    """Whether `path` is an input below a directory: its content is a log format nmtcheck
+    reads (detected from the first bytes, as `check` does), or its name carries a log
+    suffix (LOG_SUFFIXES), or it is a `.txt` with a line that looks like a CAN frame. A
+    file that cannot be opened counts as a log: checking it names the reason."""
+    name = path.lower()
+    if name.endswith(LOG_SUFFIXES):
+        return True
     try:
         opened = open_input(path)
     except InputError as exc:
-        if path.lower().endswith(LOG_SUFFIXES):
+        if name.endswith(TEXT_SUFFIXES) and FRAME_LIKE in exc.message:
             return True
         return not exc.message.startswith(("unknown log format", "empty file"))
     opened.batches.close()

@@ -125,6 +125,12 @@ def main() -> None:
     except click.exceptions.Abort:
         click.echo("nmtcheck: aborted", err=True)
         sys.exit(EXIT_ERROR)
+    except click.UsageError as exc:
+        if _is_help(exc):  # bare `nmtcheck`, `nmtcheck fleet`:
+            exc.show()  # the usage and help as click prints them (stderr, exit 2)
+        else:  # one line: a name in it is the user's text, shown, never acted on
+            click.echo(escape_controls(f"nmtcheck: {exc.format_message()}"), err=True)
+        sys.exit(EXIT_ERROR)
     except click.ClickException as exc:
         click.echo(escape_controls(f"nmtcheck: {exc.format_message()}"), err=True)
         sys.exit(EXIT_ERROR)
@@ -139,6 +145,14 @@ def main() -> None:
         click.echo(escape_controls(f"nmtcheck: internal error: {type(exc).__name__}: {exc} "
                                    f"(please report; --debug shows the traceback)"), err=True)
         sys.exit(EXIT_ERROR)
+
+
+def _is_help(exc: click.UsageError) -> bool:
+    """Whether `exc` is a group's help for a call without a subcommand (click 8.2's
+    NoArgsIsHelpError, whose message is the help text: click's own words, no user's;
+    older clicks print that help themselves and exit 0)."""
+    no_args = getattr(click.exceptions, "NoArgsIsHelpError", None)
+    return no_args is not None and isinstance(exc, no_args)
 
 
 def command() -> None:

@@ -38,7 +38,7 @@ REFRESH_S = 0.25  # node table redraws
 HUMAN_FORMATS = ("text", "concise", "markdown")
 
 
-@click.command()
+@click.command(short_help="Check a live CAN bus: findings as they happen.")
 @click.option("-i", "--interface", default=None,
               help="python-can interface: socketcan, pcan, kvaser, vector, ixxat, slcan, "
                    "gs_usb, virtual, ... [default: python-can's configuration].")

@@ -3,15 +3,21 @@ pages are generated from the same functions)."""
 
 from __future__ import annotations
 
+import re
+
 import click
 
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import Rule
+from nmtcheck.cli.helptext import DocumentedCommand
 from nmtcheck.errors import UsageError
 from nmtcheck.settings.profiles import DEFAULT_PROFILE, Profile, load_profile
 
 
-@click.command(name="rules")
+@click.command(name="rules", cls=DocumentedCommand,
+               arguments={"CODE": "A rule code (H001) or name (heartbeat-timeout); without "
+                                  "it, the catalogue."},
+               short_help="List the rule catalogue, or document one rule.")
 @click.argument("code", required=False)
 @click.option("--format", "fmt", type=click.Choice(["text", "markdown"]), default="text",
               show_default=True)
@@ -25,8 +31,20 @@ def rules_cmd(code: str | None, fmt: str) -> None:
     r = BY_CODE.get(code.upper()) or next((x for x in RULES if x.name == code.lower()), None)
     if r is None:
         raise UsageError(f"rules: unknown rule code {code!r} (known: {', '.join(BY_CODE)})")
+    doc = rule_doc(r, defaults)
     click.echo(f"{r.code} {r.name} (default severity: {defaults[r.code].severity})\n\n"
-               + rule_doc(r, defaults))
+               + (doc if fmt == "markdown" else plain_text(doc)))
+
+
+# The Markdown of the rules' docstrings: `**bold**`, `*emphasis*`, `` `code` ``
+_MARKUP = re.compile(r"\*\*(?=\S)(.+?)(?<=\S)\*\*|(?<![\w*])\*(?=\S)([^*\n]+?)(?<=\S)\*(?![\w*])"
+                     r"|`([^`\n]+)`")
+
+
+def plain_text(markdown: str) -> str:
+    """A rule's documentation as text for a terminal: its Markdown markup taken off
+    (`nmtcheck rules CODE --format markdown` keeps it, as the docs site shows it)."""
+    return _MARKUP.sub(lambda m: m[1] or m[2] or m[3], markdown)
 
 
 def rule_doc(r: Rule, defaults: Profile) -> str:

@@ -9,14 +9,16 @@ import json
 import click
 
 from nmtcheck.cli.common import load_profile_network, write_stdout
+from nmtcheck.cli.helptext import LOGS_HELP, DocumentedCommand, complete_paths
 from nmtcheck.cli.inputs import expand_inputs, input_options, named_check_inputs, remote_logs
-from nmtcheck.reporters.common import spreadsheet_safe
+from nmtcheck.reporters.common import moment, reboot_note, reboots, spreadsheet_safe
 from nmtcheck.results import InputResult
 from nmtcheck.settings.config import discover
 
 
-@click.command()
-@click.argument("logs", nargs=-1, required=True)
+@click.command(cls=DocumentedCommand, arguments={"LOGS": LOGS_HELP},
+               short_help="Print each node's NMT state timeline, events in time order.")
+@click.argument("logs", nargs=-1, required=True, shell_complete=complete_paths)
 @input_options
 @click.option("--format", "fmt", type=click.Choice(["text", "csv", "json"]), default="text",
               show_default=True)
@@ -32,7 +34,7 @@ def timeline(logs: tuple[str, ...], input_format: str | None, rules_profile: str
     profile, network, _info = load_profile_network(rules_profile, network_file, dcf,
                                                    discover(config_file, isolated))
     with remote_logs(logs, storage_options) as (logs, names):
-        paths, _not_logs = expand_inputs(logs)
+        paths = expand_inputs(logs).logs
         results = named_check_inputs(names, paths, 1, profile, [], network=network,
                                      input_format=input_format, strict=strict,
                                      channel=channel,
@@ -74,15 +76,23 @@ def render_timeline(res: InputResult, fmt: str) -> str:
         for c, n, s, a, b, src in rows:
             w.writerow([spreadsheet_safe(c), n, s, f"{a:.6f}", f"{b:.6f}", src])
         return out.getvalue()
-    lines = [f"{res.stats.path}: no timestamps: order only, times are frame numbers"
-             if res.stats.order_only else
+    untimed = res.stats.order_only
+    lines = [f"{res.stats.path}: no timestamps: order only, times are frame numbers "
+             "(1 = the first frame)" if untimed else
              f"{res.stats.path}: times in seconds from the first frame ({start:.6f})"]
+
+    def at(t: float) -> str:
+        return f"{moment(res, t, unit=''):>12}"
+
     for m in res.nodes():
         lines.append(f"{m.channel} node {m.node}:")
         # EMCY, SDO aborts, configuration written: among the states, in time order (an
-        # event at a state's start after that state's line)
-        timed = [(iv.start, 0, f"  {iv.start - start:12.6f} .. {iv.end - start:12.6f}  "
+        # event at a state's start after that state's line); a node's boot-ups inside a
+        # state (it rebooted without a state change, B003) under that state's line
+        timed: list[tuple[float, float, str]] = [(iv.start, 0, f"  {at(iv.start)} .. {at(iv.end)}  "
                                f"{iv.state:<16} ({iv.source})") for iv in m.intervals]
-        timed += [(e.ts, 1, f"  {e.ts - start:12.6f}     event: {e.text}") for e in m.events]
+        timed += [(float(m.intervals.start[r.interval]), 0.5,
+                   f"  {'':>12}    {reboot_note(res, m, r)}") for r in reboots(m)]
+        timed += [(e.ts, 1, f"  {at(e.ts)}     event: {e.text}") for e in m.events]
         lines.extend(text for _t, _k, text in sorted(timed, key=lambda x: (x[0], x[1])))
     return "\n".join(lines) + "\n"

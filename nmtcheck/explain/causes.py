@@ -1,10 +1,15 @@
-"""Cause chains (SPEC §8.6): the events that may explain a finding.
+"""Causes and reactions (SPEC §8.6, §9.3.1-9.3.3): the events that may explain a finding,
+and those that came after it began.
 
 Called by the engine after the rules: H001, G002, B001 (a), B002 and S004 findings get
-`causes` (possibly empty) and `causes_omitted`. Each finding looks at its node's columns
-(EMCYs, error-control frames, commands), the channel's NMT frames and error frames and the
-boot analysis, within the finding's window (8.6.2); nothing is per frame. Causes are
-listed, never ranked as "the" cause.
+`causes` and `reactions` (each possibly empty) with what their caps left out. Each finding
+looks at its node's columns (EMCYs, error-control frames, commands), the channel's NMT
+frames and error frames and the boot analysis, within the finding's window (8.6.2);
+nothing is per frame. Causality is strict: an entry is a cause only if it began at or
+before the moment the finding's effect began (t_e, `effect_start`); everything later is a
+reaction with its role (`during`, `report`, `response`, `bus`): the master's reset after a
+heartbeat timeout answers it, it does not explain it. Causes are listed, never ranked as
+"the" cause.
 """
 
 from __future__ import annotations
@@ -14,8 +19,34 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from nmtcheck.explain.chains import (
+    At,
+    emcy_chain,
+    event_causes,
+    pdo_gap_entries,
+    same_cycle_start,
+    state_link,
+    sync_gap_entries,
+)
+from nmtcheck.explain.entries import (
+    capped,
+    cause_entry,
+    cluster_entry,
+    effect_start,
+    split,
+)
+from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.protocol import emcy
-from nmtcheck.protocol.nmt import BOOTUP, EPS, REQUEST
+from nmtcheck.protocol.nmt import (
+    BOOTUP,
+    EPS,
+    GUARD,
+    HEARTBEAT,
+    REQUEST,
+    SOURCE_INDEX,
+    STATE_OF_CODE,
+    STATES,
+)
 from nmtcheck.timeline.decode import key_rows
 from nmtcheck.timeline.ec_compact import expanded
 
@@ -25,11 +56,10 @@ if TYPE_CHECKING:
     from nmtcheck.results import Finding, InputResult
 
 
-KINDS = ("reboot", "emcy", "emcy_other", "error_frames", "frames_lost", "silence", "nmt",
-         "sdo_write", "bootup_cluster", "boot_process")
-RULES = ("H001", "G002", "B001", "B002", "S004")
+RULES = ("H001", "G002", "B001", "B002", "S004", "Y001", "D004", "S005")  # S005 last: it reads
+# the causes of the findings its chain links to (§9.3.5)
 SDO_WRITES = {"H001": (0x1017, 0x1016), "G002": (0x100C, 0x100D, 0x1017),
-              "B002": (0x1F51, 0x1011, 0x1010), "S004": (0x1029,)}
+              "B002": (0x1F51, 0x1011, 0x1010), "S004": (0x1029,), "S005": (0x1029,)}
 NMT_NAMES = {0x01: "start", 0x02: "stop", 0x80: "enter pre-operational", 0x81: "reset node",
              0x82: "reset communication"}
 
@@ -53,39 +83,100 @@ def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
                float(profile["B002"].params.get("reset_window_ms", 10000.0)) / 1000.0
                if "B002" in profile else 10.0)
     caused: dict[str, int] = {}
-    for f in result.findings:
-        if f.rule in RULES and f.channel is not None and f.node is not None:
-            # causes are objects: a bounded number per rule keeps memory bounded on a log
-            # with a million timeouts (the first ones are where a diagnosis starts)
-            caused[f.rule] = caused.get(f.rule, 0) + 1
-            if caused[f.rule] > MAX_CAUSED_PER_RULE:
-                continue
-            found = ctx.causes(f)
-            if found is None:
-                continue
-            f.causes, f.causes_omitted = capped(found, ctx.max)
+    depth_max = int(tl.get("causes_depth_max", 3))
+    delay = float(tl.get("emcy_delay_ms", 200.0)) / 1000.0
+    order = {r: k for k, r in enumerate(RULES)}
+    for f in sorted((f for f in result.findings if f.rule in RULES), key=lambda f: order[f.rule]):
+        if f.channel is None or (f.node is None and f.rule != "Y001"):
+            continue
+        # causes are objects: a bounded number per rule keeps memory bounded on a log
+        # with a million timeouts (the first ones are where a diagnosis starts)
+        caused[f.rule] = caused.get(f.rule, 0) + 1
+        if caused[f.rule] > MAX_CAUSED_PER_RULE:
+            continue
+        found = (sync_gap_entries(ctx, f) if f.rule == "Y001" else
+                 pdo_gap_entries(ctx, f) if f.rule == "D004" else ctx.causes(f))
+        if found is None:
+            continue
+        entries, te = found
+        causes, reactions = split(entries, te, f.time, f.node)
+        f.causes, f.causes_omitted = capped(causes, ctx.max)
+        f.reactions, f.reactions_omitted = capped(reactions, ctx.max)
+        if f.rule == "S005":
+            f.causes = with_chains(f.causes, [
+                emcy_chain(ctx, f, c, result.findings, depth_max, delay)
+                if c.get("link") == "error_behaviour" else [] for c in f.causes])
+    _emcy_events(ctx, result, depth_max, delay)
+    _interval_causes(ctx, result, depth_max, delay)
 
 
-def capped(found: list[dict[str, Any]], cap: int) -> tuple[list[dict[str, Any]], int]:
-    """Sorted by time (ties by kind); past `cap`, the lowest kinds are kept."""
-    rank = {k: i for i, k in enumerate(KINDS)}
-    if len(found) > cap:
-        keep = sorted(found, key=lambda c: (rank[c["kind"]], c["time"]))[:cap]
-        omitted = len(found) - cap
-    else:
-        keep, omitted = found, 0
-    keep.sort(key=lambda c: (c["time"], rank[c["kind"]]))
-    return keep, omitted
+def _interval_causes(ctx: _Ctx, result: InputResult, depth_max: int, delay: float) -> None:
+    """§9.3.6: a timeline interval that begins with a change of the node's reported state
+    and no NMT command (source heartbeat or guarding) carries the causes S005 would list,
+    whether S005 is selected or not, the channel's master's too."""
+    analysis = emcy_stage.of(result.model)
+    if analysis is None or not analysis.nodes:
+        return
+    reported = np.asarray([SOURCE_INDEX["heartbeat"], SOURCE_INDEX["guarding"]])
+    done = 0
+    for cm in result.model.channels:
+        for n, m in cm.nodes.items():
+            if (cm.name, n) not in analysis.nodes:
+                continue  # no EMCY: no link can hold
+            ivs = m.intervals
+            change = np.flatnonzero((np.arange(len(ivs)) > 0) & np.isin(ivs.source, reported)
+                                    & (ivs.state != np.roll(ivs.state, 1)))
+            reports = np.flatnonzero(np.isin(m.ec.kind, (HEARTBEAT, GUARD)) & ~m.ec.stale)
+            for i in change.tolist():
+                if done >= MAX_EVENTS_CAUSED:
+                    return
+                tf = float(ivs.start[i])
+                k = int(np.searchsorted(m.ec.ts[reports], tf - EPS, side="left")) - 1
+                if k < 0:
+                    continue
+                start = same_cycle_start(analysis, cm.name, m, int(reports[k]))
+                old, new = STATES[int(ivs.state[i - 1])], STATES[int(ivs.state[i])]
+                link = state_link(analysis, cm.name, n, start, tf, old, new)
+                if link is None:
+                    continue
+                done += 1
+                at = At(cm.name)
+                result.interval_causes[(cm.name, n, round(tf, 9))] = with_chains(
+                    [link], [emcy_chain(ctx, at, link, result.findings, depth_max, delay)])
 
 
-def cause_entry(kind: str, time: float, idx: int | None, line: int | None, text: str,
-                node: int | None = None, end: float | None = None, count: int | None = None,
-                code: str | None = None) -> dict[str, Any]:
-    """One entry of a finding's `causes` (SPEC §8.6), offline and live alike."""
-    return {"kind": kind, "time": round(float(time), 6),
-            "end": None if end is None else round(float(end), 6),
-            "frame_index": idx, "line": line or None, "node": node, "count": count,
-            "code": code, "text": text}
+MAX_EVENTS_CAUSED = 1000  # EMCY events per input that get their chain (the first ones)
+_LINKED_CODES = (0x8100, 0x8120, 0x8130, 0x8140, 0x8240, 0x8250)
+
+
+def _emcy_events(ctx: _Ctx, result: InputResult, depth_max: int, delay: float) -> None:
+    """Each EMCY event whose code a chain link knows gets its causes (§9.3.6)."""
+    analysis = emcy_stage.of(result.model)
+    if analysis is None:
+        return
+    done = 0
+    for (channel, node), e in analysis.nodes.items():
+        code = e.code
+        for k in np.flatnonzero(np.isin(code, _LINKED_CODES) & (e.dlc >= 2)).tolist():
+            if done >= MAX_EVENTS_CAUSED:
+                return
+            done += 1
+            entry = cause_entry("emcy", float(e.ts[k]), int(e.idx[k]), int(e.line[k]),
+                                e.describe(k), node, count=1, code=f"{int(code[k]):04X}h")
+            result.event_causes[(channel, node, int(e.idx[k]))] = event_causes(
+                ctx, channel, node, entry, result.findings, depth_max, delay)
+
+
+def with_chains(causes: list[dict[str, Any]], chains: list[list[dict[str, Any]]]
+                ) -> list[dict[str, Any]]:
+    """Depth-1 causes, each followed at once by its descendants (pre-order, §9.3.5), with
+    `parent` made an index into the whole list."""
+    out: list[dict[str, Any]] = []
+    for c, chain in zip(causes, chains, strict=True):
+        at = len(out)
+        out.append(c)
+        out += [dict(d, parent=at + int(d["parent"])) for d in chain]
+    return out
 
 
 class _Ctx:
@@ -101,7 +192,8 @@ class _Ctx:
         self._drops: dict[str, np.ndarray] | None = None
         self._nmt_by_time: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
-    def causes(self, f: Finding) -> list[dict[str, Any]] | None:
+    def causes(self, f: Finding) -> tuple[list[dict[str, Any]], float] | None:
+        """Every entry in the finding's windows, and its effect start t_e."""
         cm = self.channels.get(str(f.channel))
         if cm is None:
             return None
@@ -110,6 +202,8 @@ class _Ctx:
             return None
         n = m.node
         t = f.time
+        if f.rule == "S005":
+            return self._state_change(f, m, cm)
         a0, a1 = self._interval(f, m, cm)
         if a0 is None:
             return None
@@ -134,10 +228,47 @@ class _Ctx:
         out += self._nmt(cm, m, n, f, cmd_win, a0)
         out += self._sdo_writes(m, f.rule, cmd_win)
         if f.rule == "B002":
-            out += self._cluster(cm, n, a0)
+            out += self._cluster(cm, n, a0, f)
         out += self._boot(f, n, a0)
-        del t
-        return out
+        return out, effect_start(f.rule, a0, t, self._period_at(m, a0))
+
+    def _state_change(self, f: Finding, m: Any, cm: Any
+                      ) -> tuple[list[dict[str, Any]], float] | None:
+        """S005 (SPEC §9.3.4, §9.3.5): N's own EMCYs and the writes of its 1029h in the
+        window, the EMCY that moved N by its error behaviour (or cleared it) linked."""
+        ec = m.ec
+        at = np.flatnonzero(ec.idx == (f.frame_index if f.frame_index is not None else -1))
+        if not at.size:
+            return None
+        b = int(at[0])
+        before = np.flatnonzero((ec.idx < ec.idx[b]) & np.isin(ec.kind, (HEARTBEAT, GUARD))
+                                & ~ec.stale)
+        if not before.size:
+            return None
+        a = int(before[-1])
+        tp, tf = float(ec.ts[a]), float(ec.ts[b])
+        old = STATE_OF_CODE.get(int(ec.value[a]) & 0x7F)
+        new = STATE_OF_CODE.get(int(ec.value[b]) & 0x7F)
+        windows = [(tp - self.before, tf + self.after)]
+        out = self._emcy(m, m.node, windows)
+        analysis = emcy_stage.of(self.model)
+        start = same_cycle_start(analysis, str(f.channel), m, a)
+        link = state_link(analysis, str(f.channel), m.node, start, tf, old, new)
+        if link is not None:
+            out = [c for c in out if c["frame_index"] != link["frame_index"]] + [link]
+            f.message += (f"; explained by EMCY {link['code']} at "
+                          f"{link['time'] - self.model.start:.6f} s (line {link['line']})")
+        out += self._sdo_writes(m, "S005", windows)
+        return out, tf
+
+    def _period_at(self, m: Any, t: float) -> float | None:
+        """N's heartbeat period at t (§2): the producer time in force, else the measured
+        median; None where neither is known."""
+        producer = m.config_at(t).heartbeat_ms
+        if producer:
+            return float(producer) / 1000.0
+        period = m.median_s if m.median_s else m.period_s
+        return float(period) if period else None
 
     # -- the finding's interval ------------------------------------------------------------
     def _interval(self, f: Finding, m: Any, cm: Any) -> tuple[float | None, float]:
@@ -335,7 +466,7 @@ class _Ctx:
             to = "all nodes" if int(nmt.target[k]) == 0 else f"node {int(nmt.target[k])}"
             text = f"NMT {name} to {to}"
             if f.rule == "B002":
-                text += f": reset at {nmt.ts[k]:.3f} already answered before the boot-up"
+                text += ": this reset was already answered before the boot-up"
             elif f.rule == "B001":
                 text += ": likely lost while the node initialises"
             out.append(cause_entry("nmt", nmt.ts[k], int(nmt.idx[k]), int(nmt.line[k]), text, n))
@@ -360,7 +491,7 @@ class _Ctx:
                     for k in sel.tolist()]
         return out
 
-    def _cluster(self, cm: Any, n: int, a0: float) -> list[dict[str, Any]]:
+    def _cluster(self, cm: Any, n: int, a0: float, f: Finding) -> list[dict[str, Any]]:
         hits: list[tuple[float, int, int, int]] = []
         for o in cm.nodes.values():
             if o.node == n:
@@ -372,11 +503,9 @@ class _Ctx:
                 hits.append((float(ec.ts[j]), o.node, int(ec.idx[j]), int(ec.line[j])))
         if not hits:
             return []
-        hits.sort()
         nodes = ", ".join(str(h[1]) for h in sorted(hits, key=lambda h: h[1]))
-        return [cause_entry("bootup_cluster", hits[0][0], hits[0][2], hits[0][3],
-                       f"boot-ups of node(s) {nodes} within {self.cluster * 1000:g} ms: "
-                       f"several nodes rebooted together", None, end=hits[-1][0])]
+        own = (a0, n, f.frame_index if f.frame_index is not None else -1, f.line or 0)
+        return [cluster_entry(hits, own, nodes, self.cluster)]
 
     def _boot(self, f: Finding, n: int, a0: float) -> list[dict[str, Any]]:
         b = self.res.boot

@@ -15,14 +15,8 @@ from __future__ import annotations
 from collections import deque
 from typing import Any
 
-from nmtcheck.explain.causes import (
-    CAN_ERR_CRTL,
-    CAN_ERR_CRTL_OVERFLOW,
-    NMT_NAMES,
-    SDO_WRITES,
-    capped,
-    cause_entry,
-)
+from nmtcheck.explain.causes import CAN_ERR_CRTL, CAN_ERR_CRTL_OVERFLOW, NMT_NAMES, SDO_WRITES
+from nmtcheck.explain.entries import capped, cause_entry, cluster_entry, split
 from nmtcheck.protocol import emcy
 from nmtcheck.protocol.nmt import EPS
 
@@ -133,10 +127,12 @@ class Recent:
 
     def causes(self, rule: str, channel: str, node: int, a0: float, now: float,
                master: int | None = None, periods: list[float] | None = None,
-               bootups: list[tuple[float, int]] | None = None
-               ) -> tuple[list[dict[str, Any]], int] | None:
-        """The capped entries (and how many were left out) of a live finding of `rule` for
-        `node`, whose interval starts at `a0`, as the bus stands at `now`."""
+               bootups: list[tuple[float, int]] | None = None, te: float | None = None,
+               tf: float | None = None
+               ) -> tuple[list[dict[str, Any]], int, list[dict[str, Any]], int] | None:
+        """The capped causes and reactions (and how many of each were left out) of a live
+        finding of `rule` for `node`, whose interval starts at `a0` and whose effect began
+        at `te` (§9.3.2; default: now), as the bus stands at `now`."""
         if rule not in RULES:
             return None
         lo, hi = a0 - self.before, now
@@ -150,7 +146,9 @@ class Recent:
         out += self._sdo(rule, channel, node, cmd)
         if rule == "B002" and bootups:
             out += self._cluster(node, a0, bootups)
-        return capped(out, self.cap)
+        causes, reactions = split(out, now if te is None else te, now if tf is None else tf,
+                                  node)
+        return (*capped(causes, self.cap), *capped(reactions, self.cap))
 
     def _emcy(self, rule: str, channel: str, node: int, lo: float, hi: float
               ) -> list[dict[str, Any]]:
@@ -181,7 +179,7 @@ class Recent:
             if rule == "B001":
                 text += ": likely lost while the node initialises"
             elif rule == "B002":
-                text += f": reset at {ts:.3f} already answered before the boot-up"
+                text += ": this reset was already answered before the boot-up"
             out.append(cause_entry("nmt", ts, None, None, text, node))
         return out
 
@@ -206,14 +204,12 @@ class Recent:
                  ) -> list[dict[str, Any]]:
         """Boot-ups of other nodes within reboot_cluster_ms before this one (the ones after
         it come with the offline check)."""
-        hits = sorted((ts, n) for ts, n in bootups
+        hits = sorted((ts, n, -1, 0) for ts, n in bootups
                       if n != node and abs(ts - a0) <= self.cluster + EPS)
         if not hits:
             return []
-        nodes = ", ".join(str(n) for n in sorted({n for _t, n in hits}))
-        return [cause_entry("bootup_cluster", hits[0][0], None, None,
-                       f"boot-ups of node(s) {nodes} within {self.cluster * 1000:g} ms: "
-                       "several nodes rebooted together", None, end=hits[-1][0])]
+        nodes = ", ".join(str(n) for n in sorted({h[1] for h in hits}))
+        return [cluster_entry(hits, (a0, node, -1, 0), nodes, self.cluster)]
 
     def _errors(self, channel: str, lo: float, hi: float) -> list[dict[str, Any]]:
         hit = [e for e in self.errors.get(channel, ()) if e[1] >= lo - EPS and e[0] <= hi + EPS]

@@ -38,6 +38,13 @@ def cause_lines(lf: LiveFinding, start: float | None) -> list[str]:
         out.append(f"    cause: {span} s {c['text']}{node}")
     if lf.causes_omitted:
         out.append(f"    cause: ... {lf.causes_omitted} more")
+    for c in lf.reactions or ():
+        span = f"{c['time'] - base:.3f}" + (
+            f"-{c['end'] - base:.3f}" if c.get("end") is not None else "")
+        node = f" (node {c['node']})" if c.get("node") is not None else ""
+        out.append(f"    after: {span} s {c['text']}{node}  [{c['role']}]")
+    if lf.reactions_omitted:
+        out.append(f"    after: ... {lf.reactions_omitted} more")
     return out
 
 
@@ -118,6 +125,8 @@ def live_summary(outcome: Outcome, ended: str) -> str:
              f"offline check of the recording, {c['clock-only']} after its last frame "
              f"(seen by the clock only), {c['not-confirmed']} not confirmed"
              + (f", {c['withdrawn']} withdrawn" if c["withdrawn"] else "")
+             + (f", {c['recording-gap']} inside a recording gap (I007)"
+                if c["recording-gap"] else "")
              + (f" ({c['provisional']} of them provisional: a heartbeat period measured "
                 f"so far)" if c["provisional"] else "")]
     if outcome.live_dropped:
@@ -129,7 +138,9 @@ def live_summary(outcome: Outcome, ended: str) -> str:
     for lf in outcome.live:
         if lf.confirmed != "confirmed":
             what = {"clock-only": "after the last recorded frame",
-                    "withdrawn": "withdrawn (a frame stamped before it came late)"}.get(
+                    "withdrawn": "withdrawn (a frame stamped before it came late)",
+                    "recording-gap": "inside a silence the offline check reads as a "
+                                     "recording gap (I007)"}.get(
                 lf.confirmed, "not confirmed by the offline check")
             lines.append(f"  {what}: {finding_line(lf, start)}")
     return escape_lines(lines)  # a channel's newline or ESC is shown, never sent

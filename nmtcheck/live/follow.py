@@ -95,7 +95,8 @@ def follow(stream: IO[bytes] | None, profile: Profile, rules: list[Any], network
         raise InputError(name, exc.message, exc.line) from None
     if outcome.result is None:
         raise InputError(name, f"no frame received ({ended})")
-    display.note(live_summary(outcome, ended))
+    for line in live_summary(outcome, ended).split("\n"):  # each line escaped already
+        display.note(line)
     return [outcome.result]
 
 

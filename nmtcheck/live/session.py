@@ -33,6 +33,7 @@ from nmtcheck.settings.profiles import Profile
 TICK_S = 0.005  # how often the timer looks at the deadlines
 GRACE_S = 0.015  # a frame may reach us this late: a timeout fires only once it is this old
 CONFIRM_TOLERANCE_S = 0.1  # live and offline times of one finding differ by at most this
+GAP_RULES = ("H001", "G002", "G003", "B001")  # counted again from a recording gap's end
 MAX_LIVE_FINDINGS = 10000  # kept in memory; more are counted (the recording has them all)
 FLUSH_S = 0.5  # the recording reaches the disk at least this often
 CLOCK_WINDOW_S = 10  # the bus clock's offset is learnt from this many recent seconds
@@ -119,7 +120,7 @@ class Outcome:
 
     def counts(self) -> dict[str, int]:
         out = {"confirmed": 0, "clock-only": 0, "not-confirmed": 0, "withdrawn": 0,
-               "provisional": 0}
+               "recording-gap": 0, "provisional": 0}
         for lf in self.live:
             out[lf.confirmed] = out.get(lf.confirmed, 0) + 1
             out["provisional"] += not lf.certain
@@ -379,24 +380,39 @@ class Session:
                             None, None, lf.message + " [live: after the last recorded frame"
                             + ("" if lf.certain else "; provisional") + "]")
                 f.causes, f.causes_omitted = lf.causes, lf.causes_omitted
+                f.reactions, f.reactions_omitted = lf.reactions, lf.reactions_omitted
                 out.append(f)
             return out
 
 
 def reconcile(live: list[LiveFinding], result: InputResult | None) -> None:
     """Mark each live finding: confirmed by the offline check (same rule, channel, node,
-    time within CONFIRM_TOLERANCE_S), clock-only (its moment is after the recording's
-    last frame: the offline check cannot know it), or not-confirmed."""
+    time within CONFIRM_TOLERANCE_S), recording-gap (a timeout inside a silence the
+    offline check reads as a recording gap, I007), clock-only (its moment is after the
+    recording's last frame: the offline check cannot know it), or not-confirmed."""
     findings = result.findings if result is not None else []
     end = result.stats.end if result is not None and result.stats.end is not None else None
     by_key: dict[tuple[str, str | None, int | None], list[float]] = {}
     for f in findings:
         by_key.setdefault((f.rule, f.channel, f.node), []).append(f.time)
+    # one offline H001 may stand for a run of timeouts (every interval over an assumed
+    # limit, said once with its count): each timeout of the run confirms a live one
+    for m in result.nodes() if result is not None else ():
+        times = by_key.get(("H001", m.channel, m.node))
+        if times is not None:
+            times += [t.moment for t in m.timeouts if t.rule == "H001"]
+    # SPEC §3 I007: offline, a silence of the whole channel may be the recorder's; the
+    # timeouts live saw inside it are counted again from its end there
+    gaps = {(cm.name, g.start, g.end) for cm in (result.model.channels if result else [])
+            for g in cm.recording_gaps}
     for lf in live:
         times = by_key.get((lf.rule, lf.channel, lf.node), [])
         hi = lf.time + CONFIRM_TOLERANCE_S if lf.until is None else lf.until
         if any(lf.time - CONFIRM_TOLERANCE_S <= t <= hi for t in times):
             lf.confirmed = "confirmed"
+        elif lf.rule in GAP_RULES and any(
+                c == lf.channel and a < lf.time <= b for c, a, b in gaps):
+            lf.confirmed = "recording-gap"
         elif lf.withdrawn:
             lf.confirmed = "withdrawn"
         elif end is None or lf.time > end:

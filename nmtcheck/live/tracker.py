@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from nmtcheck.checks.base import Rule
+from nmtcheck.explain.entries import effect_start
 from nmtcheck.live.causes import Recent
 from nmtcheck.live.frames import LiveFrame
 from nmtcheck.protocol.nmt import (
@@ -67,7 +68,8 @@ class LiveFinding:
     node: int | None
     time: float  # the trace's time base, as Finding.time
     message: str
-    confirmed: str = ""  # set at the end: confirmed | clock-only | not-confirmed | withdrawn
+    # set at the end: confirmed | clock-only | not-confirmed | withdrawn | recording-gap
+    confirmed: str = ""
     withdrawn: bool = False  # a frame stamped before the timeout's moment came in late
     # False: it rests on something only the whole trace settles (a heartbeat period
     # measured so far, a frame's class that depends on it): provisional
@@ -77,6 +79,8 @@ class LiveFinding:
     # G002, B001, B002; None on the other rules)
     causes: list[dict[str, Any]] | None = None
     causes_omitted: int | None = None
+    reactions: list[dict[str, Any]] | None = None  # SPEC §9.3: after the effect began
+    reactions_omitted: int | None = None
 
 
 @dataclass
@@ -118,6 +122,10 @@ class NodeState:
     last_boot: float | None = None
     last_boot_repeat: bool = False
     reset_since_boot: bool = False
+    last_reset: float | None = None  # the latest direct reset command to N
+    # N's first frame, a boot-up at most obey_ms after a reset command to N: stale if N's
+    # next boot-up follows within obey_ms (SPEC §2, its power-on boot-up)
+    power_on_boot: float | None = None
     unanswered_resets: deque[float] = field(default_factory=lambda: deque(maxlen=64))
     last_ec_bad: dict[str, bool] = field(default_factory=dict)
     # reset ts, its name, whether it surely applies to N (a broadcast does not apply to
@@ -134,6 +142,11 @@ class NodeState:
     custom_pdo: bool = False  # TPDO COB-IDs configured or written: S001 is left offline
     s001_pending: tuple[float, int] | None = None  # ts, COB-ID: decided once time moves on
     toggle_expected: int | None = None
+    # the toggle N's responses alone expect (`toggle_expected` less the resets), and the
+    # reset commands to N its responses have not shown processed yet: a stale response
+    # (SPEC §2) left N before them (as offline `guarding._processed_resets`)
+    toggle_seq: int | None = None
+    resets_pending: deque[float] = field(default_factory=lambda: deque(maxlen=64))
     g001_run: bool = False
     class_last_hb: float | None = None  # the last heartbeat since the boot-up (SPEC §2)
     class_early: float | None = None  # early_factor x the period in force at it
@@ -197,6 +210,8 @@ class Tracker:
         self.bootup_grace_s = float(p["B001"]["grace_ms"]) / 1000.0
         # per channel: the latest broadcast reset, which the master may obey itself
         self.broadcast_reset_on: dict[str, float] = {}
+        # per channel: the latest broadcast reset, kept (SPEC §2 stale boot-ups)
+        self.last_broadcast_reset: dict[str, float] = {}
         self.obey_s = float(p["S004"]["obey_ms"]) / 1000.0
         self.grace_s = float(p["S001"]["grace_ms"]) / 1000.0
         self.master_window_s = float(profile.timeline["master_window_ms"]) / 1000.0
@@ -256,11 +271,14 @@ class Tracker:
         periods = [p for o in self.nodes.values()
                    if o.channel == st.channel and o is not st and o.producer()
                    for p in (o.period(),) if p]
-        found = self.recent.causes(lf.rule, st.channel, st.node, a0, max(self.now, lf.time),
+        now = max(self.now, lf.time)
+        found = self.recent.causes(lf.rule, st.channel, st.node, a0, now,
                                    master=self.master(st.channel), periods=periods,
-                                   bootups=list(self.boots_on.get(st.channel, ())))
+                                   bootups=list(self.boots_on.get(st.channel, ())),
+                                   te=effect_start(lf.rule, a0, lf.time, st.period()),
+                                   tf=lf.time)
         if found is not None:
-            lf.causes, lf.causes_omitted = found
+            lf.causes, lf.causes_omitted, lf.reactions, lf.reactions_omitted = found
 
     def _go_offline(self, st: NodeState) -> None:
         if st.state not in (UNKNOWN, OFFLINE):
@@ -476,6 +494,7 @@ class Tracker:
         self.last_command_on[f.channel] = f.ts
         if not target and cs in RESETS:
             self.broadcast_reset_on[f.channel] = f.ts
+            self.last_broadcast_reset[f.channel] = f.ts
         if not target and master is not None:
             # whether the master obeyed its own broadcast only its next report shows
             # (SPEC §2): its PDOs until then are left to the offline check
@@ -502,6 +521,7 @@ class Tracker:
                 self._set(st, new, f.ts, observed=False)
             if cs in RESETS:
                 st.toggle_expected = 0  # CiA 301: reset communication resets the toggle
+                st.resets_pending.append(f.ts)
 
     def _booted_before(self, f: LiveFrame) -> Iterator[int]:
         """The nodes that booted since the previous command on the channel and within the
@@ -524,6 +544,8 @@ class Tracker:
             st.boot_awaited = st.seen or st.config.expected
         self._end_gap(st, ts)
         st.reset_since_boot = True
+        if target:
+            st.last_reset = ts
         st.unanswered_resets.append(ts)
         st.prev_hb = None  # no heartbeat interval across a reset
         self._power_on_values(st)
@@ -568,7 +590,10 @@ class Tracker:
             st.guard_run = False
             doubtful = (requests > MISSED or first) and toggle == 0 and not off
             before = st.toggle_expected
+            left = self._processed_resets(st, f.ts, code)
             self._toggle(st, f.ts, value)
+            if left:  # resets it came before: the next response starts anew
+                st.toggle_expected = 0
             st.doubt = (before, False) if doubtful else None
             if doubtful and requests > MISSED:  # offline may find it was a heartbeat
                 st.ambiguous = True
@@ -590,6 +615,31 @@ class Tracker:
                      and reported == cmd[1])  # queued before the command (SPEC §2)
             if not stale:
                 self._set(st, reported, f.ts, observed=True)
+
+    def _processed_resets(self, st: NodeState, ts: float, code: int) -> bool:
+        """Before N's guarding response at `ts` reporting `code` is judged: set the toggle
+        it must have, and say whether reset commands to N remain that N processed after
+        it (then the next response must have toggle 0).
+
+        A stale response (SPEC §2: within `obey_ms` of the latest command to N, reporting
+        the state from before it) left N before N processed the reset commands whose
+        stale window holds it: it keeps the toggle sequence of before them, and they
+        count for the next response (Lely, CANopenNode: `70N#85` 0.1 ms after
+        `000#810N`). Any other response comes after every reset before it."""
+        pending = st.resets_pending
+        cmd = st.last_cmd
+        stale = (cmd is not None and ts - cmd[0] <= self.obey_s + EPS
+                 and STATE_OF_CODE.get(code) == cmd[1])
+        if not pending or not stale:
+            pending.clear()
+            return False
+        done = False
+        while pending and ts - pending[0] > self.obey_s + EPS:
+            pending.popleft()
+            done = True
+        if not done:
+            st.toggle_expected = st.toggle_seq
+        return bool(pending)
 
     def _answers(self, st: NodeState, ts: float, value: int, requests: int, off: bool
                  ) -> bool:
@@ -618,6 +668,7 @@ class Tracker:
         if st.doubt is not None and (not guard or off or st.doubt[1]) \
                 and toggle != st.toggle_expected and st.doubt[0] in (None, toggle):
             st.toggle_expected = st.doubt[0]  # that one was a heartbeat: this one fits
+            st.toggle_seq = st.doubt[0]
             st.doubt = None
             st.ambiguous = True  # what live made of it stands: offline reads it again
         return guard
@@ -636,7 +687,7 @@ class Tracker:
         st.heartbeats -= 1
         st.hb_since_boot = max(st.hb_since_boot - 1, 0)
         st.prev_hb = st.class_last_hb = None
-        st.toggle_expected = 1 - (value >> 7)
+        st.toggle_expected = st.toggle_seq = 1 - (value >> 7)
         st.doubt = (None, True)  # the next answer's toggle decides, as offline
         st.ambiguous = True  # offline may still find it was a heartbeat, with what follows
 
@@ -656,7 +707,7 @@ class Tracker:
             st.g001_run = True
         else:
             st.g001_run = False
-        st.toggle_expected = 1 - toggle
+        st.toggle_expected = st.toggle_seq = 1 - toggle
 
     def _tpdo(self, st: NodeState, f: LiveFrame) -> None:
         """S001, when it is certain: the node itself reported PRE-OPERATIONAL or STOPPED
@@ -710,6 +761,8 @@ class Tracker:
         st.last_cmd = None  # nothing after a boot-up was queued before a command
         st.self_start_open = True  # until a report or a command shows it did not start itself
         st.toggle_expected, st.g001_run = 0, False
+        st.toggle_seq = 0
+        st.resets_pending.clear()
         st.requests, st.doubt = 0, None
         st.reported = False
         # B003's window: 3 x the configured period, else x the whole trace's median
@@ -721,7 +774,13 @@ class Tracker:
                   else max(3 * period if period else 0.0, 1.0))
         since = ts - st.last_boot if st.last_boot is not None else None
         sure = bool(self.repeat_ms or configured) or (since is not None and since <= 1.0)
-        repeat = (since is not None and since <= window + EPS and not st.reset_since_boot)
+        # SPEC §2: N's power-on boot-up, overtaken by a reset command, and this one
+        # answering that reset: neither is B003 nor B002 (as checks/bootup._power_on)
+        answer = (st.power_on_boot is not None
+                  and -EPS <= ts - st.power_on_boot <= self.obey_s + EPS)
+        st.power_on_boot = ts if not was_seen and self._reset_just_before(st, ts) else None
+        repeat = (since is not None and since <= window + EPS and not st.reset_since_boot
+                  and not answer)
         while st.unanswered_resets and ts - st.unanswered_resets[0] > self.reset_window_s + EPS:
             st.unanswered_resets.popleft()
         own = self.broadcast_reset_on.get(st.channel)
@@ -733,6 +792,8 @@ class Tracker:
         elif st.node == self.master(st.channel) and (
                 own is not None and ts - own <= self.bootup_timeout_s + EPS):
             self.broadcast_reset_on.pop(st.channel, None)  # the master obeyed its own reset
+        elif answer:
+            pass
         elif repeat:
             if not st.last_boot_repeat:
                 self._find("B003", st.channel, st, ts,
@@ -752,6 +813,13 @@ class Tracker:
         st.class_early_sure = True
         self._power_on_values(st)
         st.config_doubt = False
+
+    def _reset_just_before(self, st: NodeState, ts: float) -> bool:
+        """Whether a reset command to N, direct or broadcast (whether or not N had been
+        seen), came at most obey_ms before `ts` (SPEC §2 stale boot-ups)."""
+        latest = max(st.last_reset if st.last_reset is not None else float("-inf"),
+                     self.last_broadcast_reset.get(st.channel, float("-inf")))
+        return -EPS <= ts - latest <= self.obey_s + EPS
 
     def _power_on_values(self, st: NodeState) -> None:
         """N's boot-up or a reset command to it: what SDO wrote to N's objects no longer

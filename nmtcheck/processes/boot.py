@@ -386,16 +386,22 @@ def _process_finding(out: BootAnalysis, cm: ChannelModel, n: int, x: Process, ma
     if f.code == "P007":
         _add(out, "P007", cm, n, f.at, f.at,
              lambda: f"{f.message.replace('{node}', str(n))}: node {n}'s boot process (from "
-                     f"{x.start:.6f}, line {x.start_line}) had not completed", None, f.at, x)
+                     f"{x.start - cm.start:.6f} s, line {x.start_line}) had not completed",
+             None, f.at, x)
         return
 
     def text() -> str:
-        msg = f.message.replace("{node}", str(n))
+        # `{started}`: where boot_steps says the node was started anyway (its time in
+        # seconds from the trace's start, as every report gives times)
+        anyway = ("" if x.started_at is None else
+                  f"; started anyway at {x.started_at.time - cm.start:.6f} s "
+                  f"(line {x.started_at.line})")
+        msg = f.message.replace("{node}", str(n)).replace("{started}", anyway)
         more = f" ({x.failures} failures in the process)" if x.failures > 1 else ""
         started = ""
-        if f.code == "P003" and x.started_at is not None:
-            started = (f"; node {n} was started anyway at {x.started_at.time:.6f} "
-                       f"(line {x.started_at.line})")
+        if f.code == "P003" and x.started_at is not None:  # (seconds from the start)
+            started = (f"; node {n} was started anyway at "
+                       f"{x.started_at.time - cm.start:.6f} s (line {x.started_at.line})")
         halt = "; mandatory: network boot halted" if mandatory else ""
         return (f"{msg}{more}{started}{halt}: Lely-compatible letter {f.letter} "
                 f"({LETTERS[f.letter]})")
@@ -455,7 +461,8 @@ def _p006(out: BootAnalysis, cm: ChannelModel,
             note = f"; Lely-compatible letter B ({LETTERS['B']})" if letter else ""
             _add(out, "P006", cm, n, Where(deadline, -1, 0), None,
                  f"mandatory node {n} did not complete its boot within {t_boot * 1000:g} ms "
-                 f"(1F89h) of the manager's boot-up at {w.time:.6f} (line {w.line}): the "
+                 f"(1F89h) of the manager's boot-up at {w.time - cm.start:.6f} s "
+                 f"(line {w.line}): the "
                  f"manager halts the network boot-up{note}", letter, ev6,
                  cur[-1] if cur else None)
             p006.add(n)
@@ -487,7 +494,8 @@ def _p008(out: BootAnalysis, cm: ChannelModel,
             cands = _candidates(x, nd)
             what = describe_step(last) if last is not None else "its anchor"
             _add(out, "P008", cm, n, Where(moment, -1, 0), None,
-                 f"node {n}'s boot process (from {x.start:.6f}, line {x.start_line}) "
+                 f"node {n}'s boot process (from {x.start - cm.start:.6f} s, line "
+                 f"{x.start_line}) "
                  f"stopped after {what}; candidates {cands}", None, x.last_frame, x,
                  inferred=cands)
 

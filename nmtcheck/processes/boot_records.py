@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from nmtcheck.timeline.model import InputModel
+from nmtcheck.processes.attached import Attached
 from nmtcheck.timeline.tables import blank
 
 # Lely's co_nmt_es2str (src/co/nmt.c)
@@ -325,14 +325,6 @@ class BootAnalysis:
                 yield ch, rows, left
 
 
-_ATTR = "_nmtcheck_boot"
-
-
-def attach(model: InputModel, analysis: BootAnalysis) -> None:
-    """Keep the analysis with the model, for the P rules (which see only the model)."""
-    setattr(model, _ATTR, analysis)
-
-
-def of(model: InputModel) -> BootAnalysis | None:
-    found: BootAnalysis | None = getattr(model, _ATTR, None)
-    return found
+_SLOT: Attached[BootAnalysis] = Attached("boot")
+attach = _SLOT.attach  # the engine keeps the analysis with the model
+of = _SLOT.of  # the rules and reports read it

@@ -212,6 +212,8 @@ def node_processes(nd: NodeInputs, p: BootParams) -> Procs:
         win = (a_of >= 0) & (t.start_ts[probes] - a.ts[np.maximum(a_of, 0)]
                              <= p.probe_window_s + EPS)
         ok = (t.result[probes] == st.OK) & t.has_value[probes]
+        failed = ((t.result[probes] != st.OK) & (t.result[probes] != st.OPEN)).tolist()
+        p_ts = t.start_ts[probes].tolist()
         # restarts the manager caused (a software update or restore) do not supersede
         restart = np.isin(t.index, (0x1F50, 0x1F51, 0x1F57)) | (
             (t.index == 0x1011) & (t.direction == st.DOWNLOAD) & (t.value == RESTORE_VALUE))
@@ -223,6 +225,11 @@ def node_processes(nd: NodeInputs, p: BootParams) -> Procs:
         cur = -1  # the open process's anchor (-1: none)
         cur_end = NO_END
         cur_ans = False
+        # the open process's probes: the last one's time, the longest interval between
+        # two, whether one failed (P002's "the manager stopped probing")
+        cur_last: float | None = None
+        cur_gap = 0.0
+        cur_failed = False
         prev = -1
 
         def close(i: int, end: int, ts: float, how: int) -> None:
@@ -244,17 +251,30 @@ def node_processes(nd: NodeInputs, p: BootParams) -> Procs:
                 close(i - 1, cur_end, a_end_ts_l[cur], a_how_l[cur])
                 cur = -1
             if cur >= 0:
-                if k >= 0 and aidx[k] > aidx[cur] and w and cur_ans:
+                # A process whose probes all failed and stopped (P002 holds at the anchor:
+                # it failed B) has ended: the boot-up after it starts a new process
+                # (8.1.2 item 5, 8.3.2), as one with an answered probe is superseded.
+                # Lely reports B for a mandatory slave at 1F89h, and boots it afresh
+                # when a power cycle brings its boot-up.
+                if k >= 0 and aidx[k] > aidx[cur] and w and (cur_ans or (
+                        not cur_ans and cur_failed and cur_last is not None
+                        and ats[k] >= cur_last + max(2.0, 2 * cur_gap) - EPS)):
                     last = probe_rows[i - 1]
                     if rs[max(stop[k], last)] - rs[last] == 0:  # superseded (8.3.2 item 1)
                         close(i - 1, aidx[k], ats[k], 2)
                         cur, cur_ans = k, False
                         cur_end = open_(i, k)
+                        cur_last, cur_gap, cur_failed = None, 0.0, False
             elif k >= 0 and w and prev < aidx[k]:
                 cur, cur_ans = k, False
                 cur_end = open_(i, k)
-            if cur >= 0 and good:
-                cur_ans = True
+                cur_last, cur_gap, cur_failed = None, 0.0, False
+            if cur >= 0:
+                cur_ans = cur_ans or good
+                if cur_last is not None:
+                    cur_gap = max(cur_gap, p_ts[i] - cur_last)
+                cur_last = p_ts[i]
+                cur_failed = cur_failed or failed[i]
             prev = pidx
         if cur >= 0:
             close(len(probe_rows) - 1, cur_end, a_end_ts_l[cur], a_how_l[cur])
@@ -791,11 +811,11 @@ def _k_failure(x: Process, nd: NodeInputs, last: list[Step], attempt: int, p: Bo
         return out
     if _bootup_in(nd, t_c.time, hi):
         return out
-    started = (f"; started anyway at {x.started_at.time:.6f} (line {x.started_at.line})"
-               if x.started_at is not None else "")
+    # `{started}`: "; started anyway at ..." where x was (its time from the trace's start:
+    # boot.py fills it in)
     out.append(Failure("P004", "K", Where(hi, -1, 0),
                        f"no heartbeat of node {{node}} within C_N = {nd.c_n * 1000:g} ms "
-                       f"after the last SDO transfer (line {t_c.line}){started}", t_c,
+                       f"after the last SDO transfer (line {t_c.line}){{started}}", t_c,
                        moment=True))
     return out
 

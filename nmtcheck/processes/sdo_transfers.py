@@ -57,6 +57,9 @@ class SdoSpool:
         self.short = 0  # SDO frames with DLC < 4: not decoded, counted
         self.errors = ColumnSpool(ERR_COLUMNS)
         self._err_cols: dict[str, np.ndarray] | None = None
+        # servers sent a download to sub-index 2 of a PDO communication parameter (the
+        # transmission type, SPEC §9.2.2 D006): only these are read again for it
+        self.pdo_type_servers: set[int] = set()
 
     def add(self, b: FrameBatch) -> None:
         co = ~b.ext & ~b.err & ~b.rtr
@@ -82,6 +85,12 @@ class SdoSpool:
         rows = np.empty(sel.size, SDO_DTYPE)
         rows["ts"], rows["idx"], rows["line"] = b.ts[sel], b.index[sel], b.line[sel]
         rows["req"], rows["dlc"], rows["data"] = req, b.dlc[sel], b.data[sel]
+        data = b.data[sel]
+        index = data[:, 1].astype(np.int64) | (data[:, 2].astype(np.int64) << 8)
+        pdo_type = req & ((data[:, 0] & 0xE0) == 0x20) & (data[:, 3] == 2) & (
+            ((index >= 0x1400) & (index <= 0x15FF)) | ((index >= 0x1800) & (index <= 0x19FF)))
+        if pdo_type.any():
+            self.pdo_type_servers.update(np.unique(keys[pdo_type]).tolist())
         order = np.argsort(keys, kind="stable")
         skeys = keys[order]
         bounds = np.flatnonzero(np.diff(skeys, prepend=-1, append=-1))

@@ -3,7 +3,9 @@
 Read: 1017h producer heartbeat time, 1016h consumer entries, 100Ch guard time,
 100Dh life time factor, the PDO communication parameters (1400h-1403h RPDO,
 1800h-1803h TPDO COB-IDs with their valid bit), 1F80h NMT startup (bit 0: the
-device is the NMT master) and 1F81h (CiA 302 slave assignment). A DCF's
+device is the NMT master), 1F81h (CiA 302 slave assignment), and the SYNC and EMCY
+objects of SPEC §9.1.1 (1005h COB-ID SYNC, 1006h period, 1007h window, 1019h counter
+overflow, 1014h COB-ID EMCY, 1015h EMCY inhibit time, 1029h:01 error behaviour). A DCF's
 ParameterValue wins over the DefaultValue; `$NODEID` is the node-ID the file is
 used as (else its [DeviceComissioning] NodeID).
 
@@ -49,8 +51,22 @@ class DeviceValues:
     life_time_factor: int | None = None
     tpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)  # PDO 1..4 -> COB-ID
     rpdo_cob_ids: dict[int, int | None] = field(default_factory=dict)
+    tpdo_types: dict[int, int] = field(default_factory=dict)  # PDO 1..4 -> sub 2
+    rpdo_types: dict[int, int] = field(default_factory=dict)
+    # PDO 1..4 -> {"inhibit_100us": sub 3, "event_timer_ms": sub 5, "sync_start": sub 6,
+    # "mapping": [1600h/1A00h sub 1..n]} as far as the file gives them (SPEC §9.1.1)
+    tpdo_params: dict[int, dict[str, Any]] = field(default_factory=dict)
+    rpdo_params: dict[int, dict[str, Any]] = field(default_factory=dict)
     slaves: list[int] | None = None  # 1F81h: node-IDs assigned as slaves
     nmt_master: bool = False  # 1F80h read and its bit 0 set (CiA 302: the device is NMT master)
+    # SPEC §9.1.1, as the file gives them (None: not given)
+    sync_cob_id: int | None = None  # 1005h: bits 0-10 CAN-ID, bit 30 produces SYNC
+    sync_period_us: int | None = None  # 1006h
+    sync_window_us: int | None = None  # 1007h
+    sync_counter_overflow: int | None = None  # 1019h
+    emcy_cob_id: int | None = None  # 1014h: bits 0-10 CAN-ID, bit 31 no EMCY
+    emcy_inhibit_100us: int | None = None  # 1015h
+    error_behaviour: int | None = None  # 1029h:01
     reader: str = "canopen"  # canopen | ini (fallback)
     notes: list[str] = field(default_factory=list)  # what could not be read, and why
 
@@ -241,12 +257,56 @@ def _read_consumers(get: _Get, out: DeviceValues) -> None:
 
 
 def _read_pdo_cob_ids(get: _Get, out: DeviceValues) -> None:
-    """1800h..1803h and 1400h..1403h sub 1: the COB-IDs of TPDO 1..4 and RPDO 1..4."""
+    """1800h..1803h and 1400h..1403h sub 1: the COB-IDs of TPDO 1..4 and RPDO 1..4; sub 2:
+    their transmission types (SPEC §9.1.1; a type CiA 301 refuses is noted, not used)."""
     for n in range(4):
         for base, table in ((0x1800, out.tpdo_cob_ids), (0x1400, out.rpdo_cob_ids)):
             cob = get(base + n, 1)
             if cob is not None:
                 table[n + 1] = None if cob & COB_ID_INVALID else cob & 0x7FF
+        for base, types, refused in ((0x1800, out.tpdo_types, range(241, 252)),
+                                     (0x1400, out.rpdo_types, range(241, 254))):
+            tt = get(base + n, 2)
+            if tt is not None and tt in refused:
+                out.notes.append(f"{base + n:04X}h sub 2 = {tt}: a reserved transmission "
+                                 "type; taken as unknown")
+            elif tt is not None:
+                types[n + 1] = tt
+        for base, mapping, params in ((0x1800, 0x1A00, out.tpdo_params),
+                                      (0x1400, 0x1600, out.rpdo_params)):
+            found: dict[str, Any] = {}
+            for name, sub in (("inhibit_100us", 3), ("event_timer_ms", 5), ("sync_start", 6)):
+                if base == 0x1400 and name != "event_timer_ms":
+                    continue
+                v = get(base + n, sub)
+                if v is not None:
+                    found[name] = v
+            count = get(mapping + n, 0)
+            if count is not None and 0 < count <= 64:
+                entries = [get(mapping + n, sub) for sub in range(1, count + 1)]
+                if all(e is not None for e in entries):
+                    found["mapping"] = entries
+            elif count is not None:
+                found["mapping"] = []  # 0 entries, or an MPDO (FEh/FFh): not judged
+            if found:
+                params[n + 1] = found
+
+
+def _read_sync_emcy(get: Callable[..., int | None], out: DeviceValues) -> None:
+    """The SYNC and EMCY objects of SPEC §9.1.1. A 1019h that CiA 301 refuses (1 or above
+    240) is noted and taken as unknown, never used (SPEC §9.1.2)."""
+    out.sync_cob_id = get(0x1005)
+    out.sync_period_us = get(0x1006)
+    out.sync_window_us = get(0x1007)
+    overflow = get(0x1019)
+    if overflow is not None and (overflow == 1 or overflow > 240):
+        out.notes.append(f"1019h = {overflow}: not a counter overflow value (0, 2..240); "
+                         "taken as unknown")
+        overflow = None
+    out.sync_counter_overflow = overflow
+    out.emcy_cob_id = get(0x1014)
+    out.emcy_inhibit_100us = get(0x1015)
+    out.error_behaviour = get(0x1029, 1)
 
 
 def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
@@ -298,6 +358,7 @@ def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
     out.nmt_master = bool(startup is not None and startup & 1)
     slaves = [n for n in range(1, 128) if (get(0x1F81, n) or 0) & 1]
     out.slaves = slaves or None
+    _read_sync_emcy(get, out)
     # the reader and the file's structure, then the values; one line each (a value in an
     # INI file may go on over several lines)
     out.notes = [_one_line(note) for note in first + ini.notes + out.notes]

@@ -1,17 +1,25 @@
 """SDO frames that configure error control and PDOs, and SDO abort codes (CiA 301 §7.2.4).
 
 Only the expedited downloads (client command specifier 1, `e` bit set:
-23h/27h/2Bh/2Fh, and 22h without size) to 1016h, 1017h, 100Ch, 100Dh and the
-PDO communication parameters are applied; the server's 60h confirms one, 80h
+23h/27h/2Bh/2Fh, and 22h without size) to 1016h, 1017h, 100Ch, 100Dh, the PDO
+communication parameters, and the SYNC and EMCY objects of SPEC §9.1.1 (1005h, 1006h,
+1007h, 1019h, 1014h, 1015h, 1029h:01) are applied; the server's 60h confirms one, 80h
 aborts it. Segmented downloads to these objects are reported, not applied.
 """
 
 from __future__ import annotations
 
+PDO_COMM_OBJECTS = (0x1400, 0x1401, 0x1402, 0x1403, 0x1800, 0x1801, 0x1802, 0x1803)
+# SPEC §9.1.1: one value at sub-index 0 (1029h: its sub 1, communication error)
+COMM_OBJECTS = {0x1005: "COB-ID SYNC", 0x1006: "communication cycle period",
+                0x1007: "synchronous window length", 0x1019: "synchronous counter overflow",
+                0x1014: "COB-ID EMCY", 0x1015: "inhibit time EMCY"}
+ERROR_BEHAVIOUR = 0x1029
 CONFIG_OBJECTS = {0x1016: "consumer heartbeat time", 0x1017: "producer heartbeat time",
                   0x100C: "guard time", 0x100D: "life time factor",
                   **{0x1400 + n: f"RPDO{n + 1} communication parameter" for n in range(4)},
-                  **{0x1800 + n: f"TPDO{n + 1} communication parameter" for n in range(4)}}
+                  **{0x1800 + n: f"TPDO{n + 1} communication parameter" for n in range(4)},
+                  **COMM_OBJECTS, ERROR_BEHAVIOUR: "error behaviour"}
 
 ABORT_CODES = {
     0x05030000: "toggle bit not alternated",
@@ -54,11 +62,11 @@ def abort_text(code: int) -> str:
 
 
 def is_config_index(index: int, sub: int) -> bool:
-    if index in (0x1017, 0x100C, 0x100D):
+    if index in (0x1017, 0x100C, 0x100D) or index in COMM_OBJECTS:
         return sub == 0
     if index == 0x1016:
         return 1 <= sub <= 127
-    return index in CONFIG_OBJECTS and sub == 1  # PDO COB-ID
+    return (index in PDO_COMM_OBJECTS or index == ERROR_BEHAVIOUR) and sub == 1
 
 
 def expedited_value(data: bytes | list[int]) -> int | None:

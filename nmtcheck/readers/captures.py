@@ -320,6 +320,8 @@ def channel_spans(captures: Captures) -> dict[int, CaptureSpan]:
         return {}
     stats = captures.stats
     stats.restarts = [(c.first_index, c.first_line, c.start) for c in captures.list[1:]]
+    stats.capture_spans = [(c.start, c.end, c.first_index, c.first_line)
+                           for c in captures.list]
     out = {}
     for code, n in captures.of_channel.items():
         c = captures.list[n - 1]

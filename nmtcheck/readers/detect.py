@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import importlib
+import re
 from collections.abc import Iterator
+from itertools import pairwise
 from types import ModuleType
 
 # Format name -> module, in the order sniffing tries them (binary magic bytes first, then
@@ -95,4 +97,70 @@ def detect(head: bytes) -> tuple[str, int] | None:
                 return name, start
         if (loose := _sniff_loose(rest)) is not None:
             return loose, start
+    return None
+
+
+# Line-number gutters as people paste logs (SPEC §1): `grep -n` (`12:` a matching line,
+# `12-` a context line), `cat -n` and `nl` (`    12<TAB>`), an editor's or a code view's
+# (`12 | `, `12│`), `less -N` and vim's `:set number` (`  12 `). Tried in this order, only
+# on a text no format takes as it is.
+GUTTERS = (
+    re.compile(rb"[ \t]*(\d{1,9})[:-][ \t]?"),
+    re.compile(rb"[ \t]*(\d{1,9})\t"),
+    re.compile(rb"[ \t]*(\d{1,9})[ \t]*(?:\||\xe2\x94\x82|\xc2\xa6)[ \t]?"),
+    re.compile(rb"[ \t]*(\d{1,9}) +"),
+)
+GUTTER_LINES = 200  # lines of the head looked at for a gutter
+
+
+def _gutters(head: bytes) -> Iterator[re.Pattern[bytes]]:
+    """The gutter styles that number the head's lines: at least four in five of its first
+    non-blank lines (two at least, unless it has one) start with one, numbers increasing."""
+    lines = [line for line in head.split(b"\n")[:GUTTER_LINES] if line.strip()]
+    for gutter in GUTTERS:
+        numbers = [int(m[1]) for m in map(gutter.match, lines) if m is not None]
+        if (len(numbers) >= min(2, len(lines)) and 5 * len(numbers) >= 4 * len(lines)
+                and all(a < b for a, b in pairwise(numbers))):
+            yield gutter
+
+
+def line_gutter(gutter: re.Pattern[bytes]) -> re.Pattern[bytes]:
+    """`gutter` at the start of every line of a text (for `re.sub`)."""
+    return re.compile(rb"(?m)^" + gutter.pattern)
+
+
+def detect_numbered(head: bytes) -> tuple[str, int, re.Pattern[bytes]] | None:
+    """For a text no format takes as it is: the format of its lines without their line
+    numbers (`detect`), where they start, and the gutter to take off each line; None when
+    no gutter numbers its lines or the lines without it are no format either."""
+    if not is_text(head):
+        return None
+    for gutter in _gutters(head):
+        found = detect(line_gutter(gutter).sub(b"", head))
+        if found is not None:
+            return (*found, gutter)
+    return None
+
+
+# A token that looks like a CAN frame's ID and what follows it in some log: `702#05`,
+# `702 [1] 05`, `0702 1 05`, `18FF0102 8 ...` — a hint for the unknown-format error
+_FRAME_LIKE = re.compile(
+    rb"(?<![0-9A-Za-z_.])([0-9A-Fa-f]{3,4}|[0-9A-Fa-f]{8})"
+    rb"(?:(#)|[ \t]+\[\d{1,2}\]|h?[ \t]+[0-8](?:[ \t]+[0-9A-Fa-f]{2}(?![0-9A-Za-z]))+)")
+FRAME_LIKE_LINES = 200  # lines of the head looked at for one that looks like a frame
+
+
+def frame_like_line(head: bytes) -> tuple[int, bytes, bool] | None:
+    """The first of the head's lines (1-based number, text with its white space runs as
+    single spaces) that looks like a CAN frame, and whether it is written `ID#DATA` as
+    candump writes frames; None if none does or the head is no text."""
+    if not is_text(head):
+        return None
+    for number, line in enumerate(head.split(b"\n")[:FRAME_LIKE_LINES], 1):
+        m = _FRAME_LIKE.search(line)
+        if m is not None:  # the piece of a line of CR-only line ends that holds it
+            begin = line.rfind(b"\r", 0, m.start()) + 1
+            end = line.find(b"\r", m.end())
+            piece = line[begin:end if end >= 0 else len(line)]
+            return number, b" ".join(piece.split()), m[2] is not None
     return None

@@ -6,19 +6,29 @@ from __future__ import annotations
 import codecs
 import io
 import os
+import re
 import sys
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
 from typing import IO, Any
 
 from nmtcheck.errors import InputError
-from nmtcheck.readers.detect import FORMAT_MODULES, FORMATS, TEXT_FORMATS, detect, format_module
+from nmtcheck.readers.detect import (
+    FORMAT_MODULES,
+    FORMATS,
+    TEXT_FORMATS,
+    detect,
+    detect_numbered,
+    format_module,
+    frame_like_line,
+)
 from nmtcheck.readers.frames import FrameBatch
 from nmtcheck.readers.records import is_note_line
 from nmtcheck.readers.source import (
     HEAD_BYTES,
     Prefixed,
     Source,
+    Unnumbered,
     UpToDamage,
     decompressed,
     read_up_to,
@@ -58,13 +68,16 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
     if head.startswith(codecs.BOM_UTF8):  # a text file saved by a Windows editor
         head = head[len(codecs.BOM_UTF8) :]
     try:
-        fmt, start = _format_of(head, input_format, display, compression, damage)
+        fmt, start, gutter = _format_of(head, input_format, display, compression, damage)
     except InputError:
         raw.close()
         raise
     reader = format_module(fmt).read
     stats = InputStats(path=display, format=fmt, strict=strict)
-    buffered = io.BufferedReader(Prefixed(head, stream), buffer_size=1 << 20)
+    content: io.RawIOBase = Prefixed(head, stream)
+    if gutter is not None:  # line numbers pasted with the lines: each line without its own
+        content = Unnumbered(content, gutter)
+    buffered = io.BufferedReader(content, buffer_size=1 << 20)
     source = Source(display, buffered, stream_errors(compression), compression,
                     None if compression or path == "-" else path, options or {})
     cut = None
@@ -73,6 +86,10 @@ def open_input(path: str, input_format: str | None = None, strict: bool = False,
                else CUT_IF_DAMAGED if compression != "utf-16" else None)
     return OpenedInput(stats, _batches(reader, raw, source, stats, start, damage), cut)
 
+
+# What the unknown-format error says of a text whose line looks like a CAN frame that no
+# format reads (a directory's `.txt` with such a line is a log: nmtcheck/cli/inputs.py)
+FRAME_LIKE = "looks like a CAN frame"
 
 # `OpenedInput.cut_line` of a compressed text log: where its stream is damaged (cut off
 # while it was written or copied), its last line read is where it was cut
@@ -138,28 +155,52 @@ def _decompressed_head(raw: IO[bytes], display: str, strict: bool
 
 
 def _format_of(head: bytes, input_format: str | None, display: str, compression: str,
-               damage: UpToDamage | None) -> tuple[str, int]:
-    """The input's format (given, or detected from `head`) and where in `head` the lines it
-    reads start (past leading lines that are no record)."""
+               damage: UpToDamage | None) -> tuple[str, int, re.Pattern[bytes] | None]:
+    """The input's format (given, or detected from `head`), where in `head` the lines it
+    reads start (past leading lines that are no record), and the line-number gutter to
+    take off each line (`12: `, `cat -n`'s, an editor's) when the lines are numbered."""
     if not head:
         if damage is not None and damage.damage is not None:
             raise InputError(display, f"cannot decompress ({compression}): {damage.damage}")
         raise InputError(display, "empty file: no records to check")
     fmt: str | None = input_format
     start = 0  # bytes of leading lines that are no record, before the format's first line
-    if fmt is None and (found := detect(head)) is not None:
+    gutter: re.Pattern[bytes] | None = None
+    found = detect(head)
+    if fmt is None and found is not None:
         fmt, start = found
+    elif found is None and (numbered := detect_numbered(head)) is not None and fmt in (
+            None, numbered[0]):  # no format as it is: pasted with line numbers (`12: `)
+        fmt, start, gutter = numbered
     if fmt is not None and fmt not in FORMAT_MODULES:
         raise InputError(display, f"unknown input format {fmt!r} (supported: {', '.join(FORMATS)})")
     if fmt is None:
         if damage is not None and damage.damage is not None:
             raise InputError(display, f"cannot decompress ({compression}) beyond its first "
                              f"{len(head)} bytes, too few to tell the format: {damage.damage}")
-        raise InputError(
-            display,
-            "unknown log format (supported: " + ", ".join(FORMATS) + "; use --input-format NAME)",
-        )
-    return fmt, start
+        raise InputError(display, "unknown log format (supported: " + ", ".join(FORMATS)
+                         + "; use --input-format NAME)" + _frame_like_hint(head))
+    return fmt, start, gutter
+
+
+def _frame_like_hint(head: bytes) -> str:
+    """What the unknown-format error adds for a text with a line that looks like a CAN
+    frame: that line, quoted, and what the formats that write such lines expect."""
+    found = frame_like_line(head)
+    if found is None:
+        return ""
+    number, line, candump_like = found
+    text = line.decode("utf-8", "replace")
+    if len(text) > QUOTED_CHARS:
+        text = text[:QUOTED_CHARS] + "…"
+    expected = ("candump writes `(1700000000.000000) can0 702#05` (-L), `can0 702#05` or "
+                "`702#05`" if candump_like else
+                "e.g. candump `(1700000000.000000) can0 702#05`, candump screen output "
+                "`can0  702   [1]  05`, Vector ASC `0.010000 1  702  Rx   d 1 05`")
+    return f"; line {number} {FRAME_LIKE} but no format reads it: `{text}` ({expected})"
+
+
+QUOTED_CHARS = 80  # of a line quoted in an error message
 
 
 def _batches(reader: Callable[[Source, InputStats], Iterator[FrameBatch]], raw: IO[bytes],

@@ -8,6 +8,7 @@ import codecs
 import gzip
 import io
 import lzma
+import re
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -143,6 +144,54 @@ class Prefixed(io.RawIOBase):
         n = len(data)
         b[:n] = data
         return n
+
+
+class Unnumbered(io.RawIOBase):
+    """A text whose lines were pasted with their line numbers (`12: `, `cat -n`'s
+    `    12<TAB>`, an editor's `12 | `): the same lines without them, so that line N of the
+    file stays line N. `gutter` matches one line's number and what separates it from the
+    line (readers/detect.py GUTTERS); a line without one is passed on as it is."""
+
+    def __init__(self, stream: IO[bytes] | io.RawIOBase, gutter: re.Pattern[bytes]) -> None:
+        self._read = getattr(stream, "read1", stream.read)
+        self._gutter = re.compile(rb"(?m)^" + gutter.pattern)
+        self._held = b""  # the start of a line not yet ended (fewer than MAX_LINE_BYTES)
+        self._mid = False  # what was passed on ended inside a line: no line starts next
+        self._out = b""  # lines without their numbers, not yet read
+        self._done = False
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: bytearray | memoryview) -> int:  # type: ignore[override]
+        while not self._out and not self._done:
+            chunk = self._read(READ_PIECE)
+            data = self._held + chunk
+            if not chunk:  # the last line, without a newline
+                self._done, self._held = True, b""
+                self._out = self._unnumbered(data)
+                break
+            cut = data.rfind(b"\n") + 1
+            if not cut and len(data) < MAX_LINE_BYTES:
+                self._held = data
+                continue
+            cut = cut or len(data)  # an overlong line: passed on as it comes
+            self._held = data[cut:]
+            self._out = self._unnumbered(data[:cut])
+        n = min(len(b), len(self._out))
+        b[:n] = self._out[:n]
+        self._out = self._out[n:]
+        return n
+
+    def _unnumbered(self, data: bytes) -> bytes:
+        if not data:
+            return data
+        rest = 0
+        if self._mid:  # the end of a line whose start was passed on
+            rest = data.find(b"\n") + 1 or len(data)
+        out = data[:rest] + self._gutter.sub(b"", data[rest:])
+        self._mid = not out.endswith(b"\n")
+        return out
 
 
 def read_up_to(stream: IO[bytes], n: int) -> bytes:

@@ -61,6 +61,9 @@ class InputStats:
     # time; and each of its channels' name in the log
     restarts: list[tuple[int, int, float]] = field(default_factory=list)
     capture_channels: dict[str, str] = field(default_factory=dict)
+    # each capture's first and latest time, first frame index and line, when the input
+    # holds several (the reports give each one's span: times of two never subtract)
+    capture_spans: list[tuple[float, float, int, int]] = field(default_factory=list)
     # where the logger's clock stepped back within a recording: frame index, line, and
     # the seconds the frames after it are timed later than their stamps (captures.py)
     clock_steps: list[tuple[int, int, float]] = field(default_factory=list)
@@ -114,6 +117,19 @@ class InputStats:
         self.skipped += 1
         if len(self.skipped_lines) < MAX_SKIPPED_LINES_KEPT:
             self.skipped_lines.append(line)
+
+    def left_out_text(self) -> str | None:
+        """What the reports say of the notes that frames were left out (`[... snip ...]`,
+        `...`) after which a capture begins: information on an edit the user made on
+        purpose, no finding (I005 is for timestamps that go backwards); None if none."""
+        lines = [note for note, _first in self.left_out_restarts]
+        if not lines:
+            return None
+        at = ", ".join(str(n) for n in lines[:3]) + (", …" if len(lines) > 3 else "")
+        return (f"frames were left out at line{'s' if len(lines) > 1 else ''} {at} (a note "
+                f"such as `[snip]` or `...`): {len(self.restarts) + 1} captures, each "
+                "checked as a trace of its own (a later capture's channels are named "
+                "'NAME (capture K)')")
 
     def note(self, count: int = 1, raw: bytes | None = None, line: int = 0) -> None:
         """Count lines that are only a note or a comment: non-frame records, not skips. A

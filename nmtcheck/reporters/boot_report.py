@@ -44,23 +44,45 @@ def finding_fields(f: Finding) -> dict[str, Any]:
     if f.causes is not None:
         out["causes"] = f.causes
         out["causes_omitted"] = f.causes_omitted or 0
+        out["reactions"] = f.reactions or []
+        out["reactions_omitted"] = f.reactions_omitted or 0
     return out
 
 
 def cause_lines(f: Finding, start: float) -> Iterator[str]:
-    """Text: one indented line per cause under the finding, times as the finding shows
-    them (seconds from the recording's first frame, `start`)."""
-    for c in f.causes or ():
-        where = []
-        if c.get("node") is not None:
-            where.append(f"node {c['node']}")
-        if c.get("line"):
-            where.append(f"line {c['line']}")
-        span = f"{c['time'] - start:.6f}" + (
-            f"-{c['end'] - start:.6f}" if c.get("end") is not None else "")
-        yield f"        cause: {span} s {c['text']}" + (f" ({', '.join(where)})" if where else "")
+    """Text: one indented line per cause under the finding, then one `after:` line per
+    reaction with its role (SPEC §9.3.6), times as the finding shows them (seconds from the
+    recording's first frame, `start`)."""
+    for c in f.causes or ():  # a chain's deeper causes indented two more each (§9.3.6)
+        link = c.get("link")
+        yield ("        " + "  " * (int(c.get("depth") or 1) - 1) + "cause: "
+               + entry_text(c, start)
+               + (f"  [{link.replace('_', ' ')}]" if link and link != "window" else ""))
     if f.causes_omitted:
         yield f"        cause: ... {f.causes_omitted} more"
+    for c in f.reactions or ():
+        yield "        after: " + entry_text(c, start) + f"  [{c['role']}]"
+    if f.reactions_omitted:
+        yield f"        after: ... {f.reactions_omitted} more"
+
+
+def entry_text(c: dict[str, Any], start: float) -> str:
+    """A cause or reaction as one line of text: its time or span, text, node and line."""
+    where = []
+    if c.get("node") is not None:
+        where.append(f"node {c['node']}")
+    if c.get("line"):
+        where.append(f"line {c['line']}")
+    span = f"{c['time'] - start:.6f}" + (
+        f"-{c['end'] - start:.6f}" if c.get("end") is not None else "")
+    return f"{span} s {c['text']}" + (f" ({', '.join(where)})" if where else "")
+
+
+def failure_finding(rep: NodeBootReport, findings: list[Finding]) -> Finding | None:
+    """The P finding that failed a node's boot: the table's row shows its message, time
+    and line, so that table and finding never disagree on when it failed."""
+    return next((f for f in findings if f.rule.startswith("P") and f.node == rep.node
+                 and f.channel == rep.channel), None)
 
 
 def _detail(rep: NodeBootReport, findings: list[Finding]) -> str:
@@ -72,10 +94,9 @@ def _detail(rep: NodeBootReport, findings: list[Finding]) -> str:
         anchor = {"bootup": "boot-up", "reset": "reset", "master-bootup": "the manager's boot-up"}
         return f"started {delta:g} ms after {anchor[x.anchor]} ({x.transfers} SDO)"
     if rep.status == "failed":
-        mine = [f for f in findings if f.rule.startswith("P") and f.node == rep.node
-                and f.channel == rep.channel]
-        if mine:
-            return mine[0].message
+        mine = failure_finding(rep, findings)
+        if mine is not None:
+            return mine.message
         return rep.reason or ""
     if rep.status == "incomplete" and x is not None:
         from nmtcheck.processes.boot import describe_step
@@ -104,6 +125,10 @@ def text_lines(res: InputResult) -> Iterator[str]:
             w = x.evidence if x is not None else None
             when = (f"{w.time - start:.6f} s (line {w.line})" if w is not None and w.line
                     else f"{w.time - start:.6f} s" if w is not None else "")
+            failed = failure_finding(rep, res.findings) if rep.status == "failed" else None
+            if failed is not None:  # when the finding says it failed (P004: C_N expired)
+                when = f"{failed.time - start:.6f} s" + (
+                    f" (line {failed.line})" if failed.line else "")
             if rep.status == "incomplete":
                 when = f"{res.model.end_of(channel) - start:.6f} s"
             letter = rep.letter or "-"

@@ -16,16 +16,20 @@ from typing import IO
 
 RESET = "\x1b[0m"
 STYLES = {"error": "\x1b[31m", "warning": "\x1b[33m", "info": "\x1b[36m",
-          "FAIL": "\x1b[1;31m", "PASS": "\x1b[1;32m", "NOT GATED": "\x1b[1;33m"}
+          "FAIL": "\x1b[1;31m", "PASS": "\x1b[1;32m", "NOT GATED": "\x1b[1;33m",
+          "ORDER ONLY": "\x1b[1;33m"}  # a pass whose timing was not checked: not green
 
 _SEVERITY = "error|warning|info"
-_VERDICT = "PASS|FAIL|NOT GATED"
+# (a pass over a log without timestamps: `PASS (order only: timing not checked)`)
+_VERDICT = r"PASS \(order only[^)]*\)|PASS|FAIL|NOT GATED"
+_TIME = r"(?:-?[\d.]+ s|frame \d+)"  # `frame N` in a log without timestamps
 PATTERNS = {
     # `    1.560400 s  line 77      error   H001 heartbeat-timeout: ...`
-    "text": [re.compile(rf"^( +-?[\d.]+ s  (?:line|frame) \S+ +)({_SEVERITY})(?= )", re.M),
+    "text": [re.compile(rf"^( +{_TIME}  (?:line|frame) \S+ +)({_SEVERITY})(?= )", re.M),
              re.compile(rf"^()({_VERDICT})(?=: )", re.M)],
     # `samples/x.log:77: 1.560400s H001 [error] ...`
-    "concise": [re.compile(rf"^(.*?:\d*: -?[\d.]+s [A-Z]\d{{3}} \[)({_SEVERITY})(?=\] )", re.M),
+    "concise": [re.compile(rf"^(.*?:\d*: (?:-?[\d.]+s|frame \d+) [A-Z]\d{{3}} \[)"
+                           rf"({_SEVERITY})(?=\] )", re.M),
                 re.compile(rf"^(nmtcheck )({_VERDICT})(?=: )", re.M)],
 }
 
@@ -43,8 +47,12 @@ def wanted(choice: str, stream: IO[str] | None) -> bool:
 def paint(text: str, fmt: str) -> str:
     """`text`, a report in `fmt`, with its severities and verdict coloured."""
     for pattern in PATTERNS.get(fmt, []):
-        text = pattern.sub(lambda m: f"{m[1]}{STYLES[m[2]]}{m[2]}{RESET}", text)
+        text = pattern.sub(lambda m: f"{m[1]}{_style(m[2])}{m[2]}{RESET}", text)
     return text
+
+
+def _style(word: str) -> str:
+    return STYLES["ORDER ONLY"] if word.startswith("PASS (") else STYLES[word]
 
 
 def painted(chunks: Iterable[str], fmt: str) -> Iterator[str]:

@@ -3,6 +3,7 @@ per-node heartbeat statistics, computed once here so every format tells the same
 
 from __future__ import annotations
 
+import bisect
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -12,6 +13,7 @@ import numpy as np
 
 from nmtcheck.checks import BY_CODE, RULES
 from nmtcheck.checks.base import SEVERITIES, Rule, fails
+from nmtcheck.protocol.nmt import BOOTUP, EPS
 from nmtcheck.results import Finding, InputResult, summary
 from nmtcheck.safe_text import escape_controls, escape_matching
 from nmtcheck.timeline.gaps import Gaps
@@ -85,9 +87,33 @@ def verdict(results: list[InputResult], threshold: str) -> str:
     return "fail" if is_failing(results, threshold) else "pass"
 
 
+ORDER_ONLY = "order only: timing not checked"
+
+
+def order_only(results: list[InputResult]) -> list[int]:
+    """The indices of the inputs checked in order only (no usable timestamps, I006): JSON
+    `summary.order_only` (SPEC §4)."""
+    return [res.index for res in results if res.error is None and res.stats.order_only]
+
+
 def verdict_word(results: list[InputResult], options: dict[str, object]) -> str:
-    """PASS, FAIL or NOT GATED."""
-    return VERDICT_WORDS[verdict(results, fail_on(options))]
+    """PASS, FAIL or NOT GATED; a pass over an input checked in order only says so
+    (`PASS (order only: timing not checked)`, SPEC §4): its timing rules never ran, so
+    a gate must not read it as a plain pass."""
+    decided = verdict(results, fail_on(options))
+    untimed = order_only(results)
+    if decided != "pass" or not untimed:
+        return VERDICT_WORDS[decided]
+    readable = sum(1 for res in results if res.error is None)
+    part = "" if len(untimed) == readable else f" in {len(untimed)} of {readable} inputs"
+    return f"PASS ({ORDER_ONLY}{part})"
+
+
+def verdict_class(results: list[InputResult], options: dict[str, object]) -> str:
+    """The verdict as a class name (`pass`, `fail`, `not-gated`), with `order-only` added
+    to a pass over an input checked in order only: never a plain green badge."""
+    decided = verdict(results, fail_on(options))
+    return f"{decided} order-only" if decided == "pass" and order_only(results) else decided
 
 
 def unreadable(results: list[InputResult]) -> list[InputResult]:
@@ -110,7 +136,12 @@ def verdict_line(results: list[InputResult], options: dict[str, object]) -> str:
 def measured_mark(f: Finding) -> str:
     """What the text reports add to a finding whose limit was measured from the trace
     (`basis` measured: a factor x the median period, as `nmtcheck monitor` marks a
-    provisional finding), naming what would give the configured one."""
+    provisional finding) or assumed (a producer time x nmtcheck's factor: the consumer
+    time is unknown), naming what would give the configured one (SPEC §7)."""
+    if f.basis == "assumed":
+        return ("  [limit assumed: the heartbeat consumer time (1016h) of the node's consumer "
+                "gives the real one: the consumer's device file (--dcf NODE=FILE, e.g. the "
+                "master's DCF) or consumer_timeout_ms in --network]")
     if f.basis != "measured":
         return ""
     return "  [limit measured from the trace: --network or --dcf gives the configured one]"
@@ -121,15 +152,22 @@ def error_line(res: InputResult) -> str:
     return f"{res.stats.path}: cannot be checked: {res.error}"
 
 
-def not_logs_line(options: dict[str, object]) -> str | None:
-    """Files below a directory argument whose content is no log format: counted."""
+def not_logs_line(options: dict[str, object], names: bool = True) -> str | None:
+    """Files below a directory argument that are no log (their content is no log format,
+    or they are no regular file: a FIFO, a socket, a device): counted, and the first
+    named unless `names` is false (-q)."""
     skipped = options.get("not_logs") or []
-    assert isinstance(skipped, list)
+    not_regular = options.get("not_regular") or []
+    assert isinstance(skipped, list) and isinstance(not_regular, list)
+    special = set(map(str, not_regular))
     if not skipped:
         return None
-    shown = ", ".join(map(str, skipped[:5])) + (", …" if len(skipped) > 5 else "")
-    return (f"{plural(len(skipped), 'file')} below the directories given are no log "
-            f"(skipped): {shown}")
+    head = f"{plural(len(skipped), 'file')} below the directories given are no log (skipped)"
+    if not names:
+        return head
+    shown = ", ".join(f"{p} (not a regular file)" if str(p) in special else str(p)
+                      for p in skipped[:5]) + (", …" if len(skipped) > 5 else "")
+    return f"{head}: {shown}"
 
 
 def utc_start(res: InputResult) -> str | None:
@@ -190,14 +228,109 @@ def checked_rules(options: dict[str, object]) -> list[tuple[Rule, str]]:
     return [(r, str(configured[r.code])) for r in RULES if r.code in configured]
 
 
+@dataclass
+class CaptureView:
+    """One recording of an input that holds several (`cat run1.log run2.log`: time starts
+    again, nmtcheck/readers/captures.py): its span, frames and first line."""
+
+    number: int
+    start: float
+    end: float
+    frames: int
+    line: int
+
+    @property
+    def duration(self) -> float:
+        return max(self.end - self.start, 0.0)
+
+
+def captures(result: InputResult) -> list[CaptureView]:
+    """The input's captures when it holds several, else none: the times of two captures
+    never subtract (one that starts earlier than the one before would give a negative
+    duration)."""
+    s = result.stats
+    spans = s.capture_spans
+    if len(spans) < 2 or result.error is not None:
+        return []
+    ends = [first for _a, _b, first, _line in spans[1:]] + [s.frames]
+    return [CaptureView(k, a, b, max(nxt - first, 0), line) for k, ((a, b, first, line), nxt)
+            in enumerate(zip(spans, ends, strict=True), 1)]
+
+
 def duration(result: InputResult) -> float:
+    """How long the input records: its span, or the sum of its captures' spans. Never
+    negative."""
+    parts = captures(result)
+    if parts:
+        return sum(c.duration for c in parts)
     s = result.stats
     return max((s.end or 0.0) - (s.start or 0.0), 0.0)
+
+
+def captures_note(result: InputResult, short: bool = False) -> str:
+    """What a header adds for an input of several captures: each one's frames and span
+    (` in 2 captures: 192 frames over 19.046 s from line 1, 351 frames over 4.921 s from
+    line 193`; `short`: ` (2 captures: 19.046 s, 4.921 s)`); empty for one."""
+    parts = captures(result)
+    if not parts:
+        return ""
+    if short:
+        return f" ({len(parts)} captures: {', '.join(f'{c.duration:.3f} s' for c in parts)})"
+    return f" in {len(parts)} captures: " + ", ".join(
+        f"{c.frames} frames over {c.duration:.3f} s"
+        + (f" from line {c.line}" if c.line else "") for c in parts)
+
+
+def latest(result: InputResult) -> float | None:
+    """The input's latest time (`inputs[i].end`): with several captures the latest of
+    theirs, never before the first frame's."""
+    s = result.stats
+    parts = captures(result)
+    if not parts or s.end is None:
+        return s.end
+    return max(s.end, *(c.end for c in parts))
 
 
 def offset(result: InputResult, t: float) -> float:
     """Seconds from the first frame of the recording: what people read on a time axis."""
     return t - (result.stats.start or 0.0)
+
+
+def moment(result: InputResult, t: float, digits: int = 6, unit: str = " s",
+           f: Finding | None = None) -> str:
+    """A time as the reports show it: seconds from the recording's first frame
+    (`1.560400 s`; a finding `f` of a later capture of the input: from that capture's
+    first frame, as its messages count), or, in an input without timestamps, the frame
+    it stands for (`frame 3`, the third frame: its time is the frame index, SPEC §1)."""
+    if result.stats.order_only:
+        return frame_text(t)
+    start = result.stats.start or 0.0 if f is None else capture_start(result, f)
+    return f"{t - start:.{digits}f}{unit}"
+
+
+def capture_start(result: InputResult, f: Finding) -> float:
+    """Where the times of finding `f` count from: the input's first frame, or in an input
+    of several captures the first frame of `f`'s capture (its channel's, else the one
+    holding its frame): a later capture's clock may be behind the first's, and times
+    from the input's start would be negative."""
+    s = result.stats
+    spans = s.capture_spans
+    if len(spans) < 2:
+        return s.start or 0.0
+    if f.channel is not None:
+        cm = next((c for c in result.model.channels if c.name == f.channel), None)
+        if cm is not None:
+            return cm.start
+    if f.frame_index is None:
+        return s.start or 0.0
+    firsts = [first for _a, _b, first, _line in spans]
+    k = max(bisect.bisect_right(firsts, f.frame_index) - 1, 0)
+    return spans[k][0]
+
+
+def frame_text(t: float) -> str:
+    """`frame N` (1-based) for a time that is a 0-based frame index (no timestamps)."""
+    return f"frame {round(t) + 1}"
 
 
 def node_label(node: int | None) -> str:
@@ -297,6 +430,54 @@ def configured_vs_measured(m: NodeModel, end: float) -> ConfiguredVsMeasured:
     return ConfiguredVsMeasured(cfg.heartbeat_ms, cfg.consumer_timeout_ms, cfg.consumer_node,
                                 cfg.guard_time_ms, cfg.life_time_factor, ms(stats.median),
                                 ms(stats.jitter), ms(stats.maximum))
+
+
+@dataclass
+class Reboots:
+    """Boot-ups of a node inside one of its state intervals: it announced a new boot
+    (00h) again and again without changing state (a node stuck rebooting, or one that
+    heartbeats 00h: B003), which a plain bar would hide."""
+
+    interval: int  # its position in the node's intervals
+    ts: np.ndarray  # the boot-ups' times
+
+    @property
+    def count(self) -> int:
+        return len(self.ts)
+
+
+def reboots(m: NodeModel) -> list[Reboots]:
+    """Each state interval of `m` that holds boot-ups of its own (after the one that
+    began it; stale ones and those that answer a reset command to N since its previous
+    boot-up left out), with their times."""
+    if m.kind_counts()[BOOTUP] < 2 or not len(m.intervals):
+        return []
+    ec = m.ec
+    rows = np.flatnonzero((ec.kind == BOOTUP) & ~ec.stale)
+    ts, idx = ec.ts[rows], ec.idx[rows]
+    # each reset command to N explains one boot-up after it (as for B002)
+    before = np.searchsorted(m.commands.reset_idx, idx).tolist()
+    answers = np.zeros(len(idx), bool)
+    used = 0
+    for i, n in enumerate(before):
+        if n > used:
+            answers[i] = True
+            used += 1
+    k = m.interval_indices(ts)
+    inside = (ts > m.intervals.start[k] + EPS) & ~answers
+    ts, k = ts[inside], k[inside]
+    return [Reboots(int(i), ts[k == i]) for i in np.unique(k).tolist()]
+
+
+def reboot_note(res: InputResult, m: NodeModel, r: Reboots, shown: int = 3) -> str:
+    """`rebooted 19 times while PRE-OPERATIONAL: boot-ups (00h) at 1.610555, 1.710553,
+    1.810551 … 3.410540 s`: what the timeline and node table say of them."""
+    state = m.intervals[r.interval].state
+    times = [moment(res, t, unit="") for t in r.ts[:shown].tolist()]
+    more = f" … {moment(res, float(r.ts[-1]), unit='')}" if r.count > shown else ""
+    unit = "" if res.stats.order_only else " s"
+    return (f"rebooted {plural(r.count, 'time')} while {state}: boot-up (00h) at "
+            f"{', '.join(times)}{more}{unit}")
 
 
 def resets(m: NodeModel) -> int:

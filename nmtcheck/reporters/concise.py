@@ -1,14 +1,14 @@
 r"""One line per finding for CI logs, grep and editors (`--format concise`).
 
-`PATH:LINE: TIME CODE [severity] node N: message` — TIME in seconds from the
-input's first frame; LINE is empty for binary formats (`run.blf:: …`). A finding
-of the network rather than a node (C001, C002 on a frame of the wrong length)
-says `network:`; a finding about the input itself (I-rules) has no node part, and
-neither has one whose message names its node already (`no heartbeat from node 3`:
-the node is not said twice). When an input has several channels the node part names
-the channel too (`node 5 on can1:`, or `can1:` before a message naming the node).
-Vim's `errorformat=%f:%l:\ %m` and Emacs' compilation mode follow these lines. A
-verdict line ends the output.
+`PATH:LINE: TIME CODE [severity] node N: message` — TIME in seconds from the input's
+first frame (`frame N` in a log without timestamps); LINE is empty for binary formats
+(`run.blf:: …`). A finding of the network rather than a node (C001, C002 on a frame of
+the wrong length) says `network:`; a finding about the input itself (I-rules) has no
+node part, and neither has one whose message names its node already (`no heartbeat
+from node 3`: the node is not said twice). When an input has several channels the node
+part names the channel too (`node 5 on can1:`, or `can1:` before a message naming the
+node). Vim's `errorformat=%f:%l:\ %m` and Emacs' compilation mode follow these lines.
+A verdict line ends the output.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import re
 
 from nmtcheck.reporters.common import (
     measured_mark,
+    moment,
     node_label,
-    offset,
     omitted_lines,
     unreadable,
     verdict_line,
@@ -36,7 +36,7 @@ def finding_line(res: InputResult, f: Finding) -> str:
     else:
         who = node_label(f.node) + (f" on {f.channel}" if several else "")
         who += ": "
-    return (f"{res.stats.path}:{f.line or ''}: {offset(res, f.time):.6f}s {f.rule} "
+    return (f"{res.stats.path}:{f.line or ''}: {moment(res, f.time, unit='s', f=f)} {f.rule} "
             f"[{f.severity}] {who}{f.message}")
 
 

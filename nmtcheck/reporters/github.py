@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from nmtcheck.reporters.common import (
     measured_mark,
-    offset,
+    moment,
     omitted_lines,
     unreadable,
     verdict_line,
@@ -39,7 +39,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
                 props.append(f"line={f.line}")
             title = f"{f.rule} {f.name} ({where_label(f.channel, f.node)})"
             props.append(f"title={escape_property(title)}")
-            message = f"{f.message} [at {offset(res, f.time):.3f} s]{measured_mark(f)}"
+            message = f"{f.message} [at {moment(res, f.time, 3, f=f)}]{measured_mark(f)}"
             lines.append(f"::{COMMANDS[f.severity]} {','.join(props)}::{escape_data(message)}")
     lines += [f"::notice::{escape_data(line)}" for line in omitted_lines(results, options)]
     lines.append("nmtcheck " + verdict_line(results, options))

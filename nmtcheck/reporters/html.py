@@ -29,6 +29,7 @@ from nmtcheck.reporters import boot_report
 from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
+    captures_note,
     checked_rules,
     config_line,
     duration,
@@ -39,15 +40,17 @@ from nmtcheck.reporters.common import (
     is_failing,
     master_line,
     measured_mark,
+    moment,
     network_notes,
     node_label,
     nodes_by_channel,
     not_logs_line,
     offset,
     omitted_lines,
+    reboots,
     resets,
     unreadable,
-    verdict,
+    verdict_class,
     verdict_word,
     where_label,
 )
@@ -149,28 +152,48 @@ def _group_view(res: InputResult, g: FindingGroup, gid: str) -> dict[str, Any]:
         "sort_node": ("" if g.channel is None else f"{g.channel}/"
                       + ("zzz" if g.node is None else f"{g.node:03d}")),
         "count": g.count, "time": _r(offset(res, f.time)), "line": f.line or None,
+        "when": moment(res, f.time, unit="", f=f),  # `frame N` in a log without timestamps
         # I-rule findings belong to no channel: no timeline to jump to
         "message": f.message,
         # a limit measured from the trace, not configured: said beside the message
         "measured": measured_mark(f).strip(" []"),
         "timeline": None if g.channel is None else timeline_id(res, g.channel),
-        "occurrences": [{"time": _r(offset(res, o.time)), "line": o.line or None,
+        "occurrences": [{"time": _r(offset(res, o.time)), "when": moment(res, o.time, f=o),
+                         "line": o.line or None,
                          "message": o.message, **_causes_view(res, o)} for o in shown],
         "hidden": g.count - len(shown),
     }
 
 
+def _comm_views(results: list[InputResult], report: dict[str, Any]) -> dict[str, Any]:
+    """SPEC §9.4.2: each channel's SYNC, each PDO stream and each node's EMCYs as table
+    rows (times in seconds from the first frame)."""
+    paths = {res.index: res.stats.path for res in results}
+    sync = [{"input": c["input"], "path": paths.get(c["input"]), "channel": c["name"],
+             **c["sync"]} for c in report["channels"] if c.get("sync")]
+    pdo = [{**st, "path": paths.get(st["input"])} for st in report["pdo_streams"]]
+    emcy = [{"input": n["input"], "path": paths.get(n["input"]), "channel": n["channel"],
+             "node": n["node"], **n["emcy"]} for n in report["nodes"] if n.get("emcy")]
+    return {"sync_rows": sync, "pdo_rows": pdo, "emcy_rows": emcy}
+
+
 def _causes_view(res: InputResult, f: Finding) -> dict[str, Any]:
-    """SPEC §8.6: the events that may explain a finding, times from the first frame; no
-    keys at all for a finding of a rule that has no causes."""
+    """SPEC §8.6, §9.3: the events that may explain a finding and those that came after its
+    effect began (folded), times from the first frame; no keys at all for a finding of a
+    rule that has no causes."""
     if f.causes is None:
         return {}
-    return {"causes": [{"kind": c["kind"], "time": _r(offset(res, c["time"])),
-                        "end": None if c.get("end") is None else _r(offset(res, c["end"])),
-                        "line": c.get("line") or None, "node": c.get("node"),
-                        "count": c.get("count"), "code": c.get("code"), "text": c["text"]}
-                       for c in f.causes],
-            "causes_omitted": f.causes_omitted or 0}
+
+    def view(c: dict[str, Any]) -> dict[str, Any]:
+        return {"kind": c["kind"], "time": _r(offset(res, c["time"])),
+                "end": None if c.get("end") is None else _r(offset(res, c["end"])),
+                "line": c.get("line") or None, "node": c.get("node"),
+                "count": c.get("count"), "code": c.get("code"), "text": c["text"],
+                "role": c.get("role"), "link": c.get("link"), "depth": c.get("depth") or 1}
+
+    return {"causes": [view(c) for c in f.causes], "causes_omitted": f.causes_omitted or 0,
+            "reactions": [view(c) for c in f.reactions or ()],
+            "reactions_omitted": f.reactions_omitted or 0}
 
 
 def _sub_index(step: dict[str, Any]) -> str:
@@ -214,6 +237,10 @@ def _boot_row(res: InputResult, entry: dict[str, Any]) -> dict[str, Any]:
         evidence = x.get("evidence") or {}
         when = evidence.get("time", x.get("end"))
         line = evidence.get("line") or None
+    failed = (boot_report.failure_finding(rep, res.findings)
+              if rep is not None and boot["status"] == "failed" else None)
+    if failed is not None:  # when its finding says it failed, as the text table shows it
+        when, line = failed.time, failed.line or None
     return {
         "node": entry["node"], "status": boot["status"], "letter": letter,
         "letter_text": LETTERS.get(letter or "", boot.get("reason") or ""),
@@ -292,6 +319,7 @@ def _node_view(entry: dict[str, Any], m: NodeModel, end: float) -> dict[str, Any
         "heartbeats": m.ec.count(HEARTBEAT), "intervals": hb.count, "min_ms": ms(hb.minimum),
         "median_ms": ms(hb.median), "max_ms": ms(hb.maximum), "jitter_ms": ms(hb.jitter),
         "resets": resets(m), "histogram": _histogram(hb.intervals),
+        "reboots": sum(r.count for r in reboots(m)),  # boot-ups without a state change
     }
 
 
@@ -304,9 +332,10 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     threshold = fail_on(options)
     report = report_sections(results, options)
     inputs = [{**entry, "index": i, "duration": duration(res), "findings": len(res.findings),
-               "order_only": res.stats.order_only}
+               "order_only": res.stats.order_only, "captures_note": captures_note(res)}
               for i, (entry, res) in enumerate(zip(report["inputs"], results, strict=True))]
     intervals: dict[tuple[int, str, int], list[list[float | int]]] = {}
+    boots: dict[tuple[int, str, int], list[float]] = {}  # boot-ups inside a state
     left_out: dict[tuple[int, str], int] = {}  # intervals not drawn, by input and channel
     per_node = drawn_per_node(sum(len(res.nodes()) for res in results))
     for res in results:
@@ -318,11 +347,18 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
             if shown < len(ivs):
                 key = (res.index, m.channel)
                 left_out[key] = left_out.get(key, 0) + len(ivs) - shown
-            intervals[(res.index, m.channel, m.node)] = [
+            drawn = intervals[(res.index, m.channel, m.node)] = [
                 [_r(round(a, 6) - begin), _r(round(b, 6) - begin), st, _SOURCE_OF[so]]
                 for a, b, st, so in zip(ivs.start[:shown].tolist(), ivs.end[:shown].tolist(),
                                         ivs.state[:shown].tolist(), ivs.source[:shown].tolist(),
                                         strict=True)]
+            # a node that keeps booting without a state change: its interval is drawn
+            # apart (a 5th entry: how many boot-ups) and each boot-up gets a marker
+            for r in reboots(m):
+                if r.interval < shown:
+                    drawn[r.interval].append(r.count)
+                    boots.setdefault((res.index, m.channel, m.node), []).extend(
+                        _r(round(t, 6) - begin) for t in r.ts[:MAX_OCCURRENCES].tolist())
     models = {(res.index, m.channel, m.node): (m, res.model.end_of(m.channel))
               for res in results for m in res.nodes()}
     nodes = [_node_view(entry, *models[(entry["input"], entry["channel"], entry["node"])])
@@ -349,7 +385,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                 rows.append({"node": node, "label": node_label(node), "marks": sorted(marks),
                              "causes": sorted(causes),
                              "iv": [] if node is None
-                             else intervals.get((res.index, channel, node), [])})
+                             else intervals.get((res.index, channel, node), []),
+                             "boots": [] if node is None
+                             else boots.get((res.index, channel, node), [])})
             cm = next((c for c in res.model.channels if c.name == channel), None)
             master = ("no NMT master known" if cm is None or cm.master is None
                       else f"NMT master node {cm.master.node} ({cm.master.source})")
@@ -359,7 +397,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                               "path": res.stats.path, "channel": channel,
                               "duration": _r(cm.end - cm.start if cm is not None
                                              and res.stats.restarts else duration(res)),
-                              "shift": _r(shift), "rows": rows})
+                              "shift": _r(shift), "rows": rows,
+                              # no timestamps: the axis counts frames, not seconds
+                              "frames": res.stats.order_only})
             hidden = left_out.get((res.index, channel), 0)
             if hidden:
                 timelines[-1]["left_out"] = (f"{hidden} state intervals not drawn (at most "
@@ -382,12 +422,15 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "generated": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
         "fail_on": threshold, "failing": is_failing(results, threshold),
         "verdict": verdict_word(results, options),
-        "verdict_class": verdict(results, threshold),
+        "verdict_class": verdict_class(results, options),
+        "order_only": any(res.stats.order_only for res in results if res.error is None),
+        "rebooting": bool(boots),
         "unreadable": [error_line(res) for res in unreadable(results)],
         "not_logs": not_logs_line(options),
         "counts": report["summary"],
         "inputs": inputs, "timelines": timelines, "groups": groups, "nodes": nodes,
         "boot": [view for res in results for view in _boot_views(res, report["nodes"])],
+        **_comm_views(results, report),
         "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
         "several_inputs": len(results) > 1, "network_notes": network_notes(options),
         "omitted": omitted_lines(results, options),

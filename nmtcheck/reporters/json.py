@@ -9,11 +9,15 @@ from typing import Any
 
 from nmtcheck import __version__
 from nmtcheck.protocol.nmt import SOURCES, STATES
-from nmtcheck.reporters import boot_report
+from nmtcheck.reporters import boot_report, comm_report
 from nmtcheck.reporters.common import (
+    captures,
     configured_vs_measured,
+    duration,
     fail_on,
+    latest,
     network_notes,
+    order_only,
     utc_start,
     verdict,
 )
@@ -21,7 +25,7 @@ from nmtcheck.results import InputResult, summary
 from nmtcheck.safe_text import dumps_finite
 from nmtcheck.timeline.model import NodeModel
 
-REPORT_VERSION = 1
+REPORT_VERSION = 2  # 2: SPEC §9.4.1 (sync, pdo_streams, emcy, reactions, cob_id)
 
 
 def _r(x: float | None) -> float | None:
@@ -69,13 +73,16 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
                              else {"node": master.node, "source": master.source,
                                    "detail": master.detail},
                              "master_note": None if master is not None else cm.master_note,
-                             "boot": boot_report.channel_boot(res, cm.name)})
+                             "boot": boot_report.channel_boot(res, cm.name),
+                             "sync": comm_report.channel_sync(res, cm.name)})
         s = res.stats
+        end = latest(res)
         inputs.append({
             "path": s.path, "format": s.format, "frames": s.frames, "skipped": s.skipped,
             "extended": s.extended, "error_frames": s.error_frames,
             "start": _r(s.start if s.start is not None else 0.0),
-            "end": _r(s.end if s.end is not None else 0.0),
+            # the latest time (with several captures, the latest of theirs: never < start)
+            "end": _r(end if end is not None else 0.0),
             "remote_frames": s.remote_frames, "fd_frames": s.fd_frames, "ignored": s.ignored,
             "dropped": s.dropped, "backwards": s.backwards_timestamps,
             "backwards_timestamps": s.backwards_timestamps, "truncated": s.truncated,
@@ -86,9 +93,16 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             # where the logger's clock stepped back: later frames are timed `seconds` later
             "clock_steps": [{"frame_index": i, "line": line or None, "seconds": _r(step)}
                             for i, line, step in s.clock_steps],
+            # seconds recorded (the sum of the captures' spans; null: no timestamps)
+            "duration": None if s.order_only else _r(duration(res)),
+            "captures": [{"start": _r(c.start), "end": _r(c.end), "frames": c.frames,
+                          "line": c.line or None} for c in captures(res)],
             "error": res.error, "start_utc": utc_start(res),
+            "timestamp_resolution_us": comm_report.resolution_us(res),
             "not_evaluated": [{"rule": code, "reason": why}
-                              for code, why in res.not_evaluated.items()],
+                              for code, why in res.not_evaluated.items()]
+            + [{"rule": code, "reason": why, "partial": True}
+               for code, why in res.partly_evaluated.items()],
         })
         nodes.extend({
             "input": res.index, "channel": m.channel, "node": m.node,
@@ -98,11 +112,13 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "heartbeat_period_ms": _period_ms(m, res.model.end_of(m.channel)),
             **_configured_vs_measured(m, res.model.end_of(m.channel)),
             "boot": boot_report.node_boot(res, m.channel, m.node),
+            "emcy": comm_report.node_emcy(res, m.channel, m.node),
         } for m in res.nodes())
         findings.extend({"input": f.input, "rule": f.rule, "name": f.name,
                          "severity": f.severity, "channel": f.channel, "node": f.node,
                          "time": _r(f.time), "frame_index": f.frame_index,
                          "line": f.line or None, "message": f.message, "basis": f.basis,
+                         "cob_id": comm_report.finding_cob_id(res, f),
                          **boot_report.finding_fields(f)}
                         for f in res.findings)
     return {"tool": {"name": "nmtcheck", "version": __version__},
@@ -110,6 +126,7 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "timeline": _timeline(results), "findings": findings,
             "events": _events(results),
             "channels": channels,
+            "pdo_streams": [st for res in results for st in comm_report.pdo_streams(res)],
             "network": {"notes": list(network_notes(options))},
             "config": _config(options),
             "omitted": [{"input": res.index, "rule": o.rule, "name": o.name,
@@ -117,16 +134,22 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
                         for res in results for o in res.omitted],
             "not_logs": list(_not_logs(options)),
             "summary": {**summary(results),
-                        "verdict": verdict(results, fail_on(options or {}))}}
+                        "verdict": verdict(results, fail_on(options or {})),
+                        # inputs checked in order only: a pass there did not check timing
+                        "order_only": order_only(results)}}
 
 
 def _timeline(results: list[InputResult]) -> Iterator[dict[str, Any]]:
     for res in results:
         for m in res.nodes():
             for iv in m.intervals:
-                yield {"input": res.index, "channel": m.channel, "node": m.node,
+                row = {"input": res.index, "channel": m.channel, "node": m.node,
                        "state": iv.state, "start": _r(iv.start), "end": _r(iv.end),
                        "source": iv.source}
+                causes = res.interval_causes.get((m.channel, m.node, round(iv.start, 9)))
+                if causes is not None:  # SPEC §9.3.6: a change no command explains
+                    row["causes"] = causes
+                yield row
 
 
 def _timeline_lines(results: list[InputResult]) -> Iterator[str]:
@@ -138,16 +161,22 @@ def _timeline_lines(results: list[InputResult]) -> Iterator[str]:
             head = json.dumps({"input": res.index, "channel": m.channel, "node": m.node})[:-1]
             for a, b, st, so in zip(ivs.start.tolist(), ivs.end.tolist(), ivs.state.tolist(),
                                     ivs.source.tolist(), strict=True):
+                causes = res.interval_causes.get((m.channel, m.node, round(a, 9)))
+                tail = "" if causes is None else f', "causes": {json.dumps(causes)}'
                 yield (f'{head}, "state": "{STATES[st]}", "start": {_num(a)}, '
-                       f'"end": {_num(b)}, "source": "{SOURCES[so]}"}}')
+                       f'"end": {_num(b)}, "source": "{SOURCES[so]}"{tail}}}')
 
 
 def _events(results: list[InputResult]) -> Iterator[dict[str, Any]]:
     for res in results:  # by input, then in file order
         for m, e in res.model.events():
-            yield {"input": res.index, "channel": m.channel, "node": m.node,
+            row = {"input": res.index, "channel": m.channel, "node": m.node,
                    "kind": e.kind, "time": _r(e.ts), "frame_index": e.idx,
                    "line": e.line or None, "code": e.code, "message": e.text}
+            if e.kind == "emcy":  # SPEC §9.3.6: its chain, and CANopenNode's detail
+                row["causes"] = res.event_causes.get((m.channel, m.node, e.idx), [])
+                row["canopennode"] = comm_report.emcy_detail(res, m.channel, m.node, e.idx)
+            yield row
 
 
 def _not_logs(options: dict[str, object] | None) -> list[str]:

@@ -8,7 +8,8 @@ below it are kept in the passing case's `<system-out>`. A rule that could not be
 evaluated (no network file for N001, no producer time for H003, no timestamps for the
 timing rules…) is a skipped case with the reason, never a pass; an input that could not
 be read is a suite with one failed case naming why. Each suite's `verdict` property is
-the run's: PASS, FAIL or NOT GATED.
+the run's: PASS, FAIL or NOT GATED, and a pass over an input checked in order only (no
+timestamps) says so: `PASS (order only: timing not checked)`.
 """
 
 from __future__ import annotations
@@ -23,9 +24,9 @@ from nmtcheck.reporters.common import (
     duration,
     error_line,
     fail_on,
+    moment,
     node_label,
     nodes_by_channel,
-    offset,
     verdict_word,
     xml_safe,
 )
@@ -34,7 +35,7 @@ from nmtcheck.results import Finding, InputResult
 
 def _finding_text(res: InputResult, f: Finding) -> str:
     where = f"line {f.line}" if f.line else f"frame {f.frame_index}"
-    return (f"{f.severity} {f.rule} {f.name} at {offset(res, f.time):.6f} s "
+    return (f"{f.severity} {f.rule} {f.name} at {moment(res, f.time, f=f)} "
             f"({res.stats.path} {where}): {f.message}")
 
 
@@ -79,10 +80,14 @@ def _suite(res: InputResult, options: dict[str, object], verdict: str) -> ET.Ele
     suite = ET.Element("testsuite", name=s.path)
     props = ET.SubElement(suite, "properties")
     for key, value in (("format", s.format), ("frames", s.frames),
-                       ("duration_s", f"{duration(res):.6f}"), ("skipped_records", s.skipped),
+                       # (no timestamps: a span of frame numbers is no duration)
+                       ("duration_s", "" if s.order_only else f"{duration(res):.6f}"),
+                       ("skipped_records", s.skipped),
                        ("error_frames", s.error_frames), ("channels", ",".join(s.channels)),
                        ("fail_on", threshold), ("verdict", verdict)):
         ET.SubElement(props, "property", name=key, value=str(value))
+    if s.order_only:  # no timestamps: the timing rules are skipped cases below
+        ET.SubElement(props, "property", name="order_only", value="true")
     for o in res.omitted:  # findings past --max-findings: counted, stated
         ET.SubElement(props, "property", name=f"omitted.{o.rule}", value=str(o.count))
     cases: list[tuple[str | None, int | None, Rule]] = [

@@ -7,6 +7,7 @@ rule and node (with a count), and the nodes folded away in `<details>`.
 from __future__ import annotations
 
 from nmtcheck.reporters.common import (
+    captures_note,
     counts_phrase,
     duration,
     error_line,
@@ -15,17 +16,19 @@ from nmtcheck.reporters.common import (
     group_findings,
     heartbeat_stats,
     measured_mark,
-    offset,
+    moment,
     omitted_lines,
     resets,
     unreadable,
+    verdict_class,
     verdict_word,
     where_label,
 )
 from nmtcheck.results import InputResult, summary
 from nmtcheck.safe_text import escape_controls
 
-BADGES = {"PASS": "✅", "FAIL": "❌", "NOT GATED": "⚪"}
+# by `verdict_class`: a pass over a log checked in order only is no green tick
+BADGES = {"pass": "✅", "fail": "❌", "not-gated": "⚪", "pass order-only": "⚠️"}
 MAX_GROUPS = 50  # a comment people read, not the full report: the rest is counted
 
 
@@ -44,7 +47,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     threshold = fail_on(options)
     word = verdict_word(results, options)
     counts = summary(results)
-    out = [f"## nmtcheck: {BADGES[word]} {word}", "",
+    out = [f"## nmtcheck: {BADGES[verdict_class(results, options)]} {word}", "",
            f"**{counts_phrase(counts)}** (`--fail-on {threshold}`)", "",
            *[f"**{cell(error_line(res))}**\n" for res in unreadable(results)],
            "| input | format | frames | duration | skipped records | error frames | findings |",
@@ -55,7 +58,9 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             out.append(f"| `{cell(s.path)}` | – | – | – | – | – | cannot be checked: "
                        f"{cell(res.error)} |")
             continue
-        out.append(f"| `{cell(s.path)}` | {s.format} | {s.frames} | {duration(res):.3f} s | "
+        span = ("no timestamps: order only" if s.order_only
+                else f"{duration(res):.3f} s" + captures_note(res, short=True))
+        out.append(f"| `{cell(s.path)}` | {s.format} | {s.frames} | {span} | "
                    f"{s.skipped} | {s.error_frames} | {len(res.findings)} |")
     groups = [g for res in results for g in group_findings(res.findings)]
     out += ["", "### Findings", ""]
@@ -72,7 +77,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
             out.append(f"| {g.severity} | {g.rule} {g.name} | "
                        + (f"`{cell(res.stats.path)}` | " if several else "")
                        + f"{cell(where_label(g.channel, g.node))} | "
-                       f"{offset(res, f.time):.3f} s | {f.line or '–'} | {g.count} | "
+                       f"{moment(res, f.time, 3, f=f)} | {f.line or '–'} | {g.count} | "
                        f"{cell(f.message + measured_mark(f))} |")
         if len(groups) > MAX_GROUPS:
             rest = sum(g.count for g in groups[MAX_GROUPS:])

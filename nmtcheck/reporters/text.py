@@ -6,15 +6,21 @@ from itertools import groupby, islice
 
 from nmtcheck.reporters import boot_report
 from nmtcheck.reporters.common import (
+    capture_start,
+    captures_note,
     config_line,
     configured_vs_measured,
+    duration,
     error_line,
     final_state,
     master_line,
     measured_mark,
+    moment,
     network_notes,
     not_logs_line,
     omitted_lines,
+    reboot_note,
+    reboots,
     utc_start,
     verdict_line,
     where_label,
@@ -29,9 +35,8 @@ REPEATS_SHOWN = 3  # findings of one rule on one node listed before the rest is 
 
 def _input_line(res: InputResult) -> list[str]:
     s = res.stats
-    dur = (s.end or 0.0) - (s.start or 0.0)
     span = ("(no timestamps: order only, times below are frame numbers)" if s.order_only
-            else f"over {dur:.3f} s")
+            else f"over {duration(res):.3f} s{captures_note(res)}")
     started = utc_start(res)
     lines = [f"{s.path} ({s.format}): {s.frames} frames {span} on "
              f"{len(s.channels)} channel(s) {', '.join(s.channels)}"
@@ -48,6 +53,8 @@ def _input_line(res: InputResult) -> list[str]:
     if s.truncated:
         counts.append("TRUNCATED: the input ends early, read up to the damage")
     lines.append("  " + ", ".join(counts))
+    if (left_out := s.left_out_text()) is not None:  # an edit made on purpose: no finding
+        lines.append(f"  {left_out}")
     return lines
 
 
@@ -66,18 +73,20 @@ def _node_table(res: InputResult) -> list[str]:
         c = configured_vs_measured(m, res.model.end_of(m.channel))
         consumer = _ms(c.consumer_ms) + (f" (node {c.consumer_node})"
                                          if c.consumer_node is not None else "")
-        rows.append((f"{m.channel}/{m.node}", final_state(m), m.error_control,
+        rebooting = any(r.interval == len(m.intervals) - 1 for r in reboots(m))
+        rows.append((f"{m.channel}/{m.node}", final_state(m) + (" (rebooting)" if rebooting
+                                                                else ""), m.error_control,
                      str(m.bootup_count), _ms(c.producer_ms), _ms(c.median_ms),
                      _ms(c.jitter_ms), consumer, _ms(c.worst_gap_ms)))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return ["  " + "  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip()
-            for r in rows]
+            for r in rows] + [f"  {m.channel}/{m.node} {reboot_note(res, m, r)}"
+                              for m in nodes for r in reboots(m)]
 
 
 def _node_events(res: InputResult) -> list[str]:
     """EMCYs, SDO aborts and configuration written in the trace: context, not findings."""
-    start = res.stats.start or 0.0
-    out = [f"    {e.ts - start:10.6f} s  line {e.line or '-':<7} {m.channel} node {m.node}: "
+    out = [f"    {_when(res, e.ts)}  line {e.line or '-':<7} {m.channel} node {m.node}: "
            f"{e.text}" for m, e in islice(res.model.events(), MAX_EVENTS_SHOWN)]
     total = res.model.event_count()
     if total > MAX_EVENTS_SHOWN:
@@ -85,9 +94,15 @@ def _node_events(res: InputResult) -> list[str]:
     return ["  node events (not findings):", *out] if out else []
 
 
-def _finding_line(f: Finding, start: float) -> str:
+def _when(res: InputResult, t: float, f: Finding | None = None) -> str:
+    """A finding's or event's time in the report's column: `  1.560400 s`, or `frame 3`
+    (right-aligned alike) in an input without timestamps."""
+    return f"{moment(res, t, unit='', f=f):>10}" + ("" if res.stats.order_only else " s")
+
+
+def _finding_line(res: InputResult, f: Finding) -> str:
     where = f"line {f.line}" if f.line else f"frame {f.frame_index}"
-    return (f"    {f.time - start:10.6f} s  {where:<12} {f.severity:<7} "
+    return (f"    {_when(res, f.time, f)}  {where:<12} {f.severity:<7} "
             f"{f.rule} {f.name}: {f.message}{measured_mark(f)}")
 
 
@@ -95,7 +110,6 @@ def _findings(res: InputResult) -> list[str]:
     """Findings grouped by channel and node (the input's own first), each group headed by
     the file's path so a grep across many reports finds it; from the fourth finding of one
     rule on one node on, a single line counts the rest (--format concise lists them all)."""
-    start = res.stats.start or 0.0
     out: list[str] = []
 
     def key(f: Finding) -> tuple[int, str, int]:
@@ -113,13 +127,13 @@ def _findings(res: InputResult) -> list[str]:
         for f, k in zip(group, rank, strict=True):
             same = by_rule[f.rule]
             if k < REPEATS_SHOWN or len(same) == REPEATS_SHOWN + 1:
-                out.append(_finding_line(f, start))
-                out += boot_report.cause_lines(f, start)
+                out.append(_finding_line(res, f))
+                out += boot_report.cause_lines(f, capture_start(res, f))
             elif k == REPEATS_SHOWN:
                 last = same[-1]
                 where = f"line {last.line}" if last.line else f"frame {last.frame_index}"
                 out.append(f"    … {len(same) - REPEATS_SHOWN} more {f.rule} {f.name} "
-                           f"({f.severity}) up to {last.time - start:.6f} s, {where} "
+                           f"({f.severity}) up to {moment(res, last.time, f=last)}, {where} "
                            "(--format concise lists every one)")
     return out
 
@@ -134,8 +148,8 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
     if notes and not quiet:
         out.append("network description: values that could not be read:")
         out += [f"  {n}" for n in notes]
-    skipped_files = not_logs_line(options)
-    if skipped_files and not quiet:
+    skipped_files = not_logs_line(options, names=not quiet)
+    if skipped_files:  # -q too: how many files a directory's gate did not look at
         out.append(skipped_files)
     for res in results:
         if res.error is not None:  # named, and the others are still checked (SPEC §4)
@@ -149,6 +163,9 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
         if res.not_evaluated:
             out.append("  not evaluated: " + "; ".join(
                 f"{code} ({why})" for code, why in res.not_evaluated.items()))
+        if res.partly_evaluated:
+            out.append("  partly evaluated: " + "; ".join(
+                f"{code}: {why}" for code, why in res.partly_evaluated.items()))
         out += [f"  {master_line(cm)}" for cm in res.model.channels]
         out += _node_table(res)
         out += _node_events(res)

@@ -21,6 +21,8 @@ from typing import Any
 from nmtcheck.errors import UsageError
 from nmtcheck.processes import boot_config
 from nmtcheck.protocol.devicefile import DeviceValues, load_device_file
+from nmtcheck.settings import comm_keys
+from nmtcheck.settings.comm_keys import NodeCommKeys, SyncKeys
 from nmtcheck.timeline.model import NodeConfig
 
 if sys.version_info >= (3, 11):
@@ -45,6 +47,19 @@ class Network:
     boot: boot_config.BootTable | None = None
     channel_boot: dict[str, boot_config.BootTable] = field(default_factory=dict)
     boot_nodes: dict[int, dict[str, Any]] = field(default_factory=dict)
+    # SPEC §9.1.2: [sync] (top level, per channel) and the nodes' EMCY and PDO keys
+    sync: SyncKeys | None = None
+    channel_sync: dict[str, SyncKeys] = field(default_factory=dict)
+    comm_nodes: dict[int, NodeCommKeys] = field(default_factory=dict)
+
+    def sync_keys(self, channel: str) -> SyncKeys | None:
+        """The `[sync]` table in force on a channel: its own, else the top level's."""
+        return self.channel_sync.get(channel, self.sync)
+
+    def node_channel(self, node: int) -> str | None:
+        """The channel a node of the file is restricted to (None: any)."""
+        found = self.nodes.get(node)
+        return found[1] if found is not None else None
 
     def boot_config(self, channel: str) -> boot_config.BootConfig:
         """The boot configuration of a channel (SPEC §8.2.2)."""
@@ -142,14 +157,16 @@ def _read_network_file(path: str, net: Network) -> dict[int, dict[str, Any]]:
     """The masters of the network file (into `net`) and its [nodes.N] tables, validated."""
     data = _read_toml(path)
     for key in data:
-        if key not in ("nodes", "channels", "master", "boot"):
+        if key not in ("nodes", "channels", "master", "boot", "sync"):
             raise UsageError(f"{path}: unknown key {key!r} (expected master, [boot], "
-                             f"[nodes.N] and [channels.NAME] tables)")
+                             f"[sync], [nodes.N] and [channels.NAME] tables)")
     base = Path(path).resolve().parent
     if "boot" in data:
         net.boot = boot_config.read_boot_table(f"{path}: [boot]", data["boot"], base)
     if "master" in data:
         net.master = _master(f"{path}: master", data["master"])
+    if "sync" in data:
+        net.sync = comm_keys.read_sync_table(f"{path}: [sync]", data["sync"])
     _read_channels(path, data.get("channels", {}), net)
     tables = _read_nodes(path, data.get("nodes", {}), base)
     for n, values in tables.items():
@@ -158,6 +175,9 @@ def _read_network_file(path: str, net: Network) -> dict[int, dict[str, Any]]:
             net.boot_nodes[n] = keys
             if "manager_consumer_ms" in keys and "consumer_timeout_ms" not in values:
                 values["consumer_timeout_ms"] = keys["manager_consumer_ms"]
+        comm = {k: values.pop(k) for k in list(values) if k in comm_keys.NODE_KEYS}
+        if comm:
+            net.comm_nodes[n] = NodeCommKeys(**comm)
     return tables
 
 
@@ -174,8 +194,11 @@ def _read_channels(path: str, channels: Any, net: Network) -> None:
                 net.channel_boot[name] = boot_config.read_boot_table(
                     f"{where} boot", value, Path(path).resolve().parent)
                 continue
+            if key == "sync":
+                net.channel_sync[name] = comm_keys.read_sync_table(f"{where} sync", value)
+                continue
             if key != "master":
-                raise UsageError(f"{where} {key}: unknown key (known: master, boot)")
+                raise UsageError(f"{where} {key}: unknown key (known: master, boot, sync)")
             net.channel_masters[name] = _master(f"{where} master", value)
 
 
@@ -196,8 +219,11 @@ def _read_nodes(path: str, nodes: Any, base: Path) -> dict[int, dict[str, Any]]:
             if key in boot_config.NODE_KEYS:
                 values[key] = boot_config.read_node_key(f"{where} {key}", key, value)
                 continue
+            if key in comm_keys.NODE_KEYS:
+                values[key] = comm_keys.read_node_key(where, key, value)
+                continue
             if key not in _KEYS:
-                known = ", ".join([*_KEYS, *boot_config.NODE_KEYS])
+                known = ", ".join([*_KEYS, *boot_config.NODE_KEYS, *comm_keys.NODE_KEYS])
                 raise UsageError(f"{where} {key}: unknown key (known: {known})")
             values[key] = _value(f"{where} {key}", value, _KEYS[key])
         for key in ("dcf", "eds"):
@@ -234,6 +260,12 @@ def _node_config(net: Network, node: int, values: dict[str, Any]) -> NodeConfig:
         cfg.consumes = dict(dev.consumers)
         cfg.tpdo_cob_ids = dict(dev.tpdo_cob_ids)
         cfg.rpdo_cob_ids = dict(dev.rpdo_cob_ids)
+    comm = net.comm_nodes.get(node)
+    for ids, pdos in ((cfg.tpdo_cob_ids, comm.tpdo if comm else {}),
+                      (cfg.rpdo_cob_ids, comm.rpdo if comm else {})):
+        for k, pdo in pdos.items():  # explicit COB-IDs win (SPEC §9.1.1)
+            if k <= 4 and pdo.cob_id is not None and not pdo.cob_id & 0x20000000:
+                ids[k] = None if pdo.cob_id & 0x80000000 else pdo.cob_id & 0x7FF
     return cfg
 
 

@@ -30,7 +30,9 @@ class RuleSettings:
 TIMELINE_PARAMS = {"master_window_ms": 1000.0, "boot_probe_window_ms": 1000.0,
                    "sdo_timeout_ms": 1000.0, "causes_before_ms": 1000.0,
                    "causes_after_ms": 500.0, "causes_max": 5.0, "silence_min_ms": 100.0,
-                   "reboot_cluster_ms": 500.0}
+                   "reboot_cluster_ms": 500.0, "causes_depth_max": 3.0,
+                   "emcy_delay_ms": 200.0, "lss_response_timeout_ms": 1000.0,
+                   "timestamp_resolution_us": 0.0}
 
 
 class Profile(dict[str, RuleSettings]):

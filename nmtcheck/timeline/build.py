@@ -29,7 +29,13 @@ from nmtcheck.timeline.error_control import (
     self_starts,
     small_ec,
 )
-from nmtcheck.timeline.intervals import bootups_only, node_intervals, only_bootups, reports_by_node
+from nmtcheck.timeline.intervals import (
+    bootups_only,
+    mark_power_on_bootups,
+    node_intervals,
+    only_bootups,
+    reports_by_node,
+)
 from nmtcheck.timeline.masters import channel_master, master_obeyed
 from nmtcheck.timeline.model import (
     ChannelModel,
@@ -42,6 +48,7 @@ from nmtcheck.timeline.model import (
     NodeModel,
     TimelineParams,
 )
+from nmtcheck.timeline.recording_gaps import find_recording_gaps
 from nmtcheck.timeline.tables import shared_empty
 
 
@@ -75,6 +82,10 @@ def build(decoded: Decoded, channels: list[str], start: float, end: float,
             cm.log_name, cm.first_index, cm.first_line = (span.log_name, span.first_index,
                                                           span.first_line)
         models.append(cm)
+    # the whole channel silent past every running limit: the recorder's gap, maybe (I007);
+    # its time comes out of the timeouts before they make OFFLINE intervals
+    find_recording_gaps(decoded, models, params,
+                        sorted({s.first_index for s in (captures or {}).values()}))
     # OFFLINE lasts until the node's next frame of any kind: one pass for all channels
     offline_ends(decoded, [(m, t) for cm in models for m in cm.nodes.values()
                             for t in m.timeouts])
@@ -158,6 +169,8 @@ def _channel(decoded: Decoded, chan: int, name: str, start: float, end: float,
     requests = {n: classify(m, params, with_period=False, start=start)  # boot-ups bound the
                 for n, m in nodes.items()}  # SDO-written values
     write_validity(nodes)
+    if not params.order_only:  # "within obey_ms" needs time
+        mark_power_on_bootups(nmt, nodes, params.obey_s)
     for n, m in nodes.items():
         m.small = small_ec(m, params)
         find_period(m)

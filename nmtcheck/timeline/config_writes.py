@@ -1,5 +1,6 @@
 """SDO requests paired with the server's confirmations: the configuration written in
-the trace (1017h, 1016h, 100Ch/100Dh, PDO COB-IDs), and how long each write holds."""
+the trace (1017h, 1016h, 100Ch/100Dh, PDO COB-IDs, and the SYNC and EMCY objects of SPEC
+§9.1.1), and how long each write holds."""
 
 from __future__ import annotations
 
@@ -11,15 +12,15 @@ from nmtcheck.protocol import sdo
 from nmtcheck.protocol.nmt import BOOTUP
 from nmtcheck.timeline.model import NodeModel, SdoEventTable, WriteTable
 
-_PDO_OBJECTS = np.asarray([i for i in sdo.CONFIG_OBJECTS if i not in (0x1016, 0x1017, 0x100C,
-                                                                      0x100D)])
+_SUB0_OBJECTS = np.asarray([0x1017, 0x100C, 0x100D, *sdo.COMM_OBJECTS])
+_SUB1_OBJECTS = np.asarray([*sdo.PDO_COMM_OBJECTS, sdo.ERROR_BEHAVIOUR])
 
 
 def _config_index(index: np.ndarray, sub: np.ndarray) -> np.ndarray:
     """`sdo.is_config_index` for columns."""
-    found: np.ndarray = ((np.isin(index, (0x1017, 0x100C, 0x100D)) & (sub == 0))
+    found: np.ndarray = ((np.isin(index, _SUB0_OBJECTS) & (sub == 0))
                          | ((index == 0x1016) & (sub >= 1) & (sub <= 127))
-                         | (np.isin(index, _PDO_OBJECTS) & (sub == 1)))
+                         | (np.isin(index, _SUB1_OBJECTS) & (sub == 1)))
     return found
 
 

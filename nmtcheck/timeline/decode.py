@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from nmtcheck.protocol import sdo
 from nmtcheck.readers.frames import (
     EC_BASE,
     EMCY_BASE,
@@ -71,6 +72,15 @@ NMT_COLUMNS: dict[str, type] = {
 EMCY_COLUMNS: dict[str, type] = {
     "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "dlc": np.int16,
     "data": np.uint64}
+
+# SYNC frames (SPEC §9.1.5): the counter is byte 0 when DLC = 1 (19 bytes a frame)
+SYNC_COLUMNS: dict[str, type] = {
+    "ts": np.float64, "idx": np.int64, "line": np.int64, "chan": np.int32, "rtr": np.bool_,
+    "dlc": np.int16, "counter": np.uint8, "can_id": np.uint16}
+# remote frames on an EMCY COB-ID (SPEC §9.1.7: malformed, E002): rare, kept apart
+EMCY_RTR_COLUMNS: dict[str, type] = {
+    "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "dlc": np.int16}
+DEFAULT_SYNC_ID = 0x080
 
 EC_COLUMNS: dict[str, type] = {
     "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "rtr": np.bool_,
@@ -131,7 +141,7 @@ class Decoded:
     emcy: dict[str, np.ndarray]  # EMCY_COLUMNS, sorted by node key, file order within a key
     ec: dict[str, np.ndarray]  # EC_COLUMNS, sorted by node key, file order within a key
     frame_times: ChunkStore  # per batch: ts, base index, lines (see _lines)
-    node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, line
+    node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, dlc, line
     restricted: dict[tuple[int, int], IdUse] = field(default_factory=dict)
     # node key -> (frame index, ts, kind) of the node's first transmitted frame
     first_tx: dict[int, FirstTx] = field(default_factory=dict)
@@ -142,6 +152,40 @@ class Decoded:
     ec_spool: ColumnSpool | None = None  # every error-control row, when `ec` is compacted
     # per node key, the steady guarding exchanges dropped from `ec` (a long log only)
     ec_guard_runs: dict[int, ec_compact.GuardRuns] = field(default_factory=dict)
+    # SYNC_COLUMNS, file order: the frames on the SYNC COB-IDs (SPEC §9.1.5)
+    sync: dict[str, np.ndarray] = field(
+        default_factory=lambda: {n: np.zeros(0, t) for n, t in SYNC_COLUMNS.items()})
+    # EMCY_RTR_COLUMNS, file order: remote frames on 081h..0FFh
+    emcy_rtr: dict[str, np.ndarray] = field(
+        default_factory=lambda: {n: np.zeros(0, t) for n, t in EMCY_RTR_COLUMNS.items()})
+    # per channel code, the smallest intervals before an 8-byte frame (SPEC §9.1.6: d8)
+    d8_candidates: dict[int, np.ndarray] = field(default_factory=dict)
+    channels: int = 0  # channel codes seen
+    pdo_frames: int = 0  # data frames on PDO CAN-IDs (pre-defined or configured)
+
+    def d8(self, chan: int) -> float | None:
+        """d8 of §9.1.6: the smallest interval before an 8-byte frame on the channel, when
+        at least 3 such intervals lie within 5 % of it (a busy bus repeats its
+        back-to-back spacing); None otherwise."""
+        vals = self.d8_candidates.get(chan)
+        if vals is None or len(vals) < 3:
+            return None
+        d8 = float(vals[0])
+        return d8 if d8 > 0 and int(np.count_nonzero(vals <= d8 * 1.05)) >= 3 else None
+
+    def times_before(self, idx: int, count: int) -> np.ndarray:
+        """The times of up to `count` frames before frame `idx`, in file order (all
+        channels: the caller knows the input has one)."""
+        out: list[np.ndarray] = []
+        for chunk in self.frame_times:
+            base = int(chunk["base"][0])
+            n = len(chunk["ts"])
+            if base >= idx:
+                break
+            hi = min(idx - base, n)
+            out.append(chunk["ts"][max(hi - count, 0):hi])
+        joined = np.concatenate(out) if out else np.zeros(0)
+        return joined[-count:]
 
     def ec_rows(self, key: int) -> slice:
         """The rows of `ec` that belong to one node key."""
@@ -368,8 +412,7 @@ _KIND_OF_ID, _NODE_OF_ID, _RESTRICTED_ID = _id_tables()
 _ID_KEYS = 4096  # above any 11-bit CAN-ID: channel * _ID_KEYS + CAN-ID is one integer
 
 
-_CONFIG_INDICES = np.array([0x1016, 0x1017, 0x100C, 0x100D, 0x1400, 0x1401, 0x1402, 0x1403,
-                            0x1800, 0x1801, 0x1802, 0x1803])
+_CONFIG_INDICES = np.array(sorted(sdo.CONFIG_OBJECTS))
 
 
 def key_rows(keys: np.ndarray, lo: int, hi: int) -> slice:
@@ -491,17 +534,25 @@ def _written_pdo_cob_ids(ev: np.ndarray) -> set[int]:
 
 
 def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
-           protect_s: float = 0.0) -> Decoded:
+           protect_s: float = 0.0, sync_cob_ids: Iterable[int] = (DEFAULT_SYNC_ID,)
+           ) -> Decoded:
     """Stream the batches once; keep only sparse events, the compact store and aggregates.
 
     `pdo_cob_ids`: configured PDO COB-IDs outside the pre-defined set (network file,
     EDS/DCF); COB-IDs written by SDO in the trace are added as they are seen.
     `protect_s`: a long log keeps every error-control frame at least this long after an
     NMT or SDO frame (a rule looks that far after a command: S004's obey time).
+    `sync_cob_ids`: the CAN-IDs whose frames are kept as SYNC frames (SPEC §9.1.5: 080h
+    unless the files configure another).
     """
     keep = np.zeros(STD_IDS + 1, bool)  # 11-bit IDs stored for later attribution
     for c in pdo_cob_ids:
         keep[c & STD_ID_MASK] = True
+    is_sync = np.zeros(STD_IDS + 1, bool)
+    for c in sync_cob_ids:
+        is_sync[c & STD_ID_MASK] = True
+    sync_spool = ColumnSpool(SYNC_COLUMNS)
+    emcy_rtr_spool = ColumnSpool(EMCY_RTR_COLUMNS)
     event_spool = ColumnSpool({"row": EVENT_DTYPE})  # SDO frames: rows of EVENT_DTYPE
     nmt_spool = ColumnSpool(NMT_COLUMNS)
     emcy_spool = ColumnSpool(EMCY_COLUMNS)
@@ -510,6 +561,8 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
     frame_times = ChunkStore()
     node_frames = ChunkStore()
     restricted: dict[tuple[int, int], IdUse] = {}
+    d8 = _D8()
+    pdo_frames = 0
     first_tx: dict[int, FirstTx] = {}
     last_tx: dict[int, float] = {}
     standard = 0
@@ -517,6 +570,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
     for b in batches:
         # (copies of one-element slices: a view would keep the whole column alive)
         frame_times.append(ts=b.ts, base=b.index[:1].copy(), **_lines(b.line))
+        d8.add(b)
         co = ~b.ext & ~b.err
         standard += int(np.count_nonzero(co))
         cid = b.can_id.astype(np.int64)
@@ -529,14 +583,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
             nmt_spool.append({"ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
                               "chan": b.chan[sel], "rtr": b.rtr[sel], "dlc": b.dlc[sel],
                               "cs": b.data[sel, 0], "target": b.data[sel, 1]})
-        emcy = co & ~b.rtr & (cid >= EMCY_BASE + 1) & (cid <= EMCY_BASE + MAX_NODE_ID)
-        if emcy.any():
-            sel = np.flatnonzero(emcy)
-            emcy_spool.append({
-                "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
-                "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EMCY_BASE),
-                "dlc": b.dlc[sel],
-                "data": np.ascontiguousarray(b.data[sel]).view(np.uint64).ravel()})
+        _spool_sync_emcy(b, cid, co, is_sync, sync_spool, emcy_spool, emcy_rtr_spool)
         ev_mask = co & sdo_events(cid, b)
         if ev_mask.any():
             sel = np.flatnonzero(ev_mask)
@@ -560,13 +607,16 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
         kinds[~(co & ~b.rtr)] = 0
         nodes = _NODE_OF_ID[id11]
         keys = node_key(b.chan.astype(np.int32), nodes)
+        pdo_frames += int(np.count_nonzero((kinds == KIND_TPDO) | (kinds == KIND_RPDO)
+                                           | (kinds == KIND_CONFIGURED)))
         sel = np.flatnonzero((kinds > 0) & (kinds != KIND_EC))
         if sel.size:  # in file order: the rules take the first offending frame of each run
             key = keys[sel]
             node_frames.append(
                 key=key.astype(np.int16 if key.max() < 1 << 15 else np.int32), kind=kinds[sel],
                 can_id=b.can_id[sel].astype(np.uint16), ts=b.ts[sel],
-                idx=b.index[sel], **_node_lines(b.line[sel], b.index[sel]),
+                idx=b.index[sel], dlc=b.dlc[sel].astype(np.uint8),
+                **_node_lines(b.line[sel], b.index[sel]),
             )
 
         # Each node's first and last transmitted frame (anything but RPDOs, which others send).
@@ -596,6 +646,10 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
     nmt_spool.close()
     emcy_cols = _grouped(emcy_spool, EMCY_COLUMNS)
     emcy_spool.close()
+    sync_cols = {name: sync_spool.column(name) for name in SYNC_COLUMNS}
+    sync_spool.close()
+    emcy_rtr_cols = {name: emcy_rtr_spool.column(name) for name in EMCY_RTR_COLUMNS}
+    emcy_rtr_spool.close()
     settings = ec_compact.SETTINGS
     if protect_s > settings.protect_s:
         settings = replace(settings, protect_s=protect_s)
@@ -612,7 +666,113 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
         ec_spool.close()
     bootups.close()
     return Decoded(events, nmt_cols, emcy_cols, ec_cols, frame_times, node_frames, restricted,
-                   first_tx, last_tx, standard, ec_runs, kept_spool, guard_runs)
+                   first_tx, last_tx, standard, ec_runs, kept_spool, guard_runs, sync_cols,
+                   emcy_rtr_cols, d8.best, d8.channels, pdo_frames)
+
+
+class _D8:
+    """Per channel, the `KEEP` smallest intervals between consecutive frames whose later
+    frame has 8 data bytes (SPEC §9.1.6), kept batch by batch and vectorised over the
+    channels (a log may have tens of thousands): d8 is the first of them."""
+
+    KEEP = 16
+
+    def __init__(self) -> None:
+        self.last = np.full(0, np.nan)  # per channel code: its last frame's time so far
+        self.top = np.full(0, np.inf)  # per channel code: the largest candidate kept
+        self.chan = np.zeros(0, np.int64)  # the candidates: channel, interval
+        self.iv = np.zeros(0)
+
+    @property
+    def channels(self) -> int:
+        return len(self.last)
+
+    def add(self, b: FrameBatch) -> None:
+        keep = ~b.err
+        if not keep.any():
+            return
+        chan, ts, dlc = b.chan[keep].astype(np.int64), b.ts[keep], b.dlc[keep]
+        top = int(chan.max()) + 1
+        if top > len(self.last):
+            self.last = np.concatenate([self.last, np.full(top - len(self.last), np.nan)])
+            self.top = np.concatenate([self.top, np.full(top - len(self.top), np.inf)])
+        one = chan.min() == chan.max()
+        if not one:
+            order = np.argsort(chan, kind="stable")
+            chan, ts, dlc = chan[order], ts[order], dlc[order]
+        first = np.ones(len(chan), bool)
+        first[1:] = chan[1:] != chan[:-1]
+        prev = np.empty(len(ts))
+        prev[1:] = ts[:-1]
+        prev[first] = self.last[chan[first]]
+        last = np.ones(len(chan), bool)
+        last[:-1] = first[1:]
+        self.last[chan[last]] = ts[last]
+        iv = ts - prev
+        # only what can still be among a channel's KEEP smallest (most frames, once a
+        # channel has KEEP candidates: a compare, no sort)
+        sel = (dlc == 8) & (iv >= 0) & (iv < self.top[chan])
+        if not sel.any():
+            return
+        c, v = chan[sel], iv[sel]
+        if one and len(v) > self.KEEP:  # one channel (most logs): a partition, no sort
+            v = np.partition(v, self.KEEP - 1)[:self.KEEP]
+            c = c[:self.KEEP]
+        elif not one:
+            c, v = self._smallest(c, v)
+        self.chan = np.concatenate([self.chan, c])
+        self.iv = np.concatenate([self.iv, v])
+        if len(self.iv) > 4 * self.KEEP * max(top, 1):
+            self.chan, self.iv = self._smallest(self.chan, self.iv)
+            full = np.bincount(self.chan, minlength=len(self.top)) >= self.KEEP
+            if full.any():  # the candidates are sorted by channel, then interval
+                ends = np.cumsum(np.bincount(self.chan, minlength=len(self.top))) - 1
+                self.top[full] = self.iv[ends[full]]
+
+    def _smallest(self, chan: np.ndarray, iv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The KEEP smallest candidates of each channel, by channel, then interval."""
+        order = np.lexsort((iv, chan))
+        c = chan[order]
+        start = np.flatnonzero(np.concatenate([[True], c[1:] != c[:-1]]))
+        rank = np.arange(len(c)) - np.repeat(start, np.diff(np.append(start, len(c))))
+        order = order[rank < self.KEEP]
+        return chan[order], iv[order]
+
+    @property
+    def best(self) -> dict[int, np.ndarray]:
+        chan, iv = self._smallest(self.chan, self.iv)
+        uniq, start = np.unique(chan, return_index=True)
+        bounds = np.append(start, len(chan))
+        return {int(c): iv[bounds[k]:bounds[k + 1]] for k, c in enumerate(uniq.tolist())}
+
+
+def _spool_sync_emcy(b: FrameBatch, cid: np.ndarray, co: np.ndarray, is_sync: np.ndarray,
+                     sync_spool: ColumnSpool, emcy_spool: ColumnSpool,
+                     emcy_rtr_spool: ColumnSpool) -> None:
+    """The batch's SYNC frames (`is_sync`: per 11-bit ID) and EMCY frames (remote ones
+    apart) into their spools."""
+    sync = co & is_sync[np.minimum(cid, STD_IDS)]
+    if sync.any():
+        sel = np.flatnonzero(sync)
+        sync_spool.append({"ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+                           "chan": b.chan[sel], "rtr": b.rtr[sel], "dlc": b.dlc[sel],
+                           "counter": b.data[sel, 0], "can_id": cid[sel]})
+    emcy_any = co & (cid >= EMCY_BASE + 1) & (cid <= EMCY_BASE + MAX_NODE_ID)
+    emcy_rtr = emcy_any & b.rtr
+    if emcy_rtr.any():
+        sel = np.flatnonzero(emcy_rtr)
+        emcy_rtr_spool.append({
+            "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+            "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EMCY_BASE),
+            "dlc": b.dlc[sel]})
+    emcy = emcy_any & ~b.rtr
+    if emcy.any():
+        sel = np.flatnonzero(emcy)
+        emcy_spool.append({
+            "ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+            "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EMCY_BASE),
+            "dlc": b.dlc[sel],
+            "data": np.ascontiguousarray(b.data[sel]).view(np.uint64).ravel()})
 
 
 def _spool_ec(b: FrameBatch, cid: np.ndarray, sel: np.ndarray, ec_spool: ColumnSpool,

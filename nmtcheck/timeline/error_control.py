@@ -500,8 +500,10 @@ def _timed_from(start: np.ndarray, by_heartbeat: np.ndarray, req: np.ndarray,
     return at
 
 
-def guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
-    """G002: runs of remote requests to N that got no guarding response in time."""
+def guard_timeouts(m: NodeModel, params: TimelineParams, end: float,
+                   gaps: list[tuple[float, float]] | None = None) -> None:
+    """G002: runs of remote requests to N that got no guarding response in time. `gaps`:
+    the channel's recording gaps (SPEC §3 I007), whose time a wait does not count."""
     ec = m.ec
     pos = ec.where(REQUEST, GUARD, BOOTUP)  # heartbeats play no part here
     kind = ec.kind[pos]
@@ -519,19 +521,31 @@ def guard_timeouts(m: NodeModel, params: TimelineParams, end: float) -> None:
     bad = np.flatnonzero(unanswered)
     np.add.at(walk, last_guard[bad] + 1, 1)
     np.add.at(walk, np.minimum(next_guard[bad] + 1, len(kind)), -1)
-    _guard_walk(m, params, end, pos[np.cumsum(walk[:-1]) > 0])
+    _guard_walk(m, params, end, pos[np.cumsum(walk[:-1]) > 0], gaps)
 
 
-def _guard_walk(m: NodeModel, params: TimelineParams, end: float, pos: np.ndarray) -> None:
+def _guard_walk(m: NodeModel, params: TimelineParams, end: float, pos: np.ndarray,
+                gaps: list[tuple[float, float]] | None = None) -> None:
     """`guard_timeouts` over the node's requests, responses and boot-ups at `pos`, in
-    order (all of them, or stretches that each begin after a response)."""
+    order (all of them, or stretches that each begin after a response). A wait that a
+    recording gap interrupts counts again from the gap's end; a request superseded before
+    then is no finding (its answer may lie in the gap)."""
     limit = params.response_timeout_s
+    gaps = gaps or []
     run: Timeout | None = None
     pending: tuple[float, int] | None = None  # ts, idx of the pending request
 
     def close(request: tuple[float, int], next_request: float | None) -> None:
         nonlocal run
         deadline = request[0] + limit
+        # a gap counts only if it began while the wait ran: a request superseded by the
+        # next one before the gap timed out then
+        ends = deadline if next_request is None else min(deadline, next_request)
+        cut = next((b for a, b in gaps if request[0] <= a + EPS and a < ends), None)
+        if cut is not None:  # the recorder may have missed the answer: from the gap's end
+            deadline = cut + limit
+            if next_request is not None and next_request < deadline:
+                return
         if next_request is None and deadline > end - EPS:
             return  # the trace ended before the answer was due
         moment = deadline if next_request is None else min(deadline, next_request)

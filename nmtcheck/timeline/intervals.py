@@ -30,8 +30,10 @@ from nmtcheck.timeline.model import (
     ChannelModel,
     EcTable,
     IntervalTable,
+    NmtTable,
     NodeModel,
     SmallEc,
+    reset_cs,
 )
 
 # state index a data byte reports, -1 if none (boot-up handled apart)
@@ -113,6 +115,44 @@ def _stale_until(m: NodeModel, obey_s: float, reports: dict[int, np.ndarray]) ->
                                                cycle))
     soon = (k < mine.size) & (ec.idx[first] < cycle)
     return np.where(soon, ec.ts[first].astype(np.float64), cmds.ts)
+
+
+def mark_power_on_bootups(nmt: NmtTable, nodes: dict[int, NodeModel], obey_s: float) -> None:
+    """Mark in `ec.stale` the one kind of stale boot-up (SPEC §2, amended 2026-12-07): N's
+    first frame in the trace, at most `obey_s` after a reset command to N (direct or
+    broadcast, whether or not N had been seen), with N's next boot-up at most `obey_s`
+    after it. A device that powers on while the master's `000#8200` is on the bus
+    (CANopenNode) sends its power-on boot-up after the command, then the one that answers
+    it: the first is no evidence, and neither is B003 nor B002 (`checks/bootup.py`).
+    Boot-ups are final after the first classification pass (`classify`)."""
+    if not len(nmt):
+        return
+    resets = np.flatnonzero(nmt.valid & reset_cs(nmt.cs))
+    if not resets.size:
+        return
+    # the resets by target, each target's in file order: a log may hold a million
+    by_target = resets[np.lexsort((nmt.idx[resets], nmt.target[resets]))]
+    targets = nmt.target[by_target]
+    for n, m in nodes.items():
+        if m.first_tx is None or m.kind_counts()[BOOTUP] < 2:
+            continue
+        ec = m.ec
+        boots = ec.where(BOOTUP)
+        first, answer = int(boots[0]), int(boots[1])
+        if int(ec.idx[first]) != m.first_tx.idx:  # not N's first frame
+            continue
+        b_ts = float(ec.ts[first])
+        if not -EPS <= float(ec.ts[answer]) - b_ts <= obey_s + EPS:
+            continue
+        latest = -np.inf  # the latest reset to N (direct or broadcast) before it
+        for t in (0, n):
+            rows = by_target[np.searchsorted(targets, t, side="left"):
+                             np.searchsorted(targets, t, side="right")]
+            k = int(np.searchsorted(nmt.idx[rows], ec.idx[first], side="left")) - 1
+            if k >= 0:
+                latest = max(latest, float(nmt.ts[rows[k]]))
+        if -EPS <= b_ts - latest <= obey_s + EPS:
+            ec.stale[first] = True
 
 
 def _interval_steps(m: NodeModel, until: np.ndarray) -> Iterator[tuple[float, int, int]]:
@@ -266,7 +306,9 @@ def node_intervals(m: NodeModel, start: float, end: float, obey_s: float,
                     at <= last_cmd[0] + EPS) and state == last_cmd[1]:
                 stale[r] = True
                 continue
-            if k == BOOTUP:
+            # a stale boot-up (`mark_power_on_bootups`) is no evidence (SPEC §2): as any
+            # frame, it only ends OFFLINE
+            if k == BOOTUP and not stale[r]:
                 last_cmd = None  # nothing after a boot-up was queued before the command
                 go(at, pre_op, _EC_SOURCE[k])
                 saved = None
@@ -310,10 +352,11 @@ def bootups_only(ec: EcTable, start: float, end: float) -> IntervalTable:
     PRE-OPERATIONAL from then on (every later boot-up changes nothing). Most nodes of a
     log of many short channels; the walk's set-up costs far more than this."""
     unknown, pre_op = STATE_INDEX[UNKNOWN], STATE_INDEX[PRE_OPERATIONAL]
-    if not len(ec):
+    evidence = ec.ts[~ec.stale] if ec.stale.any() else ec.ts  # a stale boot-up: none
+    if not len(evidence):
         starts, states, sources = [start], [unknown], [SOURCE_INDEX["start"]]
     else:
-        first = float(ec.ts.min())
+        first = float(evidence.min())
         if first <= start:  # the UNKNOWN interval would be empty
             starts, states, sources = [start], [pre_op], [_EC_SOURCE[BOOTUP]]
         else:

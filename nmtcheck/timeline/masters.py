@@ -24,6 +24,7 @@ from nmtcheck.timeline.model import (
     TimelineParams,
     reset_cs,
 )
+from nmtcheck.timeline.moments import at
 from nmtcheck.timeline.tables import next_of
 
 
@@ -126,9 +127,10 @@ def infer_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelinePara
             if node not in found and not _answers_reset(valid, i, node, b_idx, b_ts,
                                                         params) and _disobeyed(
                     tables[node], reports[node], valid, i, node, params):
-                found[node] = (f"boot-up at {b_ts - start:.6f} s, then broadcast "
-                               f"{COMMAND_NAMES[f_cs]} at {f_ts - start:.6f} s that node "
-                               f"{node} did not obey")
+                untimed = params.order_only
+                found[node] = (f"boot-up at {at(b_ts, start, untimed)}, then broadcast "
+                               f"{COMMAND_NAMES[f_cs]} at {at(f_ts, start, untimed)} that "
+                               f"node {node} did not obey")
     if len(found) == 1:
         (node, why), = found.items()
         return Master(node, "inferred", why), why
@@ -161,7 +163,8 @@ def _burst_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelinePar
         left_out = sorted(set(range(1, 128)) - targets)
         b_ts = float(valid.ts[lo])
         if len(left_out) != 1:
-            notes.append(f"the reset burst at {b_ts - start:.6f} s leaves out node-IDs "
+            notes.append(f"the reset burst at {at(b_ts, start, params.order_only)} leaves "
+                         "out node-IDs "
                          f"{', '.join(map(str, left_out[:5]))}"
                          f"{' …' if len(left_out) > 5 else ''}")
             continue
@@ -175,8 +178,9 @@ def _burst_master(nmt: NmtTable, tables: dict[int, EcTable], params: TimelinePar
             boots = boots[t.idx[boots] > valid.idx[lo - 1]]
         for q in boots[::-1].tolist():
             if not _answers_reset(valid, lo, node, int(t.idx[q]), float(t.ts[q]), params):
-                why = (f"boot-up at {float(t.ts[q]) - start:.6f} s, then a burst of resets "
-                       f"to every other node-ID at {b_ts - start:.6f} s")
+                why = (f"boot-up at {at(float(t.ts[q]), start, params.order_only)}, then a "
+                       "burst of resets to every other node-ID at "
+                       f"{at(b_ts, start, params.order_only)}")
                 return Master(node, "inferred", why), why
     if notes:
         return None, "not inferred: " + "; ".join(notes[:2])

@@ -477,6 +477,24 @@ class TimelineParams:
     repeat_window_ms: float = 0.0  # B003: boot-ups this close repeat (0: auto); B002 skips them
 
 
+@dataclass
+class RecordingGap:
+    """No frame on the channel in (start, end) for longer than every heartbeat and
+    guarding limit running there (SPEC §3 I007); the frame at `end` (index, line) resumes
+    it."""
+
+    start: float
+    end: float
+    end_idx: int
+    end_line: int
+    limit_s: float  # the longest heartbeat or guarding limit running at its start
+    nodes: list[int] = field(default_factory=list)  # whose limits ran out inside it
+
+    @property
+    def seconds(self) -> float:
+        return self.end - self.start
+
+
 @dataclass(frozen=True)
 class Master:
     """A channel's NMT master and how it is known (SPEC §2)."""
@@ -500,6 +518,8 @@ class ChannelModel:
     log_name: str = ""  # its name in the log and the files ("" : `name`)
     first_index: int = 0  # the frame its capture begins at (0: the input's first)
     first_line: int | None = None  # that frame's line, for a later capture
+    # the channel's recording gaps (SPEC §3 I007: nmtcheck/timeline/recording_gaps.py)
+    recording_gaps: list[RecordingGap] = field(default_factory=list)
 
     @property
     def network_name(self) -> str:

@@ -20,7 +20,11 @@ extern "C" {
 #endif
 
 /* Stack configuration (overrides of 301/CO_config.h) */
-#define CO_CONFIG_NMT            (CO_CONFIG_NMT_MASTER)
+#define CO_CONFIG_NMT            (CO_CONFIG_NMT_MASTER | CO_CONFIG_NMT_CALLBACK_CHANGE)
+/* EMCY producer with 1015h inhibit time and CANopenNode's EMCY callback (dev.c prints the
+ * stack's own EMCYs from it); 1015h is 0 at power-on, so EMCYs leave at once as before */
+#define CO_CONFIG_EM             (CO_CONFIG_EM_PRODUCER | CO_CONFIG_EM_PROD_INHIBIT | CO_CONFIG_EM_HISTORY \
+                                  | CO_CONFIG_EM_CONSUMER)
 #define CO_CONFIG_SDO_CLI        (CO_CONFIG_SDO_CLI_ENABLE)
 #define CO_CONFIG_FIFO           (CO_CONFIG_FIFO_ENABLE)
 #define CO_CONFIG_NODE_GUARDING  (CO_CONFIG_NODE_GUARDING_SLAVE_ENABLE | CO_CONFIG_NODE_GUARDING_MASTER_ENABLE)

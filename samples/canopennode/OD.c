@@ -8,7 +8,8 @@
  *    by CANopenNode's node-guarding slave (CO_CONFIG_NODE_GUARDING);
  *  - added 2000h (u32, TPDO-mappable application counter);
  *  - TPDO1 (1800h) enabled: COB-ID 40000180h (+node-ID), type FEh, event timer
- *    500 ms; 1A00h maps 2000h:00 (32 bit).
+ *    500 ms; 1A00h maps 2000h:00 (32 bit);
+ *  - added 2001h (u32, RPDO-mappable: what an RPDO brings; PDO recordings, pdo/).
  */
 /*******************************************************************************
     CANopen Object Dictionary definition for CANopenNode V4
@@ -208,6 +209,7 @@ OD_ATTR_RAM OD_RAM_t OD_RAM = {
     .x100C_guardTime = 0x0000,
     .x100D_lifeTimeFactor = 0x00,
     .x2000_counter = 0x00000000,
+    .x2001_received = 0x00000000,
     .x1010_storeParameters_sub0 = 0x04,
     .x1010_storeParameters = {0x00000001, 0x00000001, 0x00000001, 0x00000001},
     .x1011_restoreDefaultParameters_sub0 = 0x04,
@@ -261,6 +263,7 @@ typedef struct {
     OD_obj_record_t o_1A02_TPDOMappingParameter[9];
     OD_obj_record_t o_1A03_TPDOMappingParameter[9];
     OD_obj_var_t o_2000_counter;
+    OD_obj_var_t o_2001_received;
 } ODObjs_t;
 
 static CO_PROGMEM ODObjs_t ODObjs = {
@@ -1142,6 +1145,11 @@ static CO_PROGMEM ODObjs_t ODObjs = {
         .dataOrig = &OD_RAM.x2000_counter,
         .attribute = ODA_SDO_RW | ODA_TPDO | ODA_MB,
         .dataLength = 4
+    },
+    .o_2001_received = {
+        .dataOrig = &OD_RAM.x2001_received,
+        .attribute = ODA_SDO_RW | ODA_RPDO | ODA_MB,
+        .dataLength = 4
     }
 };
 
@@ -1186,6 +1194,7 @@ static OD_ATTR_OD OD_entry_t ODList[] = {
     {0x1A02, 0x09, ODT_REC, &ODObjs.o_1A02_TPDOMappingParameter, NULL},
     {0x1A03, 0x09, ODT_REC, &ODObjs.o_1A03_TPDOMappingParameter, NULL},
     {0x2000, 0x01, ODT_VAR, &ODObjs.o_2000_counter, NULL},
+    {0x2001, 0x01, ODT_VAR, &ODObjs.o_2001_received, NULL},
     {0x0000, 0x00, 0, NULL, NULL}
 };
 

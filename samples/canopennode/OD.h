@@ -8,7 +8,8 @@
  *    by CANopenNode's node-guarding slave (CO_CONFIG_NODE_GUARDING);
  *  - added 2000h (u32, TPDO-mappable application counter);
  *  - TPDO1 (1800h) enabled: COB-ID 40000180h (+node-ID), type FEh, event timer
- *    500 ms; 1A00h maps 2000h:00 (32 bit).
+ *    500 ms; 1A00h maps 2000h:00 (32 bit);
+ *  - added 2001h (u32, RPDO-mappable: what an RPDO brings; PDO recordings, pdo/).
  */
 /*******************************************************************************
     CANopen Object Dictionary definition for CANopenNode V4
@@ -248,6 +249,7 @@ typedef struct {
     uint16_t x100C_guardTime;
     uint8_t x100D_lifeTimeFactor;
     uint32_t x2000_counter;
+    uint32_t x2001_received;
     uint8_t x1010_storeParameters_sub0;
     uint32_t x1010_storeParameters[OD_CNT_ARR_1010];
     uint8_t x1011_restoreDefaultParameters_sub0;
@@ -314,6 +316,7 @@ extern OD_ATTR_OD OD_t *OD;
 #define OD_ENTRY_H1A02 &OD->list[33]
 #define OD_ENTRY_H1A03 &OD->list[34]
 #define OD_ENTRY_H2000 &OD->list[35]
+#define OD_ENTRY_H2001 &OD->list[36]
 
 
 /*******************************************************************************
@@ -355,6 +358,7 @@ extern OD_ATTR_OD OD_t *OD;
 #define OD_ENTRY_H1A02_TPDOMappingParameter &OD->list[33]
 #define OD_ENTRY_H1A03_TPDOMappingParameter &OD->list[34]
 #define OD_ENTRY_H2000_counter &OD->list[35]
+#define OD_ENTRY_H2001_received &OD->list[36]
 
 
 /*******************************************************************************

@@ -33,6 +33,36 @@
  * slave again, as at boot; for a slave that was power-cycled or reset), and
  * `--guard MS:F` (power-on 100Ch/100Dh, as stored parameters; use with --hb 0), and
  * `--sync-us US` (SYNC producer on COB-ID 80h with period US at power-on).
+ *
+ * SYNC and EMCY recordings (sync_emcy/ in README.md):
+ *   --sync-cons-us US  power-on 1006h = US without the producer bit: a SYNC
+ *                      consumer whose timeout (1.5 x 1006h) runs
+ *   --sync-ovf N       power-on 1019h (synchronous counter overflow value)
+ *   --emcy-inhibit N   power-on 1015h (EMCY inhibit time, 100 us units)
+ *   control `err_set BIT CODE INFO` / `err_reset BIT INFO` (hex): the
+ *   application calls CO_errorReport() / CO_errorReset(); `status` prints the
+ *   NMT state, the error register 1001h and the active error bits.
+ * Ground truth for the checker, printed to stderr (the hub's .events file)
+ * with CLOCK_REALTIME stamps, the clock of the hub's log: every NMT state
+ * change (CANopenNode's CO_NMT_initCallbackChanged callback) and every
+ * EMCY the stack sends itself (CO_EM_initCallbackRx, called with ident 0
+ * right after the stack's own EMCY went to CO_CANsend()).
+ *
+ * PDO recordings (pdo/ in README.md):
+ *   --tpdo1 TYPE:INHIBIT:EVENT   power-on 1800h sub 2 (transmission type), sub 3
+ *                                (inhibit time, 100 us) and sub 5 (event timer, ms)
+ *   --rpdo1 COBID:TYPE:EVENT:MAP[,MAP...]  (COB-ID and mapping entries hex)
+ *                                power-on 1400h sub 1, 2, 5 and 1600h (RPDO1 valid
+ *                                when COB-ID bit 31 is clear); maps 2001h and/or
+ *                                CANopenNode's dummy entries (index < 20h, sub 0)
+ *   control `tpdo_req COUNT GAP_MS`: the application changes 2000h (+1) and asks
+ *   for TPDO1 (CO_TPDOsendRequest()) COUNT times, GAP_MS ms apart; the stack
+ *   sends it as its transmission type and inhibit time allow.
+ * Ground truth printed with the others: the PDO configuration in force after
+ * every communication reset (read back from the object dictionary, as the
+ * stack initialised it), every application request, and, from the patched
+ * stack of dev_inhibit (tpdo_inhibit.patch), every TPDO it sent while its
+ * inhibit time was still running.
  */
 #include <errno.h>
 #include <poll.h>
@@ -61,6 +91,17 @@ static int selfStart = 0, noTpdo = 0, isMaster = 0, resetAll = 0;
 static int resetDelayMs = 100, configDelayMs = 50;
 static unsigned guardPowerOn = 0, lifePowerOn = 0; /* power-on 100Ch/100Dh (--guard) */
 static unsigned syncUs = 0; /* SYNC producer period (1006h, --sync-us), 0 = none */
+static unsigned syncConsUs = 0; /* SYNC consumer period (1006h, --sync-cons-us), 0 = none */
+static int syncOvf = -1;        /* power-on 1019h (--sync-ovf), -1 = OD default */
+static int emcyInhibit = -1;    /* power-on 1015h (--emcy-inhibit), -1 = OD default */
+static int tpdoType = -1, tpdoInhibit = -1, tpdoEvent = -1; /* power-on 1800h:02/03/05 (--tpdo1) */
+static int rpdoSet = 0;             /* --rpdo1 given */
+static uint32_t rpdoCob = 0;        /* power-on 1400h:01 */
+static unsigned rpdoType = 0xFE, rpdoEvent = 0; /* power-on 1400h:02/05 */
+static uint32_t rpdoMap[8];         /* power-on 1600h:01.. */
+static unsigned rpdoMapCount = 0;   /* power-on 1600h:00 */
+static unsigned tpdoReqLeft = 0, tpdoReqGapMs = 0, tpdoReqNo = 0; /* control tpdo_req */
+static uint64_t tpdoReqNext = 0;
 static char slavesSpec[128] = "";
 static int resetAllDone = 0; /* survives communication resets (RAM) */
 
@@ -71,16 +112,22 @@ now_us(void) {
     return (uint64_t)ts.tv_sec * 1000000u + (uint64_t)ts.tv_nsec / 1000u;
 }
 
+/* one line to stderr, written at once (the devices share the hub's .events file) */
 static void
 logf_(const char* fmt, ...) {
     struct timespec ts;
     clock_gettime(CLOCK_REALTIME, &ts);
-    fprintf(stderr, "# %ld.%06ld %s: ", (long)ts.tv_sec, ts.tv_nsec / 1000, devName);
+    char line[512];
+    int n = snprintf(line, sizeof(line), "# %ld.%06ld %s: ", (long)ts.tv_sec, ts.tv_nsec / 1000, devName);
     va_list ap;
     va_start(ap, fmt);
-    vfprintf(stderr, fmt, ap);
+    n += vsnprintf(line + n, sizeof(line) - (size_t)n - 1, fmt, ap);
     va_end(ap);
-    fputc('\n', stderr);
+    if (n > (int)sizeof(line) - 2) {
+        n = (int)sizeof(line) - 2;
+    }
+    line[n++] = '\n';
+    (void)!write(2, line, (size_t)n);
 }
 
 /* ---------------------------------------------------------------- jobs */
@@ -216,6 +263,99 @@ master_queue_configuration(void) {
     master_queue_configuration_of(0);
 }
 
+/* ------------------------------------------------ ground-truth callbacks */
+/* called by the patched stack of dev_syncskip (sync_skip.patch) when it injects its bug */
+void nmtcheck_injected(const char* what);
+void
+nmtcheck_injected(const char* what) {
+    logf_("injected (patched stack): %s", what);
+}
+
+static const char*
+nmt_state_name(CO_NMT_internalState_t state) {
+    switch (state) {
+        case CO_NMT_INITIALIZING: return "INITIALIZING";
+        case CO_NMT_PRE_OPERATIONAL: return "PRE-OPERATIONAL";
+        case CO_NMT_OPERATIONAL: return "OPERATIONAL";
+        case CO_NMT_STOPPED: return "STOPPED";
+        default: return "UNKNOWN";
+    }
+}
+
+/* called by the patched stack of dev_inhibit (tpdo_inhibit.patch) when it sends a TPDO
+ * although its inhibit time has not elapsed */
+void nmtcheck_inhibit_bypass(unsigned canId, unsigned leftUs, unsigned inhibitUs);
+void
+nmtcheck_inhibit_bypass(unsigned canId, unsigned leftUs, unsigned inhibitUs) {
+    logf_("injected (patched stack): TPDO %03Xh sent with %u us of its inhibit time %u us left", canId, leftUs,
+          inhibitUs);
+}
+
+/* the valid PDOs as the object dictionary holds them after CO_CANopenInitPDO() */
+static void
+log_pdo_configuration(void) {
+    const OD_entry_t* entries[] = {OD_ENTRY_H1800, OD_ENTRY_H1801, OD_ENTRY_H1802, OD_ENTRY_H1803,
+                                   OD_ENTRY_H1400, OD_ENTRY_H1401, OD_ENTRY_H1402, OD_ENTRY_H1403};
+    for (unsigned k = 0; k < 8; k++) {
+        OD_entry_t* comm = (OD_entry_t*)entries[k];
+        int isTpdo = k < 4;
+        OD_entry_t* map = OD_find(OD, (uint16_t)(OD_getIndex(comm) + 0x200U));
+        uint32_t cob = 0, m = 0;
+        uint8_t type = 0, n = 0;
+        uint16_t inhibit = 0, event = 0;
+        OD_get_u32(comm, 1, &cob, true);
+        if (cob & 0x80000000u) {
+            continue; /* not valid */
+        }
+        OD_get_u8(comm, 2, &type, true);
+        if (isTpdo) {
+            OD_get_u16(comm, 3, &inhibit, true);
+        }
+        OD_get_u16(comm, 5, &event, true);
+        OD_get_u8(map, 0, &n, true);
+        char maps[100] = "";
+        size_t len = 0;
+        for (uint8_t i = 1; i <= n && i <= 8; i++) {
+            OD_get_u32(map, i, &m, true);
+            len += (size_t)snprintf(maps + len, sizeof(maps) - len, " %08X", (unsigned)m);
+        }
+        if (isTpdo) {
+            logf_("PDO configuration: TPDO%u COB-ID %08X type %u inhibit %u event %u mapping%s", k + 1,
+                  (unsigned)cob, type, inhibit, event, n ? maps : " none");
+        } else {
+            logf_("PDO configuration: RPDO%u COB-ID %08X type %u event %u mapping%s", k - 3, (unsigned)cob, type,
+                  event, n ? maps : " none");
+        }
+    }
+}
+
+static void
+on_nmt_changed(CO_NMT_internalState_t state) {
+    logf_("NMT state %s (CANopenNode callback)", nmt_state_name(state));
+}
+
+static void
+on_emcy(const uint16_t ident, const uint16_t errorCode, const uint8_t errorRegister, const uint8_t errorBit,
+        const uint32_t infoCode) {
+    if (ident == 0U) { /* the stack's own EMCY, just sent */
+        logf_("EMCY sent: code %04X register %02X bit %02X info %08X (CANopenNode callback)", errorCode,
+              errorRegister, errorBit, (unsigned)infoCode);
+    }
+}
+
+static void
+log_status(void) {
+    char bits[256] = "";
+    size_t n = 0;
+    for (unsigned b = 0; b < CO_CONFIG_EM_ERR_STATUS_BITS_COUNT; b++) {
+        if (CO_isError(CO->em, (uint8_t)b) && n + 4 < sizeof(bits)) {
+            n += (size_t)snprintf(bits + n, sizeof(bits) - n, " %02X", b);
+        }
+    }
+    logf_("status: NMT state %s, error register %02X, active error bits:%s",
+          nmt_state_name(CO_NMT_getInternalState(CO->NMT)), CO_getErrorRegister(CO->em), n ? bits : " none");
+}
+
 /* ------------------------------------------------------------ control */
 static void
 handle_control(char* text) {
@@ -231,6 +371,16 @@ handle_control(char* text) {
         CO_errorReport(CO->em, CO_EM_MANUFACTURER_START, CO_EMC_DEVICE_SPECIFIC, 0x1234);
     } else if (strncmp(text, "emcy_clear", 10) == 0) {
         CO_errorReset(CO->em, CO_EM_MANUFACTURER_START, 0);
+    } else if (sscanf(text, "err_set %x %x %x", &a, &b, &c) == 3) {
+        CO_errorReport(CO->em, (uint8_t)a, (uint16_t)b, c);
+    } else if (sscanf(text, "err_reset %x %x", &a, &b) == 2) {
+        CO_errorReset(CO->em, (uint8_t)a, b);
+    } else if (sscanf(text, "tpdo_req %u %u", &a, &b) == 2) {
+        tpdoReqLeft = a; /* the main loop asks for the TPDO: first at once, then every b ms */
+        tpdoReqGapMs = b;
+        tpdoReqNext = 0;
+    } else if (strncmp(text, "status", 6) == 0) {
+        log_status();
     } else if (sscanf(text, "set1017 %u", &a) == 1) {
         OD_set_u16(OD_ENTRY_H1017, 0, (uint16_t)a, false); /* local write through CANopenNode's OD extension */
     } else if (sscanf(text, "config %u", &a) == 1) {
@@ -284,7 +434,29 @@ main(int argc, char** argv) {
         else if (!strcmp(o, "--reset-delay")) { resetDelayMs = atoi(v); i++; }
         else if (!strcmp(o, "--config-delay")) { configDelayMs = atoi(v); i++; }
         else if (!strcmp(o, "--sync-us")) { syncUs = (unsigned)atoi(v); i++; }
+        else if (!strcmp(o, "--sync-cons-us")) { syncConsUs = (unsigned)atoi(v); i++; }
+        else if (!strcmp(o, "--sync-ovf")) { syncOvf = atoi(v); i++; }
+        else if (!strcmp(o, "--emcy-inhibit")) { emcyInhibit = atoi(v); i++; }
         else if (!strcmp(o, "--guard")) { sscanf(v, "%u:%u", &guardPowerOn, &lifePowerOn); i++; }
+        else if (!strcmp(o, "--tpdo1")) {
+            if (sscanf(v, "%d:%d:%d", &tpdoType, &tpdoInhibit, &tpdoEvent) != 3) {
+                fprintf(stderr, "--tpdo1 TYPE:INHIBIT:EVENT\n");
+                return 2;
+            }
+            i++;
+        }
+        else if (!strcmp(o, "--rpdo1")) {
+            char mapList[128];
+            if (sscanf(v, "%x:%u:%u:%127s", &rpdoCob, &rpdoType, &rpdoEvent, mapList) != 4) {
+                fprintf(stderr, "--rpdo1 COBID:TYPE:EVENT:MAP[,MAP...]\n");
+                return 2;
+            }
+            for (char* tok = strtok(mapList, ","); tok != NULL && rpdoMapCount < 8; tok = strtok(NULL, ",")) {
+                rpdoMap[rpdoMapCount++] = (uint32_t)strtoul(tok, NULL, 16);
+            }
+            rpdoSet = 1;
+            i++;
+        }
         else { fprintf(stderr, "unknown option %s\n", o); return 2; }
     }
     if (hubDir == NULL || nodeId < 1 || nodeId > 127) {
@@ -324,6 +496,28 @@ main(int argc, char** argv) {
     if (syncUs != 0) { /* SYNC producer at power-on: 1005h bit 30, 1006h */
         OD_PERSIST_COMM.x1005_COB_ID_SYNCMessage = 0x40000080u;
         OD_PERSIST_COMM.x1006_communicationCyclePeriod = syncUs;
+    } else if (syncConsUs != 0) { /* SYNC consumer with a timeout at power-on: 1006h only */
+        OD_PERSIST_COMM.x1006_communicationCyclePeriod = syncConsUs;
+    }
+    if (syncOvf >= 0) { /* power-on 1019h */
+        OD_PERSIST_COMM.x1019_synchronousCounterOverflowValue = (uint8_t)syncOvf;
+    }
+    if (emcyInhibit >= 0) { /* power-on 1015h */
+        OD_PERSIST_COMM.x1015_inhibitTimeEMCY = (uint16_t)emcyInhibit;
+    }
+    if (tpdoType >= 0) { /* power-on TPDO1 communication parameters (stored) */
+        OD_PERSIST_COMM.x1800_TPDOCommunicationParameter.transmissionType = (uint8_t)tpdoType;
+        OD_PERSIST_COMM.x1800_TPDOCommunicationParameter.inhibitTime = (uint16_t)tpdoInhibit;
+        OD_PERSIST_COMM.x1800_TPDOCommunicationParameter.eventTimer = (uint16_t)tpdoEvent;
+    }
+    if (rpdoSet) { /* power-on RPDO1 communication and mapping parameters (stored) */
+        OD_PERSIST_COMM.x1400_RPDOCommunicationParameter.COB_IDUsedByRPDO = rpdoCob;
+        OD_PERSIST_COMM.x1400_RPDOCommunicationParameter.transmissionType = (uint8_t)rpdoType;
+        OD_PERSIST_COMM.x1400_RPDOCommunicationParameter.eventTimer = (uint16_t)rpdoEvent;
+        for (unsigned k = 0; k < rpdoMapCount; k++) {
+            OD_set_u32(OD_ENTRY_H1600, (uint8_t)(k + 1), rpdoMap[k], true);
+        }
+        OD_PERSIST_COMM.x1600_RPDOMappingParameter.numberOfMappedApplicationObjectsInPDO = (uint8_t)rpdoMapCount;
     }
     uint16_t nmtControl = CO_NMT_ERR_ON_ERR_REG | CO_ERR_REG_GENERIC_ERR | CO_ERR_REG_COMMUNICATION;
     if (selfStart || isMaster) {
@@ -353,6 +547,9 @@ main(int argc, char** argv) {
             fprintf(stderr, "CO_CANopenInitPDO failed %d (OD %04X)\n", err, (unsigned)errInfo);
             return 1;
         }
+        CO_NMT_initCallbackChanged(CO->NMT, on_nmt_changed); /* prints the current state too */
+        CO_EM_initCallbackRx(CO->em, on_emcy);
+        log_pdo_configuration();
         CO_CANsetNormalMode(CO->CANmodule);
         jobs_clear();
         int configQueued = 0;
@@ -382,6 +579,14 @@ main(int argc, char** argv) {
             if (t >= nextCount) { /* 2000h counter, mapped to TPDO1 */
                 OD_RAM.x2000_counter++;
                 nextCount += 500000u;
+            }
+            if (tpdoReqLeft > 0 && t >= tpdoReqNext) { /* control tpdo_req: a new value, sent by event */
+                OD_RAM.x2000_counter++;
+                CO_TPDOsendRequest(&CO->TPDO[0]);
+                tpdoReqLeft--;
+                tpdoReqNext = t + (uint64_t)tpdoReqGapMs * 1000u;
+                logf_("application: 2000h = %u, TPDO1 requested (CO_TPDOsendRequest, request %u)",
+                      (unsigned)OD_RAM.x2000_counter, ++tpdoReqNo);
             }
             if (isMaster) {
                 uint64_t sinceBoot_ms = (t - tBoot) / 1000u;

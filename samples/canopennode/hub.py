@@ -38,6 +38,7 @@ from typing import Literal, NamedTuple, TextIO, TypedDict
 FRAME = struct.Struct("<BBBBI8s")
 
 MASTER = ["--node", "1", "--hb", "200", "--master", "--slaves", "2h,3h,4g", "--reset-all"]
+SYNC_CONS = ["--sync-cons-us", "20000", "--sync-ovf", "4"]  # a SYNC consumer of sync_counter
 
 ActionKind = Literal["spawn", "kill", "unplug", "plug", "ctl"]
 
@@ -243,6 +244,166 @@ SCENARIOS: dict[str, Scenario] = {
         ctl(1.0, "master", "sdo_write 3 1800 2 1 4"),
         ctl(4.0, "master", "nmt 02 2"),
         ctl(6.0, "master", "nmt 01 2"),
+    ]),
+    # ---- SYNC and EMCY faults raised by the stack itself (sync_emcy/) --------------
+    # node 2 produces SYNC every 20 ms (1005h bit 30, 1006h at power-on); the master
+    # writes 1006h = 20 ms to nodes 3 and 4 by SDO, so their SYNC consumer timeout runs
+    # (armed by the first SYNC, fires after 1.5 x 1006h). The master stops node 2 at
+    # 4.0: the consumers raise EMCY 8100h (error bit 18h) and drop to PRE-OPERATIONAL
+    # (CO_NMT_ERR_ON_ERR_REG, communication bit). Node 2 started again at 6.0 (SYNC
+    # back: the consumers reset their EMCY, stay pre-operational), nodes 3 and 4 at 7.0
+    "sync_producer_stopped": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--sync-us", "20000")),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", MASTER),
+        ctl(1.0, "master", "sdo_write 3 1006 0 4 20000"),
+        ctl(1.0, "master", "sdo_write 4 1006 0 4 20000"),
+        ctl(4.0, "master", "nmt 02 2"),
+        ctl(6.0, "master", "nmt 01 2"),
+        ctl(7.0, "master", "nmt 01 3"),
+        ctl(7.0, "master", "nmt 01 4"),
+        ctl(9.8, "s2", "status"),
+        ctl(9.8, "s3", "status"),
+        ctl(9.8, "s4", "status"),
+    ]),
+    # the master produces SYNC every 20 ms with a counter (1019h = 4 at power-on on
+    # every node: CANopenNode consumers drop a SYNC whose length does not fit their
+    # 1019h); the slaves consume it with 1006h = 20 ms (power-on). Healthy.
+    "sync_counter": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, *SYNC_CONS)),
+        spawn(0.0, "s3", slave(3, *SYNC_CONS)),
+        spawn(0.0, "s4", slave(4, *SYNC_CONS)),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "20000", "--sync-ovf", "4"]),
+        ctl(9.8, "s2", "status"),
+        ctl(9.8, "s3", "status"),
+        ctl(9.8, "s4", "status"),
+    ]),
+    # as sync_counter, the master on the patched stack (sync_skip.patch): once, from its
+    # 300th SYNC on, it skips counter value 2 (1, 3 instead of 1, 2, 3)
+    "sync_counter_skip": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, *SYNC_CONS)),
+        spawn(0.0, "s3", slave(3, *SYNC_CONS)),
+        spawn(0.0, "s4", slave(4, *SYNC_CONS)),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "20000", "--sync-ovf", "4"], "dev_syncskip"),
+        ctl(9.8, "s2", "status"),
+        ctl(9.8, "s3", "status"),
+        ctl(9.8, "s4", "status"),
+    ]),
+    # EMCY inhibit time: node 3 has 1015h = 50 ms at power-on, node 2 gets 1015h = 30 ms
+    # by SDO at 2.0. Node 3's application raises three manufacturer errors at once at
+    # 3.0 (error bits 40h-42h: error register bit 7) and resets them 20 ms later: the
+    # stack queues the six EMCYs and sends them 50 ms apart. Node 2's application
+    # raises a manufacturer error (42h) and a generic-critical one (2Ch: register bit
+    # 0, in its NMT control mask) at 5.0 and resets the manufacturer one 10 ms later:
+    # node 2 drops to PRE-OPERATIONAL, three EMCYs 30 ms apart, and 2Ch stays active
+    "emcy_inhibit": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3, "--emcy-inhibit", "500")),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", MASTER),
+        ctl(2.0, "master", "sdo_write 2 1015 0 2 300"),
+        ctl(3.0, "s3", "err_set 40 5000 1"),
+        ctl(3.0, "s3", "err_set 41 6100 2"),
+        ctl(3.0, "s3", "err_set 42 FF00 3"),
+        ctl(3.02, "s3", "err_reset 40 0"),
+        ctl(3.02, "s3", "err_reset 41 0"),
+        ctl(3.02, "s3", "err_reset 42 0"),
+        ctl(5.0, "s2", "err_set 42 FF00 4"),
+        ctl(5.0, "s2", "err_set 2C 6100 5"),
+        ctl(5.01, "s2", "err_reset 42 0"),
+        ctl(9.8, "s2", "status"),
+        ctl(9.8, "s3", "status"),
+    ]),
+    # ---- PDO timing faults raised or shown by the stack itself (pdo/) ---------------
+    # PDO linking: node 2's TPDO1 (182h, 2000h, type 254, event timer 100 ms) is node 3's
+    # RPDO1 (1400h = 182h, type 254, event timer = deadline 250 ms, 1600h maps 2001h). The
+    # master stops node 2 at 4.0: node 3's RPDO timeout fires (EMCY 8250h, error bit 17h,
+    # register 10h) and node 3 drops to PRE-OPERATIONAL (CO_NMT_ERR_ON_ERR_REG). Node 2
+    # started again at 6.0, node 3 at 7.0
+    "rpdo_producer_stopped": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "254:0:100")),
+        spawn(0.0, "s3", slave(3, "--rpdo1", "182:254:250:20010020")),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", MASTER),
+        ctl(4.0, "master", "nmt 02 2"),
+        ctl(6.0, "master", "nmt 01 2"),
+        ctl(7.0, "master", "nmt 01 3"),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
+    # as rpdo_producer_stopped with node 3's deadline 300 ms = 3 x node 2's event timer and
+    # 3 x node 3's own heartbeat period (both run in phase from the start at 0.15 s): the
+    # RPDO timeout usually falls in the CO_process() call in which node 3's heartbeat is
+    # due, and the stack sends that heartbeat (still OPERATIONAL) after its EMCY 8250h
+    "rpdo_timeout_stale_heartbeat": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "254:0:100")),
+        spawn(0.0, "s3", slave(3, "--rpdo1", "182:254:300:20010020")),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", MASTER),
+        ctl(4.0, "master", "nmt 02 2"),
+        ctl(6.0, "master", "nmt 01 2"),
+        ctl(7.0, "master", "nmt 01 3"),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
+    # event-driven TPDOs, healthy: node 2 type 254, inhibit 10 ms, event timer 100 ms; node 3
+    # type 255, inhibit 20 ms, event timer 250 ms; node 4 type 254 without inhibit time or
+    # event timer (sent only on request). The applications ask for their TPDO in bursts
+    # faster than the inhibit time (the stack holds the frames back) and slower than it
+    "tpdo_event_timer": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "254:100:100")),
+        spawn(0.0, "s3", slave(3, "--tpdo1", "255:200:250")),
+        spawn(0.0, "s4", slave(4, "--tpdo1", "254:0:0")),
+        spawn(0.0, "master", MASTER),
+        ctl(2.0, "s4", "tpdo_req 1 0"),
+        ctl(3.0, "s2", "tpdo_req 20 2"),
+        ctl(4.0, "s4", "tpdo_req 3 300"),
+        ctl(5.0, "s3", "tpdo_req 10 5"),
+        ctl(7.0, "s2", "tpdo_req 5 30"),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
+    # as tpdo_event_timer's node 2 (inhibit 10 ms, event timer 100 ms), on the patched stack
+    # (tpdo_inhibit.patch): the first four times a send request finds the inhibit time
+    # running, the TPDO goes out at once. 3.0: five requests 1 ms apart (the bug: five
+    # TPDOs about 1 ms apart); 6.0: the same, the bug spent (the stack holds them to 10 ms)
+    "tpdo_inhibit_bypass": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "254:100:100"), "dev_inhibit"),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", MASTER),
+        ctl(3.0, "s2", "tpdo_req 5 1"),
+        ctl(6.0, "s2", "tpdo_req 5 1"),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
+    # node 2's TPDO1 (182h, 4 bytes: 2000h) is RPDO1 of node 3, which maps 8 bytes (a dummy
+    # UNSIGNED32, then 2001h: EMCY 8210h, frames discarded) and of node 4, which maps 2
+    # bytes (16 bits of 2001h: EMCY 8220h, frames processed). 5.0: the master fixes node 3's
+    # mapping by SDO (RPDO invalid, 1600h = 2001h 32 bit, valid again): node 3 resets its
+    # error; node 4 stays in error
+    "rpdo_length": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "254:0:100")),
+        spawn(0.0, "s3", slave(3, "--rpdo1", "182:254:0:00070020,20010020")),
+        spawn(0.0, "s4", slave(4, "--rpdo1", "182:254:0:20010010")),
+        spawn(0.0, "master", MASTER),
+        ctl(5.0, "master", "sdo_write 3 1400 1 4 2147484034"),  # 80000182h: RPDO1 not valid
+        ctl(5.0, "master", "sdo_write 3 1600 0 1 0"),
+        ctl(5.0, "master", "sdo_write 3 1600 1 4 536936480"),  # 20010020h
+        ctl(5.0, "master", "sdo_write 3 1600 0 1 1"),
+        ctl(5.0, "master", "sdo_write 3 1400 1 4 386"),  # 00000182h: valid again
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
+    # synchronous TPDOs, healthy: the master produces SYNC every 20 ms (no counter); node 2's
+    # TPDO1 type 1 (every SYNC), node 3's type 4 (every 4th), node 4's type 0 (acyclic: at
+    # the SYNC after an application request). Node 2 stopped at 4.0, started at 6.0
+    "sync_tpdo": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "1:0:0")),
+        spawn(0.0, "s3", slave(3, "--tpdo1", "4:0:0")),
+        spawn(0.0, "s4", slave(4, "--tpdo1", "0:0:0")),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "20000"]),
+        ctl(3.0, "s4", "tpdo_req 10 1"),
+        ctl(4.0, "master", "nmt 02 2"),
+        ctl(5.0, "s4", "tpdo_req 10 30"),
+        ctl(6.0, "master", "nmt 01 2"),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
     ]),
 }
 

@@ -1,8 +1,11 @@
 #!/bin/sh
 # Re-record every scenario (see README.md). Run in this folder after `make`.
 #   ./record.sh [BINDIR] [OUTDIR]
-# BINDIR: where `make` put dev and dev_toggle (default /work/build/canopennode/bin)
-# OUTDIR: where the logs go (default: this folder); device events go to OUTDIR/*.events
+# BINDIR: where `make` put dev, dev_toggle, dev_syncskip and dev_inhibit (default /work/build/canopennode/bin)
+# OUTDIR: where the logs go (default: this folder); device events go to OUTDIR/*.events.
+# The SYNC and EMCY scenarios go to OUTDIR/sync_emcy/, with their .events (the stack's
+# own callbacks: the ground truth that tests/test_samples_sync_emcy.py reads), the PDO
+# scenarios to OUTDIR/pdo/, with theirs (tests/test_samples_pdo.py).
 set -e
 BIN=${1:-/work/build/canopennode/bin}
 OUT=${2:-.}
@@ -10,4 +13,12 @@ for s in healthy late_master write_1017 self_start master_obeys broadcast guard_
          unplugged_heartbeat unplugged_guarded stopped_sdo power_cycle nmt_direct master_unplugged \
          hb_runtime reset_node_all guarded_power_cycle guarded_power_cycle_stored sync_pdo; do
   chrt -f 10 python3 hub.py $s "$OUT/$s.log" --bin "$BIN" --events "$OUT/$s.events"
+done
+mkdir -p "$OUT/sync_emcy"
+for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit; do
+  chrt -f 10 python3 hub.py $s "$OUT/sync_emcy/$s.log" --bin "$BIN" --events "$OUT/sync_emcy/$s.events"
+done
+mkdir -p "$OUT/pdo"
+for s in rpdo_producer_stopped rpdo_timeout_stale_heartbeat tpdo_event_timer tpdo_inhibit_bypass rpdo_length sync_tpdo; do
+  chrt -f 10 python3 hub.py $s "$OUT/pdo/$s.log" --bin "$BIN" --events "$OUT/pdo/$s.events"
 done

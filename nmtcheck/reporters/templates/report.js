@@ -34,6 +34,12 @@
     return Math.max(0, Math.min(6, -Math.floor(Math.log10(step) + 1e-9)));
   }
 
+  /* A time on a timeline: seconds, or in a log without timestamps (spec.frames) the frame
+     it stands for, counted from 1 (its time is the frame index). */
+  function when(spec, t) {
+    return spec.frames ? "frame " + (Math.round(t) + 1) : t.toFixed(6) + " s";
+  }
+
   function Timeline(figure, spec) {
     this.figure = figure;
     this.spec = spec;
@@ -95,18 +101,24 @@
     var clipId = spec.id + "-clip";
     var defs = el("defs", {}, svg);
     el("rect", { x: LABEL_W, y: 0, width: this.plotW, height: height }, el("clipPath", { id: clipId }, defs));
+    var hatch = el("pattern", { id: spec.id + "-hatch", width: 6, height: 6,
+                                patternUnits: "userSpaceOnUse",
+                                patternTransform: "rotate(45)" }, defs);
+    el("rect", { width: 3, height: 6, fill: "rgba(0,0,0,0.28)" }, hatch);
 
     // Time axis: "nice" steps of 1, 2 or 5 x 10^k seconds, about one label per 90 px.
     var step = niceStep(this.v1 - this.v0, this.plotW / 90);
-    var decimals = decimalsFor(step);
+    if (spec.frames) { step = Math.max(step, 1); }  // whole frames
+    var decimals = spec.frames ? 0 : decimalsFor(step);
     var axis = el("g", { "class": "axis" }, svg);
     for (var t = Math.ceil(this.v0 / step - 1e-9) * step; t <= this.v1 + 1e-12; t += step) {
       var tx = this.x(t);
       el("line", { "class": "grid", x1: tx, x2: tx, y1: AXIS_H, y2: height - BOTTOM }, axis);
       el("text", { "class": "tick-label", x: tx, y: AXIS_H - 9, "text-anchor": "middle" }, axis,
-         t.toFixed(decimals));
+         spec.frames ? String(Math.round(t) + 1) : t.toFixed(decimals));
     }
-    el("text", { "class": "tick-label", x: 8, y: AXIS_H - 9 }, axis, "time (s)");
+    el("text", { "class": "tick-label axis-title", x: 8, y: AXIS_H - 9 }, axis,
+       spec.frames ? "frame" : "time (s)");
     el("line", { "class": "axis-line", x1: LABEL_W, x2: LABEL_W + this.plotW, y1: AXIS_H - 0.5,
                  y2: AXIS_H - 0.5 }, axis);
 
@@ -128,16 +140,33 @@
         if (x1 - x0 < 0.5 && x0 < lastEnd + 0.5) { return; }  // sub-pixel: one per pixel
         lastEnd = x1;
         var state = data.states[iv[2]];
-        var rect = el("rect", { "class": "iv", x: x0, y: barY, width: Math.max(x1 - x0, 0.5),
-                                height: BAR_H, fill: data.stateColors[state], "data-state": state,
+        var rect = el("rect", { "class": "iv" + (iv[4] ? " rebooting" : ""), x: x0, y: barY,
+                                width: Math.max(x1 - x0, 0.5), height: BAR_H,
+                                fill: data.stateColors[state], "data-state": state,
                                 "data-start": iv[0], "data-end": iv[1] }, bars);
-        el("title", {}, rect, state + "  " + iv[0].toFixed(6) + " – " + iv[1].toFixed(6) +
-           " s (" + data.sources[iv[3]] + ")");
+        if (iv[4]) {  // boot-ups inside the state: the node kept rebooting (B003)
+          rect.setAttribute("data-reboots", iv[4]);
+          el("rect", { "class": "iv-rebooting", x: x0, y: barY, width: Math.max(x1 - x0, 0.5),
+                       height: BAR_H, fill: "url(#" + spec.id + "-hatch)",
+                       "pointer-events": "none" }, bars);
+        }
+        el("title", {}, rect, state + "  " + (spec.frames ? when(spec, iv[0]) + " – " +
+           when(spec, iv[1]) : iv[0].toFixed(6) + " – " + iv[1].toFixed(6) + " s") + " (" +
+           data.sources[iv[3]] + ")" + (iv[4] ? "\nrebooted " + iv[4] + " time" +
+           (iv[4] === 1 ? "" : "s") + " without a state change (boot-up 00h)" : ""));
         if (x1 - x0 > state.length * 6.3 + 10) {
           var lx = (Math.max(x0, LABEL_W) + Math.min(x1, LABEL_W + self.plotW)) / 2;
           el("text", { "class": "iv-label" + (DARK_STATES[state] ? " dark" : ""), x: lx,
                        y: barY + 13, "text-anchor": "middle" }, bars, state);
         }
+      });
+      // Each boot-up inside a state: a tick across the bar
+      (row.boots || []).forEach(function (t) {
+        if (t < self.v0 || t > self.v1) { return; }
+        var bx = self.x(t);
+        var tick = el("line", { "class": "boot-marker", x1: bx, x2: bx, y1: barY - 2,
+                                y2: barY + BAR_H + 2 }, bars);
+        el("title", {}, tick, "boot-up (00h) at " + when(spec, t));
       });
       // Events that may explain a finding (SPEC §8.6): small grey diamonds in the marker
       // lane, drawn first so the findings' markers stay on top.
@@ -151,7 +180,7 @@
                                   points: (cx - 3.5) + "," + cy + " " + cx + "," + (cy - 3.5) + " " +
                                           (cx + 3.5) + "," + cy + " " + cx + "," + (cy + 3.5) }, g);
         el("title", {}, dia, "may explain " + group.rule + " " + group.name + " at " +
-           group.occurrences[cause[2]].time.toFixed(6) + " s\n" + t.toFixed(6) + " s" +
+           group.occurrences[cause[2]].when + "\n" + t.toFixed(6) + " s" +
            (c.end !== null ? " – " + c.end.toFixed(6) + " s" : "") + " · " + c.kind + " · " +
            c.text + (c.line ? " (line " + c.line + ")" : ""));
       });
@@ -169,15 +198,18 @@
                                   fill: color, "data-group": mark[1], "data-occurrence": k }, g);
         var occ = group.occurrences[k];
         el("title", {}, tri, group.rule + " " + group.name + " (" + group.severity + ") · " +
-           group.where + " · " + t.toFixed(6) + " s" +
+           group.where + " · " + when(spec, t) +
            (group.count > 1 ? " · " + (k + 1) + " of " + group.count : "") +
            (occ.line ? " · line " + occ.line : "") + "\n" + occ.message);
       });
     });
     var range = this.figure.querySelector(".tl-range");
     if (range) {
-      range.textContent = this.v0.toFixed(decimals) + " – " + this.v1.toFixed(decimals) + " s of " +
-                          this.total.toFixed(3) + " s";
+      range.textContent = spec.frames
+        ? "frames " + (Math.round(this.v0) + 1) + " – " + (Math.round(this.v1) + 1) + " of " +
+          (Math.round(this.total) + 1)
+        : this.v0.toFixed(decimals) + " – " + this.v1.toFixed(decimals) + " s of " +
+          this.total.toFixed(3) + " s";
     }
   };
 

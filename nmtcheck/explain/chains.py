@@ -1,0 +1,410 @@
+"""Chain links and chains (SPEC §9.3.4, §9.3.5): the cause that explains a cause.
+
+A node that drops to PRE-OPERATIONAL on its own (S005) is explained by its EMCY
+(`error_behaviour`); that EMCY by the finding its code names: a SYNC timeout (8100h, link
+`sync_timeout`) by the Y001 gap it reports, a heartbeat consumer's 8130h
+(`heartbeat_consumer`) by the producer's H001; and that finding by its own first cause,
+such as the NMT stop of the SYNC producer (`producer_state`). One cause per parent below
+depth 1, at most `causes_depth_max` deep, each beginning at or before the effect it
+explains; entries in pre-order (each depth-1 cause followed by its descendants).
+
+Y001's own causes are links too: the producer's change, a silence or error frames that
+began inside the gap, a logger's drop before the finding.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from nmtcheck.explain.entries import cause_entry
+from nmtcheck.processes import emcy as emcy_stage
+from nmtcheck.processes import pdo as pdo_stage
+from nmtcheck.processes import sync as sync_stage
+from nmtcheck.protocol import emcy
+from nmtcheck.protocol.nmt import BOOTUP, EPS, HEARTBEAT, STATE_OF_CODE
+
+if TYPE_CHECKING:
+    from nmtcheck.results import Finding
+
+NMT_NAMES = {0x01: "start", 0x02: "stop", 0x80: "enter pre-operational", 0x81: "reset node",
+             0x82: "reset communication"}
+# what a finding entry may be explained by in turn (never a configuration write, §9.3.5)
+FINDING_CAUSE_KINDS = ("emcy", "error_frames", "frames_lost", "silence", "nmt", "node_state",
+                       "node_silent", "boot_process")
+
+
+# CANopenNode's markers that take a node out of OPERATIONAL with CO_NMT_ERR_ON_BUSOFF_HB
+# (bus-off, heartbeat consumer, a monitored node's boot-up: CO_NMT_Heartbeat.c 224-228)
+_CN_NMT_MARKERS = (0x12, 0x1B, 0x1C)
+_PRE_OP, _OPERATIONAL, _STOPPED = "PRE-OPERATIONAL", "OPERATIONAL", "STOPPED"
+
+
+# An EMCY sent in the same cycle as the last report of the old state, just before it: a
+# stack sends a heartbeat that is due with the state it had when the cycle began
+# (CANopenNode's CO_process sends the RPDO timeout's EMCY, then the due 05h heartbeat, then
+# applies the error register), so that report is no evidence the EMCY came later
+SAME_CYCLE_S = 0.005
+
+
+def same_cycle_start(analysis: Any, channel: str, m: Any, a: int) -> float:
+    """The start of (tp, tf] for the links, `tp` being N's report at position `a` of its
+    error-control rows: earlier by N's EMCY right before that report in the same cycle
+    (at most SAME_CYCLE_S before it, only N's own error-control frames and EMCYs between in
+    the file), a choice beyond SPEC §9.3.4, whose window would leave that EMCY out."""
+    tp, tp_idx = float(m.ec.ts[a]), int(m.ec.idx[a])
+    e = analysis.nodes.get((channel, m.node)) if analysis is not None else None
+    if e is None or not len(e):
+        return tp
+    near = np.flatnonzero((e.idx < tp_idx) & (e.ts >= tp - SAME_CYCLE_S - EPS))
+    for k in near.tolist():  # the earliest such EMCY with only N's frames after it
+        between = tp_idx - int(e.idx[k]) - 1
+        own = int(np.count_nonzero((m.ec.idx > e.idx[k]) & (m.ec.idx < tp_idx))) + int(
+            np.count_nonzero((e.idx > e.idx[k]) & (e.idx < tp_idx)))
+        if between == own:
+            return float(e.ts[k]) - 2 * EPS  # (tp, tf] holds it
+    return tp
+
+
+def state_link(analysis: Any, channel: str, node: int, tp: float, tf: float,
+               old: str | None, new: str | None) -> dict[str, Any] | None:
+    """The EMCY of N in (tp, tf] that §9.3.4's `error_behaviour` (OPERATIONAL to
+    PRE-OPERATIONAL or STOPPED) or `error_cleared` (PRE-OPERATIONAL to OPERATIONAL) link
+    names, as a cause entry; the earliest that qualifies, None if none does."""
+    e = analysis.nodes.get((channel, node)) if analysis is not None else None
+    if e is None or not len(e):
+        return None
+    behaviour = e.behaviour.value if e.behaviour.known else None
+    mask = e.register_mask if e.register_mask is not None else 0x10
+    for k in np.flatnonzero((e.ts > tp + EPS) & (e.ts <= tf + EPS) & (e.dlc >= 3)).tolist():
+        code, register = int(e.code[k]), int(e.register[k])
+        data = e.data_bytes(k)
+        if old == _OPERATIONAL and new in (_PRE_OP, _STOPPED):
+            wanted = {0: _PRE_OP, 2: _STOPPED, 1: None}.get(int(behaviour)) if (
+                behaviour is not None) else new
+            cn = emcy.canopennode_detail(data, int(e.dlc[k])) is not None and (
+                data[3] in _CN_NMT_MARKERS or (0x28 <= data[3] <= 0x2F and register & 1))
+            if wanted == new and ((code >> 8) == 0x81 or register & mask or cn):
+                name = "error_behaviour"
+            else:
+                continue
+        elif old == _PRE_OP and new == _OPERATIONAL:
+            if code < 0x100 and not register & mask:
+                name = "error_cleared"
+            else:
+                continue
+        else:
+            return None
+        return cause_entry("emcy", float(e.ts[k]), int(e.idx[k]), int(e.line[k]),
+                           e.describe(k), node, count=1, code=f"{code:04X}h", link=name)
+    return None
+
+
+def sync_gap_entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float] | None:
+    """Y001's causes and reactions (§9.3.4): `producer_state` (a command reaching the SYNC
+    producer, its boot-up, its report of STOPPED), `bus_silence` and `bus_errors` (a
+    stretch beginning in the gap), `frames_lost` (a drop before the finding); after the
+    effect, the consumers' EMCYs (their responses) and the producer's reports."""
+    analysis = sync_stage.of(ctx.model)
+    gap = analysis.gaps.get((str(f.channel), round(f.time, 9))) if analysis else None
+    cm = ctx.channels.get(str(f.channel))
+    if gap is None or cm is None or analysis is None:
+        return None
+    sc = analysis.channels[cm.name]
+    tl, tf = gap.last_ts, f.time
+    te = min(tl + gap.period, tf)
+    producer = int(sc.producer.value) if sc.producer.known and sc.producer.value else None
+    out: list[dict[str, Any]] = []
+    if producer is not None:
+        out += _producer_changes(cm, producer, tl, tf + ctx.after, "producing SYNC", (0x04,))
+    out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
+            if c["time"] >= tl - EPS]
+    out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
+    out += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
+    out += ctx._emcy_other(cm, -1 if producer is None else producer, [(te + EPS, tf + ctx.after)])
+    return out, te
+
+
+def pdo_gap_entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float] | None:
+    """D004's causes and reactions (§9.3.4): the producer's change (`producer_state`), a
+    silence or error frames that began in the gap, a logger's drop before the finding;
+    after the effect (t_l + the stream's period), the consumer's EMCY and the reports."""
+    analysis = pdo_stage.of(ctx.model)
+    key = (str(f.channel), int(f.node or 0), round(f.time, 9))
+    gap = analysis.gaps.get(key) if analysis is not None else None
+    cm = ctx.channels.get(str(f.channel))
+    if gap is None or cm is None:
+        return None
+    tl, tf = gap.last_ts, f.time
+    te = min(tl + gap.period, tf)
+    out: list[dict[str, Any]] = []
+    if gap.producer is not None:
+        out += _producer_changes(cm, gap.producer, tl, tf + ctx.after,
+                                 f"producer of {gap.cob_id:03X}h", (0x04, 0x7F, 0x00))
+    out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
+            if c["time"] >= tl - EPS]
+    out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
+    out += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
+    m = cm.nodes.get(int(f.node or 0))
+    if m is not None:
+        out += ctx._emcy(m, m.node, [(te + EPS, tf + ctx.after)])
+        out += _state_report(m, te, tf + ctx.after)
+    return out, te
+
+
+def _state_report(m: Any, lo: float, hi: float) -> list[dict[str, Any]]:
+    """N's first report in (lo, hi] of a state other than OPERATIONAL (kind
+    `node_state`): a consumer that left OPERATIONAL after its deadline."""
+    ec = m.ec
+    sel = np.flatnonzero((ec.kind == HEARTBEAT) & (ec.ts > lo + EPS) & (ec.ts <= hi + EPS)
+                         & ~np.isin(ec.value & 0x7F, (0x05,)))
+    return [cause_entry("node_state", float(ec.ts[k]), int(ec.idx[k]), int(ec.line[k]),
+                        f"node {m.node} reports {STATE_OF_CODE.get(int(ec.value[k]) & 0x7F)}",
+                        m.node) for k in sel[:1].tolist()]
+
+
+def _producer_changes(cm: Any, producer: int, lo: float, hi: float, role: str,
+                      states: tuple[int, ...]) -> list[dict[str, Any]]:
+    """A command that reaches the producer, its boot-up, its report of one of `states`
+    (the codes that stop it producing), in (lo, hi] (link `producer_state`)."""
+    nmt = cm.nmt
+    target = nmt.target.astype(np.int64)
+    sel = np.flatnonzero(nmt.valid & ((target == producer) | (target == 0))
+                         & (nmt.ts > lo + EPS) & (nmt.ts <= hi + EPS))
+    out = [cause_entry("nmt", float(nmt.ts[k]), int(nmt.idx[k]), int(nmt.line[k]),
+                       f"NMT {_command(nmt, k)}, node {producer} {role}", producer,
+                       link="producer_state") for k in sel.tolist()]
+    m = cm.nodes.get(producer)
+    if m is not None:
+        ec = m.ec
+        span = (ec.ts > lo + EPS) & (ec.ts <= hi + EPS)
+        stopped = span & (ec.kind == HEARTBEAT) & np.isin(ec.value & 0x7F, states)
+        for kind, sel in (("bootup", span & (ec.kind == BOOTUP)), ("node_state", stopped)):
+            out += [cause_entry(kind, float(ec.ts[k]), int(ec.idx[k]), int(ec.line[k]),
+                                f"node {producer} ({role}) "
+                                + ("boots up" if kind == "bootup" else
+                                   f"reports {STATE_OF_CODE.get(int(ec.value[k]) & 0x7F)}"),
+                                producer, link="producer_state")
+                    for k in np.flatnonzero(sel)[:1].tolist()]
+    return out
+
+
+def _command(nmt: Any, k: int) -> str:
+    """`stop to node 3`, `reset node to all nodes`: an NMT command in words."""
+    name = NMT_NAMES.get(int(nmt.cs[k]), f"{int(nmt.cs[k]):02X}h")
+    target = int(nmt.target[k])
+    return f"{name} to {'all nodes' if target == 0 else f'node {target}'}"
+
+
+def event_causes(ctx: Any, channel: str, node: int, entry: dict[str, Any],
+                 findings: list[Finding], depth_max: int, delay: float
+                 ) -> list[dict[str, Any]]:
+    """The causes of an EMCY event (§9.3.6: each EMCY in `events[]` carries its chain):
+    the finding its code links to and that finding's own cause, or for a CAN error EMCY
+    (8120h, 8140h) the error frames before it (`can_errors`)."""
+    code = int(str(entry["code"]).rstrip("h"), 16)
+    if code in (0x8120, 0x8140):
+        found = _can_errors(ctx, channel, node, code, float(entry["time"]))
+        return [found] if found is not None else []
+    chain = emcy_chain(ctx, At(channel), entry, findings, depth_max + 1, delay)
+    return [dict(c, depth=int(c["depth"]) - 1,
+                 parent=None if c["parent"] == 0 else int(c["parent"]) - 1) for c in chain]
+
+
+@dataclass(frozen=True)
+class At:
+    """Where an event happened, as `emcy_chain` reads a finding's."""
+
+    channel: str
+
+
+def _can_errors(ctx: Any, channel: str, node: int, code: int, t_c: float
+                ) -> dict[str, Any] | None:
+    """`can_errors` (§9.3.4): for 8140h (CANopenNode sends it after recovering from
+    bus-off), error frames after N's last frame before it; for 8120h, in the causes
+    window before it. With no error frame in the whole input, an entry that says so."""
+    cm = ctx.channels.get(channel)
+    if cm is None:
+        return None
+    errors = ctx.spool.error_frames()
+    if not len(errors["ts"]):
+        return cause_entry("error_frames", t_c, None, None,
+                           "the log holds no error frames (record them, e.g. candump -e)",
+                           link="can_errors")
+    lo = t_c - ctx.before
+    m = cm.nodes.get(node)
+    if code == 0x8140 and m is not None:
+        before = m.ec.ts[m.ec.ts < t_c - EPS]
+        lo = float(before.max()) if len(before) else lo
+    found = ctx._error_frames(cm, [(lo + EPS, t_c)])
+    return dict(found[0], link="can_errors") if found else None
+
+
+def emcy_chain(ctx: Any, f: Any, entry: dict[str, Any], findings: list[Finding],
+               depth_max: int, delay: float) -> list[dict[str, Any]]:
+    """The descendants of an EMCY cause entry of node `entry["node"]` (§9.3.5): the
+    finding its code links to, then that finding's own first cause; `parent` are indices
+    relative to `entry` (0), fixed by the caller."""
+    if depth_max < 2 or entry.get("kind") != "emcy" or entry.get("code") is None:
+        return []
+    code = int(str(entry["code"]).rstrip("h"), 16)
+    t_c = float(entry["time"])
+    found: Finding | None = None
+    link = ""
+    if code == 0x8100:
+        found, link = _sync_timeout(ctx, f, entry, findings, t_c, delay), "sync_timeout"
+    elif code == 0x8250:
+        found, link = _rpdo_timeout(ctx, f, entry, findings, t_c, delay), "rpdo_timeout"
+    elif code == 0x8240:
+        found, link = _sync_length(ctx, f, entry, findings, t_c, delay), "sync_length"
+    elif code == 0x8130:
+        detail = _cn_detail(ctx, f, entry)
+        if detail is not None and detail["error_bit"] == "1Ch":  # a monitored node rebooted
+            boot = _remote_reset(ctx, f, entry, t_c, delay)
+            return [dict(boot, depth=2, parent=0)] if boot is not None else []
+        found, link = _heartbeat_consumer(ctx, f, findings, t_c), "heartbeat_consumer"
+    if found is None:
+        return []
+    child = cause_entry("finding", found.time, found.frame_index, found.line,
+                        f"{found.rule} {found.name}: {found.message}", found.node, link=link)
+    child.update(rule=found.rule, depth=2, parent=0)
+    out = [child]
+    if depth_max >= 3:
+        first = next((c for c in found.causes or ()
+                      if c["kind"] in FINDING_CAUSE_KINDS and c["time"] <= found.time + EPS),
+                     None)
+        if first is not None:
+            out.append(dict(first, depth=3, parent=1))
+    return out
+
+
+def _sync_timeout(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Finding],
+                  t_c: float, delay: float) -> Finding | None:
+    """`sync_timeout`: the Y001 on the channel whose gap contains t_c, or ended at most
+    `delay` before it; with CANopenNode's marker (byte 3 = 18h) the gap whose last SYNC
+    lies `info` us before t_c. Another CANopenNode marker never links (8100h/15h is a
+    TPDO outside the window)."""
+    analysis = sync_stage.of(ctx.model)
+    if analysis is None:
+        return None
+    detail = _cn_detail(ctx, f, entry)
+    if detail is not None and detail["error_bit"] != "18h":
+        return None
+    best = None
+    for y in findings:
+        if y.rule != "Y001" or y.channel != f.channel or y.time > t_c + EPS:
+            continue
+        gap = analysis.gaps.get((str(y.channel), round(y.time, 9)))
+        if gap is None:
+            continue
+        if detail is not None:
+            ok = abs(t_c - int(str(detail["info"])) / 1e6 - gap.last_ts) <= delay + EPS
+        else:
+            ok = gap.last_ts < t_c and (gap.next_ts > t_c or gap.next_ts >= t_c - delay)
+        if ok:
+            best = y
+    return best
+
+
+def _rpdo_timeout(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Finding],
+                  t_c: float, delay: float) -> Finding | None:
+    """`rpdo_timeout`: a D004 of the EMCY's node whose gap contains t_c, or ended at most
+    `delay` before it; with CANopenNode's marker (byte 3 = 17h) the gap whose last RPDO
+    lies `info` us before t_c. The D004's time is at or before t_c."""
+    analysis = pdo_stage.of(ctx.model)
+    if analysis is None:
+        return None
+    detail = _cn_detail(ctx, f, entry)
+    node = int(entry["node"])
+    best = None
+    for d in findings:
+        if d.rule != "D004" or d.channel != f.channel or d.node != node or (
+                d.time > t_c + EPS):
+            continue
+        gap = analysis.gaps.get((str(d.channel), node, round(d.time, 9)))
+        if gap is None:
+            continue
+        if detail is not None and detail["error_bit"] == "17h":
+            ok = abs(t_c - int(str(detail["info"])) / 1e6 - gap.last_ts) <= delay + EPS
+        else:
+            ok = gap.last_ts < t_c and (gap.next_ts > t_c or d.time >= t_c - delay)
+        if ok:
+            best = d
+    return best
+
+
+def _sync_length(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Finding],
+                 t_c: float, delay: float) -> Finding | None:
+    """`sync_length`: the Y002 whose offending SYNC is the latest in [t_c - delay, t_c];
+    another CANopenNode marker than 19h never links."""
+    detail = _cn_detail(ctx, f, entry)
+    if detail is not None and detail["error_bit"] != "19h":
+        return None
+    hits = [y for y in findings if y.rule == "Y002" and y.channel == f.channel
+            and t_c - delay - EPS <= y.time <= t_c + EPS]
+    return hits[-1] if hits else None
+
+
+def _remote_reset(ctx: Any, f: Finding, entry: dict[str, Any], t_c: float, delay: float
+                  ) -> dict[str, Any] | None:
+    """`heartbeat_remote_reset` (CANopenNode 8130h with byte 3 = 1Ch): the boot-up of a
+    producer that had sent heartbeats before, at most `delay` plus the consumer's EMCY
+    inhibit time before t_c (the latest such boot-up)."""
+    cm = ctx.channels.get(str(f.channel))
+    if cm is None:
+        return None
+    consumer = int(entry["node"])
+    inhibit = 0.0
+    analysis = emcy_stage.of(ctx.model)
+    e = analysis.nodes.get((str(f.channel), consumer)) if analysis is not None else None
+    if e is not None and len(e.inhibit) and not np.isnan(e.inhibit[-1]):
+        inhibit = float(e.inhibit[-1]) * 1e-4
+    best: tuple[float, dict[str, Any]] | None = None
+    for n, m in cm.nodes.items():
+        if n == consumer:
+            continue
+        ec = m.ec
+        boots = np.flatnonzero((ec.kind == BOOTUP) & (ec.ts <= t_c + EPS)
+                               & (ec.ts >= t_c - delay - inhibit - EPS))
+        for k in boots[-1:].tolist():
+            beat_before = bool(((ec.kind == HEARTBEAT) & (ec.ts < ec.ts[k])).any())
+            if beat_before and (best is None or ec.ts[k] > best[0]):
+                best = (float(ec.ts[k]), cause_entry(
+                    "bootup", float(ec.ts[k]), int(ec.idx[k]), int(ec.line[k]),
+                    f"boot-up of node {n}, whose heartbeat node {consumer} watches", n,
+                    link="heartbeat_remote_reset"))
+    return best[1] if best is not None else None
+
+
+def _heartbeat_consumer(ctx: Any, f: Finding, findings: list[Finding], t_c: float
+                        ) -> Finding | None:
+    """`heartbeat_consumer`: the H001 of a producer whose gap contains t_c, at or before
+    t_c (the latest such H001)."""
+    best = None
+    cm = ctx.channels.get(str(f.channel))
+    for h in findings:
+        if h.rule != "H001" or h.channel != f.channel or h.time > t_c + EPS or cm is None:
+            continue
+        m = cm.nodes.get(int(h.node or 0))
+        if m is None:
+            continue
+        for to in m.timeouts:
+            if to.rule == "H001" and abs(to.moment - h.time) < 1e-6 and to.after_ts < t_c and (
+                    to.ended_by is None or to.ended_by > t_c):
+                best = h
+    return best
+
+
+def _cn_detail(ctx: Any, f: Finding, entry: dict[str, Any]) -> dict[str, object] | None:
+    """CANopenNode's detail of the EMCY frame an entry points at, if it carries one."""
+    analysis = emcy_stage.of(ctx.model)
+    e = analysis.nodes.get((str(f.channel), int(entry["node"]))) if analysis else None
+    if e is None:
+        return None
+    k = np.flatnonzero(e.idx == entry["frame_index"])
+    if not k.size:
+        return None
+    j = int(k[0])
+    return emcy.canopennode_detail(e.data_bytes(j), int(e.dlc[j]))
