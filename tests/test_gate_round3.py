@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -268,6 +269,30 @@ def test_the_progress_bar_runs_while_no_frame_arrives() -> None:
     shown = term.getvalue()
     bar.close()
     assert "[1/1] big.log: 4.80k frames" in shown, shown
+
+
+def test_the_progress_bar_leaves_the_forked_parse_on() -> None:
+    """The bar's ticker is the only thread it starts (no tqdm monitor) and it pauses at a
+    fork, so a large log is still parsed in a forked worker on a terminal; closed, it
+    leaves no thread behind (a later fork in the same process is not refused)."""
+    from nmtcheck.cli.check import ProgressBar
+    from nmtcheck.readers import forked
+
+    before = {t.name for t in threading.enumerate()}
+    bar = ProgressBar(1, file=_Terminal(), delay=0.0)
+    try:
+        assert {t.name for t in threading.enumerate()} - before == {"nmtcheck-progress"}
+        assert forked.available()
+        for _ in range(20):  # forks while the ticker draws: the child never hangs
+            pid = os.fork()
+            if pid == 0:
+                os._exit(0)
+            assert os.waitpid(pid, 0)[1] == 0
+            bar.frames(1000)
+            time.sleep(0.03)
+    finally:
+        bar.close()
+    assert {t.name for t in threading.enumerate()} == before
 
 
 @pytest.mark.parametrize("environ, quiet, follow, tty, wanted", [

@@ -27,6 +27,7 @@ from nmtcheck.cli.fleet import FLEET_OPTION_NAMES, fleet_options, fleet_requeste
 from nmtcheck.cli.helptext import LOGS_HELP, DocumentedCommand, complete_paths
 from nmtcheck.cli.inputs import expand_inputs, input_options, named_check_inputs, remote_logs
 from nmtcheck.engine import select_rules
+from nmtcheck.readers.forked import PAUSED_AT_FORK as PROGRESS_THREAD
 from nmtcheck.reporters import (
     auto_format,
     colour,
@@ -196,6 +197,20 @@ def progress_wanted(stream: Any, quiet: bool, follow: bool,
         return False
 
 
+_AT_FORK: list[threading.Lock] = []  # the running bar's lock, held across a fork
+
+
+def _pause_at_fork(lock: threading.Lock) -> None:
+    """The reader forks a parse worker (readers/forked.py) while the bar's ticker runs:
+    the fork waits until the ticker is outside the bar and stderr (it only touches them
+    holding `lock`), so the worker inherits no lock held mid-write."""
+    if not _AT_FORK:
+        os.register_at_fork(before=lambda: _AT_FORK[-1].acquire(),
+                            after_in_parent=lambda: _AT_FORK[-1].release(),
+                            after_in_child=lambda: _AT_FORK[-1].release())
+    _AT_FORK[:] = [lock]
+
+
 class ProgressBar:
     """Frames checked so far, on stderr (tqdm): shown once a run takes over `delay`
     seconds, then redrawn every TICK_S, also while no frame arrives (a slow
@@ -207,8 +222,11 @@ class ProgressBar:
     def __init__(self, inputs: int, file: IO[str] | None = None, delay: float = 1.0) -> None:
         from tqdm import tqdm
 
+        class Bar(tqdm):  # type: ignore[misc]
+            monitor_interval = 0  # no tqdm monitor thread: the ticker below redraws
+
         # miniters=0: every update may redraw (no more often than TICK_S), update(0) too
-        self._bar = tqdm(unit=" frames", unit_scale=True, file=file or sys.stderr,
+        self._bar = Bar(unit=" frames", unit_scale=True, file=file or sys.stderr,
                          leave=False, delay=delay, mininterval=self.TICK_S, miniters=0,
                          dynamic_ncols=True,
                          bar_format="{desc}{n_fmt} frames [{elapsed}, {rate_fmt}]")
@@ -216,8 +234,9 @@ class ProgressBar:
         self._started = 0
         self._lock = threading.Lock()  # the bar's count is not thread-safe
         self._stop = threading.Event()
-        self._ticker = threading.Thread(target=self._tick, name="nmtcheck-progress",
+        self._ticker = threading.Thread(target=self._tick, name=PROGRESS_THREAD,
                                         daemon=True)
+        _pause_at_fork(self._lock)
         self._ticker.start()
 
     def _tick(self) -> None:

@@ -40,11 +40,18 @@ LOOKAHEAD = 6  # blocks read ahead (queued at the worker or parsed here) at most
 OUT_BYTES = 16 << 20  # room for one block's parsed columns; a block with more is parsed here
 
 
+# a thread that holds its only lock across a fork (os.register_at_fork: the command
+# line's progress ticker), so it cannot hold one mid-use in the worker
+PAUSED_AT_FORK = "nmtcheck-progress"
+
+
 def available() -> bool:
-    """Forking is safe: Linux, no other thread (that could hold a lock across the fork),
-    and not inside a daemonic multiprocessing worker."""
+    """Forking is safe: Linux, no other thread (that could hold a lock across the fork)
+    but one paused at fork, and not inside a daemonic multiprocessing worker."""
     mp = sys.modules.get("multiprocessing")  # a multiprocessing worker has imported it
-    return (sys.platform == "linux" and threading.active_count() == 1
+    others = [t for t in threading.enumerate()
+              if t is not threading.current_thread() and t.name != PAUSED_AT_FORK]
+    return (sys.platform == "linux" and not others
             and not (mp is not None and mp.current_process().daemon))
 
 
