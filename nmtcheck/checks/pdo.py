@@ -60,6 +60,20 @@ def _source(v: Value) -> str:
     return "device file" if v.source == "device-file" else str(v.source)
 
 
+def _event_driven(model: InputModel, value: str
+                  ) -> Iterator[tuple[ChannelModel, Stream, Party, NodeModel, float]]:
+    """The TPDO streams of type 254/255 whose producer's `value` (the event timer or the
+    inhibit time) is known and not 0, with the producer's node model and the value."""
+    for cm, st in _streams(model):
+        p = st.producer
+        if p is None or not _known_in(p.transmission_type, EVENT_DRIVEN):
+            continue
+        v = getattr(p, value)
+        m = cm.nodes.get(p.node)
+        if v.known and v.value and m is not None:
+            yield cm, st, p, m, float(v.value)
+
+
 def _at(cm: ChannelModel, t: float, order_only: bool = False) -> str:
     """Seconds from the channel's first frame, or the frame without timestamps."""
     return at(t, cm.start, order_only)
@@ -142,17 +156,11 @@ def tpdo_event_timer_exceeded(model: InputModel, params: Params) -> Iterator[Pro
     **Example.** `event_timer_ms = 100`: TPDOs at 10.102 and 10.202, the next at 10.500.
     """
     tolerance, margin = float(params["tolerance"]), float(params["margin_ms"]) / 1000
-    for cm, st in _streams(model):
-        p = st.producer
-        if p is None or not _known_in(p.transmission_type, EVENT_DRIVEN):
-            continue
-        if not p.event_timer_ms.known or not p.event_timer_ms.value:
-            continue
-        m = cm.nodes.get(p.node)
+    for cm, st, p, m, event_timer_ms in _event_driven(model, "event_timer_ms"):
         ts, idx, _line = st.frames()
-        if m is None or not len(ts):
+        if not len(ts):
             continue
-        e = float(p.event_timer_ms.value) / 1000
+        e = event_timer_ms / 1000
         limit = e * (1 + tolerance) + margin
         nxt = np.append(ts[1:], np.inf)
         due = np.round(ts + limit, 9)  # 10.05 + 0.05 is not above 10.1
@@ -206,17 +214,11 @@ def tpdo_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
     **Example.** `inhibit_100us = 100` (10 ms): TPDOs at 10.010 and 10.013.
     """
     r = _resolution(model)
-    for cm, st in _streams(model):
-        p = st.producer
-        if p is None or not _known_in(p.transmission_type, EVENT_DRIVEN):
-            continue
-        if not p.inhibit_100us.known or not p.inhibit_100us.value:
-            continue
-        m = cm.nodes.get(p.node)
+    for cm, st, p, m, inhibit_100us in _event_driven(model, "inhibit_100us"):
         ts, idx, line = st.frames()
-        if m is None or len(ts) < 2:
+        if len(ts) < 2:
             continue
-        inhibit = float(p.inhibit_100us.value) * 1e-4
+        inhibit = inhibit_100us * 1e-4
         dt = np.diff(ts)
         close = np.flatnonzero((dt < inhibit - r - EPS)
                                & operational_through(m, ts[:-1], ts[1:]))
