@@ -451,3 +451,29 @@ def test_record_writer_follows_the_suffix(suffix: str, writer: type | None,
         again = check_input(str(record), 0, PROFILE, RULES)
         assert [(f.rule, f.node, round(f.time, 3)) for f in again.findings] == [
             (f.rule, f.node, round(f.time, 3)) for f in outcome.result.findings]
+
+
+def test_a_timeout_inside_a_recording_gap_is_named_as_such(tmp_path: Path) -> None:
+    """Nodes 2 and 5 beat every 100 ms; the whole channel is silent from 10.3 s to 11.5 s.
+    Live, both heartbeat timeouts ran out in that silence; offline it is one
+    I007 and no H001 (SPEC §3): the summary names it as inside a recording gap, not as
+    unconfirmed."""
+    from nmtcheck.live.display import live_summary
+
+    lines = [f"({10 + k / 10:.6f}) can0 70{n}#05" for k in range(4) for n in (2, 5)]
+    lines += [f"({11.5 + k / 10:.6f}) can0 70{n}#05" for k in range(4) for n in (2, 5)]
+    log = tmp_path / "gap.log"
+    log.write_text("\n".join(lines) + "\n")
+    profile = load_profile("default")
+    session = Session(profile, select_rules(profile, [], []), None, timer=False)
+    for frame in frames_of(log):
+        session.feed(frame)
+    outcome = session.close()
+    assert outcome.result is not None
+    assert [f.rule for f in outcome.result.findings] == ["I007"]
+    gap = [lf for lf in outcome.live if lf.rule == "H001"]
+    assert {lf.node for lf in gap} == {2, 5}
+    assert all(lf.confirmed == "recording-gap" for lf in gap)
+    text = live_summary(outcome, "end of file")
+    assert f"{len(gap)} inside a recording gap (I007)" in text
+    assert "inside a silence the offline check reads as a recording gap (I007)" in text
