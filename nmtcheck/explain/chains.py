@@ -25,6 +25,7 @@ from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync as sync_stage
 from nmtcheck.protocol import emcy
 from nmtcheck.protocol.nmt import BOOTUP, EPS, HEARTBEAT, STATE_OF_CODE
+from nmtcheck.timeline.moments import at
 
 if TYPE_CHECKING:
     from nmtcheck.results import Finding
@@ -119,6 +120,7 @@ def sync_gap_entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float]
     out: list[dict[str, Any]] = []
     if producer is not None:
         out += _producer_changes(cm, producer, tl, tf + ctx.after, "producing SYNC", (0x04,))
+        out += producer_silent(ctx, cm, producer, (tl, gap.last_idx), te, tf, "producing SYNC")
     out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
             if c["time"] >= tl - EPS]
     out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
@@ -141,8 +143,9 @@ def pdo_gap_entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float] 
     te = min(tl + gap.period, tf)
     out: list[dict[str, Any]] = []
     if gap.producer is not None:
-        out += _producer_changes(cm, gap.producer, tl, tf + ctx.after,
-                                 f"producer of {gap.cob_id:03X}h", (0x04, 0x7F, 0x00))
+        role = f"producer of {gap.cob_id:03X}h"
+        out += _producer_changes(cm, gap.producer, tl, tf + ctx.after, role, (0x04, 0x7F, 0x00))
+        out += producer_silent(ctx, cm, gap.producer, (tl, gap.last_idx), te, tf, role)
     out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
             if c["time"] >= tl - EPS]
     out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
@@ -152,6 +155,54 @@ def pdo_gap_entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float] 
         out += ctx._emcy(m, m.node, [(te + EPS, tf + ctx.after)])
         out += _state_report(m, te, tf + ctx.after)
     return out, te
+
+
+def producer_silent(ctx: Any, cm: Any, producer: int, last: tuple[float, int], te: float,
+                    tf: float, role: str) -> list[dict[str, Any]]:
+    """`producer_silent` (§9.3.4): the producer sent no frame of any kind after the gap's
+    last frame `last` (time, frame index) up to the effect's t_f, and that silence is a
+    timeout of its own: an H001 or G002 gap of the producer holds t_e, or, where it has
+    no error-control limit, its next frame comes over 1.5 x its measured heartbeat period
+    after its last one. A 10 ms SYNC gap inside a 200 ms heartbeat period is no evidence
+    of silence. The entry runs from the producer's last frame to its next one."""
+    m = cm.nodes.get(producer)
+    if m is None:
+        return []
+    tl, tl_idx = last
+    ec = m.ec
+    sent = ~ec.rtr
+    before = np.flatnonzero(sent & (ec.idx <= tl_idx))
+    after = np.flatnonzero(sent & (ec.idx > tl_idx))
+    last_ts, last_idx, last_line = tl, tl_idx, None
+    if before.size and float(ec.ts[before[-1]]) >= tl - EPS and int(ec.idx[before[-1]]) > tl_idx:
+        k = int(before[-1])
+        last_ts, last_idx, last_line = float(ec.ts[k]), int(ec.idx[k]), int(ec.line[k])
+    nxt = float(ec.ts[after].min()) if after.size else np.inf
+    found = ctx.model.decoded.first_node_frame_after(
+        np.asarray([m.key]), np.asarray([tl]), np.asarray([tl_idx]))
+    if int(found.idx[0]) >= 0:
+        nxt = min(nxt, float(found.ts[0]))
+    if nxt <= tf + EPS:
+        return []
+    own = [to for to in m.timeouts if to.rule in ("H001", "G002")
+           and to.after_ts <= te + EPS and (to.ended_by is None or to.ended_by > te + EPS)]
+    if own:
+        to = own[-1]
+        why = f"its {to.rule} timeout at {at(to.moment, cm.start, False)}"
+    else:
+        cfg = m.config_at(tl)
+        limited = bool(cfg.heartbeat_ms or cfg.consumer_timeout_ms or cfg.life_time_s)
+        period = m.median_s
+        since = float(ec.ts[before[-1]]) if before.size else tl
+        if limited or not period or nxt - since <= 1.5 * period + EPS:
+            return []
+        why = f"over 1.5 x its heartbeat period ({period * 1000:g} ms, measured)"
+    until = "the end of the log" if not np.isfinite(nxt) else at(nxt, cm.start, False)
+    return [cause_entry("node_silent", last_ts, last_idx, last_line,
+                        f"node {producer} ({role}) sent nothing from "
+                        f"{at(last_ts, cm.start, False)} to "
+                        f"{until}: {why}", producer,
+                        end=None if not np.isfinite(nxt) else nxt, link="producer_silent")]
 
 
 def _state_report(m: Any, lo: float, hi: float) -> list[dict[str, Any]]:
@@ -264,7 +315,13 @@ def emcy_chain(ctx: Any, f: Any, entry: dict[str, Any], findings: list[Finding],
         if detail is not None and detail["error_bit"] == "1Ch":  # a monitored node rebooted
             boot = _remote_reset(ctx, f, entry, t_c, delay)
             return [dict(boot, depth=2, parent=0)] if boot is not None else []
+        guard = _life_guarding(ctx, f, int(entry["node"]), t_c)
+        if guard is not None and detail is not None and int(str(detail["info"])) == 0 and (
+                not _consumes(ctx, f, int(entry["node"]), t_c)):
+            return [dict(guard, depth=2, parent=0)]  # CN's info 0: the first 1016h entry
         found, link = _heartbeat_consumer(ctx, f, findings, t_c), "heartbeat_consumer"
+        if found is None and guard is not None:
+            return [dict(guard, depth=2, parent=0)]
     if found is None:
         return []
     child = cause_entry("finding", found.time, found.frame_index, found.line,
@@ -376,6 +433,37 @@ def _remote_reset(ctx: Any, f: Finding, entry: dict[str, Any], t_c: float, delay
                     f"boot-up of node {n}, whose heartbeat node {consumer} watches", n,
                     link="heartbeat_remote_reset"))
     return best[1] if best is not None else None
+
+
+def _life_guarding(ctx: Any, f: Any, node: int, t_c: float) -> dict[str, Any] | None:
+    """`life_guarding` (§9.3.4): C is guarded (requests on 700h + C were seen), its life
+    time T_l = 100Ch x 100Dh is known, and no request reached it in (t_c - T_l, t_c]: the
+    guarding pause, from the last request to C, explains its 8130h (LE `nmt.c` 1373-1379,
+    CN `CO_Node_Guarding.c` 223)."""
+    cm = ctx.channels.get(str(f.channel))
+    m = cm.nodes.get(node) if cm is not None else None
+    if m is None or not m.ec.rtr.any():
+        return None
+    life = m.config_at(t_c).life_time_s
+    requests = np.flatnonzero(m.ec.rtr & (m.ec.ts <= t_c + EPS))
+    if not life or not requests.size:
+        return None
+    k = int(requests[-1])
+    last = float(m.ec.ts[k])
+    if last > t_c - life + EPS:
+        return None
+    return cause_entry("guarding_gap", last, int(m.ec.idx[k]), int(m.ec.line[k]),
+                       f"no guarding request to node {node} from {at(last, cm.start, False)} on "
+                       "(life time "
+                       f"{life * 1000:g} ms)", node, end=t_c, link="life_guarding")
+
+
+def _consumes(ctx: Any, f: Any, node: int, t_c: float) -> bool:
+    """Whether a heartbeat consumer time of C is known at t_c (its 1016h, from the files or
+    written by SDO): CANopenNode's 8130h info 0 then names that entry, not guarding."""
+    cm = ctx.channels.get(str(f.channel))
+    m = cm.nodes.get(node) if cm is not None else None
+    return m is not None and m.config_at(t_c).consumer_timeout_ms is not None
 
 
 def _heartbeat_consumer(ctx: Any, f: Finding, findings: list[Finding], t_c: float
