@@ -15,9 +15,9 @@ it did and that each network file describes what the stack ran with, then nmtche
 verdict: each expected finding is derived from the SPEC's text (SPEC_COMM §9.1.6, §9.2.2,
 §9.3.4; SPEC §3 for S002/S005) and the log's frames, and commented where it is derived.
 
-Where nmtcheck's verdict differs from that, the test is `xfail(strict=True)` with the case
-in its reason: nmtcheck is not changed here (its PDO rules were being written while these
-logs were recorded).
+The cases where nmtcheck's verdict once differed (PDO parameters written by SDO in the
+trace, an RPDO that reaches two consumers) are ordinary tests now, each with its case in
+its docstring or comment.
 """
 
 from __future__ import annotations
@@ -501,24 +501,12 @@ def test_rpdo_length_with_the_network_file() -> None:
     assert "D005" not in res.not_evaluated
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "nmtcheck mistake: rpdo_length.log with its network file, 182h is RPDO1 of node 3 and of "
-    "node 4 (PDO linking to two consumers); node 2's first TPDO (line 19, 0.152287) reaches "
-    "both while they are PRE-OPERATIONAL, but S002 is reported for node 4 only (with only "
-    "node 3's RPDO in the file it is reported for node 3): one finding per frame, not per "
-    "consumer"))
 def test_rpdo_length_s002_for_both_consumers() -> None:
     res = _check(LENGTH, "file")
     assert sorted(f for f in _found(res) if f[0] == "S002") == [
         ("S002", 3, 0.152287), ("S002", 4, 0.152287)]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "nmtcheck mistake (SPEC_COMM §9.1.1/§9.1.3: a confirmed SDO write wins over the network "
-    "file, a mapping is known from sub 0 and its entries): rpdo_length.log, the master "
-    "rewrites node 3's 1600h at 4.998 s (1600h:00 = 0, 1600h:01 = 20010020h, 1600h:00 = 1, "
-    "lines 333-338, all confirmed), so only the 49 frames of 182h before it offend; nmtcheck "
-    "keeps the file's 8-byte mapping and counts all 99 (D005 node 3 '(99 frames)')"))
 def test_rpdo_length_d005_counts_the_frames_of_the_file_mapping_only() -> None:
     assert _length_frames_before_the_fix() == 49
     res = _check(LENGTH, "file")
@@ -534,13 +522,6 @@ def test_rpdo_length_without_a_network_file() -> None:
     assert _found(res) == [("E003", 4, 0.153228)]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "nmtcheck mistake or not implemented yet (SPEC_COMM §9.1.3, §9.1.9): rpdo_length.log "
-    "without a network file, node 3's RPDO1 COB-ID (1400h:01 = 182h) and mapping (1600h:00 = "
-    "1, 1600h:01 = 20010020h) are written by SDO and confirmed (lines 331-340), so D005 judges "
-    "node 3's frames from then on and skips the rest (node 2's TPDO, node 4's RPDO): D005 "
-    "should be in partly_evaluated ('no PDO mapping known', partial); nmtcheck lists it "
-    "nowhere"))
 def test_rpdo_length_bare_lists_d005_as_partly_evaluated() -> None:
     res = _check(LENGTH, None)
     assert "D005" not in res.not_evaluated
@@ -626,15 +607,10 @@ NOT_EVALUATED: dict[tuple[str, str | None], set[str]] = {
 }
 
 
-SDO_MAPPING = pytest.mark.xfail(strict=True, reason=(
-    "nmtcheck does not apply PDO parameters written by SDO in the trace yet: without the "
-    "network file rpdo_length's master rewrites node 3's 1600h, so D005 is partly evaluated "
-    "(SPEC §9.1.3), but nmtcheck knows no mapping and lists it as not evaluated"))
 
 
 @pytest.mark.parametrize(("name", "network"), [
-    pytest.param(n, f, marks=SDO_MAPPING) if (n, f) == ("rpdo_length", None) else (n, f)
-    for n, f in sorted(NOT_EVALUATED, key=str)],
+    (n, f) for n, f in sorted(NOT_EVALUATED, key=str)],
     ids=[f"{n}-{'network' if f else 'bare'}" for n, f in sorted(NOT_EVALUATED, key=str)])
 def test_d_rules_not_evaluated(name: str, network: str | None) -> None:
     res = _check(name, network)

@@ -14,6 +14,7 @@ import numpy as np
 from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
+from nmtcheck.processes import pdo_params
 from nmtcheck.processes import sync as sync_stage
 from nmtcheck.processes.comm_values import Value
 from nmtcheck.processes.pdo import EVENT_DRIVEN, SYNCHRONOUS, Party, Stream
@@ -449,11 +450,14 @@ def pdo_length_mismatch(model: InputModel, params: Params) -> Iterator[Problem]:
         parties = ([("a", st.producer)] if st.producer is not None else []) + [
             ("b", c) for c in st.consumers]
         for which, party in parties:
-            if not party.mapping.known or not party.mapping.value:
+            pieces = party.pieces
+            if pieces is None or not pieces.known:
                 continue
             m = cm.nodes.get(party.node)
-            want = int(party.mapping.value)
-            bad = dlc != want
+            piece = pieces.at(ts)
+            wants = pieces.length[piece]
+            bad = (wants > 0) & (dlc != wants) & pdo_params.valid_at(
+                m, party.base_index, st.cob_id, ts)
             if which == "b":
                 if m is None or not len(m.intervals):
                     continue
@@ -467,15 +471,16 @@ def pdo_length_mismatch(model: InputModel, params: Params) -> Iterator[Problem]:
                 seen.add(key)
                 n = int(np.count_nonzero(bad & (epoch == epoch[k]) & (dlc == dlc[k])))
                 more = f" ({n} frames)" if n > 1 else ""
+                want, source = int(wants[k]), pieces.source[int(piece[k])]
                 if which == "a":
                     text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {dlc[k]}; "
                             f"its mapping {party.map_index:04X}h has {want} bytes "
-                            f"({_source(party.mapping)}){more}")
+                            f"({_source(source)}){more}")
                 else:
                     what = ("discards it and raises EMCY 8210h" if dlc[k] < want
                             else "raises EMCY 8220h")
                     text = (f"RPDO {st.cob_id:03X}h has DLC {dlc[k]}; node {party.node} maps "
-                            f"{want} bytes ({party.map_index:04X}h, {_source(party.mapping)}):"
+                            f"{want} bytes ({party.map_index:04X}h, {_source(source)}):"
                             f" node {party.node} {what}{more}")
                 yield Problem(cm.name, party.node, float(ts[k]), text, int(idx[k]),
                               int(line[k]))

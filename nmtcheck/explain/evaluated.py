@@ -63,12 +63,40 @@ def partly_evaluated(model: InputModel, codes: Iterable[str]) -> dict[str, str]:
     unknown = [e for e in senders if not bool(np.nan_to_num(e.inhibit).any())]
     if "E001" in codes and unknown and len(unknown) < len(senders):
         out["E001"] = _scoped(NO_EMCY_INHIBIT, [f"{e.channel} node {e.node}" for e in unknown])
+    if "D005" in codes:
+        skipped = _d005_skipped(model)
+        if skipped:
+            out["D005"] = _scoped(PDO_REASONS["D005"], skipped)
     sync = sync_stage.of(model)
     if "Y002" in codes and sync is not None:
         skipped = [sc.channel for sc in sync.channels.values() if len(sc)
                    and any(not v.overflow.known for v in sc.by_segment)]
         if skipped:
             out["Y002"] = _scoped(NO_OVERFLOW, [f"{c} SYNC" for c in skipped])
+    return out
+
+
+def _d005_skipped(model: InputModel) -> list[str]:
+    """What D005 skipped on an input where it judged some party's mapping: the parties
+    whose mapping is unknown for some of their frames, and the PDO CAN-IDs that carried
+    frames but are no stream's (SPEC §9.1.3 `partial`). Empty where it judged nothing."""
+    found = pdo_stage.of(model)
+    streams = found.streams if found is not None else []
+    parties = [(st, p) for st in streams for p in [st.producer, *st.consumers] if p is not None]
+    if not any(p.pieces is not None and p.pieces.known for _, p in parties):
+        return []
+    out = []
+    for st, p in parties:
+        ts = st.frames()[0]
+        if p.pieces is None or not len(ts):
+            continue
+        if (p.pieces.length[p.pieces.at(ts)] < 0).any():
+            out.append(f"{st.channel} {p.kind.upper()} {st.cob_id:03X}h (node {p.node})")
+    covered = {(st.chan, st.cob_id) for st in streams}
+    names = {cm.chan: cm.network_name for cm in model.channels}
+    for chan, cob in pdo_stage.pdo_ids(model):
+        if (chan, cob) not in covered and chan in names:
+            out.append(f"{names[chan]} PDO {cob:03X}h")
     return out
 
 
@@ -95,7 +123,7 @@ def _pdo_reasons(model: InputModel, codes: list[str]) -> dict[str, str]:
         "D003": any(p.transmission_type.known and int(p.transmission_type.value or 0) <= 240
                     for p in producers),
         "D004": any(known(c.event_timer_ms) for c in consumers),
-        "D005": any(known(p.mapping) for p in [*producers, *consumers]),
+        "D005": any(p.pieces is not None and p.pieces.known for p in [*producers, *consumers]),
     }
     return {c: PDO_REASONS[c] for c in wanted if not judged[c]}
 

@@ -8,7 +8,8 @@ else the node's device file (1400h-1403h, 1800h-1803h, 1600h-1603h, 1A00h-1A03h)
 1-4 without a configured COB-ID takes the pre-defined one (180h/200h + (k-1) x 100h + N);
 a configured COB-ID wins over another node's default. Nothing else is assumed: no
 transmission type, inhibit time, event timer or mapping. PDO parameters written by SDO in
-the trace are not applied yet (the COB-IDs the timeline applies are).
+the trace are applied as `pdo_params` says: a COB-ID written to a node's PDO puts it on
+that stream, a mapping holds from its confirmation to the node's next reset.
 """
 
 from __future__ import annotations
@@ -18,10 +19,11 @@ from typing import Any
 
 import numpy as np
 
+from nmtcheck.processes import pdo_params
 from nmtcheck.processes import sdo_transfers as st
 from nmtcheck.processes.attached import Attached
 from nmtcheck.processes.comm_values import UNKNOWN, Value
-from nmtcheck.timeline.decode import node_frame_lines
+from nmtcheck.timeline.decode import KIND_CONFIGURED, KIND_RPDO, KIND_TPDO, node_frame_lines
 from nmtcheck.timeline.model import ChannelModel, InputModel
 
 TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
@@ -41,8 +43,11 @@ class Party:
     transmission_type: Value = UNKNOWN
     inhibit_100us: Value = UNKNOWN
     event_timer_ms: Value = UNKNOWN
-    mapping: Value = UNKNOWN  # the mapped length in bytes (None: unknown; 0: not judged)
+    mapping: Value = UNKNOWN  # the files' mapped length in bytes (None: unknown; 0: not judged)
     entries: list[int] = field(default_factory=list)
+    # the mapped length over time, the trace's SDO writes applied (set by `analyse`)
+    pieces: pdo_params.MappingPieces | None = field(default=None, repr=False)
+    written_cob: bool = False  # the party's COB-ID is known only from an SDO write
 
     @property
     def base_index(self) -> int:
@@ -136,16 +141,29 @@ def load_frames(found: list[Stream], model: InputModel) -> None:
                      np.zeros(0, np.uint8)))
 
 
+def pdo_ids(model: InputModel) -> list[tuple[int, int]]:
+    """(channel code, CAN-ID) of every PDO CAN-ID that carried a data frame, pre-defined
+    or configured: one pass over the node-frame store, for the rules that say what they
+    skipped."""
+    found: set[int] = set()
+    for chunk in model.decoded.node_frames:
+        pdo = np.isin(chunk["kind"], (KIND_TPDO, KIND_RPDO, KIND_CONFIGURED))
+        if pdo.any():
+            key = (chunk["key"][pdo].astype(np.int64) // 128) * 4096 + chunk["can_id"][pdo]
+            found.update(np.unique(key).tolist())
+    return [(k // 4096, k % 4096) for k in sorted(found)]
+
+
 def streams(model: InputModel, network: Any) -> list[Stream]:
-    """Every stream the files describe on the model's channels (none without a network
-    file): its producer and consumers with their parameters."""
-    if network is None:
-        return []
+    """Every stream the files describe on the model's channels, and those whose COB-ID
+    the trace writes by SDO (§9.1.1 (3)): its producer and consumers with their
+    parameters."""
     out: list[Stream] = []
     for cm in model.channels:
         name = cm.network_name
-        nodes = [n for n in sorted(set(network.nodes) | set(network.comm_nodes))
-                 if network.node_channel(n) in (None, name)]
+        nodes = [] if network is None else [
+            n for n in sorted(set(network.nodes) | set(network.comm_nodes))
+            if network.node_channel(n) in (None, name)]
         parties: dict[int, list[Party]] = {}
         defaults: dict[int, list[Party]] = {}
         for n in nodes:
@@ -155,13 +173,31 @@ def streams(model: InputModel, network: Any) -> list[Stream]:
         for cob, found in defaults.items():  # a configured COB-ID wins over a default
             if cob not in parties:
                 parties[cob] = found
+        _written_parties(cm, parties)
+        if network is None and not parties:
+            continue
         for cob in sorted(parties):
             found = parties[cob]
             producer = next((p for p in found if p.kind == "tpdo"), None)
             consumers = [p for p in found if p.kind == "rpdo"]
-            window = _window(network, name, [p.node for p in found])
+            window = _window(network, name, [p.node for p in found]) if (
+                network is not None) else UNKNOWN
             out.append(Stream(name, cm.chan, cob, producer, consumers, window, model))
     return out
+
+
+def _written_parties(cm: ChannelModel, parties: dict[int, list[Party]]) -> None:
+    """The PDOs whose COB-ID the trace writes by SDO (valid, 11-bit) join the stream of
+    that COB-ID where the files put no such PDO of the node there."""
+    for n, m in sorted(cm.nodes.items()):
+        if not len(m.writes) and not len(m.pdo_writes):
+            continue
+        for kind in ("tpdo", "rpdo"):
+            for k, cobs in sorted(pdo_params.written_cob_ids(m, kind).items()):
+                for cob in sorted(cobs):
+                    there = parties.setdefault(cob, [])
+                    if not any((p.node, p.kind, p.pdo) == (n, kind, k) for p in there):
+                        there.append(Party(n, k, kind, written_cob=True))
 
 
 def _parties(network: Any, n: int, kind: str) -> list[tuple[Party, int, bool]]:
@@ -268,7 +304,31 @@ def analyse(model: InputModel, network: Any, spool: Any, sdo_timeout_s: float) -
     communication parameter (1400h-15FFh, 1800h-19FFh) with a reserved value."""
     found = streams(model, network)
     load_frames(found, model)
+    _apply_writes(found)
     return PdoAnalysis(found, _reserved_writes(model, spool, sdo_timeout_s))
+
+
+def _apply_writes(found: list[Stream]) -> None:
+    """The trace's SDO writes of the parties' parameters: the mapping as pieces over time,
+    the rest as the one value in force over the stream's frames (pdo_params)."""
+    for s in found:
+        cm = next((c for c in s.model.channels if c.chan == s.chan), None)
+        if cm is None:
+            continue
+        ts = s.frames()[0]
+        a, b = (float(ts.min()), float(ts.max())) if len(ts) else (-np.inf, np.inf)
+        for p in [s.producer, *s.consumers]:
+            if p is None:
+                continue
+            m = cm.nodes.get(p.node)
+            p.pieces = pdo_params.mapping_pieces(
+                m, p.map_index, p.entries if p.mapping.known else None, p.mapping)
+            if m is None or (not len(m.pdo_writes) and not len(m.writes)):
+                continue
+            for name, sub in (("transmission_type", 2), ("inhibit_100us", 3),
+                              ("event_timer_ms", 5)):
+                setattr(p, name, pdo_params.constant_over(m, p.base_index, sub,
+                                                          getattr(p, name), a, b))
 
 
 def _reserved_writes(model: InputModel, spool: Any, sdo_timeout_s: float

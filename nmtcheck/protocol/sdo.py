@@ -69,6 +69,16 @@ def is_config_index(index: int, sub: int) -> bool:
     return (index in PDO_COMM_OBJECTS or index == ERROR_BEHAVIOUR) and sub == 1
 
 
+def is_pdo_param(index: int, sub: int) -> bool:
+    """A PDO parameter of SPEC §9.1.1 other than the COB-ID of PDOs 1-4 (which
+    `is_config_index` covers): sub 1 (COB-ID), 2 (type), 3 (inhibit time) and 5 (event
+    timer) of 1400h-15FFh and 1800h-19FFh, sub 0..40h of the mappings 1600h-17FFh and
+    1A00h-1BFFh. Written by SDO in the trace, they are applied to the PDO streams."""
+    if 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
+        return sub in (1, 2, 3, 5) and not is_config_index(index, sub)
+    return (0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF) and sub <= 0x40
+
+
 def expedited_value(data: bytes | list[int]) -> int | None:
     """The value of an expedited download request (bytes 4..7, length from byte 0)."""
     cmd = data[0]

@@ -24,6 +24,15 @@ def _config_index(index: np.ndarray, sub: np.ndarray) -> np.ndarray:
     return found
 
 
+def _pdo_param_index(index: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """`sdo.is_pdo_param` for columns: the PDO parameters beyond the COB-IDs of PDOs 1-4."""
+    comm = ((index >= 0x1400) & (index <= 0x15FF)) | ((index >= 0x1800) & (index <= 0x19FF))
+    mapping = ((index >= 0x1600) & (index <= 0x17FF)) | ((index >= 0x1A00) & (index <= 0x1BFF))
+    found: np.ndarray = ((comm & np.isin(sub, (1, 2, 3, 5)) & ~_config_index(index, sub))
+                         | (mapping & (sub <= 0x40)))
+    return found
+
+
 def _expedited_values(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`sdo.expedited_value` for columns: the values, and whether each has one."""
     cmd = data[:, 0].astype(np.int64)
@@ -66,7 +75,8 @@ def _pair_server(rows: np.ndarray, n: int, m: NodeModel) -> None:
     index = data[:, 1].astype(np.int32) | (data[:, 2].astype(np.int32) << 8)
     sub = data[:, 3]
     request = rows["can_id"] >= 0x601
-    config = request & ((cmd & 0xE0) == 0x20) & _config_index(index, sub)
+    known = _config_index(index, sub)
+    config = request & ((cmd & 0xE0) == 0x20) & (known | _pdo_param_index(index, sub))
     # each response and the latest request before it (-1: none)
     latest = np.maximum.accumulate(np.where(request, np.arange(len(rows)), -1))
     resp = np.flatnonzero(~request)
@@ -80,13 +90,22 @@ def _pair_server(rows: np.ndarray, n: int, m: NodeModel) -> None:
     answered[hit[first]] = True
     value, has_value = _expedited_values(data[at])
     confirmed = answered & (cmd[resp] == 0x60)
-    _events(rows, resp, answered, confirmed & ~has_value, index, sub, m)
+    _events(rows, resp, answered, confirmed & ~has_value & known[at], index, sub, m)
     write = confirmed & has_value
-    r, q = resp[write], req[write]
-    m.writes = WriteTable(rows["ts"][r], rows["idx"][r], rows["line"][r], np.full(len(r), n),
-                          index[r], sub[r], value[write], np.full(len(r), np.inf),
-                          rows["ts"][q], rows["idx"][q])
+    m.writes = _table(rows, resp, req, write & known[at], index, sub, value, n)
     m.events.writes = m.writes
+    pdo = write & ~known[at]
+    if pdo.any():  # PDO parameters: read by the PDO streams only (SPEC §9.1.1)
+        m.pdo_writes = _table(rows, resp, req, pdo, index, sub, value, n)
+
+
+def _table(rows: np.ndarray, resp: np.ndarray, req: np.ndarray, sel: np.ndarray,
+           index: np.ndarray, sub: np.ndarray, value: np.ndarray, n: int) -> WriteTable:
+    """The confirmed writes `sel` (a mask over the responses) as a table."""
+    r, q = resp[sel], req[sel]
+    return WriteTable(rows["ts"][r], rows["idx"][r], rows["line"][r], np.full(len(r), n),
+                      index[r], sub[r], value[sel], np.full(len(r), np.inf),
+                      rows["ts"][q], rows["idx"][q])
 
 
 def _events(rows: np.ndarray, resp: np.ndarray, answered: np.ndarray, segmented: np.ndarray,
@@ -108,12 +127,16 @@ def write_validity(nodes: dict[int, NodeModel]) -> None:
     consumers: dict[int, list[WriteTable]] = {}
     for m in nodes.values():
         w = m.writes
-        if not len(w):
+        if not len(w) and not len(m.pdo_writes):
             continue
         ends = np.sort(np.concatenate([m.ec.ts[m.ec.kind == BOOTUP], m.commands.reset_ts]))
-        k = np.searchsorted(ends, w.ts, side="right")
-        w.until = np.where(k < len(ends), ends[np.minimum(k, max(len(ends) - 1, 0))]
-                           if len(ends) else np.inf, np.inf)
+        for table in (w, m.pdo_writes):
+            if len(table):
+                k = np.searchsorted(ends, table.ts, side="right")
+                table.until = np.where(k < len(ends), ends[np.minimum(k, max(len(ends) - 1, 0))]
+                                       if len(ends) else np.inf, np.inf)
+        if not len(w):
+            continue
         entry = w.index == 0x1016
         producer = (w.value >> 16) & 0xFF
         for p in dict.fromkeys(producer[entry].tolist()):

@@ -436,7 +436,8 @@ def node_groups(cols: dict[str, np.ndarray]) -> dict[int, list[tuple[int, slice]
 
 
 def sdo_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
-    """SDO downloads to the objects that configure error control and PDOs, their
+    """SDO downloads to the objects that configure error control and PDOs (1400h-1BFFh),
+    their
     confirmations, and every SDO abort: sparse frames the timeline decodes one by one."""
     data_frame = ~b.rtr & (b.dlc >= 4)
     found = np.zeros(len(cid), bool)
@@ -450,7 +451,7 @@ def sdo_events(cid: np.ndarray, b: FrameBatch) -> np.ndarray:
     data = b.data[rows]
     scid = cid[rows]
     index = data[:, 1].astype(np.int64) | (data[:, 2].astype(np.int64) << 8)
-    config = np.isin(index, _CONFIG_INDICES)
+    config = np.isin(index, _CONFIG_INDICES) | ((index >= 0x1400) & (index <= 0x1BFF))
     cmd = data[:, 0]
     request = (scid >= SDO_RX_BASE + 1) & ((cmd & 0xE0) == 0x20) & config
     response = (scid <= SDO_TX_BASE + MAX_NODE_ID) & (((cmd == 0x60) & config) | (cmd == 0x80))

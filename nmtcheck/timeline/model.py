@@ -186,6 +186,8 @@ class NodeModel:
         default_factory=lambda: shared_empty(WriteTable))
     consumer_writes: WriteTable = field(  # 1016h entries naming N
         default_factory=lambda: shared_empty(WriteTable))
+    pdo_writes: WriteTable = field(  # N's PDO parameters beyond 1400h-1403h/1800h-1803h:01
+        default_factory=lambda: shared_empty(WriteTable))
     events: NodeEvents = field(default_factory=NodeEvents)
     order_only: bool = False  # the input has no timestamps: no period is measured
     self_starts: list[tuple[float, int]] = field(default_factory=list)  # (ts, frame index)
@@ -698,6 +700,32 @@ def _attribute(chunk: dict[str, np.ndarray], overrides: list[_PdoOverride]
     return key, kind
 
 
+def _other_consumers(chunk: dict[str, np.ndarray], key: np.ndarray, kind: np.ndarray,
+                     sel: np.ndarray, overrides: list[_PdoOverride]
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The rows `sel` with their node keys, and again each row an RPDO of several nodes
+    reaches (PDO linking to two consumers) under every other consumer's key: each
+    consumer is a node the frame is for."""
+    rows, keys = [sel], [key[sel].astype(np.int64)]
+    for o in overrides:
+        if o.kind != KIND_RPDO:
+            continue
+        ts = chunk["ts"][sel]
+        also = sel[(chunk["can_id"][sel] == o.can_id) & (key[sel] // 128 == o.chan)
+                   & (ts >= o.start) & (ts < o.until) & (kind[sel] == KIND_RPDO)
+                   & (key[sel] != o.key)]
+        if also.size:
+            rows.append(also)
+            keys.append(np.full(also.size, o.key, np.int64))
+    if len(rows) == 1:
+        return sel, keys[0]
+    r, k = np.concatenate(rows), np.concatenate(keys)
+    order = np.lexsort((r, k))  # a consumer named by two spans counts once
+    r, k = r[order], k[order]
+    keep = np.concatenate([[True], (r[1:] != r[:-1]) | (k[1:] != k[:-1])])
+    return r[keep], k[keep]
+
+
 def _windows(model: InputModel, states: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """The union over all nodes of the times they spent in `states`, as sorted [start, end]
     windows: a cheap first filter on time."""
@@ -737,9 +765,12 @@ def _sent_while(model: InputModel, states: tuple[str, ...]) -> SentFrames:
         if not sel.size:
             continue
         key, kind = _attribute(chunk, overrides)
-        parts.append({"key": key[sel].astype(np.int64), "kind": kind[sel],
-                      "can_id": chunk["can_id"][sel], "ts": ts[sel], "idx": chunk["idx"][sel],
-                      "line": node_frame_lines(chunk, sel)})
+        rows, keys = _other_consumers(chunk, key, kind, sel, overrides)
+        order = np.argsort(chunk["idx"][rows], kind="stable")  # file order, each key too
+        rows, keys = rows[order], keys[order]
+        parts.append({"key": keys, "kind": kind[rows], "can_id": chunk["can_id"][rows],
+                      "ts": ts[rows], "idx": chunk["idx"][rows],
+                      "line": node_frame_lines(chunk, rows)})
     names = ("key", "kind", "can_id", "ts", "idx", "line")
     return SentFrames(*(np.concatenate([p[n] for p in parts]) if parts else np.zeros(0)
                         for n in names))
