@@ -42,7 +42,7 @@ else:  # pragma: no cover
 
 FOLDER = SAMPLES / "canopennode" / "pdo"
 LOGS = ("rpdo_producer_stopped", "rpdo_timeout_stale_heartbeat", "tpdo_event_timer",
-        "tpdo_inhibit_bypass", "rpdo_length", "sync_tpdo")
+        "tpdo_inhibit_bypass", "rpdo_length", "sync_tpdo", "reserved_type")
 
 
 def _network(name: str) -> Path:
@@ -601,6 +601,7 @@ NOT_EVALUATED: dict[tuple[str, str | None], set[str]] = {
     ("tpdo_inhibit_bypass", "file"): {"D003", "D004"},
     ("rpdo_length", "file"): {"D002", "D003", "D004"},
     ("sync_tpdo", "file"): {"D002", "D004"},
+    ("reserved_type", "file"): {"D002", "D003", "D004"},
     **{(name, None): {"D001", "D002", "D003", "D004", "D005"} for name in LOGS
        if name != "rpdo_length"},
     ("rpdo_length", None): {"D001", "D002", "D003", "D004"},
@@ -615,3 +616,40 @@ NOT_EVALUATED: dict[tuple[str, str | None], set[str]] = {
 def test_d_rules_not_evaluated(name: str, network: str | None) -> None:
     res = _check(name, network)
     assert {c for c in res.not_evaluated if c.startswith("D")} == NOT_EVALUATED[name, network]
+
+
+# -- reserved_type: the master writes reserved transmission types (D006) ---------------------
+
+RESERVED = "reserved_type"
+
+
+def test_reserved_type_ground_truth() -> None:
+    """The master downloads 1800h:02 = 245 to node 2 (2.0 s) and 1400h:02 = 250 to node 3
+    (3.0 s); CANopenNode refuses both with abort 06090030h (invalid value), as its
+    `.events` say (the master's SDO client result)."""
+    frames = _frames(RESERVED)
+    assert [(f.line, f.can_id, f.data) for f in frames if f.can_id in (0x602, 0x582, 0x603, 0x583)
+            and f.t > 1.5] == [
+        (131, 0x602, "2F001802F5000000"), (132, 0x582, "8000180230000906"),
+        (186, 0x603, "2F001402FA000000"), (187, 0x583, "8000140230000906")]
+    results = [e.text for e in _events(RESERVED)
+               if "SDO write node" in e.text and "failed" in e.text]
+    assert results == ["SDO write node 2 1800:02 failed, abort 06090030",
+                       "SDO write node 3 1400:02 failed, abort 06090030"]
+    assert _emcys_sent(RESERVED) == []
+
+
+@pytest.mark.parametrize("network", [None, "file"], ids=["bare", "network"])
+def test_reserved_type_is_d006(network: str | None) -> None:
+    """SPEC §9.2.2 D006: at each download request, refused; nothing else on this healthy
+    network (D006 needs no configuration)."""
+    res = _check(RESERVED, network)
+    assert _found(res) == [("D006", 2, 1.997582), ("D006", 3, 2.997574)]
+    d2, d3 = res.findings
+    assert (d2.line, d3.line) == (131, 186)
+    assert d2.message == (
+        "download 1800h:02 = 245 to node 2: transmission types 241–251 (TPDO) are reserved; "
+        "node 2 refused it (abort 06090030h: invalid value for parameter (download only))")
+    assert d3.message == (
+        "download 1400h:02 = 250 to node 3: transmission types 241–253 (RPDO) are reserved; "
+        "node 3 refused it (abort 06090030h: invalid value for parameter (download only))")

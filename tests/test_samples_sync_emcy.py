@@ -33,6 +33,7 @@ NETWORK = {
     "sync_counter": "network_sync_counter.toml",
     "sync_counter_skip": "network_sync_counter.toml",
     "emcy_inhibit": "network_emcy.toml",
+    "sync_length": "network_sync_length.toml",
 }
 
 
@@ -398,3 +399,68 @@ def test_unplugged_heartbeat_master_drop_is_explained() -> None:
         ("finding", None, "H001", 3, "heartbeat_consumer")]
     s3 = next(f for f in res.findings if (f.rule, f.node) == ("S005", 3))
     assert "explained by" not in s3.message
+
+
+# -- sync_length: consumers that expect a SYNC counter the producer does not send --------------
+
+LENGTH = "sync_length"
+
+
+def test_sync_length_ground_truth() -> None:
+    """The master produces SYNC every 20 ms without a counter (DLC 0). At 1.0 s it writes
+    1019h = 4 and 1006h = 20 ms to nodes 2 and 3 (lines 125-132, confirmed). At the next
+    SYNC (1.006 s) both consumers report a wrong SYNC length (EMCY 8240h, error bit 19h,
+    register 10h) and drop to PRE-OPERATIONAL (NMT control: communication bit); as they
+    drop every SYNC from then on, their SYNC timeout follows (8100h, bit 18h, 30 ms after
+    the last SYNC they accepted). Node 4 (no 1019h written) runs on."""
+    frames = _frames(LENGTH)
+    syncs = [f for f in frames if f.can_id == 0x080]
+    assert {f.data for f in syncs} == {""}
+    assert [(f.line, f.data) for f in frames if 125 <= f.line <= 132] == [
+        (125, "2F19100004000000"), (126, "6019100000000000"),
+        (127, "23061000204E0000"), (128, "6006100000000000"),
+        (129, "2F19100004000000"), (130, "6019100000000000"),
+        (131, "23061000204E0000"), (132, "6006100000000000")]
+    assert [(node, data) for _t, node, data in _emcys_sent(LENGTH)] == [
+        (2, "4082101980000000"), (3, "4082101980000000"),
+        (2, "008110187E750000"), (3, "0081101888750000")]
+    emcys = _ground_truth_emcys_are_on_the_bus(LENGTH)
+    assert [f.line for f in emcys] == [134, 135, 138, 139]
+    first_bad = next(f for f in syncs if f.line > 132)
+    assert (first_bad.line, first_bad.t) == (133, 1.006008)
+    assert emcys[0].t - first_bad.t < 0.002
+    assert _states(LENGTH, "s2")[-1] == (1.007151, "PRE-OPERATIONAL")
+    assert _states(LENGTH, "s3")[-1] == (1.007172, "PRE-OPERATIONAL")
+    status = _status(LENGTH)
+    assert status["s2"].endswith("error register 10, active error bits: 18 19")
+    assert status["s3"].endswith("error register 10, active error bits: 18 19")
+    assert status["s4"].endswith("error register 00, active error bits: none")
+
+
+# SPEC §9.2.1 Y002 (b): C = 4 in force at the SYNC (the producer's 1019h unknown, the nodes
+# with a known one agree: nodes 2 and 3, written by SDO, §9.1.1), so DLC 0 is wrong, one
+# run from the first such SYNC. S005 (§3) for both consumers, explained by their EMCY
+# 8240h (§9.3.4 `error_behaviour` (ii): register 10h) and that EMCY by the Y002
+# (`sync_length`). E003 for both: bits 18h and 19h stay active to the end.
+LENGTH_FOUND: Found = [("Y002", None, 1.006008), ("S005", 3, 1.007286),
+                       ("S005", 2, 1.00736), ("E003", 2, 1.017753), ("E003", 3, 1.017819)]
+
+
+@pytest.mark.parametrize("network", [None, "file"], ids=["bare", "network"])
+def test_sync_length_is_y002_with_its_chain(network: str | None) -> None:
+    res = _check(LENGTH, network)
+    assert _found(res) == LENGTH_FOUND
+    y002 = res.findings[0]
+    assert y002.line == 133
+    assert y002.message.startswith(
+        "SYNC with 0 data byte(s); 1019h = 4 (written by SDO at line 126) requires 1: "
+        "CANopenNode consumers drop it, CANopenNode and Lely consumers raise EMCY 8240h (")
+    for s005, line in zip(res.findings[1:3], (135, 134), strict=True):
+        chain = [(c["kind"], c.get("code"), c.get("rule"), c["link"], c["depth"])
+                 for c in s005.causes or []]
+        assert chain == [("emcy", "8240h", None, "error_behaviour", 1),
+                         ("finding", None, "Y002", "sync_length", 2)]
+        assert (s005.causes or [])[0]["line"] == line
+    # before the writes (1.0 s) no node's 1019h is known: those SYNCs had only the checks
+    # that need no C (§9.1.9)
+    assert "Y002" in res.partly_evaluated

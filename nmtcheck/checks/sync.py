@@ -132,11 +132,16 @@ def _consumers_awake(nodes: list[NodeModel], t: np.ndarray) -> np.ndarray:
 
 
 def _overflow(sc: SyncChannel) -> np.ndarray:
-    """Per SYNC frame, C (1019h) in force in its segment; -1: unknown."""
+    """Per SYNC frame, C (1019h) in force at it; -1: unknown."""
+    if sc.overflow_at is not None:
+        values = np.asarray([int(v.value or 0) if v.known else -1 for v in sc.overflows],
+                            np.int64)
+        found: np.ndarray = values[sc.overflow_at] if len(values) else np.full(len(sc), -1)
+        return found
     out = np.full(len(sc), -1, np.int64)
-    for pos, values in zip(sc.segments(), sc.by_segment, strict=True):
-        if values.overflow.known:
-            out[pos] = int(values.overflow.value or 0)
+    for pos, seg in zip(sc.segments(), sc.by_segment, strict=True):
+        if seg.overflow.known:
+            out[pos] = int(seg.overflow.value or 0)
     return out
 
 
@@ -178,18 +183,20 @@ def sync_frame_invalid(model: InputModel, params: Params) -> Iterator[Problem]:
         bad = _defects(sc)
         overflow = _overflow(sc)
         same = np.zeros(len(bad), bool)  # continues the run of the frame before it
-        same[1:] = (bad[1:] == bad[:-1]) & (sc.segment[1:] == sc.segment[:-1])
+        same[1:] = ((bad[1:] == bad[:-1]) & (sc.segment[1:] == sc.segment[:-1])
+                    & (overflow[1:] == overflow[:-1]))
         runs = flagged_runs(same, bad != 0)
         for k, n in runs:
             d, dlc = int(bad[k]), int(sc.dlc[k])
             c = int(overflow[k]) if overflow[k] >= 0 else None
-            seg_values = sc.by_segment[int(np.searchsorted(np.unique(sc.segment),
-                                                           sc.segment[k]))]
+            source = (sc.overflows[int(sc.overflow_at[k])] if sc.overflow_at is not None
+                      else sc.by_segment[int(np.searchsorted(np.unique(sc.segment),
+                                                             sc.segment[k]))].overflow)
             if d == 1:
                 text = f"remote frame on the SYNC COB-ID {sc.cob_id:03X}h"
             elif d == 2:
                 text = (f"SYNC with {dlc} data byte(s); 1019h = {c} "
-                        f"({_source(seg_values.overflow)}) "
+                        f"({_source(source)}) "
                         f"requires {0 if c == 0 else 1}: CANopenNode consumers drop it, "
                         "CANopenNode and Lely consumers raise EMCY 8240h")
             elif d == 3:

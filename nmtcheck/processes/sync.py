@@ -63,6 +63,11 @@ class SyncChannel:
     # per segment (in `segments()` order), the values in force at its first SYNC: an SDO
     # write of 1006h or 1019h takes over from the files from its confirmation (§9.1.3)
     by_segment: list[SegmentValues] = field(default_factory=list)
+    # per frame, C (1019h) in force at it (an index into `overflows`): where the producer's
+    # is unknown and the nodes' shared value is taken, a write to a consumer in the middle
+    # of a segment changes it there
+    overflow_at: np.ndarray | None = None
+    overflows: list[Value] = field(default_factory=list)
 
     def end_of(self, pos: np.ndarray) -> np.ndarray:
         """The time each frame's segment ends (inf: at the trace end)."""
@@ -217,11 +222,42 @@ def _channel(model: InputModel, cm: ChannelModel, network: Any,
     starts: list[int] = np.flatnonzero(np.diff(segment, prepend=-1)).tolist()
     by_segment = [values_at(float(ts[k])) for k in starts]
     last = by_segment[-1] if by_segment else values_at(at)
+    overflow_at, overflows = _overflow_per_frame(cm, ts, starts, by_segment, values_at)
     notes += list(dict.fromkeys(seen))
     return SyncChannel(name, cob_id, cob_source, producer, last.period, last.producer_period,
                        last.window, last.overflow, ts, idx, cols["line"][rows],
                        cols["rtr"][rows], cols["dlc"][rows], cols["counter"][rows], segment,
-                       ends, notes, by_segment)
+                       ends, notes, by_segment, overflow_at, overflows)
+
+
+def _overflow_per_frame(cm: ChannelModel, ts: np.ndarray, starts: list[int],
+                        by_segment: list[SegmentValues], values_at: Any
+                        ) -> tuple[np.ndarray, list[Value]]:
+    """Per SYNC frame, C in force at it: its segment's value, changed where a node's 1019h
+    is written (or its write ends with a reset) inside the segment."""
+    found: list[Value] = [v.overflow for v in by_segment]
+    at = np.zeros(len(ts), np.int64)
+    bounds = [*starts, len(ts)]
+    for k in range(len(starts)):
+        at[bounds[k]:bounds[k + 1]] = k
+    segment_of = at.copy()
+    marks = []
+    for m in cm.nodes.values():
+        if len(m.writes):
+            w = m.writes.index == 0x1019
+            marks += [m.writes.ts[w], m.writes.until[w][np.isfinite(m.writes.until[w])]]
+    points = np.unique(np.concatenate(marks)) if marks else np.zeros(0)
+    for p in points.tolist():
+        lo = int(np.searchsorted(ts, p, side="right"))  # the first SYNC after the change
+        if lo >= len(ts):
+            continue
+        k = int(segment_of[lo])
+        value = values_at(p).overflow
+        if value == found[int(at[lo])]:
+            continue
+        found.append(value)
+        at[lo:bounds[k + 1]] = len(found) - 1
+    return at, found
 
 
 def _channel_devices(network: Any, channel: str) -> dict[int, Any]:

@@ -290,6 +290,35 @@ SCENARIOS: dict[str, Scenario] = {
         ctl(9.8, "s3", "status"),
         ctl(9.8, "s4", "status"),
     ]),
+    # the master produces SYNC every 20 ms without a counter (its 1019h = 0 at power-on);
+    # at 1.0 it writes 1019h = 4 and then 1006h = 20 ms to nodes 2 and 3 by SDO (a
+    # consumer accepts 1019h only while its 1006h = 0): their SYNC consumers now expect
+    # one data byte, so every SYNC of length 0 is a wrong-length SYNC to them (EMCY 8240h,
+    # the SYNC dropped) and their SYNC timeout runs out (8100h). Node 4 stays as it was
+    "sync_length": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "20000"]),
+        ctl(1.0, "master", "sdo_write 2 1019 0 1 4"),
+        ctl(1.0, "master", "sdo_write 2 1006 0 4 20000"),
+        ctl(1.0, "master", "sdo_write 3 1019 0 1 4"),
+        ctl(1.0, "master", "sdo_write 3 1006 0 4 20000"),
+        ctl(9.8, "s2", "status"),
+        ctl(9.8, "s3", "status"),
+        ctl(9.8, "s4", "status"),
+    ]),
+    # the master writes reserved PDO transmission types by SDO: 1800h:02 = 245 to node 2
+    # (TPDO1; 241-251 are reserved) at 2.0 and 1400h:02 = 250 to node 3 (RPDO1; 241-253)
+    # at 3.0. CANopenNode refuses both (SDO abort)
+    "reserved_type": Scenario(6.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", MASTER),
+        ctl(2.0, "master", "sdo_write 2 1800 2 1 245"),
+        ctl(3.0, "master", "sdo_write 3 1400 2 1 250"),
+    ]),
     # EMCY inhibit time: node 3 has 1015h = 50 ms at power-on, node 2 gets 1015h = 30 ms
     # by SDO at 2.0. Node 3's application raises three manufacturer errors at once at
     # 3.0 (error bits 40h-42h: error register bit 7) and resets them 20 ms later: the

@@ -15,10 +15,10 @@ for s in healthy late_master write_1017 self_start master_obeys broadcast guard_
   chrt -f 10 python3 hub.py $s "$OUT/$s.log" --bin "$BIN" --events "$OUT/$s.events"
 done
 mkdir -p "$OUT/sync_emcy"
-for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit; do
+for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit sync_length; do
   chrt -f 10 python3 hub.py $s "$OUT/sync_emcy/$s.log" --bin "$BIN" --events "$OUT/sync_emcy/$s.events"
 done
 mkdir -p "$OUT/pdo"
-for s in rpdo_producer_stopped rpdo_timeout_stale_heartbeat tpdo_event_timer tpdo_inhibit_bypass rpdo_length sync_tpdo; do
+for s in rpdo_producer_stopped rpdo_timeout_stale_heartbeat tpdo_event_timer tpdo_inhibit_bypass rpdo_length sync_tpdo reserved_type; do
   chrt -f 10 python3 hub.py $s "$OUT/pdo/$s.log" --bin "$BIN" --events "$OUT/pdo/$s.events"
 done
