@@ -6,7 +6,7 @@
 // comment there and ../recorder.hpp): one Lely CiA 302 master (node 1, from
 // ../master.dcf and the concise DCFs ../slaveN.bin made by dcfgen) boots three
 // Lely BasicSlaves (nodes 2, 3, 4) on Lely's userspace virtual CAN bus. What
-// differs is each slave's EDS (this folder, written by make_eds.py: SYNC
+// differs is each slave's EDS (this folder, written by make_comm_eds.py: SYNC
 // producer or consumer, an RPDO with a deadline, a synchronous TPDO or RPDO) and
 // the scenario (kScenarios).
 //
