@@ -16,7 +16,8 @@ SPEC_COMM (§9.1.5, §9.2, §9.3.4) and the log's frames, and commented where it
 Lely differs from CANopenNode here (SPEC_COMM §9.1.5, §9.3.4 `error_behaviour`, §9.8): it
 applies 1029h:01 to EMCY codes 81xxh only, so an RPDO timeout (8250h) leaves the consumer
 OPERATIONAL; it has no SYNC consumer timeout, so a stopped SYNC producer gives no EMCY and
-no state change; a heartbeat or life-guarding timeout (8130h) does move the node.
+no state change; a heartbeat or life-guarding timeout (8130h) does move the node; a SYNC of
+the wrong length raises 8240h but Lely still hands it to the application.
 
 Where nmtcheck's verdict differs from the SPEC, the test is `xfail(strict=True)` with the
 case in its reason (the modules concerned, explain/chains.py and processes/pdo.py, are
@@ -39,7 +40,8 @@ from stack_recording import DEVICES, Event, Found, Frame
 from nmtcheck.results import Finding, InputResult
 
 FOLDER = SAMPLES / "lely" / "comm"
-LOGS = ("rpdo_producer_stopped", "sync_producer_stopped", "master_unplugged", "sync_pdo")
+LOGS = ("rpdo_producer_stopped", "sync_producer_stopped", "master_unplugged", "sync_pdo",
+        "sync_length")
 EMCY_SENT = re.compile(r"EMCY sent: code (\w{4}) register (\w\w) \((.+)\)")
 POWER_ON = re.compile(r"power on \((.+)\)")
 NO_MSEF = "00" * 5  # Lely's Error(eec, er) passes no manufacturer-specific field: zeros
@@ -509,3 +511,66 @@ def test_sync_pdo_d003_judges_these_frames(tmp_path: Path) -> None:
                                 "cob_id = 0x182\ntransmission_type = 2\n"))
     assert _found(res) == [("D003", 2, 0.189553)]
     assert res.findings[0].message == "1 SYNCs between TPDOs 182h, expected 2 (116 times)"
+
+
+# -- sync_length: a SYNC of the wrong length, Lely raises 8240h and still processes it -------
+
+LENGTH = "sync_length"
+
+
+def test_sync_length_ground_truth() -> None:
+    """Node 4 produces SYNC without a counter (DLC 0; no device has 1019h, which Lely reads
+    as 0) every 50 ms; nodes 2 and 3 consume it. At 3.986 another device's application
+    sends one SYNC with DLC 1, `080#05` (the recorder's tool channel: the only frame of
+    these logs not sent by Lely). Lely's consumers call OnSyncError (8240h, register 10h)
+    and send EMCY 8240h (register 11h), and still hand the SYNC to the application
+    (sync.c co_sync_recv(): their OnSync counted 118 SYNCs, the producer sent 117). Nobody
+    leaves OPERATIONAL (8240h is no 81xxh)."""
+    frames = _frames(LENGTH)
+    sync = _on(LENGTH, 0x080)
+    [bad] = [f for f in sync if f.data]
+    assert (bad.line, bad.t, bad.data) == (347, 3.986056, "05")
+    [tool] = [e for e in _events(LENGTH) if e.device == "tool"]
+    assert 0 < bad.t - tool.t < 0.001
+    assert "# tool: sent 1" in _log(LENGTH).with_suffix(".events").read_text().splitlines()
+    errors = [(e.device, e.text) for e in _events(LENGTH) if e.text.startswith("SYNC error")]
+    assert errors == [(dev, "SYNC error: code 8240 register 10 (Lely OnSyncError)")
+                      for dev in ("s2", "s3")]
+    emcys = _ground_truth_emcys_are_on_the_bus(LENGTH)
+    assert [(f.line, f.t, f.can_id, f.data) for f in emcys] == [
+        (348, 3.986143, 0x082, "4082110000000000"), (349, 3.986144, 0x083, "4082110000000000")]
+    status = _status(LENGTH)
+    t_status = next(e.t for e in _events(LENGTH) if e.text.startswith("status: "))
+    produced = [f for f in sync if f.t < t_status and not f.data]
+    assert len(produced) == 117
+    assert status["s4"].endswith(f"EMCY error stack top 0000, SYNC {len(produced)}, RPDO 0")
+    for dev in ("s2", "s3"):
+        assert status[dev] == ("status: NMT state OPERATIONAL, error register 11, EMCY error "
+                               f"stack top 8240, SYNC {len(produced) + 1}, RPDO 0")
+        assert _states(LENGTH, dev)[-1][0] < 0.2
+    assert max(b.t - a.t for a, b in pairwise(sync)) < 0.0503
+    assert not [f for f in frames if f.can_id == 0x000 and f.t > 1]
+
+
+# Y002 (§9.2.1 (b)): C = 0 ([sync] counter_overflow; without the file C is unknown and the
+# DLC change within the segment fires, (d)): one finding at the bad SYNC, node null (a SYNC
+# carries no sender). The consumers' EMCYs are explained by it (sync_length: the latest
+# offending SYNC in [t_c - emcy_delay_ms, t_c]). E003 for nodes 2 and 3 (never reset). No
+# Y001, Y003, Y005: the producer's SYNCs keep their 50 ms.
+LENGTH_FOUND: Found = [("Y002", None, 3.986056), ("E003", 2, 3.986143), ("E003", 3, 3.986144)]
+
+
+@pytest.mark.parametrize("network", [None, "file"], ids=["bare", "network"])
+def test_sync_length_findings(network: str | None) -> None:
+    res = _check(LENGTH, network)
+    assert _found(res) == LENGTH_FOUND
+    y002 = _one(res, "Y002", None)
+    assert y002.line == 347
+    assert y002.message == (
+        "SYNC with 1 data byte(s); 1019h = 0 (network) requires 0: CANopenNode consumers drop "
+        "it, CANopenNode and Lely consumers raise EMCY 8240h" if network else
+        "SYNC DLC 1 after DLC 0 at 0.007072 s (line 66) in the same segment")
+    for node, line in ((2, 348), (3, 349)):
+        assert _emcy_chain(res, node, line) == [("finding", "Y002", 347, "sync_length", 1)]
+    judged = {"Y001", "Y002", "Y003", "Y005"} if network else {"Y001", "Y002", "Y003"}
+    assert not judged & set(res.not_evaluated)

@@ -259,6 +259,43 @@ class CommSlave : public canopen::BasicSlave {
 
 int CommSlave::sync_producer = 0;
 
+// A channel on the main bus that stands in for a faulty application on another
+// device: it writes the frames a scenario asks for (the only frames of these
+// logs that Lely did not send) and reads and drops the rest.
+class Tool {
+ public:
+  Tool(io::Context& ctx, ev_exec_t* exec, io::VirtualCanController& bus)
+      : chan_(ctx, exec),
+        read_(&msg_, nullptr, nullptr, exec,
+              [this](int r, std::error_code ec) {
+                if (r != -1 || ec != std::errc::operation_canceled)
+                  chan_.submit_read(read_);
+              }) {
+    chan_.open(bus);
+    chan_.submit_read(read_);
+  }
+
+  void
+  Write(const can_msg& msg) {
+    std::error_code ec;
+    chan_.write(msg, 0, ec);
+    if (ec) {
+      ++errors;
+      std::fprintf(stderr, "tool: write failed: %s\n", ec.message().c_str());
+    } else {
+      ++sent;
+    }
+  }
+
+  uint64_t sent{0};
+  uint64_t errors{0};
+
+ private:
+  io::VirtualCanChannel chan_;
+  can_msg msg_ = CAN_MSG_INIT;
+  io::CanChannelRead read_;
+};
+
 struct Scenario {
   const char* name;
   const char* what;
@@ -283,6 +320,11 @@ const Scenario kScenarios[] = {
      "node 4 produces SYNC every 50 ms, node 2's TPDO1 is synchronous (every "
      "SYNC) and node 3's RPDO1; nothing goes wrong; run to 6 s",
      {"comm/sync_tpdo.eds", "comm/sync_rpdo.eds", "comm/sync_producer.eds"}, 4},
+    {"sync_length",
+     "node 4 produces SYNC without a counter (DLC 0) every 50 ms, nodes 2, 3 "
+     "consume it; at 4 s another device's application (the recorder's tool "
+     "channel) sends one SYNC with DLC 1 (080#05); run to 6 s",
+     {"comm/sync_consumer.eds", "comm/sync_consumer.eds", "comm/sync_producer.eds"}, 4},
 };
 
 void
@@ -334,6 +376,9 @@ main(int argc, char* argv[]) {
   std::map<int, std::unique_ptr<Connector>> conn;
   for (int id : {1, 2, 3, 4})
     conn[id] = std::make_unique<Connector>(ctx, exec, bus, id);
+  // Only where a scenario needs it, so the others run without the extra channel.
+  std::unique_ptr<Tool> tool;
+  if (scenario == "sync_length") tool = std::make_unique<Tool>(ctx, exec, bus);
 
   std::map<int, std::unique_ptr<io::Timer>> dev_timer;
   std::map<int, std::unique_ptr<CommSlave>> slaves;
@@ -401,6 +446,16 @@ main(int argc, char* argv[]) {
     end = 7.0;
   } else if (scenario == "sync_pdo") {
     end = 6.0;
+  } else if (scenario == "sync_length") {
+    at(4.0, [&] {
+      can_msg msg = CAN_MSG_INIT;
+      msg.id = 0x80;
+      msg.len = 1;
+      msg.data[0] = 0x05;
+      log_event("tool", "writes SYNC 080#05 (DLC 1): a faulty application");
+      tool->Write(msg);
+    });
+    end = 6.0;
   }
 
   at(end - 0.15, [&] {
@@ -414,8 +469,9 @@ main(int argc, char* argv[]) {
   loop.run();
   std::fflush(out);
 
-  uint64_t sent = 0;
-  int rc = 0;
+  uint64_t sent = tool ? tool->sent : 0;
+  int rc = tool && tool->errors ? 1 : 0;
+  if (tool) std::fprintf(stderr, "# tool: sent %" PRIu64 "\n", tool->sent);
   for (auto& kv : conn) {
     const Connector& c = *kv.second;
     sent += c.sent;
