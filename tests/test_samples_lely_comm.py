@@ -19,9 +19,9 @@ OPERATIONAL; it has no SYNC consumer timeout, so a stopped SYNC producer gives n
 no state change; a heartbeat or life-guarding timeout (8130h) does move the node; a SYNC of
 the wrong length raises 8240h but Lely still hands it to the application.
 
-Where nmtcheck's verdict differs from the SPEC, the test is `xfail(strict=True)` with the
-case in its reason (the modules concerned, explain/chains.py and processes/pdo.py, are
-being changed elsewhere).
+Three cases where nmtcheck once fell short of SPEC_COMM on these recordings (a guarding
+answer as `producer_state`, the `life_guarding` link, a TPDO COB-ID written by SDO) are
+ordinary tests now, each with its case in its docstring.
 """
 
 from __future__ import annotations
@@ -261,21 +261,17 @@ def _without_tpdo_tables(tmp_path: Path) -> Path:
     text = _network(STOP).read_text()
     parts = re.split(r"(?m)^(?=\[)", text)
     kept = "".join(p for p in parts if not re.match(r"\[nodes\.\d\.tpdo\.1\]", p))
-    assert kept.count("tpdo") == 2  # the comment lines only
+    assert kept != text and not re.search(r"(?m)^\[nodes\.\d\.tpdo", kept)
     out = tmp_path / "network.toml"
     out.write_text(re.sub(r'(dcf|eds) = "([^"]+)"',
                           lambda m: f'{m[1]} = "{(FOLDER / m[2]).resolve().as_posix()}"', kept))
     return out
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "SPEC_COMM 9.1.1: the value in force is first a confirmed SDO download in the trace. "
-    "The master writes node 2's 1800h:01 = 182h by SDO during boot-up (0.000459 s, line 60, "
-    "confirmed), so from then node 2 produces 182h and D004 should name it, with the "
-    "producer_state chain. processes/pdo.py builds the streams from the files only "
-    "(node 2's EDS has 80000182h, invalid), so D004 says 'producer unknown' and has no "
-    "causes"))
 def test_rpdo_producer_stopped_producer_from_the_sdo_written_cob_id(tmp_path: Path) -> None:
+    """SPEC_COMM 9.1.1: without the TPDO tables the master's confirmed write of node 2's
+    1800h:01 = 182h (line 60) makes node 2 the producer of 182h: D004 names it and has
+    the producer_state chain."""
     res = _check(STOP, _without_tpdo_tables(tmp_path))
     d004 = _one(res, "D004", 3)
     assert "producer node 2" in d004.message
@@ -338,12 +334,9 @@ def test_sync_producer_stopped_with_the_network_file() -> None:
     assert not {"Y001", "Y002", "Y003", "Y005"} & set(res.not_evaluated)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "SPEC_COMM 9.3.4 producer_state: the producer's report of STOPPED in (t_l, t_e] is a "
-    "cause. Node 4 (node-guarded, no heartbeat) answers the master's RTR with 704#04 at "
-    "4.002538 s (line 352), inside (3.975580, 4.025580]; explain/chains.py "
-    "_producer_changes reads heartbeat reports only, not guarding responses"))
 def test_sync_producer_stopped_y001_names_the_producers_guarding_report() -> None:
+    """SPEC_COMM 9.3.4 producer_state: node 4 is guarded, and its answer `704#04`
+    (line 352) reports STOPPED inside Y001's window: a cause beside the stop itself."""
     y001 = _one(_check(SYNC_STOP, "file"), "Y001", 4)
     assert _links(y001.causes) == [("nmt", None, 347, "producer_state", 1),
                                    ("node_state", None, 352, "producer_state", 1)]
@@ -439,12 +432,10 @@ def test_master_unplugged_findings(network: str | None) -> None:
             ("finding", "H001", 278, "heartbeat_consumer", 1)]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "SPEC_COMM 9.3.4 life_guarding: node 4's EMCY 8130h (4.202018 s, line 273) comes 300.12 "
-    "ms after the last RTR to node 4 (3.901898 s, line 265), with 100Ch x 100Dh = 300 ms "
-    "known from the SDO writes: its cause is the guarding pause (guarding_gap). "
-    "explain/chains.py has no life_guarding link, so the EMCY has no chain"))
 def test_master_unplugged_life_guarding_emcy_is_explained() -> None:
+    """SPEC_COMM 9.3.4 life_guarding: node 4's EMCY 8130h (4.202018 s, line 273) comes
+    300.12 ms after the last RTR to node 4 (3.901898 s, line 265), with 100Ch x 100Dh =
+    300 ms known from the SDO writes: its cause is the guarding pause (guarding_gap)."""
     res = _check(LOST, "file")
     assert _emcy_chain(res, 4, 273) == [("guarding_gap", None, 265, "life_guarding", 1)]
 

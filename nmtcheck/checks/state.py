@@ -8,7 +8,7 @@ objects, and they are reported in file order across nodes.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,8 +69,8 @@ _CHECKED_STATES = (PRE_OPERATIONAL, STOPPED)  # the states S001-S003 look into
 
 
 def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
-          grace_s: float, grace_from: str | None, unproven: bool = False
-          ) -> list[tuple[NodeModel, int, _Run]]:
+          grace_s: float, grace_from: str | None, unproven: bool = False,
+          self_started: bool = False) -> list[tuple[NodeModel, int, _Run]]:
     """Frames of `kinds` sent while the node is in one of `states`.
 
     Frames at most `grace_s` after the node left `grace_from` are excused (S001);
@@ -105,6 +105,8 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
     bad &= ~((ts - since[iv]) <= grace_s + EPS)
     if unproven:
         bad &= ~_unproven(nodes, group, ts)
+    if self_started:
+        bad &= ~_unproven(nodes, group, ts, _self_start_windows)
     hit = np.flatnonzero(bad)
     if not hit.size:
         return []
@@ -177,10 +179,27 @@ def _last_at_or_before(g_node: np.ndarray, g_at: np.ndarray, q_node: np.ndarray,
     return np.where(same, out, -1)
 
 
-def _unproven(nodes: list[NodeModel], group: np.ndarray, ts: np.ndarray) -> np.ndarray:
+def _self_start_windows(m: NodeModel) -> list[tuple[float, float]]:
+    """From each boot-up after which N started itself to the frame that shows it did."""
+    if not m.self_starts:
+        return []
+    boots = m.ec.ts[m.ec.kind == BOOTUP]
+    out = []
+    for ts, _idx in m.self_starts:
+        before = boots[boots <= ts + EPS]
+        if len(before):
+            out.append((float(before[-1]), float(ts)))
+    return out
+
+
+def _unproven(nodes: list[NodeModel], group: np.ndarray, ts: np.ndarray,
+              spans_of: Callable[[NodeModel], list[tuple[float, float]]] | None = None
+              ) -> np.ndarray:
     """Per frame (of node `nodes[group]` at `ts`), whether it falls in an unproven
-    span of its node (the last span starting at or before it, up to its end)."""
-    spans = [np.asarray(m.unproven_spans, np.float64).reshape(-1, 2) for m in nodes]
+    span of its node (the last span starting at or before it, up to its end); with
+    `spans_of`, in one of the spans it gives."""
+    spans = [np.asarray(m.unproven_spans if spans_of is None else spans_of(m),
+                        np.float64).reshape(-1, 2) for m in nodes]
     node = np.repeat(np.arange(len(nodes)), [len(s) for s in spans])
     if not len(node):
         return np.zeros(len(ts), bool)
@@ -239,14 +258,17 @@ def pdo_to_not_operational(model: InputModel, p: Params) -> Iterator[Problem]:
 
     **Example.** `203#0000` while node 3's heartbeat says 7Fh.
     """
-    yield from _pdo_problems(model, (KIND_RPDO,), 0.0, None, "on the bus for the node")
+    # between a boot-up and the report that shows N started itself, N may already have
+    # been OPERATIONAL (a Lely master starts itself at once): no S002 there
+    yield from _pdo_problems(model, (KIND_RPDO,), 0.0, None, "on the bus for the node",
+                             self_started=True)
 
 
 def _pdo_problems(model: InputModel, kinds: tuple[int, ...], grace_s: float,
-                  grace_from: str | None, verb: str, unproven: bool = False
-                  ) -> Iterator[Problem]:
+                  grace_from: str | None, verb: str, unproven: bool = False,
+                  self_started: bool = False) -> Iterator[Problem]:
     for m, iv, run in _scan(model, kinds, (PRE_OPERATIONAL, STOPPED), grace_s, grace_from,
-                            unproven):
+                            unproven, self_started):
         state = m.intervals[iv].state
         yield Problem(m.channel, m.node, run.ts,
                       f"{KIND_NAMES[run.kind]} {run.can_id:03X}h {verb} while node {m.node} is "

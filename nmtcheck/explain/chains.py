@@ -24,7 +24,7 @@ from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync as sync_stage
 from nmtcheck.protocol import emcy
-from nmtcheck.protocol.nmt import BOOTUP, EPS, HEARTBEAT, STATE_OF_CODE
+from nmtcheck.protocol.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, STATE_OF_CODE
 from nmtcheck.timeline.moments import at
 
 if TYPE_CHECKING:
@@ -231,7 +231,8 @@ def _producer_changes(cm: Any, producer: int, lo: float, hi: float, role: str,
     if m is not None:
         ec = m.ec
         span = (ec.ts > lo + EPS) & (ec.ts <= hi + EPS)
-        stopped = span & (ec.kind == HEARTBEAT) & np.isin(ec.value & 0x7F, states)
+        # its heartbeat, or its answer to a guarding request (toggle bit masked)
+        stopped = span & np.isin(ec.kind, (HEARTBEAT, GUARD)) & np.isin(ec.value & 0x7F, states)
         for kind, sel in (("bootup", span & (ec.kind == BOOTUP)), ("node_state", stopped)):
             out += [cause_entry(kind, float(ec.ts[k]), int(ec.idx[k]), int(ec.line[k]),
                                 f"node {producer} ({role}) "
