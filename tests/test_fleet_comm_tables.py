@@ -341,3 +341,28 @@ def test_a_dataset_of_a_newer_schema_is_refused_in_one_line(tmp_path: Path) -> N
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "Traceback" not in res.stderr
     assert f"schema version {SCHEMA_VERSION + 1}" in res.stderr and str(results) in res.stderr
+
+
+def _docs_query(after: str, results: Path) -> str:
+    """The SQL block of docs/reference/dataset.md after the text `after`, on `results`."""
+    page = (Path(__file__).resolve().parents[1] / "docs" / "reference" / "dataset.md"
+            ).read_text()
+    block = page[page.index("```sql", page.index(after)) + len("```sql"):]
+    return block[:block.index("```")].replace("'results/", f"'{results}/")
+
+
+def test_the_docs_queries_run_as_they_stand(checked: Any) -> None:
+    """The two DuckDB queries of the docs' SYNC, PDO and EMCY section, on the
+    rpdo_producer_stopped dataset (its log dated 2026-12-07 UTC: the week's filter is
+    dropped, the rest runs as written)."""
+    _report, tables = checked["rpdo_producer_stopped"]
+    results = tables["_dir"]
+    why = _docs_query("from which kind of cause", results).replace(
+        " AND date >= current_date - INTERVAL 7 DAY", "")
+    assert sorted(duckdb.sql(why).fetchall()) == [("D004", "nmt", 1, 1), ("S005", "nmt", 1, 1)]
+    consumers = duckdb.sql(_docs_query("Each RPDO's consumers", results)).fetchall()
+    [(unit, cob_id, producer, consumer, deadline, worst)] = consumers
+    assert (unit.endswith("rpdo_producer_stopped.log"), cob_id, producer, consumer,
+            deadline) == (True, "182h", 2, 3, 250)
+    [row] = [r for r in tables["pdo_stats"] if r["cob_id"] == "182h"]
+    assert worst == row["measured_worst_gap_ms"]

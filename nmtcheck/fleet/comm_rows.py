@@ -64,7 +64,7 @@ def emcy_rows(res: Any) -> list[dict[str, Any]]:
     """`emcy`: one row per node and EMCY code of `nodes[i].emcy[codes]`, each with the
     node's own fields (`frames`, `in_error_at_end`, ...). A node configured for EMCY that
     sent none has no row."""
-    out = []
+    out: list[dict[str, Any]] = []
     for m in res.nodes():
         e = comm_report.node_emcy(res, m.channel, m.node)
         if e is None:

@@ -22,7 +22,7 @@ One run at a time (issue 24): a run holds an exclusive lock on a local dataset
 into the same `--results` meanwhile is a usage error naming the first. Two runs could
 otherwise both check every log (each with an empty skip list, each with its own batching),
 and the raw tables would hold each log's rows twice. Under the lock a run first removes
-row files (findings, node_stats, boot, sync_stats, pdo_stats, emcy) whose batch never wrote its `inputs` file (a run killed or
+the row files (ROW_TABLES) whose batch never wrote its `inputs` file (a run killed or
 stopped by a full disk between them): rows without their commit record. An object store
 (s3://, gs://, ...) has no such lock: the docs say to run one fleet run per dataset there.
 """
