@@ -366,3 +366,25 @@ def test_the_docs_queries_run_as_they_stand(checked: Any) -> None:
             deadline) == (True, "182h", 2, 3, 250)
     [row] = [r for r in tables["pdo_stats"] if r["cob_id"] == "182h"]
     assert worst == row["measured_worst_gap_ms"]
+
+
+def test_uncommitted_rows_of_the_new_tables_are_removed(tmp_path: Path) -> None:
+    """A batch killed between its row files and its `inputs` file (its commit record)
+    leaves sync_stats/pdo_stats/emcy files too: the next run removes them as it removes
+    findings; committed ones and the schema files stay."""
+    from nmtcheck.fleet.dataset import ROW_TABLES, Dataset
+
+    ds = Dataset(str(tmp_path / "results"))
+    ds.ensure()
+    key = {"input_id": "i", "batch_id": "b", "url": "u", "date": "2026-12-07"}
+    for table, row in (("sync_stats", {"channel": "can0", "cob_id": "080h"}),
+                       ("pdo_stats", {"channel": "can0", "cob_id": "182h", "consumers": []}),
+                       ("emcy", {"channel": "can0", "node": 3, "code": "8250h"})):
+        ds.write(table, "part-committed", [{**key, **row}])
+        ds.write(table, "part-orphan", [{**key, **row}])
+    ds.write("inputs", "part-committed", [{**key, "status": "ok"}])
+    assert {"sync_stats", "pdo_stats", "emcy"} <= set(ROW_TABLES)
+    assert ds.remove_uncommitted() == 3
+    for table in ("sync_stats", "pdo_stats", "emcy"):
+        names = sorted(p.rsplit("/", 1)[-1] for p in ds.files(table))
+        assert names == ["part-committed.parquet", "part-schema.parquet"], table
