@@ -7,7 +7,8 @@
     report.boot       # one row per CiA 302-2 boot process (SPEC_BOOT §8.5), as the fleet's
                       # `boot` table: status, Lely letter and its text, proving frame
     report.sync       # one row per channel with SYNC; report.pdo_streams: one per stream
-    results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats, boot
+    results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats, boot,
+                      # sync_stats, pdo_stats, emcy (SPEC_COMM §9.4.2)
 
 The columns are the JSON report's field names, so code written against one reads the other.
 """

@@ -1,10 +1,11 @@
 """The results dataset: Parquet tables, hive-partitioned by the log's start date.
 
-    RESULTS/_nmtcheck_dataset.json           {"schema_version": 1, ...}
+    RESULTS/_nmtcheck_dataset.json           {"schema_version": 2, ...}
     RESULTS/inputs/date=2026-11-23/part-<batch>.parquet
     RESULTS/findings/date=2026-11-23/part-<batch>.parquet
     RESULTS/node_stats/date=2026-11-23/part-<batch>.parquet
     RESULTS/boot/date=2026-11-23/part-<batch>.parquet      (SPEC_BOOT §8.5)
+    RESULTS/sync_stats/, pdo_stats/, emcy/ date=.../part-<batch>.parquet  (SPEC_COMM §9.4.2)
     RESULTS/runs/date=2026-11-24/run-<run_id>.parquet
     RESULTS/<table>/date=1970-01-01/part-schema.parquet   zero rows: the table's schema
 
@@ -21,7 +22,7 @@ One run at a time (issue 24): a run holds an exclusive lock on a local dataset
 into the same `--results` meanwhile is a usage error naming the first. Two runs could
 otherwise both check every log (each with an empty skip list, each with its own batching),
 and the raw tables would hold each log's rows twice. Under the lock a run first removes
-findings, node_stats and boot files whose batch never wrote its `inputs` file (a run killed or
+the row files (ROW_TABLES) whose batch never wrote its `inputs` file (a run killed or
 stopped by a full disk between them): rows without their commit record. An object store
 (s3://, gs://, ...) has no such lock: the docs say to run one fleet run per dataset there.
 """
@@ -39,16 +40,29 @@ from typing import Any
 
 from nmtcheck.fleet.storage import LocalFS, filesystem, is_local
 
-SCHEMA_VERSION = 1
+# 2: the SPEC_COMM §9.4.2 tables (sync_stats, pdo_stats, emcy) and the findings' cob_id,
+# causes, reactions and root_kind
+SCHEMA_VERSION = 2
 MARKER = "_nmtcheck_dataset.json"
 LOCK = "_nmtcheck_run.lock"
 # each table's zero-row file: `part-` as the batches' files (readers that skip `_`/`.` names
 # read it), a name no batch has (theirs are `part-<24 hex>`), under a date (`unknown` would
 # make DuckDB's hive partitioning read every `date` as text, not as DATE)
 SCHEMA_PART = ("date=1970-01-01", "part-schema.parquet")
-TABLES = ("runs", "inputs", "findings", "node_stats", "boot")
+TABLES = ("runs", "inputs", "findings", "node_stats", "boot", "sync_stats", "pdo_stats", "emcy")
+# the tables a batch writes before `inputs`, its commit record
+ROW_TABLES = ("findings", "node_stats", "boot", "sync_stats", "pdo_stats", "emcy")
 DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER, LOCK)  # what a dataset's folder holds
 SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
+
+
+
+def _value(name: str) -> list[tuple[str, str]]:
+    """The columns of a value with its source (SPEC_COMM §9.4.1 `{"value", "source"}`, with
+    `node` for a file's value, `time` and `line` for a confirmed SDO download)."""
+    return [(f"{name}_value", "int64"), (f"{name}_source", "string"),
+            (f"{name}_node", "int64"), (f"{name}_time", "float64"), (f"{name}_line", "int64")]
+
 
 # (name, arrow type) per table; the partition column `date` is in the path, not the files.
 _KEY = [("input_id", "string"), ("batch_id", "string"), ("url", "string"),
@@ -75,7 +89,12 @@ COLUMNS: dict[str, list[tuple[str, str]]] = {
     "findings": [*_KEY, ("rule", "string"), ("name", "string"), ("severity", "string"),
                  ("channel", "string"), ("node", "int64"), ("time", "float64"),
                  ("abs_time", "timestamp"), ("frame_index", "int64"), ("line", "int64"),
-                 ("message", "string")],
+                 ("message", "string"),
+                 # SPEC_COMM §9.4.2: the JSON finding's cob_id, causes and reactions (JSON
+                 # text, null for a rule without causes), and the deepest first cause's kind
+                 ("cob_id", "string"), ("causes", "string"), ("causes_omitted", "int64"),
+                 ("reactions", "string"), ("reactions_omitted", "int64"),
+                 ("root_kind", "string")],
     "node_stats": [*_KEY, ("channel", "string"), ("node", "int64"),
                    ("first_seen", "float64"), ("last_seen", "float64"),
                    ("final_state", "string"), ("bootups", "int64"),
@@ -98,7 +117,43 @@ COLUMNS: dict[str, list[tuple[str, str]]] = {
              ("evidence_frame_index", "int64"), ("evidence_line", "int64"),
              ("findings", "string"), ("assignment", "string"), ("mandatory", "bool"),
              ("assignment_source", "string")],
+    # SPEC_COMM §9.4.2 (fleet/comm_rows.py): the JSON report's `channels[i].sync`,
+    # `pdo_streams[]` and `nodes[i].emcy` fields, flattened with `_`; maps (`dlc`,
+    # per-rule `findings`) as JSON text
+    "sync_stats": [*_KEY, ("channel", "string"), ("cob_id", "string"),
+                   ("cob_id_source", "string"), ("producer_node", "int64"),
+                   ("producer_source", "string"), *_value("period_us"), *_value("window_us"),
+                   *_value("counter_overflow"), ("counter_overflow_largest_seen", "int64"),
+                   ("frames", "int64"), ("dlc", "string"), ("segments", "int64"),
+                   ("measured_intervals", "int64"), ("measured_period_min_us", "float64"),
+                   ("measured_period_median_us", "float64"),
+                   ("measured_period_max_us", "float64"), ("measured_jitter_p99_us", "float64"),
+                   ("measured_worst_gap_us", "float64"), ("measured_worst_gap_at", "float64"),
+                   ("notes", "list<string>")],
+    "pdo_stats": [*_KEY, ("channel", "string"), ("cob_id", "string"), ("kind", "string"),
+                  ("valid", "bool"), ("producer_node", "int64"), ("producer_pdo", "int64"),
+                  ("producer_source", "string"), ("consumers", "consumers"),
+                  *_value("parameters_transmission_type"), *_value("parameters_inhibit_100us"),
+                  *_value("parameters_event_timer_ms"),
+                  ("parameters_mapping_entries", "list<string>"),
+                  ("parameters_mapping_bytes", "int64"), ("parameters_mapping_source", "string"),
+                  ("measured_frames", "int64"), ("measured_dlc", "string"),
+                  ("measured_period_min_ms", "float64"), ("measured_period_median_ms", "float64"),
+                  ("measured_period_max_ms", "float64"), ("measured_worst_gap_ms", "float64"),
+                  ("findings", "string")],
+    "emcy": [*_KEY, ("channel", "string"), ("node", "int64"), ("cob_id", "string"),
+             ("cob_id_source", "string"), *_value("inhibit_100us"), *_value("error_behaviour"),
+             ("frames", "int64"), ("in_error_at_end", "bool"), ("last_register", "string"),
+             ("stack", "string"), ("notes", "list<string>"), ("code", "string"),
+             ("meaning", "string"), ("count", "int64"), ("first", "float64"),
+             ("last", "float64"), ("registers", "list<string>")],
 }
+# one consumer of a PDO stream (`pdo_stats.consumers`, a list of these): its JSON fields
+# flattened as the table's (an RPDO has no inhibit time: the JSON's is null)
+CONSUMER_FIELDS: list[tuple[str, str]] = [
+    ("node", "int64"), ("pdo", "int64"), ("source", "string"), *_value("transmission_type"),
+    *_value("event_timer_ms"), ("mapping_entries", "list<string>"), ("mapping_bytes", "int64"),
+    ("mapping_source", "string")]
 STATE_COLUMNS = {"UNKNOWN": "s_unknown", "INITIALISING": "s_initialising",
                  "PRE-OPERATIONAL": "s_pre_operational", "OPERATIONAL": "s_operational",
                  "STOPPED": "s_stopped", "OFFLINE": "s_offline"}
@@ -135,11 +190,21 @@ def arrow_without_pandas() -> None:
         sys.meta_path.remove(blocker)
 
 
-def schema(table: str) -> Any:
+def arrow_types() -> dict[str, Any]:
+    """The Arrow type of each column kind of COLUMNS."""
     import pyarrow as pa
 
     types = {"string": pa.string(), "int64": pa.int64(), "float64": pa.float64(),
-             "bool": pa.bool_(), "timestamp": pa.timestamp("us", tz="UTC")}
+             "bool": pa.bool_(), "timestamp": pa.timestamp("us", tz="UTC"),
+             "list<string>": pa.list_(pa.string())}
+    types["consumers"] = pa.list_(pa.struct([(n, types[t]) for n, t in CONSUMER_FIELDS]))
+    return types
+
+
+def schema(table: str) -> Any:
+    import pyarrow as pa
+
+    types = arrow_types()
     return pa.schema([(n, types[t]) for n, t in COLUMNS[table]],
                      metadata={"nmtcheck.schema_version": str(SCHEMA_VERSION),
                                "nmtcheck.table": table})
@@ -205,11 +270,10 @@ class Dataset:
 
         marker = self.path(MARKER)
         if self.fs.exists(marker):
-            with self.fs.open(marker, "rb") as f:
-                meta = json.loads(f.read() or b"{}")
-            if meta.get("schema_version") != SCHEMA_VERSION:
+            version = self.schema_version()
+            if version != SCHEMA_VERSION:
                 raise UsageError(f"--results {self.url}: dataset schema version "
-                                 f"{meta.get('schema_version')}, this nmtcheck writes "
+                                 f"{version}, this nmtcheck writes "
                                  f"{SCHEMA_VERSION}: use a new results location")
         else:
             if self.local:
@@ -219,6 +283,16 @@ class Dataset:
                 "partitioning": "hive: date=YYYY-MM-DD (the log's start date, UTC)",
             }, indent=2).encode() + b"\n")
         self._schema_files()
+
+    def schema_version(self) -> object:
+        """The `schema_version` of the dataset's marker file (None where it has none, or
+        the file is no JSON object)."""
+        with self.fs.open(self.path(MARKER), "rb") as f:
+            try:
+                meta = json.loads(f.read() or b"{}")
+            except ValueError:
+                return None
+        return meta.get("schema_version") if isinstance(meta, dict) else None
 
     def _schema_files(self) -> None:
         """Each table's zero-row file, where missing (a dataset of an earlier nmtcheck, a
@@ -251,11 +325,11 @@ class Dataset:
         return handle
 
     def remove_uncommitted(self) -> int:
-        """Remove findings, node_stats and boot files of batches without an `inputs` file (their
-        commit record): what a run stopped between the two left. The number removed."""
+        """Remove the row files (ROW_TABLES) of batches without an `inputs` file (their commit
+        record): what a run stopped between the two left. The number removed."""
         committed = {p.rsplit("/", 1)[-1] for p in self.files("inputs")} | {SCHEMA_PART[1]}
         removed = 0
-        for table in ("findings", "node_stats", "boot"):
+        for table in ROW_TABLES:
             for path in self.files(table):
                 if path.rsplit("/", 1)[-1] not in committed:
                     self.fs.rm(path)
@@ -359,7 +433,7 @@ def latest(tables: dict[str, Any]) -> dict[str, Any]:
     keep = set(zip(newest["input_id"], newest["batch_id"], strict=True))
     out = dict(tables)
     out["inputs"] = newest.reset_index(drop=True)
-    for name in ("findings", "node_stats", "boot"):
+    for name in ROW_TABLES:
         if name not in tables:
             continue
         df = tables[name]

@@ -23,6 +23,7 @@ import pyarrow.parquet  # noqa: E402,F401
 
 import nmtcheck.checks  # noqa: E402
 import nmtcheck.engine  # noqa: E402
+import nmtcheck.fleet.comm_rows  # noqa: E402
 import nmtcheck.fleet.dataset  # noqa: E402
 import nmtcheck.fleet.tasks  # noqa: E402,F401
 from nmtcheck.readers import FORMAT_MODULES  # noqa: E402

@@ -20,13 +20,19 @@ class Results:
     node_stats: pd.DataFrame
     schema_version: int
     boot: pd.DataFrame = field(default_factory=pd.DataFrame)  # SPEC_BOOT §8.5
+    # SPEC_COMM §9.4.2: one row per input and channel with SYNC, per PDO stream, per node
+    # and EMCY code (empty in a schema-1 dataset, which predates them)
+    sync_stats: pd.DataFrame = field(default_factory=pd.DataFrame)
+    pdo_stats: pd.DataFrame = field(default_factory=pd.DataFrame)
+    emcy: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | None = None,
                  latest: bool = True) -> Results:
     """The dataset `nmtcheck check --results URL` wrote. With `latest` (default) each log's
     newest check only: older checks of a log that changed since, or by an older nmtcheck or
-    profile, are left out."""
+    profile, are left out. A dataset of schema version 1 reads with the tables and columns
+    version 2 added empty or null."""
     from nmtcheck.errors import UsageError
     from nmtcheck.fleet.dataset import MARKER, SCHEMA_VERSION, TABLES, Dataset
     from nmtcheck.fleet.dataset import latest as newest
@@ -34,6 +40,11 @@ def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | 
     ds = Dataset(str(url), storage_options)
     if not ds.fs.exists(ds.path(MARKER)):
         raise UsageError(f"{url}: not an nmtcheck results dataset (no {MARKER})")
+    version = ds.schema_version()
+    if not isinstance(version, int) or not 1 <= version <= SCHEMA_VERSION:
+        raise UsageError(f"{url}: dataset schema version {version}, this nmtcheck reads "
+                         f"versions 1 to {SCHEMA_VERSION}: read it with the nmtcheck that "
+                         "wrote it")
     import pyarrow as pa
 
     # integer columns with missing values (a finding's node) stay integers: pandas' Int64
@@ -45,4 +56,5 @@ def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | 
     if latest:
         tables = newest(tables)
     return Results(tables["runs"], tables["inputs"], tables["findings"], tables["node_stats"],
-                   SCHEMA_VERSION, tables["boot"])
+                   version, tables["boot"], tables["sync_stats"], tables["pdo_stats"],
+                   tables["emcy"])

@@ -82,7 +82,8 @@ def batch_id(ids: list[str]) -> str:
 
 def check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int = 1) -> BatchCounts:
     """Fetch the batch (concurrently), check each log, write the batch's Parquet files
-    (findings, node_stats, boot, then inputs: the commit record), return the counts."""
+    (findings, node_stats, boot, sync_stats, pdo_stats, emcy, then inputs: the commit
+    record), return the counts."""
     from nmtcheck.spool import SCRATCH
 
     token = SCRATCH.set(worker_scratch())
@@ -115,7 +116,7 @@ def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> Batch
 
     os.environ["NMTCHECK_THREADS"] = "1"
     from nmtcheck.checks import BY_CODE
-    from nmtcheck.fleet.dataset import Dataset, arrow_without_pandas
+    from nmtcheck.fleet.dataset import ROW_TABLES, Dataset, arrow_without_pandas
 
     if cfg.own_workers:
         arrow_without_pandas()
@@ -124,8 +125,7 @@ def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> Batch
     pattern = PathPattern(cfg.path_pattern)
     ids = [input_id(fi, cfg.version, cfg.digest) for fi in files]
     bid = batch_id(ids)
-    rows: dict[str, list[dict[str, Any]]] = {"inputs": [], "findings": [], "node_stats": [],
-                                             "boot": []}
+    rows: dict[str, list[dict[str, Any]]] = {t: [] for t in ("inputs", *ROW_TABLES)}
     counts = BatchCounts()
     crash_on = os.environ.get(CRASH_ENV)
     wanted = [fi.url for fi in files if unsupported(fi.url) is None]
@@ -159,7 +159,7 @@ def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> Batch
     mark("checked")
     ds = Dataset(cfg.results, cfg.storage_options)
     name = f"part-{bid}"
-    for table in ("findings", "node_stats", "boot", "inputs"):  # inputs last: the commit record
+    for table in (*ROW_TABLES, "inputs"):  # inputs last: the commit record
         ds.write(table, name, rows[table])
     mark("written")
     return counts
@@ -216,6 +216,7 @@ def _check_one(path: str, fi: FileInfo, key: dict[str, Any], cfg: TaskConfig,
                ) -> None:
     from nmtcheck.engine import check_input
     from nmtcheck.errors import InputError, UsageError
+    from nmtcheck.fleet import comm_rows
 
     try:
         res = check_input(path, 0, cfg.profile, rules, cfg.network, cfg.input_format,
@@ -250,13 +251,17 @@ def _check_one(path: str, fi: FileInfo, key: dict[str, Any], cfg: TaskConfig,
             **key, "rule": f.rule, "name": f.name, "severity": f.severity, "channel": f.channel,
             "node": f.node, "time": f.time, "frame_index": f.frame_index, "line": f.line or None,
             "message": f.message, "date": date,
-            "abs_time": f.time if start_time is not None else None})
+            "abs_time": f.time if start_time is not None else None,
+            **comm_rows.finding_fields(res, f)})
     for o in res.omitted:  # left out of the rows, not out of the counts
         row[f"n_{o.severity}"] += o.count
     rows["node_stats"].extend(node_rows(res, key, date, by_node))
     rows["boot"].extend({**key, **r, "date": date,
                          "abs_start": r["start"] if start_time is not None else None}
                         for r in boot_rows(res))
+    for table, made in (("sync_stats", comm_rows.sync_rows), ("pdo_stats", comm_rows.pdo_rows),
+                        ("emcy", comm_rows.emcy_rows)):  # SPEC_COMM §9.4.2
+        rows[table].extend({**key, **r, "date": date} for r in made(res))
 
 
 MAX_BOOT_ROWS_PER_NODE = 1000  # a log may boot a node a million times: failures come first
