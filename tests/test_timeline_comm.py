@@ -172,3 +172,11 @@ def test_no_sync_no_sync_line(checker: Checker) -> None:
     res = checker.run("(1.000000) can0 702#05\n(1.500000) can0 702#05\n")
     text = render_timeline(res, "text")
     assert "SYNC" not in text and "can0 node 2:" in text
+
+
+def test_sync_line_on_a_channel_without_nodes(checker: Checker) -> None:
+    """SYNC alone (no node seen): the SYNC line still says what the channel carried."""
+    res = checker.run("".join(f"({1000 + k * 0.01:.6f}) can0 080#\n" for k in range(50)))
+    text = render_timeline(res, "text").splitlines()
+    assert text[1].startswith("can0 SYNC 080h (default): producer unknown, period unknown, "
+                              "median interval 10000.0 us, 50 frames, ")

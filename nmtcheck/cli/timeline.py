@@ -131,15 +131,18 @@ def render_timeline(res: InputResult, fmt: str) -> str:
                 f"{f' (line {f.line})' if f.line else ''}: {f.message}")
 
     gaps = comm_lanes.finding_gaps(res)
-    channel = None
+
+    def sync_lines(channel: str) -> list[str]:
+        """SPEC §9.4.2: the channel's SYNC line above its node rows, with Y001's gaps."""
+        sync = comm_lanes.sync_summary(res, channel)
+        return [] if sync is None else [f"{channel} {sync}"] + [
+            gap_line(g) for g in gaps if g.kind == "sync_gap" and g.finding.channel == channel]
+
+    shown: set[str] = set()
     for m in res.nodes():
-        if m.channel != channel:
-            channel = m.channel
-            sync = comm_lanes.sync_summary(res, channel)
-            if sync is not None:  # SPEC §9.4.2: above the node rows, with Y001's gaps
-                lines.append(f"{channel} {sync}")
-                lines.extend(gap_line(g) for g in gaps
-                             if g.kind == "sync_gap" and g.finding.channel == channel)
+        if m.channel not in shown:
+            shown.add(m.channel)
+            lines += sync_lines(m.channel)
         lines.append(f"{m.channel} node {m.node}:")
         # EMCY, SDO aborts, configuration written: among the states, in time order (an
         # event at a state's start after that state's line); a node's boot-ups inside a
@@ -156,4 +159,7 @@ def render_timeline(res: InputResult, fmt: str) -> str:
         timed += [(g.start, 0.75, gap_line(g)) for g in gaps if g.kind == "pdo_gap"
                   and g.finding.channel == m.channel and g.finding.node == m.node]
         lines.extend(text for _t, _k, text in sorted(timed, key=lambda x: (x[0], x[1])))
+    for channel in res.stats.channels:  # SYNC on a channel where no node was seen
+        if channel not in shown:
+            lines += sync_lines(channel)
     return "\n".join(lines) + "\n"
