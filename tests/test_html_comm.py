@@ -266,3 +266,52 @@ def test_healthy_sync_recording_no_red_in_chromium(browser: Browser,  # noqa: F8
     assert browser.evaluate(f"document.querySelectorAll('#{tid} .sync-gap').length") == 0
     assert browser.evaluate(f"document.querySelectorAll('#{tid} rect.sync-tick').length") >= 1
     assert browser.evaluate("document.querySelectorAll('circle.emcy-marker').length") == 0
+
+
+def test_emcy_markers_are_bounded(checker: Checker, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A node that floods EMCYs: the page draws at most the markers allowed per node (the
+    first ones), says how many it left out, and keeps each distinct text once."""
+    monkeypatch.setattr(comm_lanes, "MAX_EMCY_MARKS", 1000)
+    monkeypatch.setattr(comm_lanes, "MIN_EMCY_MARKS_PER_NODE", 100)
+    n = 5000
+    data = ("0000000000000000", "0081101800000000")  # a reset, a SYNC timeout
+    frames = ["(1000.000000) can0 705#05"] + [
+        f"({1000.001 + k * 0.0005:.6f}) can0 085#{data[k % 2]}" for k in range(n)]
+    res = checker.run("".join(f + "\n" for f in frames))
+    ctx = html_reporter.report_context([res], OPTIONS)
+    [tl] = ctx["timelines"]
+    [row] = tl["rows"]
+    assert len(row["emcy"]) == 1000 and row["emcy"][0][0] == pytest.approx(0.001)
+    assert tl["left_out"] == f"{n - 1000} EMCYs not drawn (at most 1000 per node; the JSON " \
+                             "report has all)"
+    page = _page_data(html_reporter.render([res], OPTIONS))
+    assert len(page["emcyTexts"]) == 2
+    assert len(html_reporter.render([res], OPTIONS)) < 200_000
+
+
+def test_binned_sync_row_in_chromium(browser: Browser, tmp_path: Path,  # noqa: F811
+                                     checker: Checker) -> None:
+    """More SYNCs than the page keeps: the row is drawn from the counted bins, and Y001's
+    gap (by the measured period) is still red at its place."""
+    n = comm_lanes.MAX_SYNC_TICKS + 5000
+    times = [k * 0.001 + (0.2 if k >= n // 2 else 0.0) for k in range(n)]
+    res = checker.run("".join(f"({1000 + t:.6f}) can0 080#\n" for t in times))
+    assert [f.rule for f in res.findings] == ["Y001"]
+    url = _open(browser, tmp_path, res)
+    assert browser.console_errors() == []
+    assert [u for u in browser.requested_urls() if u != url] == []
+    tid = html_reporter.timeline_id(res, "can0")
+    assert browser.evaluate("window.nmtReport.data.timelines[0].sync.ticks") is None
+    last, nxt = times[n // 2 - 1], times[n // 2]
+    gap = _hit(browser, tid, None, (last + nxt) / 2)
+    assert gap["cls"] == "sync-gap" and gap["title"].startswith(
+        f"no SYNC from {last:.6f} s to {nxt:.6f} s")
+    for t in (1.0, times[-1] - 1.0):
+        assert _hit(browser, tid, None, t)["cls"] == "sync-tick"
+    # zoomed in to 20 ms: the bins (1.26 ms each, every one with frames) make one band,
+    # never a tick per SYNC the page does not have
+    browser.evaluate(f"window.nmtReport.timelines['{tid}'].setView(5, 5.02)")
+    browser.evaluate(FRAMES)
+    assert browser.evaluate(f"document.querySelectorAll('#{tid} rect.sync-tick').length") == 1
+    assert _hit(browser, tid, None, 5.01)["cls"] == "sync-tick"
+    assert browser.console_errors() == []
