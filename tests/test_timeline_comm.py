@@ -180,3 +180,17 @@ def test_sync_line_on_a_channel_without_nodes(checker: Checker) -> None:
     text = render_timeline(res, "text").splitlines()
     assert text[1].startswith("can0 SYNC 080h (default): producer unknown, period unknown, "
                               "median interval 10000.0 us, 50 frames, ")
+
+
+def test_sync_line_when_the_profile_turns_y001_off(tmp_path: Path) -> None:
+    """Y001 off in the profile: the SYNC line says so instead of counting no gap, and no
+    gap row appears."""
+    profile = tmp_path / "no_y001.toml"
+    profile.write_text('extends = "default"\n\n[rules.Y001]\nenabled = false\n')
+    log, net = SYNC_STOP
+    res = run("timeline", str(log.resolve()), "--network", str(net.resolve()), "--rules",
+              str(profile), "--isolated", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert (f", {len(_syncs(log))} frames, gaps over the timeout: Y001 not checked (the "
+            "profile turns it off)") in res.stdout
+    assert "SYNC gap" not in res.stdout

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+from collections.abc import Collection
 from typing import Any
 
 import click
@@ -46,26 +47,29 @@ def timeline(logs: tuple[str, ...], input_format: str | None, rules_profile: str
                                      input_format=input_format, strict=strict,
                                      channel=channel,
                                      reader_options={"topics": list(topics)} if topics else {})
-    write_stdout([render_timelines(results, fmt)])
+    write_stdout([render_timelines(results, fmt, {r.code for r in rules})])
 
 
-def render_timelines(results: list[InputResult], fmt: str) -> str:
+def render_timelines(results: list[InputResult], fmt: str,
+                     checked: Collection[str] = tuple(comm_lanes.GAP_RULES)) -> str:
     """The timelines of several logs: one after the other in text; in JSON and CSV one log
-    alone as before, several with each row's `input` named."""
+    alone as before, several with each row's `input` named. `checked`: the gap rules that
+    ran (the profile may turn Y001 off)."""
     if len(results) == 1:
-        return render_timeline(results[0], fmt)
+        return render_timeline(results[0], fmt, checked)
     if fmt == "json":
         return json.dumps([{"input": res.stats.path, **row} for res in results
-                           for row in json.loads(render_timeline(res, fmt))], indent=2) + "\n"
+                           for row in json.loads(render_timeline(res, fmt, checked))],
+                          indent=2) + "\n"
     if fmt == "csv":
         out = io.StringIO()
         w = csv.writer(out, lineterminator="\n")
         for k, res in enumerate(results):
-            rows = list(csv.reader(io.StringIO(render_timeline(res, fmt))))
+            rows = list(csv.reader(io.StringIO(render_timeline(res, fmt, checked))))
             w.writerows([["input", *row] for row in rows[:1]] if k == 0 else [])
             w.writerows([spreadsheet_safe(res.stats.path), *row] for row in rows[1:])
         return out.getvalue()
-    return "\n".join(render_timeline(res, fmt) for res in results)
+    return "\n".join(render_timeline(res, fmt, checked) for res in results)
 
 
 # The rows of `--format csv|json`: a node's NMT states (`kind` state), and SPEC §9.4.2's
@@ -99,7 +103,8 @@ def timeline_rows(res: InputResult) -> list[dict[str, Any]]:
     return rows
 
 
-def render_timeline(res: InputResult, fmt: str) -> str:
+def render_timeline(res: InputResult, fmt: str,
+                    checked: Collection[str] = tuple(comm_lanes.GAP_RULES)) -> str:
     start = res.stats.start or 0.0
     if fmt == "json":
         return json.dumps(timeline_rows(res), indent=2) + "\n"
@@ -134,7 +139,7 @@ def render_timeline(res: InputResult, fmt: str) -> str:
 
     def sync_lines(channel: str) -> list[str]:
         """SPEC §9.4.2: the channel's SYNC line above its node rows, with Y001's gaps."""
-        sync = comm_lanes.sync_summary(res, channel)
+        sync = comm_lanes.sync_summary(res, channel, "Y001" in checked)
         return [] if sync is None else [f"{channel} {sync}"] + [
             gap_line(g) for g in gaps if g.kind == "sync_gap" and g.finding.channel == channel]
 

@@ -87,9 +87,10 @@ def _pdo_gap(res: InputResult, f: Finding) -> tuple[float, float] | None:
     return float(ts[k - 1]), float(ts[k]) if k < len(ts) else float("inf")
 
 
-def sync_summary(res: InputResult, channel: str) -> str | None:
+def sync_summary(res: InputResult, channel: str, y001_checked: bool = True) -> str | None:
     """The channel's SYNC line of `nmtcheck timeline`: COB-ID, producer, period, frames and
-    the gaps over the timeout (Y001's findings); None for a channel without SYNC."""
+    the gaps over the timeout (Y001's findings, `y001_checked` when the rule ran); None for
+    a channel without SYNC."""
     analysis = sync_stage.of(res.model)
     sc = analysis.channels.get(channel) if analysis is not None else None
     if sc is None:
@@ -100,7 +101,9 @@ def sync_summary(res: InputResult, channel: str) -> str | None:
               else "unknown")
     iv = sc.intervals()
     measured = f", median interval {float(np.median(iv)) * 1e6:.1f} us" if len(iv) else ""
-    if "Y001" in res.not_evaluated:
+    if not y001_checked:
+        gaps = "gaps over the timeout: Y001 not checked (the profile turns it off)"
+    elif "Y001" in res.not_evaluated:
         gaps = "gaps over the timeout: Y001 not evaluated"
     else:
         n = sum(1 for f in res.findings if f.rule == "Y001" and f.channel == channel)
