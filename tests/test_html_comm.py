@@ -120,6 +120,21 @@ def test_sync_ticks_are_binned_past_the_limit(checker: Checker) -> None:
     assert len(page) < 400_000
 
 
+def test_sync_ticks_are_shared_among_many_channels(checker: Checker,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """Many channels with SYNC share the page's budget: each gets its share as bins."""
+    monkeypatch.setattr(comm_lanes, "MAX_SYNC_TICKS_PAGE", 3000)
+    monkeypatch.setattr(comm_lanes, "MIN_SYNC_TICKS", 500)
+    text = "".join(f"({1000 + k * 0.001:.6f}) can{c} 080#\n" for k in range(2000)
+                   for c in range(4))
+    res = checker.run(text)
+    assert comm_lanes.sync_ticks_per_channel([res]) == 750
+    ctx = html_reporter.report_context([res], OPTIONS)
+    lanes = [tl["sync"] for tl in ctx["timelines"]]
+    assert len(lanes) == 4 and all(lane["ticks"] is None and len(lane["bins"]["counts"]) == 750
+                                   and sum(lane["bins"]["counts"]) == 2000 for lane in lanes)
+
+
 def test_chain_is_a_nested_list_with_reactions_folded() -> None:
     """SPEC §9.3.6: node 3's S005 is explained by its EMCY, that by Y001, that by the stop
     of the SYNC producer: three nested lists; Y001's reactions (the consumers' EMCYs) in

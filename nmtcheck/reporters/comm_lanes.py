@@ -19,9 +19,12 @@ from nmtcheck.reporters import comm_report
 from nmtcheck.results import Finding, InputResult
 
 GAP_RULES = {"Y001": "sync_gap", "D001": "pdo_gap", "D004": "pdo_gap"}
-# The HTML page carries at most this many SYNC times per channel; a channel with more gets
-# its SYNC frames counted in as many equal bins instead (a tick per bin with frames).
+# The HTML page carries at most this many SYNC times per channel, and MAX_SYNC_TICKS_PAGE
+# in all (each channel with SYNC at least MIN_SYNC_TICKS); a channel with more gets its
+# SYNC frames counted in as many equal bins instead (a tick per bin with frames).
 MAX_SYNC_TICKS = 20_000
+MAX_SYNC_TICKS_PAGE = 200_000
+MIN_SYNC_TICKS = 1000
 # EMCY markers a page draws, shared among the nodes that sent EMCYs (each gets at least
 # MIN_EMCY_MARKS_PER_NODE); the markers' texts are kept once per distinct text.
 MAX_EMCY_MARKS = 20_000
@@ -112,9 +115,19 @@ def sync_summary(res: InputResult, channel: str, y001_checked: bool = True) -> s
             f"{period}{measured}, {len(sc)} frames, {gaps}")
 
 
-def sync_ticks(res: InputResult, channel: str, begin: float) -> dict[str, Any] | None:
+def sync_ticks_per_channel(results: list[InputResult]) -> int:
+    """How many SYNC times (or bins) each channel with SYNC may have on the page."""
+    channels = 0
+    for res in results:
+        analysis = sync_stage.of(res.model)
+        channels += 0 if analysis is None else len(analysis.channels)
+    return max(min(MAX_SYNC_TICKS, MAX_SYNC_TICKS_PAGE // max(channels, 1)), MIN_SYNC_TICKS)
+
+
+def sync_ticks(res: InputResult, channel: str, begin: float, limit: int = MAX_SYNC_TICKS
+               ) -> dict[str, Any] | None:
     """The SYNC frames of a channel for the HTML row, seconds from `begin`: their times when
-    there are at most MAX_SYNC_TICKS, else `bins` (the frames counted in equal bins of
+    there are at most `limit`, else `bins` (the frames counted in `limit` equal bins of
     `width` seconds from `t0`); None for a channel without SYNC."""
     analysis = sync_stage.of(res.model)
     sc = analysis.channels.get(channel) if analysis is not None else None
@@ -123,13 +136,13 @@ def sync_ticks(res: InputResult, channel: str, begin: float) -> dict[str, Any] |
     ts = sc.ts[~sc.rtr] if len(sc.rtr) else sc.ts
     out: dict[str, Any] = {"cob_id": f"{sc.cob_id:03X}h", "frames": len(sc),
                            "title": sync_summary(res, channel), "ticks": None, "bins": None}
-    if len(ts) <= MAX_SYNC_TICKS:
+    if len(ts) <= limit:
         out["ticks"] = np.round(ts - begin, 6).tolist()
         return out
     t0, t1 = float(ts[0]), float(ts[-1])
-    width = max((t1 - t0) / MAX_SYNC_TICKS, 1e-6)
-    counts = np.bincount(np.minimum(((ts - t0) / width).astype(np.int64), MAX_SYNC_TICKS - 1),
-                         minlength=MAX_SYNC_TICKS)
+    width = max((t1 - t0) / limit, 1e-6)
+    counts = np.bincount(np.minimum(((ts - t0) / width).astype(np.int64), limit - 1),
+                         minlength=limit)
     out["bins"] = {"t0": round(t0 - begin, 6), "width": width, "counts": counts.tolist()}
     return out
 
@@ -194,10 +207,11 @@ def emcy_marks_per_node(results: list[InputResult]) -> int:
 
 
 def sync_lane(res: InputResult, channel: str, begin: float, gaps: list[GapInterval],
-              group_of: dict[int, tuple[str, int]]) -> dict[str, Any] | None:
+              group_of: dict[int, tuple[str, int]], limit: int = MAX_SYNC_TICKS
+              ) -> dict[str, Any] | None:
     """The HTML SYNC row of a channel (times from `begin`): the ticks of `sync_ticks` and
     Y001's gaps as `[start, end, finding group, occurrence, open]`, in red on the page."""
-    lane = sync_ticks(res, channel, begin)
+    lane = sync_ticks(res, channel, begin, limit)
     if lane is None:
         return None
     lane["gaps"] = [[round(g.start - begin, 6), round(g.end - begin, 6),

@@ -391,6 +391,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     groups: list[dict[str, Any]] = []
     timelines = []
     emcy_per_node = comm_lanes.emcy_marks_per_node(results)
+    sync_ticks = comm_lanes.sync_ticks_per_channel(results)
     emcy_texts: dict[str, int] = {}  # each distinct EMCY text once on the page
     for res in results:
         found = group_findings(res.findings)
@@ -434,7 +435,8 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                                              and res.stats.restarts else duration(res)),
                               "shift": _r(shift), "rows": rows,
                               # SPEC §9.4.2: the SYNC row above the node rows
-                              "sync": comm_lanes.sync_lane(res, channel, begin, gaps, group_of),
+                              "sync": comm_lanes.sync_lane(res, channel, begin, gaps, group_of,
+                                                           sync_ticks),
                               # no timestamps: the axis counts frames, not seconds
                               "frames": res.stats.order_only})
             hidden = left_out.get((res.index, channel), 0)
