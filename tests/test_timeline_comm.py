@@ -194,3 +194,12 @@ def test_sync_line_when_the_profile_turns_y001_off(tmp_path: Path) -> None:
     assert (f", {len(_syncs(log))} frames, gaps over the timeout: Y001 not checked (the "
             "profile turns it off)") in res.stdout
     assert "SYNC gap" not in res.stdout
+
+
+def test_sync_line_of_a_log_without_timestamps(checker: Checker) -> None:
+    """Times are frame numbers there: the SYNC line measures no interval."""
+    res = checker.run("can0 705#05\ncan0 080#\ncan0 080#\ncan0 080#\ncan0 705#05\n")
+    assert res.stats.order_only
+    assert render_timeline(res, "text").splitlines()[1] == (
+        "can0 SYNC 080h (default): producer unknown, period unknown, 3 frames, gaps over the "
+        "timeout: Y001 not evaluated")

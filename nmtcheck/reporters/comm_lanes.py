@@ -103,7 +103,9 @@ def sync_summary(res: InputResult, channel: str, y001_checked: bool = True) -> s
     period = (f"{sc.period.value} us ({sc.period.source})" if sc.period.known
               else "unknown")
     iv = sc.intervals()
-    measured = f", median interval {float(np.median(iv)) * 1e6:.1f} us" if len(iv) else ""
+    # a log without timestamps has frame numbers for times: no interval to measure
+    measured = (f", median interval {float(np.median(iv)) * 1e6:.1f} us"
+                if len(iv) and not res.stats.order_only else "")
     if not y001_checked:
         gaps = "gaps over the timeout: Y001 not checked (the profile turns it off)"
     elif "Y001" in res.not_evaluated:
