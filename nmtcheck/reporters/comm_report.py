@@ -116,13 +116,7 @@ def _measured(st: pdo_stage.Stream, ts: Any, model: Any) -> dict[str, Any]:
     out: dict[str, Any] = {"frames": len(ts),
                            "dlc": {str(int(d)): int(c) for d, c in zip(dlcs, counts,
                                                                         strict=True)}}
-    iv = np.diff(ts)
-    if st.producer is not None and len(iv):
-        cm = next((c for c in model.channels if c.network_name == st.channel), None)
-        m = cm.nodes.get(st.producer.node) if cm is not None else None
-        if m is not None and len(m.intervals):
-            a, b = m.interval_indices(ts[:-1]), m.interval_indices(ts[1:])
-            iv = iv[(a == b) & (m.intervals.state[a] == _OPERATIONAL)]
+    iv = stream_intervals(st, ts, model)
     if len(iv):
         worst = int(np.argmax(iv))
         out.update({"period_min_ms": round(float(iv.min()) * 1000, 3),
@@ -130,6 +124,27 @@ def _measured(st: pdo_stage.Stream, ts: Any, model: Any) -> dict[str, Any]:
                     "period_max_ms": round(float(iv.max()) * 1000, 3),
                     "worst_gap_ms": round(float(iv[worst]) * 1000, 3)})
     return out
+
+
+def stream_intervals(st: pdo_stage.Stream, ts: Any, model: Any) -> np.ndarray:
+    """The intervals (s) `measured` reports of a stream with frames at `ts`: inside the
+    producer's OPERATIONAL intervals when the producer is known, else all."""
+    iv: np.ndarray = np.diff(ts)
+    if st.producer is not None and len(iv):
+        cm = next((c for c in model.channels if c.network_name == st.channel), None)
+        m = cm.nodes.get(st.producer.node) if cm is not None else None
+        if m is not None and len(m.intervals):
+            a, b = m.interval_indices(ts[:-1]), m.interval_indices(ts[1:])
+            iv = iv[(a == b) & (m.intervals.state[a] == _OPERATIONAL)]
+    return iv
+
+
+def pdo_stream_intervals(res: InputResult) -> list[np.ndarray]:
+    """Per stream, in `pdo_streams(res)`'s order, the intervals its `measured` counts."""
+    analysis = pdo_stage.of(res.model)
+    if analysis is None:
+        return []
+    return [stream_intervals(st, st.frames()[0], res.model) for st in analysis.streams]
 
 
 def _finding_counts(res: InputResult) -> dict[tuple[str, int], dict[str, int]]:

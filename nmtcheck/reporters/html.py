@@ -25,7 +25,7 @@ from nmtcheck import __version__
 from nmtcheck.processes.boot_records import LETTERS
 from nmtcheck.protocol.nmt import HEARTBEAT, STATES
 from nmtcheck.protocol.nmt import SOURCES as TIMELINE_SOURCES
-from nmtcheck.reporters import boot_report
+from nmtcheck.reporters import boot_report, comm_lanes, comm_report
 from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
@@ -71,6 +71,8 @@ STATE_COLORS = {
     "OFFLINE": "#cc4125",
 }
 SEVERITY_COLORS = {"error": "#b3261e", "warning": "#e69138", "info": "#3d85c6"}
+# EMCY markers by code class (SPEC §9.4.2): 81xxh/82xxh communication, error resets, others
+EMCY_COLORS = {"communication": "#d9480f", "reset": "#2b8a3e", "other": "#7048e8"}
 SOURCES = ("start", "bootup", "heartbeat", "guarding", "command", "timeout", "self-start")
 _SOURCE_OF = [SOURCES.index(s) for s in TIMELINE_SOURCES]  # timeline's index -> the page's
 # A browser cannot draw millions of intervals; a page holds at most this many, shared
@@ -171,7 +173,14 @@ def _comm_views(results: list[InputResult], report: dict[str, Any]) -> dict[str,
     paths = {res.index: res.stats.path for res in results}
     sync = [{"input": c["input"], "path": paths.get(c["input"]), "channel": c["name"],
              **c["sync"]} for c in report["channels"] if c.get("sync")]
-    pdo = [{**st, "path": paths.get(st["input"])} for st in report["pdo_streams"]]
+    intervals = {res.index: comm_report.pdo_stream_intervals(res) for res in results}
+    seen: dict[int, int] = {}  # streams of each input so far: `pdo_streams` is in their order
+    pdo = []
+    for st in report["pdo_streams"]:
+        k = seen[st["input"]] = seen.get(st["input"], -1) + 1
+        iv = intervals.get(st["input"], [])
+        pdo.append({**st, "path": paths.get(st["input"]), "intervals": len(iv[k]) if k < len(iv)
+                    else 0, "histogram": _histogram(Gaps(iv[k])) if k < len(iv) else None})
     emcy = [{"input": n["input"], "path": paths.get(n["input"]), "channel": n["channel"],
              "node": n["node"], **n["emcy"]} for n in report["nodes"] if n.get("emcy")]
     return {"sync_rows": sync, "pdo_rows": pdo, "emcy_rows": emcy}
@@ -191,9 +200,25 @@ def _causes_view(res: InputResult, f: Finding) -> dict[str, Any]:
                 "count": c.get("count"), "code": c.get("code"), "text": c["text"],
                 "role": c.get("role"), "link": c.get("link"), "depth": c.get("depth") or 1}
 
-    return {"causes": [view(c) for c in f.causes], "causes_omitted": f.causes_omitted or 0,
+    causes = [view(c) for c in f.causes]
+    return {"causes": causes, "cause_tree": cause_tree(causes),
+            "causes_omitted": f.causes_omitted or 0,
             "reactions": [view(c) for c in f.reactions or ()],
             "reactions_omitted": f.reactions_omitted or 0}
+
+
+def cause_tree(causes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A chain's entries (pre-order, each with its depth) as a tree for the nested list of
+    SPEC §9.3.6: each entry with its `children`."""
+    roots: list[dict[str, Any]] = []
+    path: list[dict[str, Any]] = []  # the open entries, one per depth
+    for c in causes:
+        node = {**c, "children": []}
+        depth = max(1, min(int(c.get("depth") or 1), len(path) + 1))
+        del path[depth - 1:]
+        (path[-1]["children"] if path else roots).append(node)
+        path.append(node)
+    return roots
 
 
 def _sub_index(step: dict[str, Any]) -> str:
@@ -365,15 +390,23 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
              for entry in report["nodes"]]
     groups: list[dict[str, Any]] = []
     timelines = []
+    emcy_per_node = comm_lanes.emcy_marks_per_node(results)
+    sync_ticks = comm_lanes.sync_ticks_per_channel(results)
+    emcy_texts: dict[str, int] = {}  # each distinct EMCY text once on the page
     for res in results:
-        res_groups = [_group_view(res, g, f"g{len(groups) + i}")
-                      for i, g in enumerate(group_findings(res.findings))]
+        found = group_findings(res.findings)
+        res_groups = [_group_view(res, g, f"g{len(groups) + i}") for i, g in enumerate(found)]
+        group_of = {id(f): (view["id"], k) for g, view in zip(found, res_groups, strict=True)
+                    for k, f in enumerate(g.findings[:MAX_OCCURRENCES])}
         groups += res_groups
         begins = _timeline_begins(res, inputs[res.index]["start"])
+        gaps = comm_lanes.finding_gaps(res)
         for channel, channel_nodes in nodes_by_channel(res).items():
             rows = []
             # a later capture's timeline counts from its own first frame
-            shift = begins.get(channel, inputs[res.index]["start"]) - inputs[res.index]["start"]
+            begin = begins.get(channel, inputs[res.index]["start"])
+            shift = begin - inputs[res.index]["start"]
+            emcy_left_out = 0
             for node in channel_nodes:
                 mine = [g for g in res_groups if g["channel"] == channel and g["node"] == node]
                 marks = [[_r(o["time"] - shift), g["id"], k] for g in mine
@@ -382,8 +415,11 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                 causes = [[_r(c["time"] - shift), g["id"], k, j] for g in mine
                           for k, o in enumerate(g["occurrences"])
                           for j, c in enumerate(o.get("causes", ()))]
+                emcy, emcy_left = ([], 0) if node is None else comm_lanes.emcy_marks(
+                    res, channel, node, begin, emcy_per_node, emcy_texts)
+                emcy_left_out += emcy_left
                 rows.append({"node": node, "label": node_label(node), "marks": sorted(marks),
-                             "causes": sorted(causes),
+                             "causes": sorted(causes), "emcy": emcy,
                              "iv": [] if node is None
                              else intervals.get((res.index, channel, node), []),
                              "boots": [] if node is None
@@ -398,12 +434,18 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                               "duration": _r(cm.end - cm.start if cm is not None
                                              and res.stats.restarts else duration(res)),
                               "shift": _r(shift), "rows": rows,
+                              # SPEC §9.4.2: the SYNC row above the node rows
+                              "sync": comm_lanes.sync_lane(res, channel, begin, gaps, group_of,
+                                                           sync_ticks),
                               # no timestamps: the axis counts frames, not seconds
                               "frames": res.stats.order_only})
             hidden = left_out.get((res.index, channel), 0)
-            if hidden:
-                timelines[-1]["left_out"] = (f"{hidden} state intervals not drawn (at most "
-                                             f"{per_node} per node; the JSON report has all)")
+            notes = [f"{hidden} state intervals not drawn (at most {per_node} per node; the "
+                     "JSON report has all)"] if hidden else []
+            notes += [f"{emcy_left_out} EMCYs not drawn (at most {emcy_per_node} per node; "
+                      "the JSON report has all)"] if emcy_left_out else []
+            if notes:
+                timelines[-1]["left_out"] = "; ".join(notes)
     rules = [{"code": r.code, "name": r.name, "severity": sev, "summary": r.summary,
               "doc": doc_html(r.doc), "findings": sum(1 for res in results
                                                       for f in res.findings if f.rule == r.code),
@@ -413,9 +455,13 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     page_data = {
         "states": list(STATES), "sources": list(SOURCES), "stateColors": STATE_COLORS,
         "severityColors": SEVERITY_COLORS, "timelines": timelines,
-        "groups": {g["id"]: {k: g[k] for k in ("rule", "name", "severity", "where", "channel",
-                                               "count", "occurrences", "timeline")}
+        "groups": {g["id"]: {**{k: g[k] for k in ("rule", "name", "severity", "where",
+                                                  "channel", "count", "timeline")},
+                             "occurrences": [{k: v for k, v in o.items() if k != "cause_tree"}
+                                             for o in g["occurrences"]]}
                    for g in groups},
+        "emcyClasses": list(comm_lanes.EMCY_CLASSES), "emcyColors": EMCY_COLORS,
+        "emcyTexts": list(emcy_texts),
     }
     return {
         "version": __version__,
@@ -425,6 +471,8 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "verdict_class": verdict_class(results, options),
         "order_only": any(res.stats.order_only for res in results if res.error is None),
         "rebooting": bool(boots),
+        "sync_lanes": any(tl["sync"] for tl in timelines),
+        "emcy_marks": bool(emcy_texts), "emcy_colors": EMCY_COLORS,
         "unreadable": [error_line(res) for res in unreadable(results)],
         "not_logs": not_logs_line(options),
         "counts": report["summary"],

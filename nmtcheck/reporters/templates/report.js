@@ -90,7 +90,8 @@
     var spec = this.spec, svg = this.svg, self = this;
     this.plotW = this.plotWidth();
     var width = LABEL_W + this.plotW + PAD_R;
-    var height = AXIS_H + spec.rows.length * ROW_H + BOTTOM;
+    var top = AXIS_H + (spec.sync ? ROW_H : 0);  // the SYNC row above the node rows
+    var height = top + spec.rows.length * ROW_H + BOTTOM;
     while (svg.firstChild) { svg.removeChild(svg.firstChild); }
     svg.setAttribute("viewBox", "0 0 " + width + " " + height);
     svg.setAttribute("height", height);
@@ -122,8 +123,10 @@
     el("line", { "class": "axis-line", x1: LABEL_W, x2: LABEL_W + this.plotW, y1: AXIS_H - 0.5,
                  y2: AXIS_H - 0.5 }, axis);
 
+    if (spec.sync) { this.renderSync(spec.sync, width, clipId); }
+
     spec.rows.forEach(function (row, i) {
-      var y0 = AXIS_H + i * ROW_H;
+      var y0 = top + i * ROW_H;
       var barY = y0 + MARK_H + 2;
       var g = el("g", { "class": "tl-row", "data-channel": spec.channel,
                         "data-node": row.node === null ? "network" : row.node,
@@ -167,6 +170,21 @@
         var tick = el("line", { "class": "boot-marker", x1: bx, x2: bx, y1: barY - 2,
                                 y2: barY + BAR_H + 2 }, bars);
         el("title", {}, tick, "boot-up (00h) at " + when(spec, t));
+      });
+      // The node's EMCYs (SPEC §9.4.2): a dot on the bar's lower edge coloured by code
+      // class, at most one per pixel and class
+      var lastDot = {};
+      (row.emcy || []).forEach(function (e) {
+        var t = e[0];
+        if (t < self.v0 || t > self.v1) { return; }
+        var ex = self.x(t), cls = data.emcyClasses[e[1]];
+        if (lastDot[cls] !== undefined && Math.abs(ex - lastDot[cls]) < 1) { return; }
+        lastDot[cls] = ex;
+        var dot = el("circle", { "class": "emcy-marker", cx: ex, cy: barY + BAR_H - 3, r: 3.5,
+                                 fill: data.emcyColors[cls], "data-class": cls,
+                                 "data-time": t }, bars);
+        el("title", {}, dot, data.emcyTexts[e[2]] + "\n" + when(spec, t) +
+           (e[3] ? " · line " + e[3] : ""));
       });
       // Events that may explain a finding (SPEC §8.6): small grey diamonds in the marker
       // lane, drawn first so the findings' markers stay on top.
@@ -213,6 +231,62 @@
     }
   };
 
+  /* The SYNC row (SPEC §9.4.2): the SYNC frames as ticks merged per pixel at the zoom in
+     view (runs of columns with frames become one bar), counted bins when the page keeps
+     counts only, and each gap over the timeout (Y001) in red. */
+  Timeline.prototype.renderSync = function (sync, width, clipId) {
+    var self = this, y0 = AXIS_H, barY = y0 + MARK_H + 2, spec = this.spec;
+    var g = el("g", { "class": "tl-sync", "data-channel": spec.channel, "data-bar-y": barY,
+                      "data-bar-h": BAR_H }, this.svg);
+    el("rect", { "class": "row-bg", x: 0, y: y0, width: width, height: ROW_H }, g);
+    el("title", {}, el("text", { "class": "row-label", x: 10, y: barY + 13 }, g,
+                       "SYNC " + sync.cob_id), sync.title);
+    var lane = el("g", { "clip-path": "url(#" + clipId + ")" }, g);
+    var runs = [], run = null;
+    function column(x0, x1) {  // a stretch with frames, from x0 to x1 (pixels)
+      var c0 = Math.floor(x0), c1 = Math.max(Math.floor(x1), c0);
+      if (run && c0 <= run[1] + 3) { run[1] = Math.max(run[1], c1); } else { run = [c0, c1]; runs.push(run); }
+    }
+    function first(list, t) {  // the first index of a sorted list at or after t
+      var lo = 0, hi = list.length;
+      while (lo < hi) { var mid = (lo + hi) >> 1; if (list[mid] < t) { lo = mid + 1; } else { hi = mid; } }
+      return lo;
+    }
+    if (sync.ticks) {
+      for (var k = first(sync.ticks, this.v0); k < sync.ticks.length && sync.ticks[k] <= this.v1; k++) {
+        var tx = this.x(sync.ticks[k]);
+        column(tx, tx);
+      }
+    } else if (sync.bins) {
+      var b = sync.bins, k0 = Math.max(0, Math.floor((this.v0 - b.t0) / b.width));
+      for (var j = k0; j < b.counts.length && b.t0 + j * b.width <= this.v1; j++) {
+        if (b.counts[j]) { column(this.x(b.t0 + j * b.width), this.x(b.t0 + (j + 1) * b.width)); }
+      }
+    }
+    runs.forEach(function (r) {
+      el("rect", { "class": "sync-tick", x: r[0], y: barY + 4, width: r[1] - r[0] + 1,
+                   height: BAR_H - 8 }, lane);
+    });
+    sync.gaps.forEach(function (gap) {
+      if (gap[1] < self.v0 || gap[0] > self.v1) { return; }
+      var x0 = Math.max(self.x(gap[0]), LABEL_W - 1);
+      var x1 = Math.min(self.x(gap[1]), LABEL_W + self.plotW + 1);
+      var ms = (gap[1] - gap[0]) * 1000;
+      var rect = el("rect", { "class": "sync-gap", x: x0, y: barY, width: Math.max(x1 - x0, 2),
+                              height: BAR_H, "data-start": gap[0], "data-end": gap[1],
+                              "data-group": gap[2] === null ? "" : gap[2] }, lane);
+      var group = gap[2] === null ? null : data.groups[gap[2]];
+      el("title", {}, rect, "no SYNC from " + when(spec, gap[0]) + " to " +
+         (gap[4] ? "the end (" + when(spec, gap[1]) + ")" : when(spec, gap[1])) +
+         (spec.frames ? "" : ", " + ms.toFixed(3) + " ms") +
+         (group ? "\n" + group.rule + " " + group.name + ": " + group.occurrences[gap[3]].message : ""));
+      if (x1 - x0 > 90) {
+        el("text", { "class": "sync-gap-label", x: (x0 + x1) / 2, y: barY + 13,
+                     "text-anchor": "middle" }, lane, spec.frames ? "no SYNC" : "no SYNC " + ms.toFixed(1) + " ms");
+      }
+    });
+  };
+
   Timeline.prototype.bind = function () {
     var self = this, svg = this.svg, drag = null;
     svg.addEventListener("wheel", function (e) {
@@ -246,8 +320,8 @@
     svg.addEventListener("dblclick", function () { self.setView(0, self.total); });
     svg.addEventListener("click", function (e) {
       if (drag && drag.moved) { return; }
-      var marker = e.target.closest ? e.target.closest(".marker, .cause-marker") : null;
-      if (marker) { showFinding(marker.getAttribute("data-group")); }
+      var marker = e.target.closest ? e.target.closest(".marker, .cause-marker, .sync-gap") : null;
+      if (marker && marker.getAttribute("data-group")) { showFinding(marker.getAttribute("data-group")); }
     });
     this.figure.querySelectorAll("button[data-zoom]").forEach(function (button) {
       button.addEventListener("click", function () {
@@ -264,6 +338,14 @@
     var t = data.groups[groupId].occurrences[k].time - (this.spec.shift || 0);
     var span = Math.min(this.v1 - this.v0, Math.max(this.total / 8, 0.01));
     this.focus = { group: groupId, k: k };
+    this.setView(t - span / 2, t + span / 2);
+    this.figure.scrollIntoView({ block: "center" });
+  };
+
+  /* Zoom to a moment t (a chain's entry) as showMoment does, without a finding to mark. */
+  Timeline.prototype.showTime = function (t) {
+    var span = Math.min(this.v1 - this.v0, Math.max(this.total / 8, 0.01));
+    this.focus = null;
     this.setView(t - span / 2, t + span / 2);
     this.figure.scrollIntoView({ block: "center" });
   };
@@ -331,8 +413,16 @@
   }
 
   document.addEventListener("click", function (e) {
-    var link = e.target.closest ? e.target.closest("a.jump, a.rule-link") : null;
+    var link = e.target.closest ? e.target.closest("a.jump, a.rule-link, a.cause-jump") : null;
     if (!link) { return; }
+    if (link.classList.contains("cause-jump")) {  // a chain's entry: its moment (SPEC §9.3.6)
+      var shown = timelines[link.getAttribute("data-timeline")];
+      if (shown) {
+        e.preventDefault();
+        shown.showTime(Number(link.getAttribute("data-time")) - (shown.spec.shift || 0));
+      }
+      return;
+    }
     if (link.classList.contains("rule-link")) {
       var details = document.getElementById(link.getAttribute("href").slice(1));
       if (details) { details.open = true; }
