@@ -287,3 +287,37 @@ def test_the_python_api_has_one_row_per_lss_request(tmp_path: Path) -> None:
     assert list(report.lss["result"]) == ["unconfirmed", "ok", "ok", "unconfirmed"]
     assert report.lss["session"].tolist() == [0, 0, 0, pd.NA]
     assert report.lss["responses"][1][0]["text"] == "non-configured"
+
+
+def test_lss_bit_timing_explains_l001(checker: Checker) -> None:
+    """§9.3.4 `lss_bit_timing`: the slave switched to 125 kbit/s and no longer answers."""
+    text = log("(10.000000) can0 7E5#0401000000000000",
+               "(10.010000) can0 7E5#1300040000000000",
+               "(10.011000) can0 7E4#1300000000000000",
+               "(10.020000) can0 7E5#1564000000000000",
+               "(10.200000) can0 7E5#5E00000000000000",
+               "(12.000000) can0 7E5#0400000000000000")
+    res = checker.run(text)
+    [f] = [f for f in res.findings if f.rule == "L001"]
+    assert (round(f.time, 6), f.line) == (11.2, 6)
+    [c] = f.causes or []
+    assert (c["kind"], c["link"], c["time"], c["line"]) == (
+        "lss_bit_timing", "lss_bit_timing", 10.02, 4)
+    assert "switch delay 100 ms" in c["text"]
+    assert "[lss bit timing]" in text_report.render([res], {})
+
+
+def test_lss_bit_timing_explains_a_heartbeat_timeout(checker: Checker) -> None:
+    """Node 3's heartbeat stops right after the activate-bit-timing request; the same
+    silence without it has no such cause."""
+    beats = [f"({10 + k * 0.1:.6f}) can0 703#05" for k in range(10)]
+    lss_lines = ["(10.950000) can0 7E5#0401000000000000",
+                 "(10.960000) can0 7E5#1564000000000000",
+                 "(10.970000) can0 7E5#0400000000000000"]
+    text = log(*beats, *lss_lines, "(13.000000) can0 703#05")
+    [h] = [f for f in checker.run(text).findings if f.rule == "H001"]
+    linked = [c["kind"] for c in h.causes or () if c["link"] == "lss_bit_timing"]
+    assert linked == ["lss_bit_timing"]
+    quiet = log(*beats, "(13.000000) can0 703#05")
+    [h] = [f for f in checker.run(quiet).findings if f.rule == "H001"]
+    assert not [c for c in h.causes or () if c["kind"] == "lss_bit_timing"]

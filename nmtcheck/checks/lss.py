@@ -34,6 +34,14 @@ def _at(model: InputModel, lc: LssChannel, t: float) -> str:
     return at(t, start, model.timeline.order_only)
 
 
+def _effect(model: InputModel, lc: LssChannel, rule: str, t: float, a0: float, te: float
+            ) -> None:
+    """Keep a finding's a0 and t_e for its causes (explain/lss_link.py)."""
+    analysis = lss.of(model)
+    if analysis is not None:
+        analysis.effect(lc.channel, rule, t, a0, te)
+
+
 def _unanswered(model: InputModel, lc: LssChannel, ex: Exchange
                 ) -> tuple[float, int | None, str] | None:
     """When a request's wait for an answer ended unanswered (SPEC §9.2.4 L001 "Time"):
@@ -90,6 +98,7 @@ def lss_no_response(model: InputModel, params: Params) -> Iterator[Problem]:
             if ex.cs == lss.CONFIGURE_BIT_TIMING:
                 text += "; CANopenNode slaves without bit-rate support stay silent"
             line = ex.next_request.line if idx is not None and ex.next_request else None
+            _effect(model, lc, "L001", t, ex.request.ts, ex.request.ts)
             yield Problem(lc.channel, ex.node, t, text, idx, line, after=ex.request.idx)
 
 
@@ -270,6 +279,7 @@ def lss_node_id_not_adopted(model: InputModel, params: Params) -> Iterator[Probl
                     text += ("; a non-configured CANopenNode slave resets itself here, a "
                              "Lely slave waits for an NMT reset communication "
                              "(src/co/nmt.c 3353-3357)")
+                _effect(model, lc, "L006", due, ex.request.ts, t)
                 yield Problem(lc.channel, c.node_id, due, text, after=idx)
 
 

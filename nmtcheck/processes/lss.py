@@ -267,6 +267,12 @@ class LssChannel:
 @dataclass
 class LssAnalysis:
     channels: dict[str, LssChannel] = field(default_factory=dict)
+    # (channel, rule, finding time rounded to 1 ns) -> (a0, t_e) of an L001 or L006
+    # finding (SPEC §9.3.2-9.3.3: the request; the request or the trigger), for its causes
+    effects: dict[tuple[str, str, float], tuple[float, float]] = field(default_factory=dict)
+
+    def effect(self, channel: str, rule: str, t: float, a0: float, te: float) -> None:
+        self.effects[(channel, rule, round(t, 9))] = (a0, te)
 
 
 _SLOT: Attached[LssAnalysis] = Attached("lss")
