@@ -226,3 +226,62 @@ def test_every_recording_is_checked_here() -> None:
         "lss_configure_store", "lss_fastscan_one", "lss_fastscan_two", "lss_fastscan_nobody",
         "lss_selective_nobody", "lss_store_error", "lss_two_in_configuration",
         "lss_bitrate_silent", "lss_not_adopted"}
+
+
+LELY = SAMPLES / "lely" / "lss"
+
+
+def _lely_calls(name: str) -> list[str]:
+    return [e.text.removeprefix("master: ") for e in recording.events(LELY / f"{name}.log")
+            if e.device == "master" and e.text.startswith("master: ")]
+
+
+def test_lely_selective_switch_to_an_identity_nobody_has() -> None:
+    """Lely's LSS master (src/co/lss.c) gives up after its 100 ms and sends "switch to
+    waiting" at once: L002 at that next request, not at the 43h + 1000 ms."""
+    name = "lely_selective_nobody"
+    calls = _lely_calls(name)
+    assert calls[1:3] == ["select 300:4644:0:9 -> cs 00h (timeout)",
+                          "waiting -> 0 (unconfirmed)"]
+    frames = recording.frames(LELY / f"{name}.log")
+    serial = _first(frames, 0x7E5, "43")
+    waiting = _first(frames, 0x7E5, "0400")
+    assert 0.09 < waiting.t - serial.t < 0.2  # Lely's 100 ms LSS timeout
+    res = recording.check(LELY / f"{name}.log", None)
+    assert recording.found(res) == [("L002", None, waiting.t)]
+    assert res.findings[0].frame_index == waiting.line - 1
+
+
+def test_lely_fastscan_finds_a_canopennode_slave() -> None:
+    """Lely's fastscan (100 ms per request) finds CANopenNode slave A; node-ID 5, store,
+    switch to waiting; A boots as node 5 (after Lely's `000#8200` too): only L007."""
+    name = "lely_fastscan"
+    calls = _lely_calls(name)
+    assert calls[1:5] == ["fastscan -> cs 4Fh found 00000300:00004644:00000000:00000001",
+                          "node 5 -> cs 11h error 0 spec 0", "store -> cs 17h error 0 spec 0",
+                          "waiting -> 0 (unconfirmed)"]
+    frames = recording.frames(LELY / f"{name}.log")
+    configure = _first(frames, 0x7E5, "1105")
+    last = [f for f in frames if f.line < configure.line][-1]
+    res = recording.check(LELY / f"{name}.log", None)
+    assert recording.found(res) == [("L007", None, last.t)]
+    assert [f.data for f in frames if f.can_id == 0x705][:1] == ["00"]
+
+
+def test_lely_fastscan_finds_a_configured_lely_slave() -> None:
+    """A Lely LSS slave answers fastscan whatever its node-ID (src/co/lss.c 1555-1559):
+    the configured node 3 (identity 300h:4644h:0:4) is found, which CANopenNode slaves
+    never allow (lss_fastscan_nobody). L007 with its identity; its node-ID answer is 3."""
+    name = "lely_fastscan_configured"
+    calls = _lely_calls(name)
+    assert calls[1:3] == ["fastscan -> cs 4Fh found 00000300:00004644:00000000:00000004",
+                          "inquire_node -> cs 5Eh node-ID 3"]
+    res = recording.check(LELY / f"{name}.log", None)
+    [f] = res.findings
+    assert (f.rule, f.node) == ("L007", None)
+    assert f.message.startswith("fastscan found 00000300h:00004644h:00000000h:00000004h")
+    analysis = lss.of(res.model)
+    assert analysis is not None
+    [lc] = analysis.channels.values()
+    assert [(s.identity_source, s.active_node_id, s.unconfigured) for s in lc.slaves] == [
+        ("fastscan", 3, False)]

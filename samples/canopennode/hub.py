@@ -476,6 +476,29 @@ LSS_SCENARIOS: dict[str, Scenario] = {
         spawn(1.1, "sC", lss_slave(ID_C, 3), "lss_dev"),
     ]),
 }
+LELY_EDS = "../lely/lss/lss.eds"  # from this folder, where hub.py runs the devices
+
+
+def lely_master(script: str) -> list[str]:
+    """Lely's NMT and LSS master (samples/lely/lss/lely_lss.c), node 1, running the script
+    from its LSS request function at its communication reset."""
+    return ["--node", "1", "--eds", LELY_EDS, "--master", "--script", script]
+
+
+LSS_SCENARIOS.update({
+    "lely_selective_nobody": Scenario(2.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.3, "master", lely_master("select 300:4644:0:9;waiting"), "lely_lss"),
+    ]),
+    "lely_fastscan": Scenario(16.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.3, "master", lely_master("fastscan;node 5;store;waiting"), "lely_lss"),
+    ]),
+    "lely_fastscan_configured": Scenario(16.0, [
+        spawn(0.0, "sL", ["--node", "3", "--eds", LELY_EDS, "--identity", ID_C], "lely_lss"),
+        spawn(0.3, "master", lely_master("fastscan;inquire_node;waiting"), "lely_lss"),
+    ]),
+})
 SCENARIOS.update(LSS_SCENARIOS)
 
 
