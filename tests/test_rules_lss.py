@@ -321,3 +321,18 @@ def test_lss_bit_timing_explains_a_heartbeat_timeout(checker: Checker) -> None:
     quiet = log(*beats, "(13.000000) can0 703#05")
     [h] = [f for f in checker.run(quiet).findings if f.rule == "H001"]
     assert not [c for c in h.causes or () if c["kind"] == "lss_bit_timing"]
+
+
+def test_the_html_report_has_an_lss_table(checker: Checker) -> None:
+    """§9.4.2: slaves with identity and node-IDs, where an adopted node-ID came from, the
+    exchanges folded per session; no LSS section on a log without LSS frames."""
+    from nmtcheck.reporters import html as html_report
+
+    res = checker.run(log(*L006_A, "(10.050000) can0 707#00", "(16.000000) can0 080#"))
+    page = html_report.render([res], {})
+    section = page[page.index('<section id="lss">'):]
+    section = section[:section.index("</section>")]
+    assert "boot-up of node 7 at 0.050000 s (line 7)" in section
+    assert "non-configured" in section and "configure-node-id 7" in section
+    quiet = checker.run(log("(10.000000) can0 701#05", "(10.100000) can0 701#05"))
+    assert '<section id="lss">' not in html_report.render([quiet], {})

@@ -140,3 +140,12 @@ def text_lines(res: InputResult) -> list[str]:
                        "requests)")
         out.extend(f"      slave: {slave_text(s)}" for s in lc.slaves)
     return out
+
+
+def html_rows(results: list[InputResult], report: dict[str, Any]) -> dict[str, Any]:
+    """The HTML report's LSS table (SPEC §9.4.2, `templates/lss.html.j2`): the JSON rows
+    with the input's path and the moment times count from (the input's first frame)."""
+    paths = {res.index: res.stats.path for res in results}
+    starts = {k: entry["start"] for k, entry in enumerate(report["inputs"])}
+    return {"lss_rows": [{**row, "path": paths.get(row["input"]),
+                          "start": starts.get(row["input"], 0.0)} for row in report["lss"]]}
