@@ -336,3 +336,21 @@ def test_the_html_report_has_an_lss_table(checker: Checker) -> None:
     assert "non-configured" in section and "configure-node-id 7" in section
     quiet = checker.run(log("(10.000000) can0 701#05", "(10.100000) can0 701#05"))
     assert '<section id="lss">' not in html_report.render([quiet], {})
+
+
+def test_without_timestamps_only_the_next_request_ends_the_wait(checker: Checker) -> None:
+    """§9.1.9: L001 and L002 run in part on a log without timestamps (the next 7E5h frame
+    ends the wait; the timeout is not judged), and say so."""
+    def timeless(*lines: str) -> str:
+        return "".join(line.split(" ", 1)[1] + "\n" for line in lines)
+
+    res = checker.run(timeless(*L001.splitlines()))
+    assert [(f.rule, f.node, f.frame_index) for f in res.findings if f.rule[0] == "L"] == [
+        ("L001", 5, 2)]
+    assert res.partly_evaluated["L001"].startswith("no timestamps")
+    [m] = [f.message for f in res.findings if f.rule == "L001"]
+    assert m == ("no answer to configure node-ID (11h) sent at frame 2 (line 2); the next "
+                 "request followed at frame 3 (line 3)")
+    res = checker.run(timeless(*SELECTIVE))  # the trace ends: no next request, no finding
+    assert [f for f in res.findings if f.rule[0] == "L"] == []
+    assert "L002" in res.partly_evaluated
