@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import pandas as pd
+import pytest
 from conftest import Checker
 
 from nmtcheck.processes import lss
@@ -354,3 +355,16 @@ def test_without_timestamps_only_the_next_request_ends_the_wait(checker: Checker
     res = checker.run(timeless(*SELECTIVE))  # the trace ends: no next request, no finding
     assert [f for f in res.findings if f.rule[0] == "L"] == []
     assert "L002" in res.partly_evaluated
+
+
+def test_a_flood_of_lss_requests_is_cut_and_said(checker: Checker,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """Memory stays bounded: past MAX_REQUESTS requests a channel's LSS frames are not
+    reconstructed; the report counts them and the L rules say they are partly judged."""
+    monkeypatch.setattr(lss, "MAX_REQUESTS", 3)
+    text = log(*(f"(10.{k:03d}000) can0 7E5#5E00000000000000" for k in range(0, 10, 2)))
+    res = checker.run(text)
+    [row] = json.loads(json_report.render([res], {}))["lss"]
+    assert (row["requests"], row["frames_not_reconstructed"],
+            row["not_reconstructed_from_line"]) == (3, 2, 4)
+    assert "L003" in res.partly_evaluated and "line 4" in res.partly_evaluated["L003"]

@@ -76,6 +76,13 @@ def partly_evaluated(model: InputModel, codes: Iterable[str]) -> dict[str, str]:
     lss = lss_stage.of(model)
     if model.timeline.order_only and lss is not None and lss.channels:
         out.update({code: NO_LSS_TIMEOUT for code in ("L001", "L002") if code in codes})
+    cut = [lc for lc in (lss.channels.values() if lss is not None else ()) if lc.left_out]
+    if cut:
+        why = _scoped(f"more than {lss_stage.MAX_REQUESTS} LSS requests on a channel: the "
+                      "LSS frames after that were not judged",
+                      [f"{lc.channel} from line {lc.left_out_line}" for lc in cut])
+        out.update({code: why for code in ("L001", "L002", "L003", "L004", "L005", "L006",
+                                           "L007") if code in codes and code not in out})
     return out
 
 

@@ -66,6 +66,9 @@ STATUS_TEXT = {
     0x17: {0: "ok", 1: "not supported", 2: "storage media access error",
            0xFF: "manufacturer-specific error"},
 }
+# requests reconstructed per channel: LSS traffic is a commissioning step, a flood of it is
+# a fault in itself, and each exchange is an object (about 0.8 kB), so memory stays bounded
+MAX_REQUESTS = 100_000
 BIT_RATES_KBIT = {0: 1000, 1: 800, 2: 500, 3: 250, 4: 125, 6: 50, 7: 20, 8: 10}  # CN CO_LSS.h
 
 
@@ -262,6 +265,9 @@ class LssChannel:
     unsolicited: int = 0
     end: float = 0.0  # the channel's last frame
     timeout_s: float = 1.0  # lss_response_timeout_ms (inf: no timestamps)
+    # LSS frames past MAX_REQUESTS requests: not reconstructed (count, first line)
+    left_out: int = 0
+    left_out_line: int | None = None
 
 
 @dataclass
@@ -323,6 +329,11 @@ class _Walk:
         k = 0
         last_request: Exchange | None = None
         for j, row in enumerate(self.rows.tolist()):
+            if len(self.out.exchanges) >= MAX_REQUESTS and int(
+                    cols["can_id"][row]) == LSS_REQUEST_ID:
+                self.out.left_out = len(self.rows) - j
+                self.out.left_out_line = int(cols["line"][row])
+                break
             idx = int(cols["idx"][row])
             while k < len(resets) and r_idx[k] < idx:
                 self._nmt_reset(int(resets[k]))
@@ -472,6 +483,9 @@ class _Walk:
             k = self._slave_by_identity(ex.identity, "selective")
             if self.cfg != "all":
                 self.cfg = "some"
+            pos = len(self.out.exchanges) - 1
+            if self.session is not None and self.session.exchanges[-1:] == [pos]:
+                self.session.exchanges.pop()  # the switch begins the new session
             self._open_session(ex.request, "selective", k)
             self.session.exchanges.append(len(self.out.exchanges) - 1)  # type: ignore[union-attr]
             ex.session = len(self.out.sessions) - 1

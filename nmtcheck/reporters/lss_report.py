@@ -79,6 +79,9 @@ def channel_rows(res: InputResult) -> list[dict[str, Any]]:
             "fastscans": [_fastscan(fs) for fs in lc.fastscans]}
         if len(lc.exchanges) > MAX_EXCHANGES:
             row["exchanges_omitted"] = len(lc.exchanges) - MAX_EXCHANGES
+        if lc.left_out:  # past lss.MAX_REQUESTS: counted, never silently dropped
+            row["frames_not_reconstructed"] = lc.left_out
+            row["not_reconstructed_from_line"] = lc.left_out_line
         out.append(row)
     return out
 
@@ -121,6 +124,9 @@ def text_lines(res: InputResult) -> list[str]:
         out.append(f"    {lc.channel}: {len(lc.exchanges)} requests, {len(lc.sessions)} "
                    f"sessions, {len(lc.fastscans)} fastscans, {lc.unsolicited} unsolicited "
                    "responses")
+        if lc.left_out:
+            out.append(f"      {lc.left_out} LSS frames from line {lc.left_out_line} not "
+                       f"reconstructed (more than {lss_stage.MAX_REQUESTS} requests)")
         for k, se in enumerate(lc.sessions[:MAX_TEXT_SESSIONS]):
             who = ("every slave (switch state global)" if se.slave is None and se.how == "global"
                    else slave_text(lc.slaves[se.slave]) if se.slave is not None else "?")
