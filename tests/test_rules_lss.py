@@ -368,3 +368,29 @@ def test_a_flood_of_lss_requests_is_cut_and_said(checker: Checker,
     assert (row["requests"], row["frames_not_reconstructed"],
             row["not_reconstructed_from_line"]) == (3, 2, 4)
     assert "L003" in res.partly_evaluated and "line 4" in res.partly_evaluated["L003"]
+
+
+def test_never_fires_where_the_spec_says_so(checker: Checker) -> None:
+    """L002 without 40h-42h before the 43h; L001 while the state is unknown; L005 on
+    several fastscan answers; a short request's DLC named in L001's message."""
+    lone_43 = log("(10.000000) can0 7E5#4301000000000000", "(12.000000) can0 080#")
+    assert found(checker, lone_43) == []
+    unknown = log("(10.000000) can0 7E5#5E00000000000000", "(12.000000) can0 080#")
+    assert found(checker, unknown) == []
+    two_4f = log("(10.000000) can0 7E5#5100000000800000",
+                 "(10.001000) can0 7E4#4F00000000000000",
+                 "(10.001500) can0 7E4#4F00000000000000",
+                 "(10.002000) can0 7E5#0400000000000000")
+    assert [f[0] for f in found(checker, two_4f)] == ["L007"]
+    short = log("(10.000000) can0 7E5#0401000000000000", "(10.010000) can0 7E5#1105",
+                "(12.000000) can0 080#")
+    [m] = messages(checker, short, "L001")
+    assert m.endswith("; the request has DLC 2: CANopenNode slaves ignore it")
+
+
+def test_unsolicited_answers_are_counted(checker: Checker) -> None:
+    text = log("(10.000000) can0 7E4#5E05000000000000",
+               "(10.001000) can0 7E5#0401000000000000",
+               "(10.002000) can0 7E4#1100000000000000")
+    [row] = json.loads(json_report.render([checker.run(text)], {}))["lss"]
+    assert row["unsolicited"] == 2 and row["requests"] == 1
