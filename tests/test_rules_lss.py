@@ -394,3 +394,24 @@ def test_unsolicited_answers_are_counted(checker: Checker) -> None:
                "(10.002000) can0 7E4#1100000000000000")
     [row] = json.loads(json_report.render([checker.run(text)], {}))["lss"]
     assert row["unsolicited"] == 2 and row["requests"] == 1
+
+
+def test_the_timeline_shows_the_lss_exchanges(tmp_path: Path) -> None:
+    """§9.4.2: `nmtcheck timeline` lists the LSS exchanges and fastscans as channel
+    events."""
+    from nmtcheck.cli.timeline import render_timeline
+    from nmtcheck.engine import check_input, select_rules
+    from nmtcheck.settings.profiles import load_profile
+
+    path = tmp_path / "lss.log"
+    path.write_text(log(*FASTSCAN, "(10.010000) can0 7E5#1107000000000000",
+                        "(10.011000) can0 7E4#1100000000000000",
+                        "(10.012000) can0 7E5#0400000000000000"))
+    profile = load_profile("default")
+    res = check_input(str(path), 0, profile, select_rules(profile, [], []))
+    text = render_timeline(res, "text")
+    assert "can0 LSS (CiA 305):" in text
+    assert "LSS configure node-ID 7 -> ok (line 11)" in text
+    assert "LSS switch state global waiting -> unconfirmed (line 13)" in text
+    assert ("0.000000 ..     0.009000  fastscan: found "
+            "00000300h:00004644h:00000000h:00000001h (5 requests)") in text

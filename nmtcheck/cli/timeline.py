@@ -11,6 +11,7 @@ import click
 from nmtcheck.cli.common import load_profile_network, write_stdout
 from nmtcheck.cli.helptext import LOGS_HELP, DocumentedCommand, complete_paths
 from nmtcheck.cli.inputs import expand_inputs, input_options, named_check_inputs, remote_logs
+from nmtcheck.reporters import lss_report
 from nmtcheck.reporters.common import moment, reboot_note, reboots, spreadsheet_safe
 from nmtcheck.results import InputResult
 from nmtcheck.settings.config import discover
@@ -95,4 +96,5 @@ def render_timeline(res: InputResult, fmt: str) -> str:
                    f"  {'':>12}    {reboot_note(res, m, r)}") for r in reboots(m)]
         timed += [(e.ts, 1, f"  {at(e.ts)}     event: {e.text}") for e in m.events]
         lines.extend(text for _t, _k, text in sorted(timed, key=lambda x: (x[0], x[1])))
+    lines += lss_report.timeline_lines(res, at)  # SPEC §9.4.2: LSS as channel events
     return "\n".join(lines) + "\n"

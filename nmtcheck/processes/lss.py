@@ -148,6 +148,12 @@ class Exchange:
         if self.cs == CONFIGURE_BIT_TIMING:
             rate = BIT_RATES_KBIT.get(d[2]) if d[1] == 0 else None
             return f" table {d[1]} index {d[2]}" + (f" ({rate} kbit/s)" if rate else "")
+        if self.cs == SWITCH_GLOBAL:
+            return {0: " waiting", 1: " configuration"}.get(d[1], f" {d[1]:02X}h")
+        if self.cs == ACTIVATE_BIT_TIMING:
+            return f", switch delay {self.argument} ms"
+        if 0x40 <= self.cs <= 0x4B:
+            return f" {hex32(self.request.u32())}"
         return ""
 
     @property

@@ -4,6 +4,7 @@ fastscans, made in one place for the JSON report, the text report and the Python
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from nmtcheck.processes import lss as lss_stage
@@ -13,6 +14,7 @@ from nmtcheck.timeline.moments import at
 
 MAX_EXCHANGES = 1000  # per channel in the JSON report, then `exchanges_omitted`
 MAX_TEXT_SESSIONS = 20  # per channel in the text report
+MAX_TIMELINE_EXCHANGES = 200  # per channel in `nmtcheck timeline`
 
 
 def _r(x: float | None) -> float | None:
@@ -155,3 +157,33 @@ def html_rows(results: list[InputResult], report: dict[str, Any]) -> dict[str, A
     starts = {k: entry["start"] for k, entry in enumerate(report["inputs"])}
     return {"lss_rows": [{**row, "path": paths.get(row["input"]),
                           "start": starts.get(row["input"], 0.0)} for row in report["lss"]]}
+
+
+def timeline_lines(res: InputResult, at: Callable[[float], str]) -> list[str]:
+    """`nmtcheck timeline` (text): each channel's LSS exchanges and fastscans as channel
+    events in time order (SPEC §9.4.2), `at` giving a moment as the timeline's column."""
+    analysis = lss_stage.of(res.model)
+    if analysis is None:
+        return []
+    out: list[str] = []
+    for lc in analysis.channels.values():
+        out.append(f"{lc.channel} LSS (CiA 305):")
+        timed: list[tuple[float, str]] = []
+        for ex in lc.exchanges[:MAX_TIMELINE_EXCHANGES]:
+            answers = ", ".join(t for t in (ex.response_text(r)[1] for r in ex.responses)
+                                if t != "ok")
+            timed.append((ex.request.ts, f"  {at(ex.request.ts)}     LSS {ex.service}"
+                          f"{ex.argument_text()} -> {ex.result}"
+                          + (f" ({answers})" if answers else "")
+                          + f" (line {ex.request.line})"))
+        for fs in lc.fastscans:
+            last = fs.last or fs.start
+            found = (f"found {lss_stage.identity_text(fs.identity)}" if fs.complete
+                     else fs.result)
+            timed.append((last.ts, f"  {at(fs.start.ts)} .. {at(last.ts)}  fastscan: {found} "
+                          f"({fs.requests} requests)"))
+        out += [text for _t, text in sorted(timed, key=lambda x: x[0])]
+        if len(lc.exchanges) > MAX_TIMELINE_EXCHANGES:
+            out.append(f"  … {len(lc.exchanges) - MAX_TIMELINE_EXCHANGES} more LSS requests "
+                       "(see check --format json)")
+    return out
