@@ -415,3 +415,14 @@ def test_the_timeline_shows_the_lss_exchanges(tmp_path: Path) -> None:
     assert "LSS switch state global waiting -> unconfirmed (line 13)" in text
     assert ("0.000000 ..     0.009000  fastscan: found "
             "00000300h:00004644h:00000000h:00000001h (5 requests)") in text
+
+
+def test_lss_bit_timing_explains_a_sync_timeout(checker: Checker) -> None:
+    """§9.3.4: a SYNC gap that began right after an activate-bit-timing request."""
+    syncs = [f"(10.{k:02d}0000) can0 080#" for k in range(0, 6)]
+    text = log(*syncs, "(10.052000) can0 7E5#0401000000000000",
+               "(10.053000) can0 7E5#1500000000000000", "(10.200000) can0 080#")
+    [y] = [f for f in checker.run(text, network="[sync]\nperiod_us = 10000\n").findings
+           if f.rule == "Y001"]
+    assert [(c["kind"], c["link"], c["line"]) for c in y.causes or ()
+            if c["kind"] == "lss_bit_timing"] == [("lss_bit_timing", "lss_bit_timing", 8)]
