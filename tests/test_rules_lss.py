@@ -426,3 +426,11 @@ def test_lss_bit_timing_explains_a_sync_timeout(checker: Checker) -> None:
            if f.rule == "Y001"]
     assert [(c["kind"], c["link"], c["line"]) for c in y.causes or ()
             if c["kind"] == "lss_bit_timing"] == [("lss_bit_timing", "lss_bit_timing", 8)]
+
+
+def test_a_switch_without_its_mode_byte_changes_no_state(checker: Checker) -> None:
+    """`7E5#04` (DLC 1) asks for no known state: the configure request after it is judged
+    as at the trace start (state unknown), not as after "switch to waiting"."""
+    text = log("(10.000000) can0 7E5#04", "(10.010000) can0 7E5#1105000000000000",
+               "(12.000000) can0 080#")
+    assert found(checker, text) == []

@@ -434,7 +434,9 @@ class _Walk:
         pos = len(self.out.exchanges) - 1
         cs, d = f.cs, f.data
         self.open = ex if ex.expects is not None else None
-        if cs == SWITCH_GLOBAL:
+        if cs == SWITCH_GLOBAL and f.dlc < 2:
+            pass  # no mode byte: the state it asks for is not known
+        elif cs == SWITCH_GLOBAL:
             self.selective = []
             if d[1] == 0:
                 self.cfg, self.waiting = "none", f
