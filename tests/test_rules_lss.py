@@ -434,3 +434,18 @@ def test_a_switch_without_its_mode_byte_changes_no_state(checker: Checker) -> No
     text = log("(10.000000) can0 7E5#04", "(10.010000) can0 7E5#1105000000000000",
                "(12.000000) can0 080#")
     assert found(checker, text) == []
+
+
+def test_a_lely_like_timeout_and_bootup_wait_from_the_profile(checker: Checker,
+                                                              tmp_path: Path) -> None:
+    """`[timeline] lss_response_timeout_ms` (Lely's masters wait 100 ms) and `[rules.L006]
+    bootup_timeout_ms` move L001's and L006's moments."""
+    short = tmp_path / "short.toml"
+    short.write_text("[timeline]\nlss_response_timeout_ms = 100\n"
+                     "[rules.L006]\nbootup_timeout_ms = 1000\n")
+    res = checker.run(L001, profile=str(short))
+    assert [(f.rule, round(f.time, 6)) for f in res.findings if f.rule[0] == "L"] == [
+        ("L001", 10.11)]
+    res = checker.run(log(*L006_A, "(16.000000) can0 080#"), profile=str(short))
+    assert [(f.rule, round(f.time, 6)) for f in res.findings if f.rule[0] == "L"] == [
+        ("L006", 11.005)]
