@@ -285,3 +285,19 @@ def test_lely_fastscan_finds_a_configured_lely_slave() -> None:
     [lc] = analysis.channels.values()
     assert [(s.identity_source, s.active_node_id, s.unconfigured) for s in lc.slaves] == [
         ("fastscan", 3, False)]
+
+
+def test_lely_configures_after_switching_to_waiting() -> None:
+    """Lely's master leaves it to its caller that a slave is in configuration state
+    (`co_lss_set_id_req`): asked to, it sends "configure node-ID 5" right after "switch to
+    waiting"; the CANopenNode slave, now waiting, ignores it and Lely times out. L004 at
+    the request; L001 stays silent (no slave is in configuration state)."""
+    name = "lely_configure_after_waiting"
+    calls = _lely_calls(name)
+    assert calls[1:4] == ["select 300:4644:0:1 -> cs 44h", "waiting -> 0 (unconfirmed)",
+                          "node 5 -> cs 00h error 0 spec 0 (timeout)"]
+    frames = recording.frames(LELY / f"{name}.log")
+    request = _first(frames, 0x7E5, "1105")
+    assert not [f for f in frames if f.can_id == 0x7E4 and f.data.startswith("11")]
+    assert recording.found(recording.check(LELY / f"{name}.log", None)) == [
+        ("L004", 5, request.t)]

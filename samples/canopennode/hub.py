@@ -494,6 +494,10 @@ LSS_SCENARIOS.update({
         spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
         spawn(0.3, "master", lely_master("fastscan;node 5;store;waiting"), "lely_lss"),
     ]),
+    "lely_configure_after_waiting": Scenario(2.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.3, "master", lely_master(f"select {ID_A};waiting;node 5"), "lely_lss"),
+    ]),
     "lely_fastscan_configured": Scenario(16.0, [
         spawn(0.0, "sL", ["--node", "3", "--eds", LELY_EDS, "--identity", ID_C], "lely_lss"),
         spawn(0.3, "master", lely_master("fastscan;inquire_node;waiting"), "lely_lss"),

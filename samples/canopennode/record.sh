@@ -29,7 +29,7 @@ for s in lss_configure_store lss_fastscan_one lss_fastscan_two lss_fastscan_nobo
   chrt -f 10 python3 hub.py $s "$OUT/lss/$s.log" --bin "$BIN" --events "$OUT/lss/$s.events"
 done
 # Lely's LSS master (samples/lely/lss/: lely_lss built there into BIN, lely-core in /opt/lely)
-for s in lely_selective_nobody lely_fastscan lely_fastscan_configured; do
+for s in lely_selective_nobody lely_configure_after_waiting lely_fastscan lely_fastscan_configured; do
   LD_LIBRARY_PATH=/opt/lely/lib chrt -f 10 python3 hub.py $s "$OUT/../lely/lss/$s.log" --bin "$BIN" \
     --events "$OUT/../lely/lss/$s.events"
 done
