@@ -200,25 +200,20 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
                                        "path": path_of.get(r["input"])}
                                       for r in doc["pdo_streams"]],
                                      ["input", "path", "channel", "cob_id", "kind"]),
-                  lss=_lss_frame(doc, path_of))
+                  lss=_lss_frame(results, path_of))
 
 
-def _lss_frame(doc: dict[str, Any], path_of: dict[int, str]) -> pd.DataFrame:
-    """One row per LSS request of every channel; `session` a nullable integer."""
-    df = _frame([{"input": c["input"], "path": path_of.get(c["input"]),
-                  "channel": c["channel"], "exchange": k, "session": _session_of(c, k), **ex}
-                 for c in doc["lss"] for k, ex in enumerate(c["exchanges"])],
-                ["input", "path", "channel", "exchange", "session", "time", "cs", "service",
+def _lss_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:
+    """One row per LSS request of every channel; `lss_session` a nullable integer."""
+    from nmtcheck.reporters.lss_report import exchange_rows
+
+    df = _frame([{**r, "path": path_of.get(r["input"])} for res in results
+                 for r in exchange_rows(res)],
+                ["input", "path", "channel", "exchange", "lss_session", "time", "cs", "service",
                  "result"])
     if len(df):
-        df["session"] = df["session"].astype("Int64")
+        df["lss_session"] = df["lss_session"].astype("Int64")
     return df
-
-
-def _session_of(channel: dict[str, Any], k: int) -> int | None:
-    """The LSS session (its index in the channel's `sessions`) that holds exchange k."""
-    return next((i for i, se in enumerate(channel["sessions"]) if k in se["exchanges"]),
-                None)
 
 
 def _boot_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:

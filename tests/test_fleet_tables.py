@@ -55,7 +55,8 @@ def test_every_table_of_an_all_clean_fleet_reads_as_zero_rows(tmp_path: Path) ->
     assert res.returncode == 0, res.stderr
     assert "fleet: 0 errors, 0 warnings, 0 info" in res.stdout
     results = tmp_path / "results"
-    expected_rows = {"runs": 1, "inputs": 2, "findings": 0, "node_stats": None, "boot": 0}
+    expected_rows = {"runs": 1, "inputs": 2, "findings": 0, "node_stats": None, "boot": 0,
+                     "lss": 0}
     for table in TABLES:
         n_duck, duck_cols, n_arrow, arrow_cols = rows(results, table)
         columns = [name for name, _kind in COLUMNS[table]] + ["date"]

@@ -286,7 +286,7 @@ def test_the_python_api_has_one_row_per_lss_request(tmp_path: Path) -> None:
     assert list(report.lss["service"]) == [
         "switch-state-global", "inquire-node-id", "configure-node-id", "switch-state-global"]
     assert list(report.lss["result"]) == ["unconfirmed", "ok", "ok", "unconfirmed"]
-    assert report.lss["session"].tolist() == [0, 0, 0, pd.NA]
+    assert report.lss["lss_session"].tolist() == [0, 0, 0, pd.NA]
     assert report.lss["responses"][1][0]["text"] == "non-configured"
 
 

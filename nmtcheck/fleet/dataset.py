@@ -37,6 +37,7 @@ import uuid
 from collections.abc import Iterable
 from typing import Any
 
+from nmtcheck.fleet import lss_table
 from nmtcheck.fleet.storage import LocalFS, filesystem, is_local
 
 SCHEMA_VERSION = 1
@@ -46,7 +47,7 @@ LOCK = "_nmtcheck_run.lock"
 # read it), a name no batch has (theirs are `part-<24 hex>`), under a date (`unknown` would
 # make DuckDB's hive partitioning read every `date` as text, not as DATE)
 SCHEMA_PART = ("date=1970-01-01", "part-schema.parquet")
-TABLES = ("runs", "inputs", "findings", "node_stats", "boot")
+TABLES = ("runs", "inputs", "findings", "node_stats", "boot", "lss")
 DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER, LOCK)  # what a dataset's folder holds
 SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
 
@@ -98,6 +99,7 @@ COLUMNS: dict[str, list[tuple[str, str]]] = {
              ("evidence_frame_index", "int64"), ("evidence_line", "int64"),
              ("findings", "string"), ("assignment", "string"), ("mandatory", "bool"),
              ("assignment_source", "string")],
+    "lss": [*_KEY, *lss_table.COLUMNS],  # SPEC §9.4.2: one row per LSS request
 }
 STATE_COLUMNS = {"UNKNOWN": "s_unknown", "INITIALISING": "s_initialising",
                  "PRE-OPERATIONAL": "s_pre_operational", "OPERATIONAL": "s_operational",
@@ -359,7 +361,7 @@ def latest(tables: dict[str, Any]) -> dict[str, Any]:
     keep = set(zip(newest["input_id"], newest["batch_id"], strict=True))
     out = dict(tables)
     out["inputs"] = newest.reset_index(drop=True)
-    for name in ("findings", "node_stats", "boot"):
+    for name in ("findings", "node_stats", "boot", "lss"):
         if name not in tables:
             continue
         df = tables[name]

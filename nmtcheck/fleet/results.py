@@ -20,6 +20,7 @@ class Results:
     node_stats: pd.DataFrame
     schema_version: int
     boot: pd.DataFrame = field(default_factory=pd.DataFrame)  # SPEC_BOOT §8.5
+    lss: pd.DataFrame = field(default_factory=pd.DataFrame)  # SPEC §9.4.2: LSS requests
 
 
 def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | None = None,
@@ -45,4 +46,4 @@ def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | 
     if latest:
         tables = newest(tables)
     return Results(tables["runs"], tables["inputs"], tables["findings"], tables["node_stats"],
-                   SCHEMA_VERSION, tables["boot"])
+                   SCHEMA_VERSION, tables["boot"], tables["lss"])

@@ -125,7 +125,7 @@ def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> Batch
     ids = [input_id(fi, cfg.version, cfg.digest) for fi in files]
     bid = batch_id(ids)
     rows: dict[str, list[dict[str, Any]]] = {"inputs": [], "findings": [], "node_stats": [],
-                                             "boot": []}
+                                             "boot": [], "lss": []}
     counts = BatchCounts()
     crash_on = os.environ.get(CRASH_ENV)
     wanted = [fi.url for fi in files if unsupported(fi.url) is None]
@@ -159,7 +159,7 @@ def _check_batch(files: list[FileInfo], cfg: TaskConfig, attempts: int) -> Batch
     mark("checked")
     ds = Dataset(cfg.results, cfg.storage_options)
     name = f"part-{bid}"
-    for table in ("findings", "node_stats", "boot", "inputs"):  # inputs last: the commit record
+    for table in ("findings", "node_stats", "boot", "lss", "inputs"):  # inputs last: commit
         ds.write(table, name, rows[table])
     mark("written")
     return counts
@@ -216,6 +216,7 @@ def _check_one(path: str, fi: FileInfo, key: dict[str, Any], cfg: TaskConfig,
                ) -> None:
     from nmtcheck.engine import check_input
     from nmtcheck.errors import InputError, UsageError
+    from nmtcheck.fleet import lss_table
 
     try:
         res = check_input(path, 0, cfg.profile, rules, cfg.network, cfg.input_format,
@@ -257,6 +258,7 @@ def _check_one(path: str, fi: FileInfo, key: dict[str, Any], cfg: TaskConfig,
     rows["boot"].extend({**key, **r, "date": date,
                          "abs_start": r["start"] if start_time is not None else None}
                         for r in boot_rows(res))
+    rows["lss"].extend(lss_table.rows(res, key, date, start_time is not None))
 
 
 MAX_BOOT_ROWS_PER_NODE = 1000  # a log may boot a node a million times: failures come first

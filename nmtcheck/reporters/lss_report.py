@@ -40,6 +40,19 @@ def _exchange(ex: Exchange) -> dict[str, Any]:
             "cfg": ex.cfg, "dlc": q.dlc, "result": ex.result, "responses": responses}
 
 
+def exchange_rows(res: InputResult) -> list[dict[str, Any]]:
+    """One row per LSS request of every channel (the Python API's `Report.lss` and the
+    fleet's `lss` table, SPEC §9.4.2): the fields of `lss[].exchanges[]` with the channel,
+    the request's index among the channel's and its LSS session's (`lss_session`, None:
+    in none; `session` is a fleet path field)."""
+    analysis = lss_stage.of(res.model)
+    if analysis is None:
+        return []
+    return [{"input": res.index, "channel": lc.channel, "exchange": k,
+             "lss_session": ex.session, **_exchange(ex)}
+            for lc in analysis.channels.values() for k, ex in enumerate(lc.exchanges)]
+
+
 def _slave(lc: LssChannel, s: Slave) -> dict[str, Any]:
     last = s.configured[-1] if s.configured else None
     bootup = None
