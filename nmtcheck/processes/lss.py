@@ -352,10 +352,12 @@ class _Walk:
                 last_request = self._request(f)
             else:
                 self._response(f)
-        while k < len(resets):
+        cut = int(cols["idx"][self.rows[len(self.rows) - self.out.left_out]]) if (
+            self.out.left_out) else None  # past the cut no state is followed
+        while k < len(resets) and (cut is None or r_idx[k] < cut):
             self._nmt_reset(int(resets[k]))
             k += 1
-        self._close_session(None)
+        self._close_session(None)  # a session open at the trace end keeps `end` None
         if self.fastscan is not None:
             self._end_fastscan("end")
         self._adoptions()
