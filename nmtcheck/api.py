@@ -7,8 +7,9 @@
     report.boot       # one row per CiA 302-2 boot process (SPEC_BOOT §8.5), as the fleet's
                       # `boot` table: status, Lely letter and its text, proving frame
     report.sync       # one row per channel with SYNC; report.pdo_streams: one per stream
+    report.lss        # one row per LSS request (CiA 305) with its responses and session
     results = nmtcheck.read_results("results/")   # runs, inputs, findings, node_stats, boot,
-                      # sync_stats, pdo_stats, emcy (SPEC_COMM §9.4.2)
+                      # sync_stats, pdo_stats, emcy (SPEC_COMM §9.4.2), lss
 
 The columns are the JSON report's field names, so code written against one reads the other.
 """
@@ -51,6 +52,9 @@ class Report:
     # per PDO stream (`pdo_streams[]`, its consumers a list)
     sync: pd.DataFrame = field(default_factory=pd.DataFrame)
     pdo_streams: pd.DataFrame = field(default_factory=pd.DataFrame)
+    # SPEC §9.4.1 `lss[]`: one row per LSS request (as the fleet's `lss` table), its
+    # responses a list; the slaves, sessions and fastscans are in `to_dict()["lss"]`
+    lss: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def failed(self, fail_on: str = "error") -> bool:
         """What `nmtcheck check --fail-on` would decide: a finding at or above `fail_on`."""
@@ -80,7 +84,7 @@ class Report:
                if "error" in self.inputs.columns else 0)
         tables = ", ".join(f"{name}: {plural(len(getattr(self, name)), 'row')}"
                            for name in ("findings", "timeline", "nodes", "inputs", "boot",
-                                        "sync", "pdo_streams"))
+                                        "sync", "pdo_streams", "lss"))
         return (f"<nmtcheck Report: {word} (--fail-on error): "
                 f"{counts_phrase(self.summary)} in {n} input{'s' if n != 1 else ''}"
                 + (f", {bad} could not be read" if bad else "") + f"; {tables}>")
@@ -196,7 +200,21 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
                                        "consumers": r["consumers"],
                                        "path": path_of.get(r["input"])}
                                       for r in doc["pdo_streams"]],
-                                     ["input", "path", "channel", "cob_id", "kind"]))
+                                     ["input", "path", "channel", "cob_id", "kind"]),
+                  lss=_lss_frame(results, path_of))
+
+
+def _lss_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:
+    """One row per LSS request of every channel; `lss_session` a nullable integer."""
+    from nmtcheck.reporters.lss_report import exchange_rows
+
+    df = _frame([{**r, "path": path_of.get(r["input"])} for res in results
+                 for r in exchange_rows(res)],
+                ["input", "path", "channel", "exchange", "lss_session", "time", "cs", "service",
+                 "result"])
+    if len(df):
+        df["lss_session"] = df["lss_session"].astype("Int64")
+    return df
 
 
 def _boot_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:

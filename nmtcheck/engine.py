@@ -33,6 +33,7 @@ from nmtcheck.explain.evaluated import finding_bases, partly_evaluated
 from nmtcheck.explain.evaluated import not_evaluated as rules_not_evaluated
 from nmtcheck.processes import boot as boot_stage
 from nmtcheck.processes import emcy as emcy_stage
+from nmtcheck.processes import lss as lss_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync as sync_stage
 from nmtcheck.processes.sdo_transfers import SdoSpool, tee
@@ -237,6 +238,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
             model, network, spool, float(profile.timeline.get("sdo_timeout_ms", 1000.0)) / 1e3))
         emcy_stage.attach(model, emcy_stage.analyse(
             model, network, emcy_stage.resolution(stats, profile.timeline)))
+        lss_stage.attach(model, lss_stage.analyse(  # SPEC §9.1.8
+            model, network, float(profile.timeline.get("lss_response_timeout_ms", 1000.0))))
         problems: list[tuple[Rule, Problem]] = []
         nodes: dict[tuple[str | None, int], NodeModel] = {
             (cm.name, m.node): m for cm in model.channels for m in cm.nodes.values()}
@@ -373,6 +376,7 @@ TIME_RULES = {"H001": "heartbeat timeouts need time", "H002": "heartbeat spacing
               "D001": "event timers need time", "D002": "inhibit times need time",
               "D004": "RPDO deadlines need time",
               "E001": "EMCY inhibit times need time",
+              "L006": "boot-up waits after LSS need time",
               "I007": "recording gaps need time"}
 # the time windows of the rules that need only order: a frame index stands for the time,
 # so each window is made empty (grace, obey) or endless (explaining, repeating, awaiting)

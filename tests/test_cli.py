@@ -129,8 +129,8 @@ def test_timeline_formats(tmp_path: Path) -> None:
 def test_rules_catalogue_and_doc(tmp_path: Path) -> None:
     res = run("rules", cwd=tmp_path)
     assert res.returncode == 0
-    # SPEC §3 (I007 since 2026-12-07), group P (§8.4), groups Y, D and E (§9.2)
-    assert len(res.stdout.strip().splitlines()) == 51
+    # SPEC §3 (I007 since 2026-12-07), group P (§8.4), groups Y, D, E and L (§9.2)
+    assert len(res.stdout.strip().splitlines()) == 58
     doc = run("rules", "H001", cwd=tmp_path)
     assert "heartbeat-timeout" in doc.stdout and "timeout_factor" in doc.stdout
     assert "Why it matters" in doc.stdout and "Example" in doc.stdout

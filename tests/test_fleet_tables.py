@@ -58,7 +58,7 @@ def test_every_table_of_an_all_clean_fleet_reads_as_zero_rows(tmp_path: Path) ->
     # the SYNC-only log's channel has its sync_stats row (SPEC_COMM §9.4.2: a measurement,
     # not a finding); no PDO, no EMCY
     expected_rows = {"runs": 1, "inputs": 2, "findings": 0, "node_stats": None, "boot": 0,
-                     "sync_stats": 1, "pdo_stats": 0, "emcy": 0}
+                     "sync_stats": 1, "pdo_stats": 0, "emcy": 0, "lss": 0}
     for table in TABLES:
         n_duck, duck_cols, n_arrow, arrow_cols = rows(results, table)
         columns = [name for name, _kind in COLUMNS[table]] + ["date"]

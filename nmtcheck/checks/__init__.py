@@ -42,6 +42,15 @@ from nmtcheck.checks.inputs import (
     timestamps_backwards,
     truncated_input,
 )
+from nmtcheck.checks.lss import (
+    lss_error_response,
+    lss_fastscan,
+    lss_no_response,
+    lss_node_id_not_adopted,
+    lss_not_in_configuration,
+    lss_selective_no_match,
+    lss_several_responders,
+)
 from nmtcheck.checks.network import duplicate_node_id, missing_node
 from nmtcheck.checks.pdo import (
     pdo_length_mismatch,
@@ -111,6 +120,13 @@ RULES: list[Rule] = [
     emcy_inhibit_violation,
     emcy_malformed,
     emcy_active_at_end,
+    lss_no_response,
+    lss_selective_no_match,
+    lss_error_response,
+    lss_not_in_configuration,
+    lss_several_responders,
+    lss_node_id_not_adopted,
+    lss_fastscan,
     nothing_to_check,
     truncated_input,
     skipped_records,

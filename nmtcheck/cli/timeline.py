@@ -15,7 +15,7 @@ from nmtcheck.cli.helptext import LOGS_HELP, DocumentedCommand, complete_paths
 from nmtcheck.cli.inputs import expand_inputs, input_options, named_check_inputs, remote_logs
 from nmtcheck.engine import select_rules
 from nmtcheck.protocol.nmt import SOURCES, STATES
-from nmtcheck.reporters import comm_lanes
+from nmtcheck.reporters import comm_lanes, lss_report
 from nmtcheck.reporters.common import moment, reboot_note, reboots, spreadsheet_safe
 from nmtcheck.results import InputResult
 from nmtcheck.settings.config import discover
@@ -167,4 +167,5 @@ def render_timeline(res: InputResult, fmt: str,
     for channel in res.stats.channels:  # SYNC on a channel where no node was seen
         if channel not in shown:
             lines += sync_lines(channel)
+    lines += lss_report.timeline_lines(res, at)  # SPEC §9.4.2: LSS as channel events
     return "\n".join(lines) + "\n"

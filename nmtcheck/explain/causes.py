@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from nmtcheck.explain import lss_link
 from nmtcheck.explain.chains import (
     At,
     emcy_chain,
@@ -56,7 +57,8 @@ if TYPE_CHECKING:
     from nmtcheck.results import Finding, InputResult
 
 
-RULES = ("H001", "G002", "B001", "B002", "S004", "Y001", "D004", "S005")  # S005 last: it reads
+RULES = ("H001", "G002", "B001", "B002", "S004", "Y001", "D004", "L001", "L006",
+         "S005")  # S005 last: it reads
 # the causes of the findings its chain links to (§9.3.5)
 SDO_WRITES = {"H001": (0x1017, 0x1016), "G002": (0x100C, 0x100D, 0x1017),
               "B002": (0x1F51, 0x1011, 0x1010), "S004": (0x1029,), "S005": (0x1029,)}
@@ -87,7 +89,7 @@ def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
     delay = float(tl.get("emcy_delay_ms", 200.0)) / 1000.0
     order = {r: k for k, r in enumerate(RULES)}
     for f in sorted((f for f in result.findings if f.rule in RULES), key=lambda f: order[f.rule]):
-        if f.channel is None or (f.node is None and f.rule != "Y001"):
+        if f.channel is None or (f.node is None and f.rule not in ("Y001", "L001")):
             continue
         # causes are objects: a bounded number per rule keeps memory bounded on a log
         # with a million timeouts (the first ones are where a diagnosis starts)
@@ -95,10 +97,15 @@ def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
         if caused[f.rule] > MAX_CAUSED_PER_RULE:
             continue
         found = (sync_gap_entries(ctx, f) if f.rule == "Y001" else
-                 pdo_gap_entries(ctx, f) if f.rule == "D004" else ctx.causes(f))
+                 pdo_gap_entries(ctx, f) if f.rule == "D004" else
+                 lss_link.lss_entries(ctx.model, f, ctx.before) if f.rule in lss_link.ROOTS
+                 else ctx.causes(f))
         if found is None:
             continue
         entries, te = found
+        if f.rule in ("H001", "Y001", "D004"):  # §9.3.4 `lss_bit_timing`
+            entries = entries + lss_link.bit_timing_entries(ctx.model, f.channel, te,
+                                                            ctx.before)
         causes, reactions = split(entries, te, f.time, f.node)
         f.causes, f.causes_omitted = capped(causes, ctx.max)
         f.reactions, f.reactions_omitted = capped(reactions, ctx.max)

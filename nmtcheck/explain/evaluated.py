@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from nmtcheck.processes import emcy as emcy_stage
+from nmtcheck.processes import lss as lss_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync as sync_stage
 from nmtcheck.protocol.nmt import BOOTUP, HEARTBEAT
@@ -48,6 +49,9 @@ PDO_REASONS = {
     "D004": "no RPDO with a known non-zero event timer (deadline)",
     "D005": "no PDO mapping known",
 }
+# SPEC §9.1.9: L001/L002 without timestamps judge only "before the next request"
+NO_LSS_TIMEOUT = ("no timestamps: lss_response_timeout_ms was not judged, only the next "
+                  "request ends the wait for an answer")
 MAX_SCOPE = 20  # what a partly evaluated rule skipped, named (then counted)
 
 
@@ -73,6 +77,16 @@ def partly_evaluated(model: InputModel, codes: Iterable[str]) -> dict[str, str]:
                    and any(not v.overflow.known for v in sc.by_segment)]
         if skipped:
             out["Y002"] = _scoped(NO_OVERFLOW, [f"{c} SYNC" for c in skipped])
+    lss = lss_stage.of(model)
+    if model.timeline.order_only and lss is not None and lss.channels:
+        out.update({code: NO_LSS_TIMEOUT for code in ("L001", "L002") if code in codes})
+    cut = [lc for lc in (lss.channels.values() if lss is not None else ()) if lc.left_out]
+    if cut:
+        why = _scoped(f"more than {lss_stage.MAX_REQUESTS} LSS requests on a channel: the "
+                      "LSS frames after that were not judged",
+                      [f"{lc.channel} from line {lc.left_out_line}" for lc in cut])
+        out.update({code: why for code in ("L001", "L002", "L003", "L004", "L005", "L006",
+                                           "L007") if code in codes and code not in out})
     return out
 
 

@@ -38,10 +38,11 @@ import uuid
 from collections.abc import Iterable
 from typing import Any
 
+from nmtcheck.fleet import lss_table
 from nmtcheck.fleet.storage import LocalFS, filesystem, is_local
 
-# 2: the SPEC_COMM §9.4.2 tables (sync_stats, pdo_stats, emcy) and the findings' cob_id,
-# causes, reactions and root_kind
+# 2: the SPEC_COMM §9.4.2 tables (sync_stats, pdo_stats, emcy, lss) and the findings'
+# cob_id, causes, reactions and root_kind
 SCHEMA_VERSION = 2
 MARKER = "_nmtcheck_dataset.json"
 LOCK = "_nmtcheck_run.lock"
@@ -49,9 +50,10 @@ LOCK = "_nmtcheck_run.lock"
 # read it), a name no batch has (theirs are `part-<24 hex>`), under a date (`unknown` would
 # make DuckDB's hive partitioning read every `date` as text, not as DATE)
 SCHEMA_PART = ("date=1970-01-01", "part-schema.parquet")
-TABLES = ("runs", "inputs", "findings", "node_stats", "boot", "sync_stats", "pdo_stats", "emcy")
+TABLES = ("runs", "inputs", "findings", "node_stats", "boot", "sync_stats", "pdo_stats", "emcy",
+          "lss")
 # the tables a batch writes before `inputs`, its commit record
-ROW_TABLES = ("findings", "node_stats", "boot", "sync_stats", "pdo_stats", "emcy")
+ROW_TABLES = ("findings", "node_stats", "boot", "sync_stats", "pdo_stats", "emcy", "lss")
 DATASET_ENTRIES = (*(f"{t}/" for t in TABLES), MARKER, LOCK)  # what a dataset's folder holds
 SEVERITY_COLUMNS = ("n_error", "n_warning", "n_info")
 
@@ -147,6 +149,7 @@ COLUMNS: dict[str, list[tuple[str, str]]] = {
              ("stack", "string"), ("notes", "list<string>"), ("code", "string"),
              ("meaning", "string"), ("count", "int64"), ("first", "float64"),
              ("last", "float64"), ("registers", "list<string>")],
+    "lss": [*_KEY, *lss_table.COLUMNS],  # SPEC §9.4.2: one row per LSS request
 }
 # one consumer of a PDO stream (`pdo_stats.consumers`, a list of these): its JSON fields
 # flattened as the table's (an RPDO has no inhibit time: the JSON's is null)

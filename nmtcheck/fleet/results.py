@@ -25,6 +25,7 @@ class Results:
     sync_stats: pd.DataFrame = field(default_factory=pd.DataFrame)
     pdo_stats: pd.DataFrame = field(default_factory=pd.DataFrame)
     emcy: pd.DataFrame = field(default_factory=pd.DataFrame)
+    lss: pd.DataFrame = field(default_factory=pd.DataFrame)  # SPEC §9.4.2: LSS requests
 
 
 def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | None = None,
@@ -57,4 +58,4 @@ def read_results(url: str | PathLike[str], *, storage_options: dict[str, Any] | 
         tables = newest(tables)
     return Results(tables["runs"], tables["inputs"], tables["findings"], tables["node_stats"],
                    version, tables["boot"], tables["sync_stats"], tables["pdo_stats"],
-                   tables["emcy"])
+                   tables["emcy"], tables["lss"])

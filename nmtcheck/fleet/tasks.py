@@ -216,7 +216,7 @@ def _check_one(path: str, fi: FileInfo, key: dict[str, Any], cfg: TaskConfig,
                ) -> None:
     from nmtcheck.engine import check_input
     from nmtcheck.errors import InputError, UsageError
-    from nmtcheck.fleet import comm_rows
+    from nmtcheck.fleet import comm_rows, lss_table
 
     try:
         res = check_input(path, 0, cfg.profile, rules, cfg.network, cfg.input_format,
@@ -262,6 +262,7 @@ def _check_one(path: str, fi: FileInfo, key: dict[str, Any], cfg: TaskConfig,
     for table, made in (("sync_stats", comm_rows.sync_rows), ("pdo_stats", comm_rows.pdo_rows),
                         ("emcy", comm_rows.emcy_rows)):  # SPEC_COMM §9.4.2
         rows[table].extend({**key, **r, "date": date} for r in made(res))
+    rows["lss"].extend(lss_table.rows(res, key, date, start_time is not None))
 
 
 MAX_BOOT_ROWS_PER_NODE = 1000  # a log may boot a node a million times: failures come first

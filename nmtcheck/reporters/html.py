@@ -25,7 +25,7 @@ from nmtcheck import __version__
 from nmtcheck.processes.boot_records import LETTERS
 from nmtcheck.protocol.nmt import HEARTBEAT, STATES
 from nmtcheck.protocol.nmt import SOURCES as TIMELINE_SOURCES
-from nmtcheck.reporters import boot_report, comm_lanes, comm_report
+from nmtcheck.reporters import boot_report, comm_lanes, comm_report, lss_report
 from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
@@ -479,6 +479,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "inputs": inputs, "timelines": timelines, "groups": groups, "nodes": nodes,
         "boot": [view for res in results for view in _boot_views(res, report["nodes"])],
         **_comm_views(results, report),
+        **lss_report.html_rows(results, report),
         "rules": rules, "state_colors": STATE_COLORS, "severity_colors": SEVERITY_COLORS,
         "several_inputs": len(results) > 1, "network_notes": network_notes(options),
         "omitted": omitted_lines(results, options),

@@ -9,7 +9,7 @@ from typing import Any
 
 from nmtcheck import __version__
 from nmtcheck.protocol.nmt import SOURCES, STATES
-from nmtcheck.reporters import boot_report, comm_report
+from nmtcheck.reporters import boot_report, comm_report, lss_report
 from nmtcheck.reporters.common import (
     captures,
     configured_vs_measured,
@@ -127,6 +127,7 @@ def report_sections(results: list[InputResult], options: dict[str, object] | Non
             "events": _events(results),
             "channels": channels,
             "pdo_streams": [st for res in results for st in comm_report.pdo_streams(res)],
+            "lss": [row for res in results for row in lss_report.channel_rows(res)],
             "network": {"notes": list(network_notes(options))},
             "config": _config(options),
             "omitted": [{"input": res.index, "rule": o.rule, "name": o.name,

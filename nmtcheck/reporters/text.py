@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from itertools import groupby, islice
 
-from nmtcheck.reporters import boot_report
+from nmtcheck.reporters import boot_report, lss_report
 from nmtcheck.reporters.common import (
     capture_start,
     captures_note,
@@ -172,6 +172,7 @@ def render(results: list[InputResult], options: dict[str, object]) -> str:
         out += _findings(res)
         out += [f"  … {line}" for line in omitted_lines([res], options)]
         out += boot_report.text_lines(res)
+        out += lss_report.text_lines(res)
         out.append("")
     out.append(verdict_line(results, options))
     return escape_lines(out) + "\n"  # a name's newline or ESC is shown, never sent

@@ -81,6 +81,11 @@ SYNC_COLUMNS: dict[str, type] = {
 EMCY_RTR_COLUMNS: dict[str, type] = {
     "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "dlc": np.int16}
 DEFAULT_SYNC_ID = 0x080
+# LSS frames (SPEC §9.1.8): 7E5h requests, 7E4h responses, the 8 data bytes packed (27 bytes)
+LSS_RESPONSE_ID, LSS_REQUEST_ID = 0x7E4, 0x7E5
+LSS_COLUMNS: dict[str, type] = {
+    "ts": np.float64, "idx": np.int64, "line": np.int64, "chan": np.int32, "dlc": np.int16,
+    "can_id": np.uint16, "data": np.uint64}
 
 EC_COLUMNS: dict[str, type] = {
     "ts": np.float64, "idx": np.int64, "line": np.int64, "key": np.int32, "rtr": np.bool_,
@@ -162,6 +167,9 @@ class Decoded:
     d8_candidates: dict[int, np.ndarray] = field(default_factory=dict)
     channels: int = 0  # channel codes seen
     pdo_frames: int = 0  # data frames on PDO CAN-IDs (pre-defined or configured)
+    # LSS_COLUMNS, file order: the data frames on 7E4h and 7E5h (SPEC §9.1.8)
+    lss: dict[str, np.ndarray] = field(
+        default_factory=lambda: {n: np.zeros(0, t) for n, t in LSS_COLUMNS.items()})
 
     def d8(self, chan: int) -> float | None:
         """d8 of §9.1.6: the smallest interval before an 8-byte frame on the channel, when
@@ -554,6 +562,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
         is_sync[c & STD_ID_MASK] = True
     sync_spool = ColumnSpool(SYNC_COLUMNS)
     emcy_rtr_spool = ColumnSpool(EMCY_RTR_COLUMNS)
+    lss_spool = ColumnSpool(LSS_COLUMNS)
     event_spool = ColumnSpool({"row": EVENT_DTYPE})  # SDO frames: rows of EVENT_DTYPE
     nmt_spool = ColumnSpool(NMT_COLUMNS)
     emcy_spool = ColumnSpool(EMCY_COLUMNS)
@@ -585,6 +594,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
                               "chan": b.chan[sel], "rtr": b.rtr[sel], "dlc": b.dlc[sel],
                               "cs": b.data[sel, 0], "target": b.data[sel, 1]})
         _spool_sync_emcy(b, cid, co, is_sync, sync_spool, emcy_spool, emcy_rtr_spool)
+        _spool_lss(b, cid, co, lss_spool)
         ev_mask = co & sdo_events(cid, b)
         if ev_mask.any():
             sel = np.flatnonzero(ev_mask)
@@ -651,6 +661,8 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
     sync_spool.close()
     emcy_rtr_cols = {name: emcy_rtr_spool.column(name) for name in EMCY_RTR_COLUMNS}
     emcy_rtr_spool.close()
+    lss_cols = {name: lss_spool.column(name) for name in LSS_COLUMNS}
+    lss_spool.close()
     settings = ec_compact.SETTINGS
     if protect_s > settings.protect_s:
         settings = replace(settings, protect_s=protect_s)
@@ -668,7 +680,7 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
     bootups.close()
     return Decoded(events, nmt_cols, emcy_cols, ec_cols, frame_times, node_frames, restricted,
                    first_tx, last_tx, standard, ec_runs, kept_spool, guard_runs, sync_cols,
-                   emcy_rtr_cols, d8.best, d8.channels, pdo_frames)
+                   emcy_rtr_cols, d8.best, d8.channels, pdo_frames, lss_cols)
 
 
 class _D8:
@@ -774,6 +786,16 @@ def _spool_sync_emcy(b: FrameBatch, cid: np.ndarray, co: np.ndarray, is_sync: np
             "key": node_key(b.chan[sel].astype(np.int32), cid[sel] - EMCY_BASE),
             "dlc": b.dlc[sel],
             "data": np.ascontiguousarray(b.data[sel]).view(np.uint64).ravel()})
+
+
+def _spool_lss(b: FrameBatch, cid: np.ndarray, co: np.ndarray, spool: ColumnSpool) -> None:
+    """The batch's LSS data frames (7E4h, 7E5h) into their spool."""
+    lss = co & ~b.rtr & ((cid == LSS_REQUEST_ID) | (cid == LSS_RESPONSE_ID))
+    if lss.any():
+        sel = np.flatnonzero(lss)
+        spool.append({"ts": b.ts[sel], "idx": b.index[sel], "line": b.line[sel],
+                      "chan": b.chan[sel], "dlc": b.dlc[sel], "can_id": cid[sel],
+                      "data": np.ascontiguousarray(b.data[sel]).view(np.uint64).ravel()})
 
 
 def _spool_ec(b: FrameBatch, cid: np.ndarray, sel: np.ndarray, ec_spool: ColumnSpool,

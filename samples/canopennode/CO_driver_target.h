@@ -29,7 +29,12 @@ extern "C" {
 #define CO_CONFIG_FIFO           (CO_CONFIG_FIFO_ENABLE)
 #define CO_CONFIG_NODE_GUARDING  (CO_CONFIG_NODE_GUARDING_SLAVE_ENABLE | CO_CONFIG_NODE_GUARDING_MASTER_ENABLE)
 #define CO_CONFIG_NODE_GUARDING_MASTER_COUNT 8
+#ifdef NMTCHECK_LSS /* lss_dev (lss/ recordings): LSS slave, its direct fastscan answer, LSS master */
+#define CO_CONFIG_LSS            (CO_CONFIG_LSS_SLAVE | CO_CONFIG_LSS_SLAVE_FASTSCAN_DIRECT_RESPOND \
+                                  | CO_CONFIG_LSS_MASTER)
+#else
 #define CO_CONFIG_LSS            (0)
+#endif
 #define CO_CONFIG_LEDS           (0)
 #define CO_CONFIG_STORAGE        (0)
 #define CO_CONFIG_GTW            (0)

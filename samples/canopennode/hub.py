@@ -437,6 +437,104 @@ SCENARIOS: dict[str, Scenario] = {
 }
 
 
+# LSS recordings (lss/): CANopenNode's LSS master (lss_dev --master) runs a script of LSS
+# master calls; slaves are lss_dev LSS slaves, non-configured (node-ID 255) or configured
+ID_A = "300:4644:0:1"
+ID_B = "300:4644:0:2"
+ID_C = "300:4644:0:4"
+ID_D = "19:1:0:1"
+
+
+def lss_master(script: str, timeout_ms: int = 100) -> list[str]:
+    """Node 1 with no heartbeat of its own; the script after 300 ms, with the master's
+    response timeout (CO_LSSmaster_changeTimeout; CANopenNode's master waits it out after
+    every fastscan request, answered or not, so the fastscans use 25 ms)."""
+    return ["--node", "1", "--hb", "0", "--master", "--script",
+            f"wait 300;timeout {timeout_ms};" + script]
+
+
+def lss_slave(identity: str, node: int = 255, *extra: str) -> list[str]:
+    return ["--node", str(node), "--hb", "1000", "--identity", identity, *extra]
+
+
+LSS_SCENARIOS: dict[str, Scenario] = {
+    "lss_configure_store": Scenario(3.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.0, "master", lss_master(f"select {ID_A};inquire_node;node 5;store;deselect"),
+              "lss_dev"),
+    ]),
+    "lss_fastscan_one": Scenario(6.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.0, "master", lss_master("fastscan;node 6;store;deselect", 25), "lss_dev"),
+    ]),
+    "lss_fastscan_two": Scenario(11.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.0, "sB", lss_slave(ID_B, 255, "--store"), "lss_dev"),
+        spawn(0.0, "master", lss_master(
+            "fastscan;node 6;store;deselect;wait 300;fastscan;node 7;store;deselect;wait 300;"
+            "fastscan", 25), "lss_dev"),
+    ]),
+    "lss_fastscan_nobody": Scenario(3.0, [
+        spawn(0.0, "sC", lss_slave(ID_C, 3, "--store"), "lss_dev"),
+        spawn(0.0, "master", lss_master("fastscan", 25), "lss_dev"),
+    ]),
+    "lss_selective_nobody": Scenario(3.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.0, "master", lss_master("select 300:4644:0:9;wait 1500;deselect"), "lss_dev"),
+    ]),
+    "lss_store_error": Scenario(3.0, [
+        spawn(0.0, "sA", lss_slave(ID_A), "lss_dev"),
+        spawn(0.0, "master", lss_master(f"select {ID_A};node 5;store;deselect"), "lss_dev"),
+    ]),
+    "lss_two_in_configuration": Scenario(2.0, [
+        spawn(0.0, "sA", lss_slave(ID_A), "lss_dev"),
+        spawn(0.0, "sD", lss_slave(ID_D), "lss_dev"),
+        spawn(0.0, "master", lss_master("select_all;inquire_vendor;wait 200;deselect"),
+              "lss_dev"),
+    ]),
+    "lss_bitrate_silent": Scenario(3.0, [
+        spawn(0.0, "sA", lss_slave(ID_A), "lss_dev"),
+        spawn(0.0, "master", lss_master(f"select {ID_A};bitrate 125;wait 1500;deselect"),
+              "lss_dev"),
+    ]),
+    "lss_not_adopted": Scenario(8.0, [
+        spawn(0.0, "sC", lss_slave(ID_C, 3), "lss_dev"),
+        spawn(0.0, "master", lss_master(
+            f"select {ID_C};inquire_node;node 8;deselect;wait 1200;nmt 82 0"), "lss_dev"),
+        kill(1.0, "sC"),
+        spawn(1.1, "sC", lss_slave(ID_C, 3), "lss_dev"),
+    ]),
+}
+LELY_EDS = "../lely/lss/lss.eds"  # from this folder, where hub.py runs the devices
+
+
+def lely_master(script: str) -> list[str]:
+    """Lely's NMT and LSS master (samples/lely/lss/lely_lss.c), node 1, running the script
+    from its LSS request function at its communication reset."""
+    return ["--node", "1", "--eds", LELY_EDS, "--master", "--script", script]
+
+
+LSS_SCENARIOS.update({
+    "lely_selective_nobody": Scenario(2.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.3, "master", lely_master("select 300:4644:0:9;waiting"), "lely_lss"),
+    ]),
+    "lely_fastscan": Scenario(16.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.3, "master", lely_master("fastscan;node 5;store;waiting"), "lely_lss"),
+    ]),
+    "lely_configure_after_waiting": Scenario(2.0, [
+        spawn(0.0, "sA", lss_slave(ID_A, 255, "--store"), "lss_dev"),
+        spawn(0.3, "master", lely_master(f"select {ID_A};waiting;node 5"), "lely_lss"),
+    ]),
+    "lely_fastscan_configured": Scenario(16.0, [
+        spawn(0.0, "sL", ["--node", "3", "--eds", LELY_EDS, "--identity", ID_C], "lely_lss"),
+        spawn(0.3, "master", lely_master("fastscan;inquire_node;waiting"), "lely_lss"),
+    ]),
+})
+SCENARIOS.update(LSS_SCENARIOS)
+
+
 def fmt_frame(ts_us: int, can_id: int, rtr: int, dlc: int, data: bytes) -> str:
     sec, usec = divmod(ts_us, 1000000)
     payload = "R" + (f"{dlc:X}" if dlc else "") if rtr else data[:dlc].hex().upper()

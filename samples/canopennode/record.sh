@@ -1,11 +1,12 @@
 #!/bin/sh
 # Re-record every scenario (see README.md). Run in this folder after `make`.
 #   ./record.sh [BINDIR] [OUTDIR]
-# BINDIR: where `make` put dev, dev_toggle, dev_syncskip and dev_inhibit (default /work/build/canopennode/bin)
+# BINDIR: where `make` put dev, dev_toggle, dev_syncskip, dev_inhibit and lss_dev (default /work/build/canopennode/bin)
 # OUTDIR: where the logs go (default: this folder); device events go to OUTDIR/*.events.
 # The SYNC and EMCY scenarios go to OUTDIR/sync_emcy/, with their .events (the stack's
 # own callbacks: the ground truth that tests/test_samples_sync_emcy.py reads), the PDO
-# scenarios to OUTDIR/pdo/, with theirs (tests/test_samples_pdo.py).
+# scenarios to OUTDIR/pdo/, with theirs (tests/test_samples_pdo.py), the LSS scenarios to
+# OUTDIR/lss/ (tests/test_samples_lss.py).
 set -e
 BIN=${1:-/work/build/canopennode/bin}
 OUT=${2:-.}
@@ -21,4 +22,14 @@ done
 mkdir -p "$OUT/pdo"
 for s in rpdo_producer_stopped rpdo_timeout_stale_heartbeat tpdo_event_timer tpdo_inhibit_bypass rpdo_length sync_tpdo reserved_type; do
   chrt -f 10 python3 hub.py $s "$OUT/pdo/$s.log" --bin "$BIN" --events "$OUT/pdo/$s.events"
+done
+mkdir -p "$OUT/lss"
+for s in lss_configure_store lss_fastscan_one lss_fastscan_two lss_fastscan_nobody lss_selective_nobody \
+         lss_store_error lss_two_in_configuration lss_bitrate_silent lss_not_adopted; do
+  chrt -f 10 python3 hub.py $s "$OUT/lss/$s.log" --bin "$BIN" --events "$OUT/lss/$s.events"
+done
+# Lely's LSS master (samples/lely/lss/: lely_lss built there into BIN, lely-core in /opt/lely)
+for s in lely_selective_nobody lely_configure_after_waiting lely_fastscan lely_fastscan_configured; do
+  LD_LIBRARY_PATH=/opt/lely/lib chrt -f 10 python3 hub.py $s "$OUT/../lely/lss/$s.log" --bin "$BIN" \
+    --events "$OUT/../lely/lss/$s.events"
 done
