@@ -301,6 +301,21 @@ def test_captures_are_capped(checker: Checker, monkeypatch: pytest.MonkeyPatch) 
     assert len(res.stats.restarts) == 1 and len(res.model.channels) == 2
 
 
+def test_restarts_past_the_cap_are_one_finding(checker: Checker,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """A logger that resets its clock every second (issue 39): past MAX_CAPTURES each
+    reset is a step back in the last capture, counted by I005's one finding, not an
+    H002 of every node at every reset."""
+    from nmtcheck.readers import captures
+
+    monkeypatch.setattr(captures, "MAX_CAPTURES", 2)
+    block = sorted((0.01 * i + 0.001 * n, f"70{n}#05") for i in range(100) for n in (1, 2))
+    res = checker.run(candump(block) * 12)
+    assert len(res.stats.restarts) == 1
+    assert [f.rule for f in res.findings] == ["I005"], res.findings
+    assert "timestamps go backwards 11 times" in res.findings[0].message
+
+
 def test_a_few_lines_pasted_twice_are_a_capture_of_their_own(checker: Checker) -> None:
     """Two screens of a terminal pasted with 20 lines in both: time goes back less than a
     second, to frames the input already had (time and CAN-ID to the microsecond). Read

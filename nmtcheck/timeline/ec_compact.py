@@ -304,8 +304,10 @@ def _chunk(node: _Node, new: dict[str, np.ndarray], events: ChannelEvents | None
         _emit(node, rows, start, stop, drop, before, odd_upto, guard)
     keep_from = max(stop - (2 * k + 2), 0)  # context for the next chunk's windows
     node.odd_base = int(odd_upto[keep_from - 1]) if keep_from else node.odd_base
-    node.tail = {name: col[keep_from:] for name, col in rows.items()}
-    node.tail_odd = odd[keep_from:]
+    # copies: a view would keep the chunk's rows of the node alive, and a log of many
+    # captures (a channel each) has a node key ending in every one of them
+    node.tail = {name: col[keep_from:].copy() for name, col in rows.items()}
+    node.tail_odd = odd[keep_from:].copy()
     node.undecided = n - stop
 
 
