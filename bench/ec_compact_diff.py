@@ -11,6 +11,9 @@ process, with `ec_compact.SETTINGS` as shipped and with compaction off, and comp
 JSON and text reports: they must be identical. Prints time, kept and dropped rows.
 `tests/test_ec_compact.py` does the same on small logs with forced settings.
 
+With `--log PATH`, checks that log instead of writing one (a cut of a pathological log:
+`head -n 1000000 jitter-20M.log > cut.log`; any format nmtcheck reads).
+
 With `--keepalive`, a master sends "start all" every 500 ms throughout (node 7's stop and
 pre-operational then last until the next one): runs of heartbeats pass the repeats.
 
@@ -117,12 +120,13 @@ def main() -> int:
                     help="a master sends \"start all\" every 500 ms (node 7's stop and "
                          "pre-operational last until the next one)")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/nmtcheck-ecdiff"))
+    ap.add_argument("--log", type=Path, help="check this log instead of a generated one")
     args = ap.parse_args()
     frames = parse_size(args.frames)
     args.dir.mkdir(parents=True, exist_ok=True)
-    log = args.dir / (f"{'guard' if args.guarding else 'hb'}16-{frames}"
-                      f"{'-slow9' if args.network else ''}"
-                      f"{'-keepalive' if args.keepalive else ''}.log")
+    log = args.log or args.dir / (f"{'guard' if args.guarding else 'hb'}16-{frames}"
+                                  f"{'-slow9' if args.network else ''}"
+                                  f"{'-keepalive' if args.keepalive else ''}.log")
     if not log.exists():
         write_log(log, frames, args.network, args.guarding, args.keepalive)
     net = None

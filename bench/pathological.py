@@ -35,6 +35,12 @@ Writes candump logs (vectorised, like bench/generate.py) under --data (default
 - boots (issue 22): CiA 302-2 boot processes of 16 nodes in turn, every one ok;
 - bootfail (issue 22): the same, but each node refuses the 1017h download (SDO abort
   06010002h, read-only): a failed process and a P003 finding per 8 frames;
+- jitter (issue 39): heartbeats (05h) of 8 nodes every 10 ms, each +-0.5 ms (uniform),
+  in time order: real heartbeats jitter, and their runs must compact all the same;
+- wander (issue 39): the same heartbeats in bus order, each node's stamps off by up to
+  0.1 s either way (its clock wanders, a sine of a minute or so): up to 0.2 s out of order;
+- restarts (issue 39): a block of 4,000 frames (heartbeats of 4 nodes every 1 ms) again
+  and again: time goes back to the start every second, a capture per block;
 - guarded: node guarding of 16 nodes every 100 ms (remote request 700h+N, the answer
   05h with its toggle bit alternating 2 ms later), nothing else: half remote frames,
   and the error-control stream of networks that guard instead of beating.
@@ -74,7 +80,7 @@ from traffic import CHUNK_FRAMES, T0_US, Frames, traffic  # noqa: E402
 
 KINDS = ("clean", "flapping", "commands", "findings", "nodes127", "emcy", "sdo", "aborts",
          "channels", "chanbeats", "canids", "extended", "errorframes", "boots", "bootfail",
-         "guarded", "keepalive")
+         "guarded", "keepalive", "jitter", "wander", "restarts")
 OUTPUTS = ("text", "json", "html", "sarif", "csv")
 COMMANDS = np.asarray([0x01, 0x02, 0x80, 0x81, 0x82], np.uint8)  # start, stop, pre-op, resets
 FLAP = np.asarray([0x05, 0x7F, 0x04], np.uint8)  # operational, pre-operational, stopped
@@ -235,10 +241,45 @@ def keepalive(i: np.ndarray) -> Frames:
     return _frames(i, us, np.where(command, 0, 0x700 + node), np.where(command, 2, 1), data)
 
 
+def _beats(i: np.ndarray, us: np.ndarray, node: np.ndarray, order: np.ndarray) -> Frames:
+    """Heartbeats (05h) of these nodes at these times, in `order`."""
+    data = np.zeros((len(i), 8), np.uint8)
+    data[:, 0] = 0x05
+    return _frames(i, us[order], 0x700 + node[order], np.ones(len(i), np.uint8), data)
+
+
+def jitter(i: np.ndarray) -> Frames:
+    """8 nodes' heartbeats every 10 ms +-0.5 ms (uniform), in time order: the rounds do not
+    overlap (node N at N ms), so a chunk of whole rounds sorts on its own."""
+    rng = np.random.default_rng(int(i[0]))
+    node = i % 8 + 1
+    t = (i // 8) * 10_000 + node * 1_000 + rng.uniform(-500, 500, len(i))
+    return _beats(i, np.round(t), node, np.argsort(t, kind="stable"))
+
+
+def wander(i: np.ndarray) -> Frames:
+    """`jitter`'s heartbeats written in bus order, each node's stamps off by up to 0.1 s
+    (0.1 s x a sine of 60 + 7 N seconds): out of order by up to 0.2 s."""
+    rng = np.random.default_rng(int(i[0]))
+    node = i % 8 + 1
+    true = (i // 8) * 10_000 + node * 1_000 + rng.uniform(-500, 500, len(i))
+    stamp = true + 100_000 * np.sin(2 * np.pi * true / ((60 + 7 * node) * 1e6) + node)
+    return _beats(i, np.round(stamp + 100_000), node, np.argsort(true, kind="stable"))
+
+
+def restarts(i: np.ndarray) -> Frames:
+    """A block of 4,000 heartbeats of 4 nodes every 1 ms, again and again: time goes back
+    to the start every second (a logger that resets its clock)."""
+    j = i % 4000
+    node = j % 4 + 1
+    return _beats(i, (j // 4) * 1_000 + node * 100, node, np.arange(len(i)))
+
+
 MAKERS: dict[str, Callable[[np.ndarray], Frames]] = {
     "flapping": flapping, "commands": commands, "findings": findings, "nodes127": nodes127,
     "emcy": emcy, "sdo": sdo, "aborts": aborts, "boots": boots,
-    "bootfail": bootfail, "guarded": guarded, "keepalive": keepalive}
+    "bootfail": bootfail, "guarded": guarded, "keepalive": keepalive, "jitter": jitter,
+    "wander": wander, "restarts": restarts}
 
 
 def chunks(kind: str, n: int) -> Iterator[Frames]:

@@ -301,6 +301,62 @@ def test_captures_are_capped(checker: Checker, monkeypatch: pytest.MonkeyPatch) 
     assert len(res.stats.restarts) == 1 and len(res.model.channels) == 2
 
 
+def test_restarts_past_the_cap_are_one_finding(checker: Checker,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """A logger that resets its clock every second (issue 39): past MAX_CAPTURES each
+    reset is a step back in the last capture, counted by I005's one finding, not an
+    H002 of every node at every reset."""
+    from nmtcheck.readers import captures
+
+    monkeypatch.setattr(captures, "MAX_CAPTURES", 2)
+    block = sorted((0.01 * i + 0.001 * n, f"70{n}#05") for i in range(100) for n in (1, 2))
+    res = checker.run(candump(block) * 12)
+    assert len(res.stats.restarts) == 1
+    assert [f.rule for f in res.findings] == ["I005"], res.findings
+    assert "timestamps go backwards 11 times" in res.findings[0].message
+
+
+def test_a_restart_costs_the_frames_up_to_it_not_the_rest_of_the_batch(
+        checker: Checker, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A logger that resets its clock every second (issue 39): each search for the next
+    step back looked through the rest of the batch, so 1,500 resets took 45 s. Looked for
+    among the next 2 x WINDOW frames first, the frames searched stay a few times the
+    input's, however many resets it has; the captures are the same."""
+    from nmtcheck.readers import captures
+
+    block = sorted((0.01 * i + 0.001 * n, f"70{n}#05") for i in range(40) for n in (1, 2))
+    text = candump(block) * 150
+    whole = checker.run(text)
+    monkeypatch.setattr(captures, "WINDOW", 64, raising=False)
+    searched: list[int] = []
+    real_back = captures.Captures._back
+
+    def spy(self: Captures, ts: np.ndarray, *args: object, **kw: object) -> object:
+        searched.append(len(ts))
+        return real_back(self, ts, *args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(captures.Captures, "_back", spy)
+    res = checker.run(text)
+    assert len(res.stats.restarts) == len(whole.stats.restarts) == 149
+    assert [f.message for f in res.findings] == [f.message for f in whole.findings]
+    assert sum(searched) < 4 * len(block) * 150, sum(searched)
+
+
+@pytest.mark.parametrize(("first", "second"), PAIRS[:4] + PAIRS[6:8])
+def test_small_windows_find_the_captures_the_whole_batch_finds(
+        checker: Checker, monkeypatch: pytest.MonkeyPatch, first: str, second: str) -> None:
+    from nmtcheck.readers import captures
+
+    a, b = (SAMPLES / first).read_text(), (SAMPLES / second).read_text()
+    suffix = Path(first).suffix
+    whole = checker.run(a + b, suffix=suffix)
+    monkeypatch.setattr(captures, "WINDOW", 4)
+    res = checker.run(a + b, suffix=suffix)
+    assert (res.stats.restarts, res.stats.clock_steps) == (
+        whole.stats.restarts, whole.stats.clock_steps)
+    assert [f.message for f in res.findings] == [f.message for f in whole.findings]
+
+
 def test_a_few_lines_pasted_twice_are_a_capture_of_their_own(checker: Checker) -> None:
     """Two screens of a terminal pasted with 20 lines in both: time goes back less than a
     second, to frames the input already had (time and CAN-ID to the microsecond). Read

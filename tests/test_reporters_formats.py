@@ -149,6 +149,22 @@ def test_sarif_is_valid_against_the_2_1_0_schema() -> None:
     assert h001["defaultConfiguration"]["level"] == "error"
 
 
+def test_sarif_is_written_result_by_result_as_one_document_would_be(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """120 k findings took 1.27 GB as one SARIF document (issue 39): the log is written in
+    pieces, its results one after the other, and the text is `json.dumps(log, indent=2)`'s
+    to the byte, with and without results."""
+    from nmtcheck.reporters import streamer
+
+    monkeypatch.setattr(sarif, "PIECE_CHARS", 200, raising=False)
+    for results in (ALL, ALL[:1], [r for r in ALL if not r.findings][:1]):
+        whole = json.dumps(sarif.sarif_log(results, OPTIONS), indent=2, allow_nan=False) + "\n"
+        pieces = list(streamer("sarif")(results, OPTIONS))
+        assert "".join(pieces) == whole == sarif.render(results, OPTIONS)
+        findings = sum(len(r.findings) for r in results)
+        assert len(pieces) >= findings + 1  # a piece at least per result past 200 chars
+
+
 def test_sarif_levels_relative_paths_and_configured_severity(tmp_path: Path) -> None:
     res = _repeated_timeouts(tmp_path, 1)
     res.stats.path = "logs/field.log"

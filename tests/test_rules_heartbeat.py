@@ -129,6 +129,18 @@ def test_h002_too_early_complete_list(checker: Checker) -> None:
     assert "(2 heartbeats)" in res.findings[0].message
 
 
+def test_h002_not_a_heartbeat_stamped_more_than_a_period_back(checker: Checker) -> None:
+    """A heartbeat written with a stamp 0.5 s back (time goes on after it) came no earlier
+    than the others: I005 counts the step back. One stamped 20 ms back (a merged log's
+    reorder within a period) is still too early."""
+    fr = [(0.0, "702#00")] + hb(2, 0.1, 2.0)
+    back = candump(fr[:11] + [(0.52, "702#7F")] + fr[11:])
+    assert checker.findings(back, select="H002") == []
+    assert "I005" in {f.rule for f in checker.run(back).findings}
+    near = candump(fr[:11] + [(0.98, "702#7F")] + fr[11:])
+    assert [r for r, _n, _t in checker.findings(near, select="H002")] == ["H002"]
+
+
 def test_h002_configured_period(checker: Checker) -> None:
     # 1017h = 300 ms but the node sends every 100 ms: one run from the second heartbeat
     fr = [(0.0, "702#00")] + hb(2, 0.1, 1.0)

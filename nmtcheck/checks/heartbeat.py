@@ -121,7 +121,10 @@ def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[F
     in force when one is known, else the median interval), except the first
     heartbeat after a boot-up, after an NMT command to N, after an SDO write of
     1017h to N (the new period starts a new phase), or one that reports a
-    different state (stacks may send one at once on a state change).
+    different state (stacks may send one at once on a state change). A heartbeat
+    stamped more than a period before the previous one did not come early: the
+    log's time went back (I005 counts it; past the cap of captures a logger that
+    resets its clock every second would otherwise give a finding per reset).
 
     **Why it matters.** A producer that sends too often wastes bus bandwidth and
     usually means a misconfigured 1017h, two devices sharing the node-ID, or a
@@ -143,7 +146,8 @@ def heartbeat_too_early(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[F
     with np.errstate(invalid="ignore"):
         early = ((ec.kind[a] == HEARTBEAT) & (ec.kind[b] == HEARTBEAT)
                  & (ec.code[a] == ec.code[b]) & (period > 0)
-                 & (ec.ts[b] - ec.ts[a] < limit - EPS))
+                 & (ec.ts[b] - ec.ts[a] < limit - EPS)
+                 & (ec.ts[b] - ec.ts[a] >= -period - EPS))  # further back: I005's
     early &= ~between(m.commands.idx, ec.idx[a], ec.idx[b])
     # a new producer time starts a new phase: the first heartbeat after a 1017h write is
     # not early either
@@ -171,7 +175,7 @@ def _small_early(m: NodeModel, s: SmallEc, factor: float) -> bool:
                 value[i] & 0x7F) != (value[i + 1] & 0x7F):
             continue
         period = hb / 1000.0 if hb is not None and hb > 0 else m.measured_period_at(ts[i])
-        if period > 0 and ts[i + 1] - ts[i] < factor * period - EPS:
+        if period > 0 and -period - EPS <= ts[i + 1] - ts[i] < factor * period - EPS:
             return True
     return False
 

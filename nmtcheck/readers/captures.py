@@ -61,6 +61,11 @@ MAX_CAPTURES = 1000
 # pieces): then the rest is another capture. Looked for among the last HISTORY frames.
 HISTORY = 1 << 16
 MAX_REPEAT_LOOKS = 64  # frames going back looked at for a repeat, per search
+# Where a batch goes back, the next step back is looked for among the next 2 x WINDOW
+# frames first and taken where it lies in the first WINDOW of them (its confirming frames
+# among the rest): a search costs the frames up to it, not the rest of the batch, so that
+# a logger that resets its clock every second costs no more per reset than per frame.
+WINDOW = 8192
 
 
 @dataclass
@@ -140,8 +145,13 @@ class Captures:
             pos = len(ts)
         while pos < len(ts):
             cut = next((r for r in cuts if r > pos), len(ts))
-            back, new = self._back(ts[pos:cut], chan[pos:cut], batch.can_id[pos:cut],
-                                   after if cut == len(ts) else None)
+            back, new = self._search(ts, chan, batch.can_id, pos, cut,
+                                     after if cut == len(ts) else None)
+            if back < 0:  # no step back in the next WINDOW frames: take them, look on
+                self._note(ts[pos:pos + WINDOW], chan[pos:pos + WINDOW],
+                           batch.can_id[pos:pos + WINDOW])
+                pos += WINDOW
+                continue
             stop = pos + back
             self._note(ts[pos:stop], chan[pos:stop], batch.can_id[pos:stop])
             if stop < len(ts):
@@ -211,20 +221,42 @@ class Captures:
             self._recent = np.concatenate([self._recent, ts])[-HISTORY:]
             self._recent_ids = np.concatenate([self._recent_ids, can_id])[-HISTORY:]
 
+    def _search(self, ts: np.ndarray, chan: np.ndarray, can_id: np.ndarray, pos: int,
+                cut: int, after: FrameBatch | None) -> tuple[int, bool]:
+        """`_back` of rows [pos, cut), relative to pos; (-1, False) where the first WINDOW
+        rows hold no step back. Looked for among 2 x WINDOW rows first; where a frame in
+        the first WINDOW could go back and its channel's confirming frames lie beyond
+        them, among all the rows."""
+        if cut - pos > 2 * WINDOW and not self._capped():
+            hi = pos + 2 * WINDOW
+            back, new, sure = self._back(ts[pos:hi], chan[pos:hi], can_id[pos:hi], None,
+                                         trust=WINDOW)
+            if sure:
+                return (back, new) if back < WINDOW else (-1, False)
+        back, new, _sure = self._back(ts[pos:cut], chan[pos:cut], can_id[pos:cut], after)
+        return back, new
+
+    def _capped(self) -> bool:
+        return len(self.list) + len(self.stats.clock_steps) >= MAX_CAPTURES
+
     def _back(self, ts: np.ndarray, chan: np.ndarray, can_id: np.ndarray,
-              after: FrameBatch | None) -> tuple[int, bool]:
+              after: FrameBatch | None, trust: int | None = None) -> tuple[int, bool, bool]:
         """The row of `ts` where a channel's time goes back (len(ts): nowhere), and
         whether another recording begins there: the first frame more than STEP_S
         before its channel's latest so far whose channel's next CONFIRM frames (this
         batch's, then `after`'s) are too. Another recording where it goes back by more
         than RESTART_S, to within RESTART_S of the capture's start or before it, or to a
-        time the input already had; else the clock stepped back."""
-        if len(self.list) + len(self.stats.clock_steps) >= MAX_CAPTURES:
-            return len(ts), False
+        time the input already had; else the clock stepped back.
+
+        With `trust` (the rows go on after `ts`), also whether the answer holds for the
+        rows below `trust` as it would with every row after them: no frame there that
+        goes back waited for confirming frames past the end of `ts`."""
+        if self._capped():
+            return len(ts), False, True
         latest = np.maximum.accumulate(ts)  # a channel's latest is never above the input's
         np.maximum(latest, self._latest, out=latest)
         rows = np.flatnonzero(ts < latest - STEP_S)
-        found, drop = len(ts), 0.0
+        found, drop, sure = len(ts), 0.0, True
         for code in np.unique(chan[rows]).tolist():
             mine = np.flatnonzero(chan == code)
             t = ts[mine]
@@ -240,13 +272,15 @@ class Captures:
                 if bool((t_ahead[k + 1:k + 1 + CONFIRM] < before[k] - STEP_S).all()):
                     found, drop = int(mine[k]), float(before[k] - t[k])
                     break
+                if trust is not None and int(mine[k]) < trust and k + CONFIRM >= len(t):
+                    sure = False  # its confirming frames lie past `ts`
         repeat = self._repeat(ts, can_id, latest, found)
         if repeat < found:  # a piece pasted again, by however little time it goes back
-            return repeat, True
+            return repeat, True, sure
         if found == len(ts):
-            return found, False
+            return found, False, sure
         to_start = drop > RESTART_S and float(ts[found]) <= self.list[-1].start + RESTART_S
-        return found, to_start or self._seen(ts, can_id, found)
+        return found, to_start or self._seen(ts, can_id, found), sure
 
     def _repeat(self, ts: np.ndarray, can_id: np.ndarray, latest: np.ndarray,
                 upto: int) -> int:

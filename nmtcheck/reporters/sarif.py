@@ -7,6 +7,8 @@ documentation as help text.
 
 from __future__ import annotations
 
+import uuid
+from collections.abc import Iterator
 from pathlib import PurePath
 from typing import Any
 
@@ -19,6 +21,7 @@ from nmtcheck.safe_text import dumps_finite
 SCHEMA_URI = "https://json.schemastore.org/sarif-2.1.0.json"
 LEVELS = {"error": "error", "warning": "warning", "info": "note"}
 SRCROOT = "%SRCROOT%"
+PIECE_CHARS = 1 << 20  # the results are written in pieces of about this many characters
 
 
 def artifact_location(path: str) -> dict[str, Any]:
@@ -43,8 +46,15 @@ def rule_descriptor(rule: Rule, severity: str) -> dict[str, Any]:
 
 
 def sarif_log(results: list[InputResult], options: dict[str, object]) -> dict[str, Any]:
+    """The whole log as one dict (its results a list)."""
+    log = _skeleton(results, options)
+    log["runs"][0]["results"] = list(_results(results, options))
+    return log
+
+
+def _skeleton(results: list[InputResult], options: dict[str, object]) -> dict[str, Any]:
+    """The log without its results (`None` in their place)."""
     rules = checked_rules(options)
-    rule_index = {r.code: i for i, (r, _s) in enumerate(rules)}
     descriptors = [rule_descriptor(r, s) for r, s in rules]
     artifacts = []
     for res in results:
@@ -57,7 +67,34 @@ def sarif_log(results: list[InputResult], options: dict[str, object]) -> dict[st
                            "start": s.start, "end": s.end,
                            "omitted": {o.rule: o.count for o in res.omitted}},
         })
-    out_results = []
+    return {
+        "$schema": SCHEMA_URI,
+        "version": "2.1.0",
+        "runs": [{
+            "tool": {"driver": {"name": "nmtcheck", "version": __version__,
+                                "semanticVersion": __version__, "rules": descriptors}},
+            "originalUriBaseIds": {SRCROOT: {"description": {
+                "text": "The directory nmtcheck was run from."}}},
+            "artifacts": artifacts,
+            "results": None,
+            # inputs that could not be read: the run did not analyse them (SPEC §4)
+            "invocations": [{
+                "executionSuccessful": not any(res.error for res in results),
+                "toolExecutionNotifications": [
+                    {"level": "error", "message": {"text": f"cannot be checked: {res.error}"},
+                     "locations": [{"physicalLocation": {
+                         "artifactLocation": {**artifact_location(res.stats.path),
+                                              "index": res.index}}}]}
+                    for res in results if res.error is not None]}],
+            "columnKind": "unicodeCodePoints",
+        }],
+    }
+
+
+def _results(results: list[InputResult], options: dict[str, object]
+             ) -> Iterator[dict[str, Any]]:
+    """One SARIF result per finding, in order."""
+    rule_index = {r.code: i for i, (r, _s) in enumerate(checked_rules(options))}
     for res in results:
         for f in res.findings:
             physical: dict[str, Any] = {
@@ -83,30 +120,34 @@ def sarif_log(results: list[InputResult], options: dict[str, object]) -> dict[st
             }
             if f.rule in rule_index:
                 result["ruleIndex"] = rule_index[f.rule]
-            out_results.append(result)
-    return {
-        "$schema": SCHEMA_URI,
-        "version": "2.1.0",
-        "runs": [{
-            "tool": {"driver": {"name": "nmtcheck", "version": __version__,
-                                "semanticVersion": __version__, "rules": descriptors}},
-            "originalUriBaseIds": {SRCROOT: {"description": {
-                "text": "The directory nmtcheck was run from."}}},
-            "artifacts": artifacts,
-            "results": out_results,
-            # inputs that could not be read: the run did not analyse them (SPEC §4)
-            "invocations": [{
-                "executionSuccessful": not any(res.error for res in results),
-                "toolExecutionNotifications": [
-                    {"level": "error", "message": {"text": f"cannot be checked: {res.error}"},
-                     "locations": [{"physicalLocation": {
-                         "artifactLocation": {**artifact_location(res.stats.path),
-                                              "index": res.index}}}]}
-                    for res in results if res.error is not None]}],
-            "columnKind": "unicodeCodePoints",
-        }],
-    }
+            yield result
 
 
 def render(results: list[InputResult], options: dict[str, object]) -> str:
-    return dumps_finite(sarif_log(results, options), indent=2) + "\n"
+    return "".join(stream(results, options))
+
+
+def stream(results: list[InputResult], options: dict[str, object]) -> Iterator[str]:
+    """The log in pieces, result by result, as `json.dumps(log, indent=2)` writes it: the
+    findings are never all held as dicts and text at once (120 k findings took 1.27 GB
+    as one document)."""
+    log = _skeleton(results, options)
+    mark = f"nmtcheck-results-{uuid.uuid4().hex}"
+    log["runs"][0]["results"] = mark
+    head, tail = dumps_finite(log, indent=2).split(f'"{mark}"', 1)
+    yield head + "["
+    first = True
+    held: list[str] = []
+    size = 0
+    for result in _results(results, options):
+        # a result sits at depth 4 (root, runs, the run, results): 8 more spaces a line
+        text = dumps_finite(result, indent=2).replace("\n", "\n        ")
+        held.append(("\n        " if first else ",\n        ") + text)
+        first = False
+        size += len(held[-1])
+        if size >= PIECE_CHARS:
+            yield "".join(held)
+            held, size = [], 0
+    if held:
+        yield "".join(held)
+    yield ("]" if first else "\n      ]") + tail + "\n"

@@ -55,7 +55,10 @@ class Compaction:
     above: int = 2_000_000  # rows: a log with fewer is kept whole (no summary anywhere)
     chunk: int = 1 << 20  # rows read back from the spool at a time
     margin: int = 8  # frames (guarding: exchanges) kept on either side of anything a rule sees
-    band: float = 0.05  # intervals within this fraction of the chunk's median
+    # intervals within this fraction of the chunk's median: real heartbeats jitter (10 ms
+    # +-0.5 ms puts intervals 10 % off), while H001 and H002 by default lie 50 % off; a run
+    # that a tighter limit cuts is read back whole (`readback.unsafe_nodes`)
+    band: float = 0.25
     protect_s: float = 1.0  # frames this long after an NMT or SDO frame are kept
     min_run: int = 32  # shorter runs are kept: a run's summary costs as much as ~12 rows
 
@@ -301,8 +304,10 @@ def _chunk(node: _Node, new: dict[str, np.ndarray], events: ChannelEvents | None
         _emit(node, rows, start, stop, drop, before, odd_upto, guard)
     keep_from = max(stop - (2 * k + 2), 0)  # context for the next chunk's windows
     node.odd_base = int(odd_upto[keep_from - 1]) if keep_from else node.odd_base
-    node.tail = {name: col[keep_from:] for name, col in rows.items()}
-    node.tail_odd = odd[keep_from:]
+    # copies: a view would keep the chunk's rows of the node alive, and a log of many
+    # captures (a channel each) has a node key ending in every one of them
+    node.tail = {name: col[keep_from:].copy() for name, col in rows.items()}
+    node.tail_odd = odd[keep_from:].copy()
     node.undecided = n - stop
 
 
