@@ -128,3 +128,76 @@ def test_recursive_patterns_match_what_glob_matches_without_loops(
 
     assert list(expand_logs((pattern,))) == globbed(pattern)
     assert list(expand_logs((f"{tmp_path}/{pattern}",))) == globbed(f"{tmp_path}/{pattern}")
+
+
+# 3. no command acts on a hostile name ------------------------------------------------------
+
+INJECTION = "\n::error file=x.c,line=1::pwned\n::add-mask::secret\n"
+RAW_CONTROLS = ("\x00", "\x07", "\x1b", "\r", "\x85", "\u2028")
+
+
+def _assert_inert(res: subprocess.CompletedProcess[str], where: str) -> None:
+    for stream in (res.stdout, res.stderr):
+        for line in stream.splitlines():
+            assert not line.lstrip().startswith("::"), (where, line)
+        for ch in RAW_CONTROLS:
+            assert ch not in stream, (where, repr(ch))
+
+
+def _mcap_heartbeats(topic: str) -> bytes:
+    """Schemaless JSON frames of node 5 on `topic`: heartbeats with a 2 s gap (an H001)."""
+    import io
+
+    from mcap.writer import Writer
+
+    out = io.BytesIO()
+    writer = Writer(out)
+    writer.start()
+    channel = writer.register_channel(topic, "json", 0)
+    t = 1_700_000_000 * 10**9
+    for i in range(20):
+        stamp = t + (i * 100 if i < 10 else 2000 + i * 100) * 10**6
+        payload = json.dumps({"can_id": 0x705, "data": "05", "dlc": 1}).encode()
+        writer.add_message(channel, log_time=stamp, publish_time=stamp, data=payload)
+    writer.finish()
+    return out.getvalue()
+
+
+@pytest.fixture
+def hostile(tmp_path: Path) -> Path:
+    """logs/ with a file whose name and a topic that hold workflow commands."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / ("run" + INJECTION.replace("/", "_") + "\x07.log")).write_bytes(
+        HB_LOSS.read_bytes())
+    (logs / "topic.mcap").write_bytes(_mcap_heartbeats("/can" + INJECTION + "\x1b[2J"))
+    return tmp_path
+
+
+def test_every_command_shows_a_hostile_name_and_runs_none(hostile: Path) -> None:
+    cwd = hostile
+    runs = {f"check {fmt}": run_quickly("check", "logs", "--format", fmt, cwd=cwd)
+            for fmt in ("text", "concise", "markdown", "csv", "github", "json")}
+    for fmt in ("text", "csv", "json"):
+        runs[f"timeline {fmt}"] = run_quickly("timeline", "logs", "--format", fmt, cwd=cwd)
+    runs["fleet check"] = run_quickly("check", "logs/**", "--results", "res", cwd=cwd,
+                                      timeout=300)
+    for fmt in ("text", "csv", "html"):
+        runs[f"fleet summary {fmt}"] = run_quickly("fleet", "summary", "res", "--format", fmt,
+                                                   cwd=cwd)
+    runs["rules"] = run_quickly("rules", "H001" + INJECTION, cwd=cwd)
+    runs["monitor"] = run_quickly("monitor", "-i", "virtual", "-c", "vcan" + INJECTION,
+                                  "--duration", "0.5", cwd=cwd)
+    github = runs.pop("check github")  # its own workflow commands, one per finding
+    assert github.returncode == 1, github.stderr
+    for line in github.stdout.splitlines():
+        assert line.startswith(("::error file=logs/", "::warning file=logs/",
+                                "::notice file=logs/")) or not line.startswith("::"), line
+    for where, res in runs.items():
+        assert res.returncode in (0, 1, 2), (where, res.stderr)
+        _assert_inert(res, where)
+    for where in ("timeline text", "fleet summary text", "fleet summary csv",
+                  "fleet summary html", "check text"):
+        assert "\\x0a::error file=x.c" in runs[where].stdout, (where, runs[where].stdout)
+    assert runs["fleet check"].returncode == 1, runs["fleet check"].stderr
+    assert runs["timeline text"].returncode == 0, runs["timeline text"].stderr

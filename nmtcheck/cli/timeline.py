@@ -13,6 +13,7 @@ from nmtcheck.cli.helptext import LOGS_HELP, DocumentedCommand, complete_paths
 from nmtcheck.cli.inputs import expand_inputs, input_options, named_check_inputs, remote_logs
 from nmtcheck.reporters.common import moment, reboot_note, reboots, spreadsheet_safe
 from nmtcheck.results import InputResult
+from nmtcheck.safe_text import escape_lines
 from nmtcheck.settings.config import discover
 
 
@@ -74,7 +75,7 @@ def render_timeline(res: InputResult, fmt: str) -> str:
         w = csv.writer(out, lineterminator="\n")
         w.writerow(["channel", "node", "state", "start", "end", "source"])
         for c, n, s, a, b, src in rows:
-            w.writerow([spreadsheet_safe(c), n, s, f"{a:.6f}", f"{b:.6f}", src])
+            w.writerow([spreadsheet_safe(c), n, s, f"{a:.6f}", f"{b:.6f}", spreadsheet_safe(src)])
         return out.getvalue()
     untimed = res.stats.order_only
     lines = [f"{res.stats.path}: no timestamps: order only, times are frame numbers "
@@ -95,4 +96,4 @@ def render_timeline(res: InputResult, fmt: str) -> str:
                    f"  {'':>12}    {reboot_note(res, m, r)}") for r in reboots(m)]
         timed += [(e.ts, 1, f"  {at(e.ts)}     event: {e.text}") for e in m.events]
         lines.extend(text for _t, _k, text in sorted(timed, key=lambda x: (x[0], x[1])))
-    return "\n".join(lines) + "\n"
+    return escape_lines(lines) + "\n"  # a name's newline never starts a line of its own
