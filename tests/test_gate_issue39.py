@@ -201,3 +201,162 @@ def test_every_command_shows_a_hostile_name_and_runs_none(hostile: Path) -> None
         assert "\\x0a::error file=x.c" in runs[where].stdout, (where, runs[where].stdout)
     assert runs["fleet check"].returncode == 1, runs["fleet check"].stderr
     assert runs["timeline text"].returncode == 0, runs["timeline text"].stderr
+
+
+# 5. damage that passes ---------------------------------------------------------------------
+
+def _numbered_after(src: Path, dst: Path, first: int) -> None:
+    """`src` with its lines from `first` on turned into `cat -n`'s (the real tool)."""
+    lines = src.read_bytes().splitlines(keepends=True)
+    numbered = subprocess.run(["cat", "-n"], input=b"".join(lines[first - 1:]),
+                              capture_output=True, check=True).stdout
+    dst.write_bytes(b"".join(lines[:first - 1]) + numbered)
+
+
+def test_a_log_mostly_skipped_is_not_read_and_fails_the_gate(tmp_path: Path) -> None:
+    _numbered_after(HEALTHY, tmp_path / "damaged.log", 21)
+    res = run_quickly("check", "damaged.log", cwd=tmp_path)
+    assert_one_line_error(res, "damaged.log", "331 of 351 records could not be parsed",
+                          "first at line 21", "not read")
+    both = run_quickly("check", "damaged.log", str(HEALTHY), "--format", "json", cwd=tmp_path)
+    assert both.returncode == 2
+    inputs = json.loads(both.stdout)["inputs"]
+    assert "331 of 351 records" in inputs[0]["error"] and inputs[1]["error"] is None
+
+
+def test_a_log_damaged_in_a_few_lines_is_read_with_an_i003(tmp_path: Path) -> None:
+    _numbered_after(HEALTHY, tmp_path / "tail.log", 331)  # 21 of 351 lines: read, I003
+    res = run_quickly("check", "tail.log", "--format", "json", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["inputs"][0]["error"] is None
+    assert [f["rule"] for f in doc["findings"]] == ["I003"]
+
+
+def test_the_share_of_skipped_records_that_makes_an_input_unreadable_is_a_parameter(
+        tmp_path: Path) -> None:
+    _numbered_after(HEALTHY, tmp_path / "damaged.log", 21)
+    (tmp_path / "lax.toml").write_text("[rules.I003]\nunreadable_share = 1.0\n")
+    res = run_quickly("check", "damaged.log", "--rules", "lax.toml", "--format", "json",
+                      cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert [f["rule"] for f in json.loads(res.stdout)["findings"]] == ["I003"]
+    (tmp_path / "bad.toml").write_text("[rules.I003]\nunreadable_share = 1.5\n")
+    assert_one_line_error(run_quickly("check", "damaged.log", "--rules", "bad.toml",
+                                      cwd=tmp_path), "bad.toml", "unreadable_share")
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "+inf", "1e308", "-nan"])
+def test_a_network_or_profile_number_that_is_no_finite_time_is_refused(
+        tmp_path: Path, value: str) -> None:
+    (tmp_path / "net.toml").write_text(f"[nodes.5]\nheartbeat_ms = {value}\n")
+    assert_one_line_error(run_quickly("check", str(HB_LOSS), "--network", "net.toml",
+                                      cwd=tmp_path), "net.toml", "heartbeat_ms", "finite")
+    (tmp_path / "p.toml").write_text(f"[rules.H001]\ntimeout_factor = {value}\n")
+    assert_one_line_error(run_quickly("check", str(HB_LOSS), "--rules", "p.toml",
+                                      cwd=tmp_path), "p.toml", "timeout_factor", "finite")
+    (tmp_path / "nmtcheck.toml").write_text(f"[timeline]\nmaster_window_ms = {value}\n")
+    assert_one_line_error(run_quickly("check", str(HB_LOSS), cwd=tmp_path),
+                          "nmtcheck.toml", "master_window_ms", "finite")
+
+
+@pytest.mark.parametrize("name, text", [
+    ("net.toml", "x = " + "[" * 5000 + "]" * 5000 + "\n"),
+    ("net.toml", "x = " + "{a = " * 5000 + "1" + "}" * 5000 + "\n"),
+    ("p.toml", "x = " + "[" * 5000 + "]" * 5000 + "\n"),
+    ("nmtcheck.toml", "x = " + "[" * 5000 + "]" * 5000 + "\n"),
+])
+def test_deeply_nested_toml_is_a_one_line_error(tmp_path: Path, name: str, text: str) -> None:
+    (tmp_path / name).write_text(text)
+    args = {"net.toml": ["--network", "net.toml"], "p.toml": ["--rules", "p.toml"],
+            "nmtcheck.toml": []}[name]
+    res = run_quickly("check", str(HB_LOSS), *args, cwd=tmp_path)
+    assert_one_line_error(res, name, "invalid TOML", "nested")
+    assert "internal error" not in res.stderr
+
+
+@pytest.mark.parametrize("text", [
+    'fail-on = "{big}"\n', 'format = "{big}"\n', 'select = ["{big}"]\n', 'rules = "{big}"\n',
+    '"{big}" = 1\n', '[rules.H001]\ntimeout_factor = "{big}"\n',
+])
+def test_a_huge_configuration_value_is_quoted_short(tmp_path: Path, text: str) -> None:
+    (tmp_path / "nmtcheck.toml").write_text(text.replace("{big}", "x" * 10_000_000))
+    res = run_quickly("check", str(HB_LOSS), cwd=tmp_path)
+    assert_one_line_error(res, "nmtcheck.toml")
+    assert len(res.stderr) < 400, res.stderr[:500]
+    (tmp_path / "net.toml").write_text(f'[nodes.5]\nchannel = {"1" * 10_000_000}\n')
+    res = run_quickly("check", str(HB_LOSS), "--network", "net.toml", "--isolated",
+                      cwd=tmp_path)
+    assert_one_line_error(res, "net.toml")
+    assert len(res.stderr) < 400, res.stderr[:500]
+
+
+# 7. Python API misuse ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("kwargs, error, needle", [
+    ({"select": "H001"}, TypeError, "select"),
+    ({"ignore": "H002"}, TypeError, "ignore"),
+    ({"topics": "/can"}, TypeError, "topics"),
+    ({"jobs": -3}, ValueError, "jobs"),
+    ({"jobs": 1.5}, TypeError, "jobs"),
+    ({"jobs": True}, TypeError, "jobs"),
+    ({"max_findings": -1}, ValueError, "max_findings"),
+    ({"max_findings": "10"}, TypeError, "max_findings"),
+    ({"strict": "no"}, TypeError, "strict"),
+    ({"network": 5}, TypeError, "network"),
+    ({"rules": ["default"]}, TypeError, "rules"),
+    ({"channel": 0}, TypeError, "channel"),
+])
+def test_api_check_names_the_argument_it_cannot_take(kwargs: dict[str, object],
+                                                     error: type[Exception],
+                                                     needle: str) -> None:
+    import nmtcheck
+
+    with pytest.raises(error, match=rf"^{needle}: ") as caught:
+        nmtcheck.check(HEALTHY, **kwargs)
+    assert "matches no rule" not in str(caught.value)
+
+
+def test_api_check_refuses_a_file_object_for_a_path(tmp_path: Path) -> None:
+    import nmtcheck
+
+    with open(HEALTHY) as f, pytest.raises(TypeError, match=r"^paths: .*TextIOWrapper"):
+        nmtcheck.check(f)
+    with pytest.raises(TypeError, match=r"^paths: "):
+        nmtcheck.check([HEALTHY, 3])
+    with pytest.raises(TypeError, match=r"^paths: "):
+        nmtcheck.check(str(HEALTHY).encode())
+    with pytest.raises(ValueError, match=r"^paths: "):
+        nmtcheck.check([])
+
+
+def test_api_takes_what_it_documents() -> None:
+    import nmtcheck
+
+    report = nmtcheck.check((HB_LOSS,), select=("H001",), ignore=[], jobs=0, max_findings=0)
+    assert list(report.findings["rule"]) == ["H001"]
+    assert report.failed("error") and not report.failed("never")
+
+
+@pytest.mark.parametrize("fail_on", ["bogus", "ERRORS", None, 1])
+def test_report_failed_names_what_it_takes(fail_on: object) -> None:
+    import nmtcheck
+
+    report = nmtcheck.check(HB_LOSS)
+    with pytest.raises((ValueError, TypeError), match=r"^fail_on: .*error, warning, info, never"):
+        report.failed(fail_on)
+
+
+def test_monitor_refuses_what_is_no_message_and_a_string_for_a_list() -> None:
+    from nmtcheck.live import Monitor
+
+    with pytest.raises(TypeError, match=r"^select: "):
+        Monitor(select="H001")
+    with Monitor() as monitor:
+        with pytest.raises(TypeError, match=r"^msg: .*can\.Message.*NoneType"):
+            monitor.on_message_received(None)
+        import can
+
+        monitor.on_message_received(can.Message(timestamp=1.0, arbitration_id=0x705,
+                                                data=b"\x05", is_extended_id=False))
+    assert monitor.result() is not None and monitor.result().stats.frames == 1
