@@ -255,6 +255,9 @@ def test_a_network_or_profile_number_that_is_no_finite_time_is_refused(
     (tmp_path / "p.toml").write_text(f"[rules.H001]\ntimeout_factor = {value}\n")
     assert_one_line_error(run_quickly("check", str(HB_LOSS), "--rules", "p.toml",
                                       cwd=tmp_path), "p.toml", "timeout_factor", "finite")
+    (tmp_path / "boot.toml").write_text(f"[boot]\nboot_time_ms = {value}\n")
+    assert_one_line_error(run_quickly("check", str(HB_LOSS), "--network", "boot.toml",
+                                      cwd=tmp_path), "boot.toml", "boot_time_ms")
     (tmp_path / "nmtcheck.toml").write_text(f"[timeline]\nmaster_window_ms = {value}\n")
     assert_one_line_error(run_quickly("check", str(HB_LOSS), cwd=tmp_path),
                           "nmtcheck.toml", "master_window_ms", "finite")
@@ -360,3 +363,40 @@ def test_monitor_refuses_what_is_no_message_and_a_string_for_a_list() -> None:
         monitor.on_message_received(can.Message(timestamp=1.0, arbitration_id=0x705,
                                                 data=b"\x05", is_extended_id=False))
     assert monitor.result() is not None and monitor.result().stats.frames == 1
+
+
+# 6. leftovers ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("stop", ["end", "SIGTERM"])
+def test_a_dask_local_run_leaves_nothing_in_the_temporary_directory(tmp_path: Path,
+                                                                    stop: str) -> None:
+    """Dask's LocalCluster puts `dask-scratch-space` (its lock files and the workers'
+    directories) in the temporary directory and never removes it: the run gives it one
+    of its own, removed with the cluster, however the run ends short of kill -9."""
+    pytest.importorskip("distributed")
+    import signal
+    import time
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    count = 1 if stop == "end" else 200
+    for k in range(count):
+        (logs / f"h{k:03d}.log").write_bytes(HB_LOSS.read_bytes())
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "nmtcheck", "check", "logs/*.log",
+                             "--results", "results", "--isolated", "--executor",
+                             "dask-local:1"], cwd=tmp_path,
+                            env={**os.environ, "TMPDIR": str(temp)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    if stop == "SIGTERM":
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "results" / "runs").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)  # the cluster is up and the run under way
+        while not list(temp.iterdir()) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=180)
+    assert proc.returncode == (1 if stop == "end" else 128 + signal.SIGTERM), err
+    assert not sorted(p.name for p in temp.iterdir())
