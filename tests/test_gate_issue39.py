@@ -100,7 +100,7 @@ def test_a_pattern_that_matches_only_special_files_is_a_usage_error(tmp_path: Pa
 
 GLOB_PATTERNS = ["**", "**/*.log", "*/*/*.log", "DEV0/**", "DEV0/**/*.log", "**/0001/*.log",
                  "DEV[!0]/**", "**/er/*", "**/**/a.log", "DEV0/**/0001/**", ".hidden/**",
-                 "linked/**/*.log"]
+                 "linked/**/*.log", "**/.cache/*.log", "**/.*.log", "*/**/.z.log"]
 
 
 @pytest.mark.parametrize("pattern", GLOB_PATTERNS)

@@ -241,14 +241,15 @@ def _glob(pattern: str) -> list[str]:
     for part in parts[fixed:]:  # 'a//b' is 'a/b', '**/**' is '**'
         if part and not (part == "**" and rest[-1:] == ["**"]):
             rest.append(part)
-    return [path for path, rel in _walk(prefix or os.curdir, prefix)
+    hidden = any(part.startswith(".") for part in rest)  # else no hidden name can match
+    return [path for path, rel in _walk(prefix or os.curdir, prefix, hidden)
             if _matches(tuple(rel), tuple(rest))]
 
 
-def _walk(root: str, shown: str) -> Iterator[tuple[str, list[str]]]:
+def _walk(root: str, shown: str, hidden: bool) -> Iterator[tuple[str, list[str]]]:
     """Every entry below `root` (its path as `shown` + the names, and those names), hidden
-    ones left out as glob leaves them; each real directory entered once, however many
-    links reach it."""
+    ones only if `hidden`; each real directory entered once, however many links reach
+    it."""
     visited: set[tuple[int, int]] = set()
     todo: list[tuple[str, str, list[str]]] = [(root, shown, [])]
     while todo:
@@ -263,7 +264,7 @@ def _walk(root: str, shown: str) -> Iterator[tuple[str, list[str]]]:
             continue
         below = []
         for entry in entries:
-            if entry.name.startswith("."):
+            if entry.name.startswith(".") and not hidden:
                 continue
             path = os.path.join(named, entry.name) if named else entry.name
             yield path, [*rel, entry.name]
@@ -275,11 +276,12 @@ def _walk(root: str, shown: str) -> Iterator[tuple[str, list[str]]]:
 
 def _matches(names: tuple[str, ...], parts: tuple[str, ...]) -> bool:
     """Whether the path `names` matches the pattern `parts`, `**` standing for any number
-    of directories (none included), each other part for one name (fnmatch, a leading
-    dot matched only by a dot)."""
+    of names (none included), each other part for one name (fnmatch); a hidden name is
+    matched only by a part that starts with a dot, as glob has it."""
     if not parts:
         return not names
     if parts[0] == "**":
-        return _matches(names, parts[1:]) or (bool(names) and _matches(names[1:], parts))
-    return (bool(names) and fnmatch.fnmatchcase(names[0], parts[0])
-            and _matches(names[1:], parts[1:]))
+        return _matches(names, parts[1:]) or (
+            bool(names) and not names[0].startswith(".") and _matches(names[1:], parts))
+    return (bool(names) and (parts[0].startswith(".") or not names[0].startswith("."))
+            and fnmatch.fnmatchcase(names[0], parts[0]) and _matches(names[1:], parts[1:]))
