@@ -367,12 +367,13 @@ def test_monitor_refuses_what_is_no_message_and_a_string_for_a_list() -> None:
 
 # 6. leftovers ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("stop", ["end", "SIGTERM"])
+@pytest.mark.parametrize("stop", ["end", "SIGTERM", "after kill -9"])
 def test_a_dask_local_run_leaves_nothing_in_the_temporary_directory(tmp_path: Path,
                                                                     stop: str) -> None:
     """Dask's LocalCluster puts `dask-scratch-space` (its lock files and the workers'
     directories) in the temporary directory and never removes it: the run gives it one
-    of its own, removed with the cluster, however the run ends short of kill -9."""
+    of its own, removed with the cluster however the run ends; one a killed run left
+    (its driver's process gone) goes at the next dask-local run."""
     pytest.importorskip("distributed")
     import signal
     import time
@@ -384,6 +385,14 @@ def test_a_dask_local_run_leaves_nothing_in_the_temporary_directory(tmp_path: Pa
         (logs / f"h{k:03d}.log").write_bytes(HB_LOSS.read_bytes())
     temp = tmp_path / "temp"
     temp.mkdir()
+    if stop == "after kill -9":
+        gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True)
+        left = temp / f"nmtcheck-dask-{gone.stdout.strip()}-x1y2z3" / "dask-scratch-space"
+        left.mkdir(parents=True)
+        (left / "global.lock").write_bytes(b"")
+        (temp / "nmtcheck-dask-1-a").mkdir()  # pid 1 (init) lives: kept
+        (temp / "other-tool").mkdir()  # not nmtcheck's: kept
     proc = subprocess.Popen([sys.executable, "-m", "nmtcheck", "check", "logs/*.log",
                              "--results", "results", "--isolated", "--executor",
                              "dask-local:1"], cwd=tmp_path,
@@ -391,12 +400,12 @@ def test_a_dask_local_run_leaves_nothing_in_the_temporary_directory(tmp_path: Pa
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     if stop == "SIGTERM":
         deadline = time.monotonic() + 120
-        while not (tmp_path / "results" / "runs").exists() and time.monotonic() < deadline:
-            time.sleep(0.1)  # the cluster is up and the run under way
-        while not list(temp.iterdir()) and time.monotonic() < deadline:
-            time.sleep(0.1)
+        while not list(temp.glob("nmtcheck-dask-*/dask-scratch-space/worker-*")) and (
+                time.monotonic() < deadline):
+            time.sleep(0.1)  # the cluster is up, its worker started: the run under way
         time.sleep(1.0)
         proc.send_signal(signal.SIGTERM)
     _out, err = proc.communicate(timeout=180)
-    assert proc.returncode == (1 if stop == "end" else 128 + signal.SIGTERM), err
-    assert not sorted(p.name for p in temp.iterdir())
+    assert proc.returncode == (128 + signal.SIGTERM if stop == "SIGTERM" else 1), err
+    kept = ["nmtcheck-dask-1-a", "other-tool"] if stop == "after kill -9" else []
+    assert sorted(p.name for p in temp.iterdir()) == kept

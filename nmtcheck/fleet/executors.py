@@ -399,6 +399,35 @@ def _import_dask() -> Any:
     return distributed
 
 
+# A dask-local run's directory: the prefix, then the driver's process id
+DASK_SCRATCH = "nmtcheck-dask-"
+
+
+def _remove_dead_runs_scratch() -> None:
+    """Remove the directories of dask-local runs whose driver has ended without removing
+    its own: `kill -9`, or a signal while the cluster started (its worker processes may
+    still make their folders there after the driver removed it). Only this user's, and
+    only where no process has that id any more (a reused id keeps the directory)."""
+    from nmtcheck.spool import SCRATCH
+
+    root = SCRATCH.get() or tempfile.gettempdir()
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(root):
+            pid = entry.name.removeprefix(DASK_SCRATCH).partition("-")[0]
+            if not entry.name.startswith(DASK_SCRATCH) or not pid.isdigit() or len(pid) > 9:
+                continue
+            with contextlib.suppress(OSError):
+                if (not entry.is_dir(follow_symlinks=False)
+                        or entry.stat(follow_symlinks=False).st_uid != os.getuid()):
+                    continue
+                try:
+                    os.kill(int(pid), 0)
+                except ProcessLookupError:
+                    shutil.rmtree(entry.path, ignore_errors=True)
+                except PermissionError:  # another user's process: the id is in use
+                    pass
+
+
 class DaskExecutor:
     """`dask-local[:N]` starts a LocalCluster of N single-threaded worker processes with
     nmtcheck's settings; `dask://HOST:PORT` connects to a running scheduler and checks that
@@ -417,15 +446,23 @@ class DaskExecutor:
             # directory, stayed after every run
             from nmtcheck.spool import spill_directory
 
+            _remove_dead_runs_scratch()
             with contextlib.suppress(OSError):  # no room, no rights: Dask's default
-                self._scratch = spill_directory("nmtcheck-dask-")
+                self._scratch = spill_directory(f"{DASK_SCRATCH}{os.getpid()}-")
             scratch = {"temporary-directory": self._scratch.name} if self._scratch else {}
-            with dask.config.set({**DASK_CONFIG, **scratch}):
-                self._cluster = distributed.LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=True,
-                    dashboard_address=":0", silence_logs=40,
-                    local_directory=self._scratch.name if self._scratch else None)
-                self.client = distributed.Client(self._cluster)
+            try:
+                with dask.config.set({**DASK_CONFIG, **scratch}):
+                    self._cluster = distributed.LocalCluster(
+                        n_workers=n, threads_per_worker=1, processes=True,
+                        dashboard_address=":0", silence_logs=40,
+                        local_directory=self._scratch.name if self._scratch else None)
+                    self.client = distributed.Client(self._cluster)
+            except BaseException:  # a signal while the cluster starts: what started goes
+                if self._cluster is not None:
+                    with contextlib.suppress(Exception):
+                        self._cluster.close()
+                self._remove_scratch()
+                raise
             self.name = f"dask-local:{n}"
         else:
             try:
@@ -516,6 +553,9 @@ class DaskExecutor:
         self.client.close()
         if self._cluster is not None:
             self._cluster.close()
+        self._remove_scratch()
+
+    def _remove_scratch(self) -> None:
         if self._scratch is not None:
             with contextlib.suppress(OSError):
                 self._scratch.cleanup()
