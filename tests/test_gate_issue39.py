@@ -409,3 +409,13 @@ def test_a_dask_local_run_leaves_nothing_in_the_temporary_directory(tmp_path: Pa
     assert proc.returncode == (128 + signal.SIGTERM if stop == "SIGTERM" else 1), err
     kept = ["nmtcheck-dask-1-a", "other-tool"] if stop == "after kill -9" else []
     assert sorted(p.name for p in temp.iterdir()) == kept
+
+
+def test_an_error_line_is_one_short_line_whatever_it_quotes() -> None:
+    from nmtcheck.safe_text import ERROR_LINE_CHARS, error_line
+
+    line = error_line("nmtcheck: x.toml: " + "y" * 10_000_000 + "\n::error::z: the end")
+    assert "\n" not in line and len(line) < ERROR_LINE_CHARS + 60
+    assert line.startswith("nmtcheck: x.toml: yyy") and line.endswith("::error::z: the end")
+    assert "characters left out" in line
+    assert error_line("short: fine") == "short: fine"
