@@ -16,6 +16,7 @@ The columns are the JSON report's field names, so code written against one reads
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from os import PathLike
@@ -23,6 +24,7 @@ from typing import Any
 
 import pandas as pd
 
+from nmtcheck.errors import optional_text, string_list, whole_number
 from nmtcheck.fleet.results import Results, read_results
 
 __all__ = ["Report", "Results", "check", "read_results"]
@@ -57,9 +59,14 @@ class Report:
     lss: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def failed(self, fail_on: str = "error") -> bool:
-        """What `nmtcheck check --fail-on` would decide: a finding at or above `fail_on`."""
-        from nmtcheck.checks.base import fails
+        """What `nmtcheck check --fail-on` would decide: a finding at or above `fail_on`
+        (error, warning, info or never)."""
+        from nmtcheck.checks.base import SEVERITIES, fails
 
+        if fail_on not in (*SEVERITIES, "never"):
+            raise (ValueError if isinstance(fail_on, str) else TypeError)(
+                f"fail_on: expected one of {', '.join((*SEVERITIES, 'never'))}, "
+                f"got {fail_on!r:.40}")
         return fails(self.summary, fail_on)
 
     def to_dict(self) -> dict[str, Any]:
@@ -162,15 +169,24 @@ def check(paths: str | PathLike[str] | Sequence[str | PathLike[str]], *,
     from nmtcheck.settings.network import load_network
     from nmtcheck.settings.profiles import DEFAULT_PROFILE, load_profile
 
-    if isinstance(paths, (str, PathLike)):
-        paths = [paths]
-    names = [str(p) for p in paths]
-    profile = load_profile(rules or DEFAULT_PROFILE)
-    selected = select_rules(profile, list(select), list(ignore))
+    names = _paths(paths)
+    select, ignore, topics = (string_list("select", select), string_list("ignore", ignore),
+                              string_list("topics", topics))
+    jobs = whole_number("jobs", jobs, 0, " (0: one per core)") or os.cpu_count() or 1
+    if max_findings is not None:
+        whole_number("max_findings", max_findings, 0, " (0: all) or None")
+    optional_text("network", network, paths=True)
+    optional_text("rules", rules, paths=True)
+    for name, value in (("input_format", input_format), ("channel", channel)):
+        optional_text(name, value)
+    if not isinstance(strict, bool):
+        raise TypeError(f"strict: expected a bool, got {type(strict).__name__}")
+    profile = load_profile(str(rules) if rules is not None else DEFAULT_PROFILE)
+    selected = select_rules(profile, select, ignore)
     net = load_network(str(network)) if network is not None else None
     results = check_inputs(names, jobs, profile, selected, network=net,
                            input_format=input_format, strict=strict, channel=channel,
-                           reader_options={"topics": list(topics)} if topics else {},
+                           reader_options={"topics": topics} if topics else {},
                            max_findings=MAX_FINDINGS_PER_RULE if max_findings is None
                            else max_findings)
     doc = report_dict(results)
@@ -215,6 +231,23 @@ def _lss_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:
     if len(df):
         df["lss_session"] = df["lss_session"].astype("Int64")
     return df
+
+
+def _paths(paths: object) -> list[str]:
+    """`check`'s paths as names: one path (str or os.PathLike) or a list of them; an open
+    file, bytes or a number is a TypeError naming `paths`, never a name made of it."""
+    if isinstance(paths, str | PathLike):
+        return [os.fspath(paths)]
+    if isinstance(paths, bytes) or not isinstance(paths, Sequence):
+        raise TypeError(f"paths: expected a path (str or os.PathLike) or a list of them, "
+                        f"got {type(paths).__name__}")
+    bad = [p for p in paths if not isinstance(p, str | PathLike)]
+    if bad:
+        raise TypeError(f"paths: expected a path (str or os.PathLike) or a list of them, "
+                        f"the list holds a {type(bad[0]).__name__}")
+    if not paths:
+        raise ValueError("paths: no log to check (an empty list)")
+    return [os.fspath(p) for p in paths]
 
 
 def _boot_frame(results: list[Any], path_of: dict[int, str]) -> pd.DataFrame:

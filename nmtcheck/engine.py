@@ -27,6 +27,7 @@ from nmtcheck.checks.base import (
     Problems,
     Rule,
 )
+from nmtcheck.checks.inputs import refuse_mostly_unread
 from nmtcheck.errors import InputError, NmtcheckError, UsageError
 from nmtcheck.explain import causes as cause_stage
 from nmtcheck.explain.evaluated import finding_bases, partly_evaluated
@@ -49,6 +50,7 @@ from nmtcheck.results import (
 )
 from nmtcheck.settings.network import Network
 from nmtcheck.settings.profiles import Profile, RuleSettings
+from nmtcheck.settings.values import quoted
 from nmtcheck.timeline.build import build
 from nmtcheck.timeline.decode import FrameAt, decode
 from nmtcheck.timeline.model import (
@@ -80,7 +82,7 @@ def check_patterns(patterns: list[str], where: str = "--select/--ignore") -> Non
                 pat.lower(), [r.name for r in RULES] + [r.code.lower() for r in RULES], 1, 0.6)
             hint = (f" (did you mean {close[0].upper() if close[0][1:].isdigit() else close[0]!r}?)"
                     if close else "")
-            raise UsageError(f"{where}: {pat!r} matches no rule code or name{hint}")
+            raise UsageError(f"{where}: {quoted(pat)} matches no rule code or name{hint}")
 
 
 def select_rules(profile: Profile, select: list[str], ignore: list[str]) -> list[Rule]:
@@ -183,6 +185,8 @@ def check_input(path: str, index: int, profile: Profile, rules: list[Rule],
                      sync_cob_ids=sync_stage.sync_cob_ids(network))
     collecting = _pause_collector()
     try:
+        # most of it skipped: a pass over the rest would be no verdict on the input
+        refuse_mostly_unread(stats, decoded.standard_frames, profile["I003"].params)
         if stats.frames == 0:
             start = end = 0.0
         elif stats.order_only:  # the frame index stands for the time (SPEC §1)

@@ -45,6 +45,20 @@ def escape_controls(text: object) -> str:
     return escape_matching(_CONTROL, s)
 
 
+# The longest error line: a value of a file quoted whole (a 10 MB string) is cut to this
+ERROR_LINE_CHARS = 1000
+
+
+def error_line(text: object) -> str:
+    """An error message as the one line on stderr: control characters escaped, and at
+    most ERROR_LINE_CHARS long, its middle cut out and counted."""
+    s = escape_controls(text)
+    if len(s) <= ERROR_LINE_CHARS:
+        return s
+    head, tail = ERROR_LINE_CHARS * 3 // 4, ERROR_LINE_CHARS // 5
+    return f"{s[:head]} … ({len(s) - head - tail} characters left out) … {s[-tail:]}"
+
+
 def escape_lines(lines: list[str]) -> str:
     """Report lines, each escaped, joined by newlines (a line's own newline, from a name,
     is shown as `\\x0a`, never starts a line)."""

@@ -328,6 +328,9 @@ def test_kill_9_of_the_driver_ends_every_worker(tmp_path: Path) -> None:
         left = _session_members(driver.pid)
         assert not left, [Path(f"/proc/{p}/cmdline").read_bytes()[:120] for p in left]
         assert not pool_dirs()  # the workers removed it: the killed driver could not
+        # and the driver's multiprocessing directory (pymp-*, the fork server's socket):
+        # nothing of the run is left in the temporary directory (issue 39, item 6)
+        assert not sorted(p.name for p in temp.iterdir())
     finally:
         for pid in _session_members(driver.pid):
             os.kill(pid, 9)

@@ -51,6 +51,7 @@ class Param:
     type: type
     doc: str
     default: Any
+    maximum: float | None = None  # the largest value a profile may give (a share: 1)
 
 
 @dataclass

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from nmtcheck.checks.base import Param, Problem, input_rule
+from nmtcheck.errors import InputError
 from nmtcheck.readers import TEXT_FORMATS, InputStats
 from nmtcheck.timeline.model import InputModel
 
@@ -146,6 +147,9 @@ def truncated_input(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
 
 @input_rule("I003", "skipped-records", "warning",
       Param("max_skipped", int, "how many unparseable records are tolerated", 0),
+      Param("unreadable_share", float, "past this share of an input's records skipped "
+            "(frames and skipped records), the input was not read: an input error (exit 2), "
+            "not a finding; 1 never", 0.5, maximum=1.0),
       exempt_from_unknown=True, scope="input")
 def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     """Records of the input could not be parsed.
@@ -160,6 +164,11 @@ def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     **Why it matters.** A frame hidden in an unparseable line is a frame the rules
     never saw: a heartbeat gap or a missing boot-up may be the reader's, not the
     network's. A log edited by hand or damaged in transfer shows up here.
+
+    When more than `unreadable_share` of the input's records (frames and skipped
+    records; half by default) were skipped, the input was not read: it is an
+    unreadable input (exit 2, named in every report), not a finding, so a log whose
+    lines turned into something else after its first few never passes the gate.
 
     **Example.** A candump log with a line `garbage here` between two frames.
     """
@@ -179,6 +188,27 @@ def skipped_records(model: InputModel, p: dict[str, Any]) -> Iterator[Problem]:
     line = numbers[0] if numbers and text else None
     yield Problem(None, None, ts, f"{_plural(stats.skipped, 'record')} could not be parsed as "
                   f"{stats.format}{where}", idx, line)
+
+
+def refuse_mostly_unread(stats: InputStats, standard_frames: int, p: dict[str, Any]
+                         ) -> None:
+    """An input error when more than `unreadable_share` of the input's records (frames and
+    skipped records) were skipped: a log whose lines turned into something else after its
+    first few (`cat -n` from line 21) would pass with most of it unseen. Nothing when the
+    share is at most that, or when no 11-bit frame was read (I001, an error, says so)."""
+    total = stats.frames + stats.skipped
+    share = float(p.get("unreadable_share", 0.5))
+    if not standard_frames or not stats.skipped or stats.skipped <= share * total:
+        return
+    numbers = [n for n in stats.skipped_lines if n > 0]
+    unit = "line" if stats.format in TEXT_FORMATS else "record"
+    first = f"first at {unit} {numbers[0]}" if numbers else ""
+    why = ", ".join(x for x in (first, stats.skip_reason) if x)
+    raise InputError(stats.path, f"{stats.skipped} of {total} records could not be parsed as "
+                     f"{stats.format}" + (f" ({why})" if why else "") + f": more than "
+                     f"{share:.0%} of the input is no {stats.format} record, so it was not "
+                     "read (I003 unreadable_share; if the log is of another format, name it "
+                     "with --input-format)")
 
 
 @input_rule("I004", "frames-lost", "warning", exempt_from_unknown=True, scope="input")

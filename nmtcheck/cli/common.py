@@ -26,6 +26,7 @@ from nmtcheck.reporters import FORMATS
 from nmtcheck.settings.config import Config, discover
 from nmtcheck.settings.network import Network, load_network
 from nmtcheck.settings.profiles import DEFAULT_PROFILE, Profile, derived_profile, load_profile
+from nmtcheck.settings.values import quoted
 
 if TYPE_CHECKING:
     from nmtcheck.reporters import Streamer
@@ -85,7 +86,7 @@ def resolve_settings(config_file: str | None, isolated: bool, fmt: str | None,
     named with the file."""
     config = discover(config_file, isolated)
     if config is not None and config.format is not None and config.format not in FORMATS:
-        raise UsageError(f"{config.label}: format: unknown format {config.format!r} "
+        raise UsageError(f"{config.label}: format: unknown format {quoted(config.format)} "
                          f"(available: {', '.join(FORMATS)})")
     if config is not None:
         check_patterns([] if select else config.select or [], f"{config.label}: select")

@@ -5,6 +5,7 @@ their URL again in every result), and the options both commands take to read the
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import glob
 import os
 import stat
@@ -118,7 +119,11 @@ def expand_inputs(args: tuple[str, ...]) -> Expanded:
     not_logs: list[str] = []
     not_regular: list[str] = []
     seen: set[tuple[int, int]] = set()  # (device, inode) of every file taken
-    for arg in expand_logs(args):
+    matched_special: list[str] = []  # FIFOs, sockets, devices a pattern matched
+    expanded = expand_logs(args, matched_special)
+    not_logs += matched_special
+    not_regular += matched_special
+    for arg in expanded:
         if arg == "-" or not os.path.isdir(arg):
             out.append(arg)
             with contextlib.suppress(OSError):
@@ -184,19 +189,99 @@ def is_log(path: str) -> bool:
     return True
 
 
-def expand_logs(logs: tuple[str, ...]) -> tuple[str, ...]:
+def expand_logs(logs: tuple[str, ...], not_regular: list[str] | None = None
+                ) -> tuple[str, ...]:
     """LOG arguments with the glob patterns the shell left alone (quoted, or from a CI
-    config) expanded, sorted; a pattern's matches are the files it names, not directories.
-    `-` (standard input) may come once."""
+    config) expanded, sorted; a pattern's matches are the regular files it names (a FIFO,
+    a socket or a device it matches is added to `not_regular`, never opened), each real
+    file once. `**` walks each real directory once, so a symbolic link loop below it
+    costs one visit, not an expansion that doubles with each loop. `-` (standard input)
+    may come once."""
     out: list[str] = []
     for arg in logs:
         if arg == "-" or os.path.lexists(arg) or not glob.has_magic(arg):
             out.append(arg)
             continue
-        matches = sorted(m for m in glob.glob(arg, recursive=True) if not os.path.isdir(m))
+        seen: set[tuple[int, int]] = set()
+        matches = []
+        for path in sorted(_glob(arg)):
+            try:
+                st = os.stat(path)
+            except OSError:  # gone since: checking it names why
+                matches.append(path)
+                continue
+            if stat.S_ISDIR(st.st_mode) or (st.st_dev, st.st_ino) in seen:
+                continue
+            seen.add((st.st_dev, st.st_ino))
+            if stat.S_ISREG(st.st_mode):
+                matches.append(path)
+            elif not_regular is not None:
+                not_regular.append(path)
         if not matches:
-            raise UsageError(f"{arg}: no log file matches this pattern")
+            raise UsageError(f"{arg}: no log file matches this pattern" + (
+                f" (it matches {plural(len(seen), 'file')}, none of them a regular file: a "
+                "FIFO, a socket or a device)" if seen else ""))
         out.extend(matches)
     if out.count("-") > 1:
         raise UsageError("-: standard input can be read only once")
     return tuple(out)
+
+
+def _glob(pattern: str) -> list[str]:
+    """What `glob.glob(pattern, recursive=True)` matches, with `**` walked by `_walk`
+    (each real directory once) instead of following every path through a loop."""
+    if "**" not in pattern:
+        return glob.glob(pattern)
+    parts = pattern.split(os.sep)
+    fixed = 0
+    while fixed < len(parts) - 1 and not glob.has_magic(parts[fixed]):
+        fixed += 1
+    prefix = os.sep.join(parts[:fixed]) or (os.sep if fixed else "")  # '/**/x': from /
+    rest: list[str] = []
+    for part in parts[fixed:]:  # 'a//b' is 'a/b', '**/**' is '**'
+        if part and not (part == "**" and rest[-1:] == ["**"]):
+            rest.append(part)
+    hidden = any(part.startswith(".") for part in rest)  # else no hidden name can match
+    return [path for path, rel in _walk(prefix or os.curdir, prefix, hidden)
+            if _matches(tuple(rel), tuple(rest))]
+
+
+def _walk(root: str, shown: str, hidden: bool) -> Iterator[tuple[str, list[str]]]:
+    """Every entry below `root` (its path as `shown` + the names, and those names), hidden
+    ones only if `hidden`; each real directory entered once, however many links reach
+    it."""
+    visited: set[tuple[int, int]] = set()
+    todo: list[tuple[str, str, list[str]]] = [(root, shown, [])]
+    while todo:
+        where, named, rel = todo.pop()
+        try:
+            st = os.stat(where)
+            if (st.st_dev, st.st_ino) in visited:
+                continue
+            visited.add((st.st_dev, st.st_ino))
+            entries = sorted(os.scandir(where), key=lambda e: e.name)
+        except OSError:  # unreadable, gone: glob skips it too
+            continue
+        below = []
+        for entry in entries:
+            if entry.name.startswith(".") and not hidden:
+                continue
+            path = os.path.join(named, entry.name) if named else entry.name
+            yield path, [*rel, entry.name]
+            with contextlib.suppress(OSError):
+                if entry.is_dir():  # a link to a directory too: entered once, as any
+                    below.append((entry.path, path, [*rel, entry.name]))
+        todo.extend(reversed(below))
+
+
+def _matches(names: tuple[str, ...], parts: tuple[str, ...]) -> bool:
+    """Whether the path `names` matches the pattern `parts`, `**` standing for any number
+    of names (none included), each other part for one name (fnmatch); a hidden name is
+    matched only by a part that starts with a dot, as glob has it."""
+    if not parts:
+        return not names
+    if parts[0] == "**":
+        return _matches(names, parts[1:]) or (
+            bool(names) and not names[0].startswith(".") and _matches(names[1:], parts))
+    return (bool(names) and (parts[0].startswith(".") or not names[0].startswith("."))
+            and fnmatch.fnmatchcase(names[0], parts[0]) and _matches(names[1:], parts[1:]))

@@ -43,7 +43,7 @@ from nmtcheck.cli.monitor import monitor
 from nmtcheck.cli.rules import rule_doc, rule_table, rules_cmd
 from nmtcheck.cli.timeline import render_timeline, render_timelines, timeline
 from nmtcheck.errors import NmtcheckError
-from nmtcheck.safe_text import escape_controls
+from nmtcheck.safe_text import error_line
 
 # The names scripts and tests take from here (`from nmtcheck.cli.main import write_reports`)
 # stay importable, wherever they are defined.
@@ -129,20 +129,20 @@ def main() -> None:
         if _is_help(exc):  # bare `nmtcheck`, `nmtcheck fleet`:
             exc.show()  # the usage and help as click prints them (stderr, exit 2)
         else:  # one line: a name in it is the user's text, shown, never acted on
-            click.echo(escape_controls(f"nmtcheck: {exc.format_message()}"), err=True)
+            click.echo(error_line(f"nmtcheck: {exc.format_message()}"), err=True)
         sys.exit(EXIT_ERROR)
     except click.ClickException as exc:
-        click.echo(escape_controls(f"nmtcheck: {exc.format_message()}"), err=True)
+        click.echo(error_line(f"nmtcheck: {exc.format_message()}"), err=True)
         sys.exit(EXIT_ERROR)
     except NmtcheckError as exc:
-        click.echo(escape_controls(f"nmtcheck: {exc}"), err=True)
+        click.echo(error_line(f"nmtcheck: {exc}"), err=True)
         sys.exit(EXIT_ERROR)
     except BrokenPipeError:
         sys.exit(EXIT_OK)
     except Exception as exc:  # noqa: BLE001 - a CI gate must fail cleanly
         if debug:
             traceback.print_exc()
-        click.echo(escape_controls(f"nmtcheck: internal error: {type(exc).__name__}: {exc} "
+        click.echo(error_line(f"nmtcheck: internal error: {type(exc).__name__}: {exc} "
                                    f"(please report; --debug shows the traceback)"), err=True)
         sys.exit(EXIT_ERROR)
 

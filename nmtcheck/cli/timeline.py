@@ -18,6 +18,7 @@ from nmtcheck.protocol.nmt import SOURCES, STATES
 from nmtcheck.reporters import comm_lanes, lss_report
 from nmtcheck.reporters.common import moment, reboot_note, reboots, spreadsheet_safe
 from nmtcheck.results import InputResult
+from nmtcheck.safe_text import escape_lines
 from nmtcheck.settings.config import discover
 
 
@@ -115,7 +116,8 @@ def render_timeline(res: InputResult, fmt: str,
         for r in timeline_rows(res):
             cn = r["canopennode"]
             w.writerow([spreadsheet_safe(r["channel"]), r["node"], r["state"],
-                        f"{r['start']:.6f}", f"{r['end']:.6f}", r["source"], r["kind"],
+                        f"{r['start']:.6f}", f"{r['end']:.6f}", spreadsheet_safe(r["source"]),
+                        r["kind"],
                         r["rule"], r["cob_id"], r["code"], r["error_register"], r["line"],
                         spreadsheet_safe(r["text"]) if r["text"] else None,
                         None if cn is None else json.dumps(cn)])
@@ -168,4 +170,4 @@ def render_timeline(res: InputResult, fmt: str,
         if channel not in shown:
             lines += sync_lines(channel)
     lines += lss_report.timeline_lines(res, at)  # SPEC §9.4.2: LSS as channel events
-    return "\n".join(lines) + "\n"
+    return escape_lines(lines) + "\n"  # a name's newline never starts a line of its own

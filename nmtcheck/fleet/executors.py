@@ -59,7 +59,8 @@ class Executor(Protocol):
 _started: Any = None  # in a pool worker: where it says which task it starts
 
 
-def watch_driver(pid: int, tmpdir: str | None = None) -> threading.Thread:
+def watch_driver(pid: int, tmpdir: str | None = None, mp_tmpdir: str | None = None
+                 ) -> threading.Thread:
     """End this process at once (os._exit) when process `pid`, the run's driver, has ended,
     however it ended: `kill -9`, the OOM killer, a crash. A worker is a child of the fork
     server, not of the driver, and the pool's pipes may stay open in other processes of
@@ -68,11 +69,14 @@ def watch_driver(pid: int, tmpdir: str | None = None) -> threading.Thread:
     for every WATCH_POLL_S. Without this a killed run's workers went on checking the
     tasks already queued to them, then held their memory for minutes (issue 24). The
     pool's temporary directory `tmpdir`, which the driver can no longer remove, goes
-    first (every worker tries; what a worker still writes there is unlinked with it)."""
+    first (every worker tries; what a worker still writes there is unlinked with it), and
+    so does the driver's multiprocessing directory `mp_tmpdir` (`pymp-*`, the fork
+    server's socket), which only the driver's exit would have removed."""
 
     def gone() -> None:
-        if tmpdir is not None:
-            shutil.rmtree(tmpdir, ignore_errors=True)
+        for path in (tmpdir, mp_tmpdir):
+            if path is not None:
+                shutil.rmtree(path, ignore_errors=True)
         os._exit(DRIVER_GONE_EXIT)
 
     def watch() -> None:
@@ -102,14 +106,14 @@ def watch_driver(pid: int, tmpdir: str | None = None) -> threading.Thread:
 
 
 def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None = None,
-                 tmpdir: str | None = None) -> None:
+                 tmpdir: str | None = None, mp_tmpdir: str | None = None) -> None:
     global _started
     from nmtcheck.fleet.trace import mark
 
     mark("worker")
     _started = queue
     if driver is not None:
-        watch_driver(driver, tmpdir)
+        watch_driver(driver, tmpdir, mp_tmpdir)
     # A forked worker inherits the CLI's handlers, which turn a signal into an exception
     # with a traceback: a worker the pool (or Ctrl-C) stops just ends; the parent reports.
     for name in ("SIGTERM", "SIGHUP", "SIGINT"):
@@ -163,6 +167,17 @@ def _run(key: Hashable, fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
     return out
 
 
+def _mp_tmpdir() -> str | None:
+    """This process's multiprocessing directory (`pymp-*`: the fork server's socket), if
+    it made one: removed by multiprocessing when this process exits, by the workers when
+    it is killed (watch_driver)."""
+    import multiprocessing.process
+
+    config = getattr(multiprocessing.process.current_process(), "_config", {})
+    tmp = config.get("tempdir") if isinstance(config, dict) else None
+    return tmp if isinstance(tmp, str) else None
+
+
 class ResilientPool:
     """A ProcessPoolExecutor that survives a dead worker: when the pool breaks, the tasks
     that had finished keep their results, the tasks that had started are suspects (one
@@ -200,7 +215,8 @@ class ResilientPool:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=self._ctx,
                                              initializer=_init_worker,
                                              initargs=(self._queue, environ, os.getpid(),
-                                                       self._tmp.name if self._tmp else None))
+                                                       self._tmp.name if self._tmp else None,
+                                                       _mp_tmpdir()))
         return self._pool
 
     def _shutdown(self) -> None:
@@ -383,6 +399,35 @@ def _import_dask() -> Any:
     return distributed
 
 
+# A dask-local run's directory: the prefix, then the driver's process id
+DASK_SCRATCH = "nmtcheck-dask-"
+
+
+def _remove_dead_runs_scratch() -> None:
+    """Remove the directories of dask-local runs whose driver has ended without removing
+    its own: `kill -9`, or a signal while the cluster started (its worker processes may
+    still make their folders there after the driver removed it). Only this user's, and
+    only where no process has that id any more (a reused id keeps the directory)."""
+    from nmtcheck.spool import SCRATCH
+
+    root = SCRATCH.get() or tempfile.gettempdir()
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(root):
+            pid = entry.name.removeprefix(DASK_SCRATCH).partition("-")[0]
+            if not entry.name.startswith(DASK_SCRATCH) or not pid.isdigit() or len(pid) > 9:
+                continue
+            with contextlib.suppress(OSError):
+                if (not entry.is_dir(follow_symlinks=False)
+                        or entry.stat(follow_symlinks=False).st_uid != os.getuid()):
+                    continue
+                try:
+                    os.kill(int(pid), 0)
+                except ProcessLookupError:
+                    shutil.rmtree(entry.path, ignore_errors=True)
+                except PermissionError:  # another user's process: the id is in use
+                    pass
+
+
 class DaskExecutor:
     """`dask-local[:N]` starts a LocalCluster of N single-threaded worker processes with
     nmtcheck's settings; `dask://HOST:PORT` connects to a running scheduler and checks that
@@ -393,13 +438,31 @@ class DaskExecutor:
         import dask
 
         self._cluster = None
+        self._scratch: tempfile.TemporaryDirectory[str] | None = None
         if address is None:
             n = workers or os.cpu_count() or 1
-            with dask.config.set(DASK_CONFIG):
-                self._cluster = distributed.LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=True,
-                    dashboard_address=":0", silence_logs=40)
-                self.client = distributed.Client(self._cluster)
+            # the cluster's lock files and worker directories below a directory of the
+            # run's, removed with it: Dask's default, `dask-scratch-space` in the temporary
+            # directory, stayed after every run
+            from nmtcheck.spool import spill_directory
+
+            _remove_dead_runs_scratch()
+            with contextlib.suppress(OSError):  # no room, no rights: Dask's default
+                self._scratch = spill_directory(f"{DASK_SCRATCH}{os.getpid()}-")
+            scratch = {"temporary-directory": self._scratch.name} if self._scratch else {}
+            try:
+                with dask.config.set({**DASK_CONFIG, **scratch}):
+                    self._cluster = distributed.LocalCluster(
+                        n_workers=n, threads_per_worker=1, processes=True,
+                        dashboard_address=":0", silence_logs=40,
+                        local_directory=self._scratch.name if self._scratch else None)
+                    self.client = distributed.Client(self._cluster)
+            except BaseException:  # a signal while the cluster starts: what started goes
+                if self._cluster is not None:
+                    with contextlib.suppress(Exception):
+                        self._cluster.close()
+                self._remove_scratch()
+                raise
             self.name = f"dask-local:{n}"
         else:
             try:
@@ -490,6 +553,13 @@ class DaskExecutor:
         self.client.close()
         if self._cluster is not None:
             self._cluster.close()
+        self._remove_scratch()
+
+    def _remove_scratch(self) -> None:
+        if self._scratch is not None:
+            with contextlib.suppress(OSError):
+                self._scratch.cleanup()
+            self._scratch = None
 
 
 EXECUTORS = ("local[:N]", "dask-local[:N]", "dask://HOST:PORT")

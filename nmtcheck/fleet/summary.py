@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from nmtcheck import __version__
+from nmtcheck.safe_text import escape_controls, escape_lines
 
 
 @dataclass
@@ -128,10 +129,17 @@ def _rule_head(r: Any) -> str:
 
 
 def _cell(v: Any) -> str:
-    """A value as a table shows it: missing values (None, NaN, pd.NA) empty."""
+    """A value as a table shows it: missing values (None, NaN, pd.NA) empty, control
+    characters of a name (a newline before `::error`) shown as `\\xNN`, never sent."""
     import pandas as pd
 
-    return "" if v is None or bool(pd.isna(v)) else str(v)
+    return "" if v is None or bool(pd.isna(v)) else escape_controls(v)
+
+
+def _html(text: str) -> str:
+    """`text` for the page: markup and control characters escaped (the page may be a CI
+    job's standard output)."""
+    return html.escape(escape_controls(text))
 
 
 def _table_text(df: Any, columns: list[str]) -> list[str]:
@@ -169,7 +177,7 @@ def render_text(s: FleetSummary) -> str:
         lines.append("logs not checked")
         lines += _table_text(s.failed, ["status", "url", "error"])
         lines.append("")
-    return "\n".join(lines)
+    return escape_lines(lines)  # a name's newline never starts a line of its own
 
 
 def render_csv(s: FleetSummary) -> str:
@@ -201,9 +209,9 @@ def _csv_value(v: Any) -> str:
 
 
 def _table_html(df: Any, columns: list[str]) -> str:
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    head = "".join(f"<th>{_html(c)}</th>" for c in columns)
     body = "".join("<tr>" + "".join(
-        f"<td>{html.escape(_cell(v))}</td>" for v in r) + "</tr>"
+        f"<td>{_html(_cell(v))}</td>" for v in r) + "</tr>"
         for r in df[columns].itertuples(False))
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
@@ -273,8 +281,8 @@ def _bars(by_day: Any) -> str:
     for i, (d, n) in enumerate(zip(days, counts, strict=True)):
         x, mid = left + i * bar, left + i * bar + bar / 2
         what = f"{n} finding{'s' if n != 1 else ''}" + (f" ({by_rule[d]})" if n else "")
-        g = [f'<g class="day" data-date="{html.escape(d)}">'
-             f"<title>{html.escape(f'{d}: {what}')}</title>"]
+        g = [f'<g class="day" data-date="{_html(d)}">'
+             f"<title>{_html(f'{d}: {what}')}</title>"]
         if n:
             g.append(f'<rect x="{x + 1}" y="{y(n):.1f}" width="{max(bar - 2, 1)}" '
                      f'height="{base - y(n):.1f}" fill="#c0392b"/>')
@@ -286,7 +294,7 @@ def _bars(by_day: Any) -> str:
                          f'rotate(-90)">{n}</text>')
         if i % label_every == 0:
             g.append(f'<text class="date" transform="translate({mid + 4} {base + 8}) '
-                     f'rotate(-60)" text-anchor="end">{html.escape(d)}</text>')
+                     f'rotate(-60)" text-anchor="end">{_html(d)}</text>')
         parts.append("".join(g) + "</g>")
     parts.append(f'<text class="axis-title" x="{left + bar * len(days) / 2}" '
                  f'y="{base + bottom - 4}" text-anchor="middle">day (UTC)</text>')
@@ -300,21 +308,21 @@ def _bars(by_day: Any) -> str:
     if not filled and len(days) > 1:
         note += (f" The span is longer than {MAX_DAYS_FILLED} days: only the days with "
                  "findings are shown.")
-    return f"{chart}<p><small>{html.escape(note)}</small></p>"
+    return f"{chart}<p><small>{_html(note)}</small></p>"
 
 
 def render_html(s: FleetSummary) -> str:
     t = s.totals
-    sections = [f"<h1>nmtcheck fleet summary</h1><p>{html.escape(s.results)}: "
-                f"{html.escape(_units(t))}, {t['frames']} frames; "
+    sections = [f"<h1>nmtcheck fleet summary</h1><p>{_html(s.results)}: "
+                f"{_html(_units(t))}, {t['frames']} frames; "
                 f"<b>{t['error']}</b> errors, {t['warning']} warnings, {t['info']} info; "
                 f"logs from {t['first_date'] or '-'} to {t['last_date'] or '-'}; "
-                f"nmtcheck {html.escape(', '.join(t['versions']) or '-')}</p>",
+                f"nmtcheck {_html(', '.join(t['versions']) or '-')}</p>",
                 _table_html(s.status, ["status", "logs"]),
                 "<h2>Findings per day</h2>", _bars(s.by_day)]
     for r in s.rules.itertuples():  # most findings first
         worst = s.devices[s.devices["rule"] == r.rule]
-        sections.append(f"<h2>{html.escape(_rule_head(r))}</h2>"
+        sections.append(f"<h2>{_html(_rule_head(r))}</h2>"
                         f"<h3>Worst {_worst(worst)}</h3>")
         sections.append(_table_html(worst, [*_unit_columns(worst), "findings", "logs",
                                             "nodes", "first", "last"]))

@@ -18,6 +18,7 @@ import can
 
 from nmtcheck.checks.base import SEVERITIES
 from nmtcheck.engine import select_rules
+from nmtcheck.errors import string_list
 from nmtcheck.live.frames import from_message
 from nmtcheck.live.session import Outcome, Session
 from nmtcheck.live.tracker import LiveFinding, NodeState
@@ -50,7 +51,8 @@ class Monitor(can.Listener):
         self.profile_name = "custom" if isinstance(rules, Profile) else str(rules)
         self.network = (network if isinstance(network, Network) or network is None
                         else load_network(os.fspath(network)))
-        self.rules = select_rules(self.profile, list(select or []), list(ignore or []))
+        self.rules = select_rules(self.profile, string_list("select", select or []),
+                                  string_list("ignore", ignore or []))
         self.channel = channel
         self.session = Session(self.profile, self.rules, self.network,
                                None if record is None else os.fspath(record), on_finding)
@@ -62,6 +64,8 @@ class Monitor(can.Listener):
     # -- can.Listener ----------------------------------------------------------------------
 
     def on_message_received(self, msg: can.Message) -> None:
+        if not isinstance(msg, can.Message):  # None or another object: no frame to check
+            raise TypeError(f"msg: expected a can.Message, got {type(msg).__name__}")
         # queued for the session's checker thread: the Notifier's thread never waits for
         # the checks; under overload frames are dropped, counted, and reported (I004)
         self.session.submit(from_message(msg, self.channel))

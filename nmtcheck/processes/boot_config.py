@@ -86,7 +86,8 @@ def _typed(where: str, value: Any, want: type) -> Any:
         if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
             return value
     elif want is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0:
+        # a time: finite and at most 1e9 ms (nan, inf and 1e308 are no time)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value <= 1e9:
             return float(value)
     elif isinstance(value, want):
         return value

@@ -7,6 +7,7 @@ import codecs
 import io
 import os
 import re
+import stat
 import sys
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
@@ -127,6 +128,10 @@ def _open_raw(path: str) -> tuple[IO[bytes], str]:
     display = printable_path(path)
     if os.path.isdir(path):
         raise InputError(display, "is a directory, not a log file")
+    kind = special_kind(path)
+    if kind:  # opening a FIFO waits for a writer, reading a device may never end: a hang
+        raise InputError(display, f"not a regular file ({kind}): give its content on "
+                         "standard input (-) if it is a log")
     try:
         return open(path, "rb"), display  # closed when the batches are exhausted
     except FileNotFoundError:
@@ -134,6 +139,19 @@ def _open_raw(path: str) -> tuple[IO[bytes], str]:
                          else "a symbolic link to a file that does not exist") from None
     except OSError as exc:
         raise InputError(display, f"cannot open: {exc.strerror or exc}") from None
+
+
+def special_kind(path: str) -> str:
+    """What `path` is when it exists and is no regular file or directory ("a FIFO", "a
+    socket", "a device"), else ""."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # missing, a broken link: opening it names why
+        return ""
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return ""
+    return ("a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "a device")
 
 
 def _decompressed_head(raw: IO[bytes], display: str, strict: bool

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from nmtcheck.errors import UsageError
+from nmtcheck.settings.values import quoted
 
 MAX_MAPPING = 64  # entries of a PDO mapping (1600h/1A00h sub 1..64)
 
@@ -67,7 +68,7 @@ def _int(where: str, value: Any, lo: int, hi: int) -> int:
     if isinstance(value, int) and not isinstance(value, bool) and lo <= value <= hi:
         return value
     top = str(hi) if hi <= 0xFFFF else f"0x{hi:X}"
-    raise UsageError(f"{where}: expected an integer {lo}..{top}, got {value!r}")
+    raise UsageError(f"{where}: expected an integer {lo}..{top}, got {quoted(value)}")
 
 
 def read_sync_table(where: str, table: Any) -> SyncKeys:

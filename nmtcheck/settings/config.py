@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from nmtcheck.errors import UsageError
+from nmtcheck.settings.values import loads, quoted, shortened
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -88,7 +89,7 @@ def _has_tool_table(path: Path) -> bool:
 def _parse(path: Path) -> dict[str, Any]:
     """A TOML file's content; errors name the file (and line) it could not be read at."""
     try:
-        data: dict[str, Any] = tomllib.loads(path.read_text(encoding="utf-8"))
+        data: dict[str, Any] = loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         line = getattr(exc, "lineno", None) or _line_of(str(exc))
         where = f"{path}:{line}" if line else str(path)
@@ -117,7 +118,7 @@ def _patterns(where: str, key: str, value: Any) -> list[str]:
 
 def _string(where: str, key: str, value: Any) -> str:
     if not isinstance(value, str) or not value:
-        raise UsageError(f"{where} {key}: expected a string, got {value!r}")
+        raise UsageError(f"{where} {key}: expected a string, got {quoted(value)}")
     return value
 
 
@@ -129,7 +130,8 @@ def load_config(path: Path) -> Config:
     cfg = Config(path=path.resolve(), label=label)
     for key, value in data.items():
         if key not in KEYS:
-            raise UsageError(f"{where} {key}: unknown key (known: {', '.join(KEYS)})")
+            raise UsageError(f"{where} {shortened(key)}: unknown key (known: "
+                             f"{', '.join(KEYS)})")
         _set(cfg, where, key, value)
     return cfg
 
@@ -162,7 +164,7 @@ def _set(cfg: Config, where: str, key: str, value: Any) -> None:
     elif key == "fail-on":
         if value not in FAIL_ON:
             raise UsageError(f"{where} fail-on: expected one of {', '.join(FAIL_ON)}, "
-                             f"got {value!r}")
+                             f"got {quoted(value)}")
         cfg.fail_on = value
     elif key == "format":
         cfg.format = _string(where, key, value)

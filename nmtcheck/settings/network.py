@@ -23,6 +23,7 @@ from nmtcheck.processes import boot_config
 from nmtcheck.protocol.devicefile import DeviceValues, load_device_file
 from nmtcheck.settings import comm_keys
 from nmtcheck.settings.comm_keys import NodeCommKeys, SyncKeys
+from nmtcheck.settings.values import loads, number, quoted, shortened
 from nmtcheck.timeline.model import NodeConfig
 
 if sys.version_info >= (3, 11):
@@ -112,23 +113,23 @@ def _and(nodes: list[int]) -> str:
 def _master(where: str, value: Any) -> int:
     if isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= 127:
         return value
-    raise UsageError(f"{where}: expected a node-ID 1..127, got {value!r}")
+    raise UsageError(f"{where}: expected a node-ID 1..127, got {quoted(value)}")
 
 
 def _value(where: str, value: Any, want: type) -> Any:
-    if want in (float, int) and isinstance(value, (int, float)) and value < 0:
-        raise UsageError(f"{where}: expected a number >= 0, got {value!r}")  # times, factors
+    if want in (float, int) and isinstance(value, (int, float)) and not isinstance(value, bool):
+        number(where, value, integer=want is int)  # times, factors: finite, >= 0
     if want is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         return float(value)
     if isinstance(value, want) and not isinstance(value, bool):
         return value
-    raise UsageError(f"{where}: expected {want.__name__}, got {value!r}")
+    raise UsageError(f"{where}: expected {want.__name__}, got {quoted(value)}")
 
 
 def _read_toml(path: str) -> dict[str, Any]:
     p = Path(path)
     try:
-        doc: dict[str, Any] = tomllib.loads(p.read_text(encoding="utf-8"))
+        doc: dict[str, Any] = loads(p.read_text(encoding="utf-8"))
         return doc
     except FileNotFoundError:
         raise UsageError(f"{path}: no such network file") from None
@@ -158,7 +159,7 @@ def _read_network_file(path: str, net: Network) -> dict[int, dict[str, Any]]:
     data = _read_toml(path)
     for key in data:
         if key not in ("nodes", "channels", "master", "boot", "sync"):
-            raise UsageError(f"{path}: unknown key {key!r} (expected master, [boot], "
+            raise UsageError(f"{path}: unknown key {quoted(key)} (expected master, [boot], "
                              f"[sync], [nodes.N] and [channels.NAME] tables)")
     base = Path(path).resolve().parent
     if "boot" in data:
@@ -186,7 +187,7 @@ def _read_channels(path: str, channels: Any, net: Network) -> None:
     if not isinstance(channels, dict):
         raise UsageError(f"{path}: channels: expected [channels.NAME] tables")
     for name, table in channels.items():
-        where = f"{path}: [channels.{name}]"
+        where = f"{path}: [channels.{shortened(name)}]"
         if not isinstance(table, dict):
             raise UsageError(f"{where}: expected a table")
         for key, value in table.items():
@@ -198,7 +199,8 @@ def _read_channels(path: str, channels: Any, net: Network) -> None:
                 net.channel_sync[name] = comm_keys.read_sync_table(f"{where} sync", value)
                 continue
             if key != "master":
-                raise UsageError(f"{where} {key}: unknown key (known: master, boot, sync)")
+                raise UsageError(f"{where} {shortened(key)}: unknown key (known: master, boot, "
+                                 "sync)")
             net.channel_masters[name] = _master(f"{where} master", value)
 
 
@@ -209,8 +211,8 @@ def _read_nodes(path: str, nodes: Any, base: Path) -> dict[int, dict[str, Any]]:
         raise UsageError(f"{path}: nodes: expected [nodes.N] tables")
     tables: dict[int, dict[str, Any]] = {}
     for name, table in nodes.items():
-        where = f"{path}: [nodes.{name}]"
-        if not name.isdigit() or not 1 <= int(name) <= 127:
+        where = f"{path}: [nodes.{shortened(name)}]"
+        if not name.isdigit() or len(name) > 3 or not 1 <= int(name) <= 127:
             raise UsageError(f"{where}: node-ID must be 1..127")
         if not isinstance(table, dict):
             raise UsageError(f"{where}: expected a table")
@@ -224,7 +226,7 @@ def _read_nodes(path: str, nodes: Any, base: Path) -> dict[int, dict[str, Any]]:
                 continue
             if key not in _KEYS:
                 known = ", ".join([*_KEYS, *boot_config.NODE_KEYS, *comm_keys.NODE_KEYS])
-                raise UsageError(f"{where} {key}: unknown key (known: {known})")
+                raise UsageError(f"{where} {shortened(key)}: unknown key (known: {known})")
             values[key] = _value(f"{where} {key}", value, _KEYS[key])
         for key in ("dcf", "eds"):
             if key in values:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,6 +11,7 @@ from typing import Any
 from nmtcheck.checks import BY_CODE
 from nmtcheck.checks.base import SEVERITIES
 from nmtcheck.errors import UsageError
+from nmtcheck.settings.values import loads, number, quoted, shortened
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -74,26 +76,28 @@ def _resolve(name: str, relative_to: Path | None) -> Path:
     if "/" not in name and "\\" not in name:
         candidates.append(builtin_dir() / (name if name.endswith(".toml") else f"{name}.toml"))
     for c in candidates:
-        if c.is_file():
-            return c
-    raise UsageError(f"{name}: no such rule profile (built in: {', '.join(builtin_profiles())})")
+        with contextlib.suppress(OSError):  # a name too long for a path: no such profile
+            if c.is_file():
+                return c
+    raise UsageError(f"{shortened(name)}: no such rule profile "
+                     f"(built in: {', '.join(builtin_profiles())})")
 
 
 def _check_value(where: str, value: Any, want: type) -> Any:
     if want is float and isinstance(value, (int, float)) and not isinstance(value, bool):
-        if value < 0:  # every numeric parameter is a time, factor or tolerance
-            raise UsageError(f"{where}: expected a number >= 0, got {value!r}")
-        return float(value)
+        # every numeric parameter is a time, factor or tolerance: finite, >= 0
+        return float(number(where, value))
     if want is list and isinstance(value, list):
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
             raise UsageError(f"{where}: expected a list of integers (CAN-IDs, e.g. 0x7E4)")
         return value
-    if want is int and isinstance(value, int) and not isinstance(value, bool) and value < 0:
-        raise UsageError(f"{where}: expected a whole number >= 0, got {value!r}")
+    if want is int and isinstance(value, int) and not isinstance(value, bool):
+        return number(where, value, integer=True)
     if (isinstance(value, want) and not isinstance(value, bool)) or (want is bool
                                                                  and isinstance(value, bool)):
         return value
-    raise UsageError(f"{where}: expected {want.__name__}, got {type(value).__name__} {value!r}")
+    raise UsageError(f"{where}: expected {want.__name__}, got {type(value).__name__} "
+                     f"{quoted(value)}")
 
 
 def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> Profile:
@@ -102,14 +106,14 @@ def load_profile(name: str = DEFAULT_PROFILE, _seen: tuple[Path, ...] = ()) -> P
     if path.resolve() in _seen:
         raise UsageError(f"{path}: 'extends' loops back to itself")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise UsageError(f"{path}: invalid TOML: {exc}") from None
     except OSError as exc:
         raise UsageError(f"{path}: cannot read: {exc.strerror}") from None
     for key in data:
         if key not in ("extends", "rules", "timeline"):
-            raise UsageError(f"{path}: unknown key {key!r} "
+            raise UsageError(f"{path}: unknown key {quoted(key)} "
                              f"(expected 'extends', [timeline] and [rules.CODE])")
     profile = registry_profile()
     # A profile without `extends` extends `default`, so a user file holds only its changes.
@@ -126,7 +130,12 @@ def derived_profile(where: str, base: str, base_dir: Path, rules: Any,
                     timeline: Any = None) -> Profile:
     """A profile that extends `base` (a name, or a path relative to `base_dir`) with
     `[rules.CODE]` and `[timeline]` tables held elsewhere (a configuration file, `where`)."""
-    profile = load_profile(base, (base_dir / "<configuration>",))
+    try:
+        profile = load_profile(base, (base_dir / "<configuration>",))
+    except UsageError as exc:  # the profile it names is missing: name the file too
+        if str(exc).startswith(f"{shortened(base)}: no such rule profile"):
+            raise UsageError(f"{where}: rules: {exc}") from None
+        raise
     apply_tables(profile, where, rules, {} if timeline is None else timeline)
     return profile
 
@@ -138,7 +147,7 @@ def apply_tables(profile: Profile, where: str, rules: Any, timeline: Any) -> Non
         raise UsageError(f"{path}: timeline: expected a table [timeline]")
     for key, value in timeline.items():
         if key not in TIMELINE_PARAMS:
-            raise UsageError(f"{path}: [timeline] {key}: unknown parameter "
+            raise UsageError(f"{path}: [timeline] {shortened(key)}: unknown parameter "
                              f"(known: {', '.join(TIMELINE_PARAMS)})")
         profile.timeline[key] = _check_value(f"{path}: [timeline] {key}", value, float)
     if not isinstance(rules, dict):
@@ -146,13 +155,13 @@ def apply_tables(profile: Profile, where: str, rules: Any, timeline: Any) -> Non
     for code, table in rules.items():
         rule = BY_CODE.get(code)
         if rule is None:
-            raise UsageError(f"{path}: [rules.{code}]: unknown rule code")
+            raise UsageError(f"{path}: [rules.{shortened(code)}]: unknown rule code")
         if not isinstance(table, dict):
             raise UsageError(f"{path}: rules.{code}: expected a table")
         settings = profile.setdefault(code, RuleSettings(severity=rule.severity))
         params = {p.name: p for p in rule.params}
         for key, value in table.items():
-            where_key = f"{path}: [rules.{code}] {key}"
+            where_key = f"{path}: [rules.{code}] {shortened(key)}"
             if key == "enabled":
                 settings.enabled = _check_value(where_key, value, bool)
             elif key == "severity":
@@ -161,6 +170,10 @@ def apply_tables(profile: Profile, where: str, rules: Any, timeline: Any) -> Non
                 settings.severity = value
             elif key in params:
                 settings.params[key] = _check_value(where_key, value, params[key].type)
+                top = params[key].maximum
+                if top is not None and settings.params[key] > top:
+                    raise UsageError(f"{where_key}: expected a number from 0 to {top:g}, "
+                                     f"got {quoted(value)}")
             else:
                 known = ", ".join(["enabled", "severity", *params]) or "none"
                 raise UsageError(f"{where_key}: unknown parameter (known: {known})")
