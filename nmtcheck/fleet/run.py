@@ -101,7 +101,7 @@ def _batches(files: Iterator[FileInfo], max_files: int, max_bytes: int,
         return
     if callable(slots):
         slots = slots()
-    head = first + list(itertools.islice(files, max_files * slots - 1))
+    head = first + list(itertools.islice(files, max(0, max_files * slots - 1)))
     if len(head) < max_files * slots:
         max_files = max(1, -(-len(head) // slots))
     files = itertools.chain(head, files)
