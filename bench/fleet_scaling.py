@@ -374,6 +374,16 @@ def _measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask
     commands: dict[str, Any] = {}
     for k in steps:
         commands[f"local:{k}"] = ("fleet", fleet_cmd(glob, tmp / f"ds-local{k}", f"local:{k}"))
+    cluster_first: dict[str, Any] = {}
+    if address is not None:  # right after local:N: on a loaded machine, a round's two
+        # neighbours ran under about the same load (their ratio is the figure to read)
+        remote = "dask://" + address.removeprefix("tcp://")
+        commands[CLUSTER] = ("fleet", fleet_cmd(glob, tmp / "ds-cluster", remote))
+        # the cluster's first run registers nmtcheck's settings and imports on its workers
+        wall, _cpu, st = run_fleet(commands[CLUSTER][1], tmp / "stats.json")
+        cluster_first = {"wall_s": wall, "phases": st["phases"]}
+        print(f"running cluster {address}: {n} workers; its first run (not timed below, it "
+              f"sets the workers up) took {wall:.2f} s", flush=True)
     commands[f"check -j {n}"] = ("plain", [*nmt, "check", *paths, "-j", str(n), "-q",
                                            "--isolated"])
     xargs = shutil.which("xargs")
@@ -383,15 +393,6 @@ def _measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask
     if with_dask:
         commands[f"dask-local:{n}"] = ("fleet", fleet_cmd(glob, tmp / "ds-dask",
                                                           f"dask-local:{n}"))
-    cluster_first: dict[str, Any] = {}
-    if address is not None:
-        remote = "dask://" + address.removeprefix("tcp://")
-        commands[CLUSTER] = ("fleet", fleet_cmd(glob, tmp / "ds-cluster", remote))
-        # the cluster's first run registers nmtcheck's settings and imports on its workers
-        wall, _cpu, st = run_fleet(commands[CLUSTER][1], tmp / "stats.json")
-        cluster_first = {"wall_s": wall, "phases": st["phases"]}
-        print(f"running cluster {address}: {n} workers; its first run (not timed below, it "
-              f"sets the workers up) took {wall:.2f} s", flush=True)
 
     walls: dict[str, list[float]] = {name: [] for name in commands}
     cpus: dict[str, list[float]] = {name: [] for name in commands}
