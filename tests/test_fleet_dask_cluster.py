@@ -208,3 +208,24 @@ def test_keep_freed_memory_undoes_dasks_malloc_trim_threshold() -> None:
 
     assert faults("default") > 2000  # Dask's setting: every log's columns faulted in anew
     assert faults("keep") < 500
+
+
+def test_a_short_listing_is_cut_to_the_running_clusters_workers() -> None:
+    """On `dask://` only the started executor knows how many workers there are: 8 logs on
+    a cluster of 4 worker threads make 4 batches (the client's own core count does not
+    count), and an empty listing starts no executor."""
+    from nmtcheck.fleet.run import _batches, _slots
+    from nmtcheck.fleet.storage import FileInfo
+
+    assert _slots("dask://scheduler:8786") is None and _slots("local:3") == 3
+    started: list[int] = []
+
+    def workers() -> int:
+        started.append(4)
+        return 4
+
+    files = [FileInfo(f"log{i}.log", size=100) for i in range(8)]
+    batches = list(_batches(iter(files), 32, 64 << 20, workers))
+    assert [len(b) for b in batches] == [2, 2, 2, 2] and started == [4]
+    assert [fi for b in batches for fi in b] == files
+    assert list(_batches(iter([]), 32, 64 << 20, workers)) == [] and started == [4]
