@@ -229,3 +229,34 @@ def test_a_short_listing_is_cut_to_the_running_clusters_workers() -> None:
     assert [len(b) for b in batches] == [2, 2, 2, 2] and started == [4]
     assert [fi for b in batches for fi in b] == files
     assert list(_batches(iter([]), 32, 64 << 20, workers)) == [] and started == [4]
+
+
+NO_NMTCHECK = """
+import sys, distributed
+cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", silence_logs=50)
+print(cluster.scheduler_address, flush=True)
+sys.stdin.read()
+cluster.close()
+"""
+
+
+def test_workers_without_nmtcheck_are_a_one_line_usage_error(tmp_path: Path) -> None:
+    """Workers whose Python has Dask but not nmtcheck (started with -S and Dask's
+    site-packages on PYTHONPATH: no .pth file, so no editable nmtcheck): exit 2, one line."""
+    site = str(Path(distributed.__file__).resolve().parent.parent)
+    env = {**os.environ, "PYTHONPATH": site}
+    shutil.copy(SAMPLES / "healthy.log", tmp_path / "healthy.log")
+    proc = subprocess.Popen([sys.executable, "-S", "-c", NO_NMTCHECK], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    assert proc.stdout is not None and proc.stdin is not None
+    try:
+        address = proc.stdout.readline().strip()
+        res = cli("check", "healthy.log", "--results", "ds", "--executor",
+                  "dask://" + address.removeprefix("tcp://"), "--isolated", cwd=tmp_path)
+    finally:
+        proc.stdin.close()
+        proc.wait(timeout=60)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1, res.stderr
+    assert "a worker cannot run nmtcheck" in res.stderr
+    assert "No module named 'nmtcheck'" in res.stderr and "Traceback" not in res.stderr

@@ -395,7 +395,7 @@ class DaskExecutor:
             raise UsageError(f"--executor {self.name}: {exc}") from None
         try:
             info = self.client.run(worker_info)
-        except (ImportError, AttributeError) as exc:  # unpickled on a worker by reference
+        except Exception as exc:  # noqa: BLE001 - unpickled on a worker: Dask wraps its error
             raise UsageError(f"--executor {self.name}: a worker cannot run nmtcheck "
                              f"({type(exc).__name__}: {exc}): install nmtcheck {__version__} "
                              "with the dask extra where the workers run") from None
