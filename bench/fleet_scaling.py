@@ -13,27 +13,36 @@ commands, each as its own process, interleaved over --repeat rounds (best of the
   (NMTCHECK_THREADS=1: one core each, as a fleet worker uses);
 - the machine's ceiling: N copies of a fixed CPU-bound Python loop at once against one;
 - `--executor dask-local:N --force`, its cluster start-up reported apart;
+- `--executor dask://127.0.0.1:PORT --force` on a running loopback cluster the bench starts
+  as docs/guides/fleet.md says (`dask scheduler`, `dask worker ADDRESS --nworkers N
+  --nthreads 1`, Dask's default settings otherwise), after one untimed run (its first run,
+  which sets the workers up, is reported apart); stopped at the end;
 - start-up: `nmtcheck check` on a small log, and one log alone.
 
 Prints a table (wall time, speed-up over local:1, fraction of the ceiling) and the ratios
 issue 25 asks for, the driver's own CPU and the bytes it pickles per log, and writes it all
 as JSON to --out. Needs only the project's virtual environment (numpy, pyarrow, and Dask
-for the last row: --no-dask without it); no network.
+for the Dask rows: --no-dask without it); no network. On a loaded machine compare the
+ratios of one round (the same round's commands ran under about the same load): the
+`dask://` row's ratio to `local:N` is also given as the median of the rounds' ratios.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
 import resource
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +50,7 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 PY = sys.executable
 LOOP = "s = 0\nfor i in range({n}):\n    s += i * i\n"
+CLUSTER = "dask:// (running cluster)"
 
 # Run inside the measured process: the CLI as `nmtcheck check` runs it, plus what the
 # fleet run's outcome says about its driver (CPU, executor start) and the bytes the driver
@@ -183,9 +193,13 @@ def phases(marks: list[dict[str, Any]], launched: float, wall: float) -> dict[st
     driver's launch to each of its phases, to the fork server's preload and to the first
     and last task; each worker's time between its tasks and in its Parquet writes."""
     driver = {m["phase"]: m for m in marks if m["phase"] in (
-        "prestart", "cli", "run_fleet", "warm_up", "ensure", "lock", "skip_list", "executor",
-        "drained", "closed", "run_row", "run_end", "reported")}
+        "prestart", "cli", "run_fleet", "warm_up", "ensure", "lock", "skip_list",
+        "listed_first", "dask_connected", "dask_versions", "dask_plugin", "dask_info",
+        "executor", "drained", "closed", "run_row", "run_end", "reported")}
     at = {k: m["t"] - launched for k, m in driver.items()}
+    results = [m["t"] for m in marks if m["phase"] == "results"]
+    if results:
+        at["first_result"] = min(results) - launched
     for name in ("preload_start", "preload"):
         ts = [m["t"] for m in marks if m["phase"] == name]
         if ts:
@@ -252,7 +266,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=None,
                     help="rounds, best of them (default 3; 2 with --quick)")
     ap.add_argument("--quick", action="store_true", help="a 2-core machine: 8 logs, N=2")
-    ap.add_argument("--no-dask", action="store_true", help="leave out dask-local:N")
+    ap.add_argument("--no-dask", action="store_true",
+                    help="leave out dask-local:N and the running cluster")
+    ap.add_argument("--no-cluster", action="store_true",
+                    help="leave out the running cluster (dask://)")
     ap.add_argument("--no-ladder", action="store_true",
                     help="only local:1 and local:N (not local:2, 4, ... between them)")
     ap.add_argument("--dir", type=Path, default=None,
@@ -275,7 +292,8 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="nmtcheck-scaling-", dir=args.dir))
     try:
         report = measure(tmp, n, n_logs, args.frames, repeat, with_dask,
-                         ladder=not args.no_ladder, usable=usable)
+                         ladder=not args.no_ladder, usable=usable,
+                         cluster=with_dask and not args.no_cluster)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")
@@ -283,7 +301,54 @@ def main() -> None:
 
 
 def measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask: bool,
-            ladder: bool, usable: int) -> dict[str, Any]:
+            ladder: bool, usable: int, cluster: bool = False) -> dict[str, Any]:
+    with contextlib.ExitStack() as stack:
+        address = stack.enter_context(running_cluster(tmp / "cluster", n)) if cluster else None
+        return _measure(tmp, n, n_logs, frames, repeat, with_dask, ladder, usable, address)
+
+
+@contextlib.contextmanager
+def running_cluster(where: Path, n: int) -> Iterator[str]:
+    """A Dask scheduler on loopback and N single-threaded worker processes, started as
+    docs/guides/fleet.md says (no setting beyond the command lines); the scheduler's
+    address. Stopped (the bench's own processes, by their process groups) at the end."""
+    dask = Path(PY).with_name("dask")
+    where.mkdir(parents=True, exist_ok=True)
+    info = where / "scheduler.json"
+    log = open(where / "cluster.log", "wb")  # noqa: SIM115 - closed below
+    e = env(DASK_TEMPORARY_DIRECTORY=str(where))
+    procs = [subprocess.Popen([str(dask), "scheduler", "--host", "127.0.0.1", "--port", "0",
+                               "--dashboard-address", ":0", "--scheduler-file", str(info)],
+                              stdout=log, stderr=log, env=e, start_new_session=True)]
+    try:
+        deadline = time.monotonic() + 120
+        while not info.exists():
+            if time.monotonic() > deadline or procs[0].poll() is not None:
+                raise SystemExit(f"dask scheduler did not start: see {where / 'cluster.log'}")
+            time.sleep(0.1)
+        address = json.loads(info.read_text())["address"]
+        procs.append(subprocess.Popen([str(dask), "worker", address, "--nworkers", str(n),
+                                       "--nthreads", "1", "--dashboard-address", ":0"],
+                                      stdout=log, stderr=log, env=e, start_new_session=True))
+        subprocess.run([PY, "-c", "import sys, distributed\n"
+                        "with distributed.Client(sys.argv[1], timeout='60s') as c:\n"
+                        "    c.wait_for_workers(int(sys.argv[2]), timeout=300)\n",
+                        address, str(n)], check=True, env=e, timeout=400)
+        yield address
+    finally:
+        for proc in reversed(procs):
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGTERM)
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+        log.close()
+
+
+def _measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask: bool,
+             ladder: bool, usable: int, address: str | None) -> dict[str, Any]:
     began = time.time()
     load_before = os.getloadavg()
     started = time.perf_counter()
@@ -309,6 +374,16 @@ def measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask:
     commands: dict[str, Any] = {}
     for k in steps:
         commands[f"local:{k}"] = ("fleet", fleet_cmd(glob, tmp / f"ds-local{k}", f"local:{k}"))
+    cluster_first: dict[str, Any] = {}
+    if address is not None:  # right after local:N: on a loaded machine, a round's two
+        # neighbours ran under about the same load (their ratio is the figure to read)
+        remote = "dask://" + address.removeprefix("tcp://")
+        commands[CLUSTER] = ("fleet", fleet_cmd(glob, tmp / "ds-cluster", remote))
+        # the cluster's first run registers nmtcheck's settings and imports on its workers
+        wall, _cpu, st = run_fleet(commands[CLUSTER][1], tmp / "stats.json")
+        cluster_first = {"wall_s": wall, "phases": st["phases"]}
+        print(f"running cluster {address}: {n} workers; its first run (not timed below, it "
+              f"sets the workers up) took {wall:.2f} s", flush=True)
     commands[f"check -j {n}"] = ("plain", [*nmt, "check", *paths, "-j", str(n), "-q",
                                            "--isolated"])
     xargs = shutil.which("xargs")
@@ -350,6 +425,9 @@ def measure(tmp: Path, n: int, n_logs: int, frames: int, repeat: int, with_dask:
               + f"; ceiling x{ceilings[-1]['speedup']:.2f}", flush=True)
 
     per_log = check_seconds(tmp / "ds-local1")
+    per_log_by = {name: check_seconds(tmp / ds) for name, ds in (
+        (f"local:{n}", f"ds-local{n}"), (f"dask-local:{n}", "ds-dask"), (CLUSTER, "ds-cluster"))
+        if (tmp / ds / "inputs").exists()}
     return summarise(locals())
 
 
@@ -372,10 +450,16 @@ def _xargs_python(nmt: list[str], paths: list[str], n: int, environ: dict[str, s
 PHASES = (("prestart", "driver: fork server started (prestart)"),
           ("cli", "driver: command line parsed, imports done"),
           ("run_fleet", "driver: run begins"), ("lock", "driver: dataset ensured, locked"),
-          ("executor", "driver: listed, executor made"),
+          ("listed_first", "driver: first log listed, executor starts"),
+          ("dask_connected", "driver: Dask imported, client connected"),
+          ("dask_versions", "driver: versions checked (Dask's, nmtcheck's)"),
+          ("dask_plugin", "driver: worker settings registered (plugin)"),
+          ("dask_info", "driver: worker settings read back"),
+          ("executor", "driver: executor made"),
           ("preload_start", "fork server: interpreter up, preload begins"),
           ("preload", "fork server: preload done"), ("first_task", "first task starts"),
           ("all_busy", "every worker has started its first task"),
+          ("first_result", "driver: first result in"),
           ("last_task_end", "last task ends"), ("drained", "driver: every result in"),
           ("run_row", "driver: pool closed, run row written"), ("exit", "process exit"))
 
@@ -398,7 +482,7 @@ def print_phases(fleet_stats: dict[str, list[dict[str, Any]]]) -> None:
         writes = [w for r in runs for w in r["writes_s"]]
         tail = [r["at"]["exit"] - r["at"]["last_task_end"] for r in runs
                 if "last_task_end" in r["at"]]
-        if not all("first_task" in r["at"] for r in runs):  # Dask tasks are not traced
+        if not all("first_task" in r["at"] for r in runs):  # a run without a task's trace
             continue
         first = statistics.median(r["at"]["first_task"] for r in runs)
         nan = float("nan")
@@ -428,7 +512,8 @@ def summarise(m: dict[str, Any]) -> dict[str, Any]:
     rows = []
     for name, w in best.items():
         label = {f"check -j {n}": f"`check -j {n}` (no dataset)",
-                 f"xargs -P{n}": f"`xargs -P{n}` of `nmtcheck check` (NMTCHECK_THREADS=1)"}.get(
+                 f"xargs -P{n}": f"`xargs -P{n}` of `nmtcheck check` (NMTCHECK_THREADS=1)",
+                 CLUSTER: f"`--executor dask://…` on a running {n}-worker loopback cluster"}.get(
             name, f"`--results DS --executor {name} --force`")
         speed = base / w
         rows.append({"command": name, "best_s": w, "runs_s": walls[name],
@@ -451,6 +536,12 @@ def summarise(m: dict[str, Any]) -> dict[str, Any]:
         ratios.update(dask_start_s=starts, dask_without_start_s=min(net),
                       dask_over_local_n=min(net) / local_n,
                       dask_whole_over_local_n=best[dask_name] / local_n)
+    if CLUSTER in best:
+        per_round = [c / lo for c, lo in zip(walls[CLUSTER], walls[f"local:{n}"], strict=True)]
+        ratios.update(cluster_over_local_n=best[CLUSTER] / local_n,
+                      cluster_over_local_n_rounds=per_round,
+                      cluster_over_local_n_median=statistics.median(per_round),
+                      cluster_first_run_s=m["cluster_first"]["wall_s"])
     per_log = statistics.median(m["per_log"]) if m["per_log"] else float("nan")
     drivers = {}
     for name, runs in m["fleet_stats"].items():
@@ -475,8 +566,18 @@ def summarise(m: dict[str, Any]) -> dict[str, Any]:
               f"{min(ratios['dask_start_s']):.2f}-{max(ratios['dask_start_s']):.2f} s, without it "
               f"{ratios['dask_without_start_s']:.2f} s = {ratios['dask_over_local_n']:.2f}x "
               f"local:{n} (goal <= 1.2)")
+    if "cluster_over_local_n" in ratios:
+        print(f"dask:// on a running {n}-worker cluster: best {best[CLUSTER]:.2f} s = "
+              f"{ratios['cluster_over_local_n']:.2f}x local:{n}'s best; per round "
+              + ", ".join(f"{r:.2f}x" for r in ratios["cluster_over_local_n_rounds"])
+              + f", median {ratios['cluster_over_local_n_median']:.2f}x (goal <= 1.2); the "
+              f"cluster's first run (setting its workers up) {ratios['cluster_first_run_s']:.2f} s")
     print(f"a log's check in a worker: median {per_log:.3f} s (local:1's inputs.seconds); one "
           f"log alone as a whole process: {min(m['one_log']):.2f} s")
+    for name, secs in m["per_log_by"].items():
+        if secs:
+            print(f"  in a worker of {name}: median {statistics.median(secs):.3f} s "
+                  f"(the last round's {len(secs)} logs)")
     print(f"start-up, `nmtcheck check` on a small log: min {min(startup):.3f} s, median "
           f"{statistics.median(startup):.3f} s over {len(startup)} runs (goal < 0.25 s)")
     for name, d in drivers.items():
@@ -498,6 +599,7 @@ def summarise(m: dict[str, Any]) -> dict[str, Any]:
                    "generate_s": m["generate_s"], "loop_iterations": m["iterations"]},
         "rows": rows, "ceiling": {"best": ceil, "runs": m["ceilings"]}, "ratios": ratios,
         "check_seconds_per_log_median": per_log, "one_log_s": m["one_log"],
+        "check_seconds_by_executor": m["per_log_by"], "cluster_first_run": m["cluster_first"],
         "startup_small_log_s": startup, "drivers": drivers, "fleet_stats": m["fleet_stats"],
         "seconds": time.time() - m["began"],
     }

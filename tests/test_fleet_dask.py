@@ -73,10 +73,11 @@ def test_dask_cluster_run_retries_then_marks_the_crashing_log(scheduler: str,
               "--isolated", cwd=tmp_path)
     assert res.returncode == 2, res.stdout + res.stderr  # a log that was not checked
     assert "5 logs: 5 checked" in res.stdout and "crashed 1" in res.stdout
-    # the cluster has Dask's defaults that slow nmtcheck down: the run says so
-    assert "nmtcheck: warning: " in res.stderr and "MALLOC_TRIM_THRESHOLD_ is set" in res.stderr
-    assert "worker profiler is on" in res.stderr
-    assert "ticks every 20 ms (distributed.admin.tick.interval)" in res.stderr
+    # the cluster has Dask's defaults that slow nmtcheck down: the run set its own on the
+    # workers, those that replaced the workers the crashing log killed included
+    assert "nmtcheck: warning" not in res.stderr, res.stderr
+    assert [(i["malloc_trim"], i["profile"], i["tick_s"], i["nthreads"])
+            for i in workers_info(scheduler)] == [(None, False, 1.0, 1)] * 2
 
     data = nmtcheck.read_results(tmp_path / "dask-results").inputs.set_index("url")
     crashme = str(logs / "CRASHME.log")
@@ -98,12 +99,25 @@ def test_dask_cluster_run_retries_then_marks_the_crashing_log(scheduler: str,
     assert findings("dask-results") == findings("local-results") != []
 
 
+def workers_info(address: str) -> list[dict[str, object]]:
+    """worker_info of each worker of the cluster at `address`, in address order."""
+    out = run_py("""
+import json, sys, distributed
+from nmtcheck.fleet.dask_workers import worker_info
+with distributed.Client(sys.argv[1], timeout="20s") as client:
+    info = client.run(worker_info)
+print(json.dumps([info[k] for k in sorted(info)]))
+""", address)
+    return list(json.loads(out.strip().splitlines()[-1]))
+
+
 def test_dask_local_starts_workers_without_the_slow_defaults() -> None:
     # a nanny sets its pre-spawn variables in its own process: the module's cluster's did
     out = run_py("""
 import json, os
 os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-from nmtcheck.fleet.executors import make_executor, worker_info
+from nmtcheck.fleet.executors import make_executor
+from nmtcheck.fleet.dask_workers import worker_info
 ex = make_executor("dask-local:1")
 try:
     print(json.dumps([ex.name, ex.slots, list(ex.client.run(worker_info).values())]))
@@ -112,8 +126,11 @@ finally:
 """)
     name, slots, info = json.loads(out.strip().splitlines()[-1])
     assert (name, slots) == ("dask-local:1", 1)
-    assert info == [{"nmtcheck": nmtcheck.__version__, "malloc_trim": None, "profile": False,
-                     "tick_s": 1.0}]
+    assert len(info) == 1
+    assert {k: info[0][k] for k in ("nmtcheck", "malloc_trim", "profile", "tick_s", "nthreads")
+            } == {"nmtcheck": nmtcheck.__version__, "malloc_trim": None, "profile": False,
+                  "tick_s": 1.0, "nthreads": 1}
+    assert info[0]["applied"] == {"malloc": True, "loop": True}
 
 
 def test_client_worker_version_skew_is_a_usage_error(scheduler: str) -> None:

@@ -27,10 +27,10 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from nmtcheck.errors import UsageError
+from nmtcheck.fleet.malloc import keep_freed_memory
 from nmtcheck.fleet.prestart import local_context
 
 ALLOWED_FAILURES = 2  # a task on a worker that died is retried this many times
-MIN_TICK_S = 0.1  # a Dask worker's event loop waking more often than this slows a check
 DRIVER_GONE_EXIT = 75  # a worker's exit status when it ends because its driver died
 WATCH_POLL_S = 0.5  # where no pidfd can watch the driver, how often it is looked for
 
@@ -125,35 +125,6 @@ def _init_worker(queue: Any, environ: dict[str, str] | None, driver: int | None 
     if tmpdir is not None:  # the pool's own: what a dead worker spilled goes with the pool
         os.environ["TMPDIR"] = tempfile.tempdir = tmpdir
     keep_freed_memory()
-
-
-# glibc's mallopt parameters (malloc.h)
-M_TRIM_THRESHOLD, M_TOP_PAD, M_MMAP_THRESHOLD = -1, -2, -3
-WORKER_HEAP_BYTES = 64 << 20  # about what a check of one 1 M-frame log allocates at once
-MMAP_THRESHOLD_MAX = 32 << 20  # the most a 64-bit glibc takes (HEAP_MAX_SIZE / 2)
-
-
-def keep_freed_memory() -> None:
-    """Have glibc keep what a pool worker frees for its next log instead of handing it
-    back to the system: numpy's column arrays are large enough to be mapped and unmapped
-    one by one, so each check faulted its memory in again (5,000 page faults per 1 M-frame
-    log after the first), 4 % of its time here. The worker's peak memory is what it was;
-    it is just not returned between logs. Only in nmtcheck's own pool workers (a Dask
-    worker's memory is the Dask nanny's to manage), and only where the C library is glibc."""
-    import ctypes
-
-    try:
-        if not os.confstr("CS_GNU_LIBC_VERSION"):
-            return
-        libc = ctypes.CDLL(None)
-        # A fixed trim threshold also fixes the mmap threshold at its 128 kB default (it
-        # stops adapting): every column array would then be mapped and unmapped, 4x
-        # slower. So the rest only where the mmap threshold was taken.
-        if libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_MAX):
-            libc.mallopt(M_TRIM_THRESHOLD, 4 * WORKER_HEAP_BYTES)
-            libc.mallopt(M_TOP_PAD, WORKER_HEAP_BYTES)
-    except (OSError, ValueError, AttributeError):  # not glibc: its defaults stay
-        return
 
 
 def _run(key: Hashable, fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
@@ -372,19 +343,6 @@ DASK_CONFIG: dict[str, Any] = {
 }
 
 
-def worker_info() -> dict[str, Any]:
-    """Run on each worker: what the client compares with its own."""
-    import dask
-    from dask.utils import parse_timedelta
-
-    from nmtcheck import __version__
-
-    return {"nmtcheck": __version__,
-            "malloc_trim": os.environ.get("MALLOC_TRIM_THRESHOLD_"),
-            "profile": bool(dask.config.get("distributed.worker.profile.enabled", True)),
-            "tick_s": parse_timedelta(dask.config.get("distributed.admin.tick.interval"))}
-
-
 def _allowed_failures(dask_scheduler: Any) -> int:
     """Run on the scheduler: how often it lets a task's worker die before KilledWorker."""
     return int(dask_scheduler.allowed_failures)
@@ -430,10 +388,13 @@ def _remove_dead_runs_scratch() -> None:
 
 class DaskExecutor:
     """`dask-local[:N]` starts a LocalCluster of N single-threaded worker processes with
-    nmtcheck's settings; `dask://HOST:PORT` connects to a running scheduler and checks that
-    its workers run this nmtcheck (and warns about the settings that slow it down)."""
+    nmtcheck's settings; `dask://HOST:PORT` connects to a running scheduler. On both it
+    checks that the workers run this nmtcheck, registers nmtcheck's worker settings
+    (dask_workers.WorkerSettings) and says in one line what they still lack."""
 
     def __init__(self, address: str | None, workers: int | None = None) -> None:
+        from nmtcheck.fleet.trace import TRACE_ENV, mark
+
         distributed = _import_dask()
         import dask
 
@@ -471,54 +432,60 @@ class DaskExecutor:
                 raise UsageError(f"--executor dask://{address.removeprefix('tcp://')}: cannot "
                                  f"connect to the scheduler: {exc}") from None
             self.name = f"dask://{address.removeprefix('tcp://')}"
+        mark("dask_connected")
         try:
-            self._check_workers(remote=address is not None)
+            self._set_up_workers()
             self._tries = 1 + int(self.client.run_on_scheduler(_allowed_failures))
         except BaseException:
             self.close()
             raise
         self.slots = max(1, sum(self.client.nthreads().values()))
+        self._trace = os.environ.get(TRACE_ENV)
         self._ac = distributed.as_completed()
         self._futures: dict[Any, Hashable] = {}
         self._killed = distributed.KilledWorker
 
-    def _check_workers(self, remote: bool) -> None:
+    def _set_up_workers(self) -> None:
+        """Check the workers' versions, register nmtcheck's settings on them, warn in one
+        line about what they still lack."""
         from nmtcheck import __version__
+        from nmtcheck.fleet.dask_workers import WorkerSettings, lacking, worker_info
+        from nmtcheck.fleet.trace import mark
 
         try:
             self.client.get_versions(check=True)  # Dask's own client/scheduler/worker skew
         except ValueError as exc:
             raise UsageError(f"--executor {self.name}: {exc}") from None
-        info = self.client.run(worker_info)
+        try:
+            info = self.client.run(worker_info)
+        except Exception as exc:  # noqa: BLE001 - unpickled on a worker: Dask wraps its error
+            raise UsageError(f"--executor {self.name}: a worker cannot run nmtcheck "
+                             f"({type(exc).__name__}: {exc}): install nmtcheck {__version__} "
+                             "with the dask extra where the workers run") from None
+        mark("dask_versions")
         skew = sorted({i["nmtcheck"] for i in info.values()} - {__version__})
         if skew:
             raise UsageError(f"--executor {self.name}: the workers run nmtcheck "
                              f"{', '.join(skew)}, this client {__version__}: install the same "
                              "version on both (results name the version that checked them)")
-        if remote:
-            slow = [what for what, bad in (
-                ("MALLOC_TRIM_THRESHOLD_ is set (Dask's nanny.pre-spawn-environ default)",
-                 any(i["malloc_trim"] for i in info.values())),
-                ("the worker profiler is on (distributed.worker.profile.enabled)",
-                 any(i["profile"] for i in info.values())))
-                if bad]
-            if slow:
-                warnings.warn(f"{self.name}: {'; '.join(slow)}: nmtcheck ran 5-7x slower with "
-                              "these settings when measured; start the workers with "
-                              "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False and without "
-                              "MALLOC_TRIM_THRESHOLD_ in distributed.nanny.pre-spawn-environ",
-                              stacklevel=2)
-            tick = min(float(i.get("tick_s") or 0) for i in info.values())
-            if tick < MIN_TICK_S:
-                warnings.warn(f"{self.name}: the workers' event loop ticks every "
-                              f"{tick * 1e3:.0f} ms (distributed.admin.tick.interval): "
-                              "each log's check took 10-15 % longer than with 1s when "
-                              "measured; start the workers with "
-                              "DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s (and "
-                              "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL=1s)",
-                              stacklevel=2)
+        problems = []
+        try:
+            self.client.register_plugin(WorkerSettings())
+        except Exception as exc:  # noqa: BLE001 - the run goes on with Dask's settings
+            problems.append(f"nmtcheck's worker settings failed on a worker "
+                            f"({type(exc).__name__}: {exc})")
+        mark("dask_plugin")
+        info = self.client.run(worker_info)
+        problems += lacking(info)
+        mark("dask_info")
+        if problems:
+            warnings.warn(f"{self.name}: {'; '.join(problems)}", stacklevel=3)
 
     def submit(self, key: Hashable, fn: Callable[..., Any], *args: Any) -> None:
+        if self._trace:
+            from nmtcheck.fleet.dask_workers import traced
+
+            fn, args = traced, (self._trace, key, fn, *args)
         fut = self.client.submit(fn, *args, pure=False)
         self._futures[fut] = key
         self._ac.add(fut)

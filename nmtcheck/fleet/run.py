@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Hashable, Iterator
+from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -80,19 +80,28 @@ def profile_digest(profile: Any, rule_codes: list[str], network: Any,
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _slots(spec: str) -> int:
-    """The executor's parallelism as far as its spec tells (for cutting a short listing)."""
+def _slots(spec: str) -> int | None:
+    """The executor's parallelism as far as its spec tells (for cutting a short listing);
+    None for a running cluster, whose workers only the started executor knows."""
     import os
 
-    _name, _, arg = spec.partition(":")
+    name, _, arg = spec.partition(":")
+    if name not in ("local", "dask-local"):
+        return None
     return int(arg) if arg.isdigit() else os.cpu_count() or 1
 
 
-def _batches(files: Iterator[FileInfo], max_files: int, max_bytes: int, slots: int = 1
-             ) -> Iterator[list[FileInfo]]:
+def _batches(files: Iterator[FileInfo], max_files: int, max_bytes: int,
+             slots: int | Callable[[], int] = 1) -> Iterator[list[FileInfo]]:
     """Batches of at most `max_files` logs and `max_bytes`; a listing shorter than
-    slots x max_files is cut so that every slot gets a batch."""
-    head = list(itertools.islice(files, max_files * slots))
+    slots x max_files is cut so that every slot gets a batch. `slots` may be a function,
+    called once the listing has a log (it may start the executor)."""
+    first = list(itertools.islice(files, 1))
+    if not first:
+        return
+    if callable(slots):
+        slots = slots()
+    head = first + list(itertools.islice(files, max(0, max_files * slots - 1)))
     if len(head) < max_files * slots:
         max_files = max(1, -(-len(head) // slots))
     files = itertools.chain(head, files)
@@ -336,7 +345,9 @@ class _Dispatch:
 
     def run(self, todo: Iterator[FileInfo]) -> None:
         opts = self.opts
-        for batch in _batches(todo, opts.batch_files, opts.batch_bytes, _slots(opts.executor)):
+        slots = _slots(opts.executor)
+        for batch in _batches(todo, opts.batch_files, opts.batch_bytes,
+                              (lambda: self.start().slots) if slots is None else slots):
             ex = self.start()
             while ex.pending() >= max(2, WINDOW_PER_SLOT * ex.slots):
                 self.collect()
