@@ -144,23 +144,32 @@ def streams(model: InputModel, network: Any) -> list[Stream]:
     out: list[Stream] = []
     for cm in model.channels:
         name = cm.network_name
-        nodes = [n for n in sorted(set(network.nodes) | set(network.comm_nodes))
-                 if network.node_channel(n) in (None, name)]
-        parties: dict[int, list[Party]] = {}
-        defaults: dict[int, list[Party]] = {}
-        for n in nodes:
-            for kind in ("tpdo", "rpdo"):
-                for party, cob, configured in _parties(network, n, kind):
-                    (parties if configured else defaults).setdefault(cob, []).append(party)
-        for cob, found in defaults.items():  # a configured COB-ID wins over a default
-            if cob not in parties:
-                parties[cob] = found
-        for cob in sorted(parties):
-            found = parties[cob]
-            producer = next((p for p in found if p.kind == "tpdo"), None)
-            consumers = [p for p in found if p.kind == "rpdo"]
-            window = _window(network, name, [p.node for p in found])
+        for cob, producer, consumers, window in channel_parties(network, name):
             out.append(Stream(name, cm.chan, cob, producer, consumers, window, model))
+    return out
+
+
+def channel_parties(network: Any, name: str
+                    ) -> list[tuple[int, Party | None, list[Party], Value]]:
+    """(COB-ID, producer, consumers, W) of each stream the files describe on the channel
+    `name`, by COB-ID: what `streams` builds on, and what live mode judges frames by."""
+    nodes = [n for n in sorted(set(network.nodes) | set(network.comm_nodes))
+             if network.node_channel(n) in (None, name)]
+    parties: dict[int, list[Party]] = {}
+    defaults: dict[int, list[Party]] = {}
+    for n in nodes:
+        for kind in ("tpdo", "rpdo"):
+            for party, cob, configured in _parties(network, n, kind):
+                (parties if configured else defaults).setdefault(cob, []).append(party)
+    for cob, found in defaults.items():  # a configured COB-ID wins over a default
+        if cob not in parties:
+            parties[cob] = found
+    out = []
+    for cob in sorted(parties):
+        found = parties[cob]
+        producer = next((p for p in found if p.kind == "tpdo"), None)
+        consumers = [p for p in found if p.kind == "rpdo"]
+        out.append((cob, producer, consumers, _window(network, name, [p.node for p in found])))
     return out
 
 

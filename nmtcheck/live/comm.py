@@ -1,0 +1,667 @@
+"""Live SYNC, PDO and EMCY rules (SPEC_COMM §9.2): the ones a live view can decide as the
+frames arrive, judged by the values the offline check takes (the network file's §9.1.2
+keys, the device files, confirmed SDO writes in the session, reset rule of §9.1.3).
+
+Decided live: Y001 (when the SYNC deadline passes), Y002, Y003, D002, D004 (when the RPDO
+deadline passes), D005, E001, E002. Left to the check of the recording at the end, as
+every rule that needs the whole trace: Y004, Y005 (a median over the segment), D001 (a gap
+the producer may end by falling silent), D003 (counts over SYNC cycles), D006 (the outcome
+of a download), E003 (the state at the trace end). A finding that rests on something only
+the whole trace settles (a SYNC period measured so far, a node state that a heartbeat
+timeout from a measured period decides, a frame's wait for the bus) is provisional.
+State is O(nodes + streams): nothing grows with the traffic.
+"""
+
+from __future__ import annotations
+
+import bisect
+import statistics
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from nmtcheck.live.tracker import LiveFinding, NodeState, Tracker
+from nmtcheck.processes import pdo as pdo_stage
+from nmtcheck.processes import sync as sync_stage
+from nmtcheck.processes.comm_values import UNKNOWN, Value
+from nmtcheck.protocol.nmt import (
+    OPERATIONAL,
+    PRE_OPERATIONAL,
+    RESETS,
+    STATE_OF_CODE,
+)
+from nmtcheck.protocol.nmt import (
+    UNKNOWN as STATE_UNKNOWN,
+)
+from nmtcheck.settings.network import Network
+from nmtcheck.settings.profiles import Profile
+
+EPS = 1e-9
+TEXT_RESOLUTION_S = 1e-6  # the session's recording is candump text (microseconds)
+SURE_MARGIN_S = 1e-3  # a spacing this far inside a limit holds whatever the resolution
+RECENT_FRAMES = 256  # a channel's recent frame times: a frame's wait for the bus (q)
+D8_KEPT = 16  # the smallest intervals before an 8-byte frame, for d8
+SYNC_MEDIAN_EVERY = 64  # a measured SYNC period is recomputed every this many SYNCs
+SYNC_INTERVALS = 1024  # the SYNC intervals of a segment kept for a measured period
+_WRITTEN = (0x1005, 0x1006, 0x1007, 0x1015, 0x1019)  # the sub-0 objects the rules read
+_CONSUMING = (PRE_OPERATIONAL, OPERATIONAL)
+
+
+@dataclass
+class _Node:
+    """What the comm rules keep per (channel, node)."""
+
+    written: dict[int, tuple[int, float] | None] = field(default_factory=dict)  # None: voided
+    request: tuple[int, int] | None = None  # a pending expedited download: index, value
+    epoch: int = 0  # boot-ups and resets so far (D005 runs, E001 pairs)
+    writes_1015: int = 0  # confirmed writes of 1015h (E001 pairs)
+    offline_at: float = float("-inf")  # the latest H001/G002 live saw for it
+    emcy_ts: float | None = None  # its previous EMCY
+    emcy_tag: tuple[int, int] = (0, 0)  # (epoch, writes_1015) at it
+    e001_run: bool = False
+    e002_run: int = 0  # the defect (100 + DLC) of the run of malformed EMCYs, 0: none
+    last_8250: float = float("-inf")  # its latest EMCY 8250h (D004)
+
+
+@dataclass
+class _Deadline:
+    """An armed RPDO deadline of one consumer (D004)."""
+
+    party: pdo_stage.Party
+    armed: float | None = None  # t_l
+    due: float = float("inf")
+    fired: LiveFinding | None = None
+    watch: bool = False  # the consumer's first report after t_l is still to come
+    # that report showed another state with no command to it (§9.1.6): the finding goes
+    # unless an EMCY 8250h of the consumer comes at or after the deadline, before the
+    # stream's next frame
+    voidable: bool = False
+
+
+@dataclass
+class _Stream:
+    cob_id: int
+    producer: pdo_stage.Party | None
+    consumers: list[pdo_stage.Party]
+    last: float | None = None  # its previous frame (D002)
+    last_q: tuple[float, bool] = (0.0, True)  # q(F1) and whether it is surely that
+    d002_run: bool = False
+    d005: set[tuple[bool, int, int, int]] = field(default_factory=set)  # party, epoch, DLC
+    deadlines: list[_Deadline] = field(default_factory=list)
+
+
+@dataclass
+class _Channel:
+    name: str
+    recent: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_FRAMES))
+    d8: list[float] = field(default_factory=list)  # the smallest intervals before DLC 8
+    streams: dict[int, _Stream] = field(default_factory=dict)
+    sync_cob: int = 0x80
+    producer: int | None = None
+    segment: int = 0  # segment ends so far
+    sync_segment: int = -1  # the segment of the latest SYNC
+    seg_first_dlc: int | None = None
+    seg_values: tuple[Value, Value] = (UNKNOWN, UNKNOWN)  # P, C at the segment's start
+    seg_broken: bool = False  # Y003 said in this segment
+    intervals: deque[float] = field(default_factory=lambda: deque(maxlen=SYNC_INTERVALS))
+    syncs: int = 0  # SYNC frames of the segment
+    measured: float | None = None  # the median interval so far
+    last_sync: float | None = None
+    last_counter: int | None = None  # the latest valid counter (Y003)
+    y002_run: tuple[int, int] = (0, -1)  # (defect, segment) of the previous SYNC
+    sync_due: float | None = None
+    sync_limit: tuple[float, str, bool] | None = None  # T, how, configured
+
+
+def _source(v: Value) -> str:
+    if v.source == "sdo":
+        return "written by SDO"
+    if v.source == "device-file" and v.node is not None:
+        return f"node {v.node}'s device file"
+    return str(v.source)
+
+
+class CommTracker:
+    """Fed every frame after the NMT tracker (whose node states it reads); `advance(now)`
+    fires the SYNC and RPDO deadlines that expired by `now`."""
+
+    def __init__(self, profile: Profile, tracker: Tracker, network: Network | None,
+                 emit: Callable[[LiveFinding], object]) -> None:
+        self.tracker, self.network, self.emit = tracker, network, emit
+        p: dict[str, dict[str, Any]] = {code: s.params for code, s in profile.items()}
+        self.factor = float(p["Y001"]["timeout_factor"])
+        self.min_intervals = int(p["Y001"]["min_intervals"])
+        given = profile.timeline.get("timestamp_resolution_us")
+        self.r = float(given) / 1e6 if given else TEXT_RESOLUTION_S
+        self.on = {c for c in ("Y001", "Y002", "Y003", "D002", "D004", "D005", "E001", "E002")
+                   if c in tracker.active}
+        self.channels: dict[str, _Channel] = {}
+        self.nodes: dict[tuple[str, int], _Node] = {}
+        self.next_due = float("inf")
+
+    # -- helpers ---------------------------------------------------------------------------
+
+    def _channel(self, name: str) -> _Channel:
+        ch = self.channels.get(name)
+        if ch is None:
+            ch = self.channels[name] = _Channel(name)
+            net = self.network
+            if net is not None:
+                keys = net.sync_keys(name)
+                devices = {n: d for n, d in net.devices.items()
+                           if net.node_channel(n) in (None, name)}
+                ch.sync_cob = sync_stage._cob_id(keys, devices, [])[0]
+                prod = sync_stage._producer(keys, devices, [])
+                ch.producer = int(prod.value) if prod.known and prod.value else None
+                for cob, producer, consumers, _w in pdo_stage.channel_parties(net, name):
+                    st = ch.streams[cob] = _Stream(cob, producer, consumers)
+                    st.deadlines = [_Deadline(c) for c in consumers]
+        return ch
+
+    def _node(self, channel: str, n: int) -> _Node:
+        key = (channel, n)
+        got = self.nodes.get(key)
+        if got is None:
+            got = self.nodes[key] = _Node()
+        return got
+
+    def _in_force(self, channel: str, n: int, index: int, files: int | None,
+                  source: str) -> Value:
+        """§9.1.1/§9.1.3 for a sub-0 object: a confirmed write, unknown after a reset
+        that voided one, else the files' value."""
+        w = self.nodes.get((channel, n))
+        if w is not None and index in w.written:
+            got = w.written[index]
+            return UNKNOWN if got is None else Value(got[0], "sdo", n, got[1])
+        return UNKNOWN if files is None else Value(files, source, n)
+
+    def _dev(self, n: int) -> Any:
+        return self.network.devices.get(n) if self.network is not None else None
+
+    def _find(self, code: str, channel: str, node: int | None, ts: float, message: str,
+              certain: bool = True) -> LiveFinding | None:
+        if code not in self.on:
+            return None
+        t = self.tracker
+        lf = LiveFinding(code, t.active[code].name, t.severity[code], channel, node, ts,
+                         message, certain=certain)
+        st = t.nodes.get((channel, node)) if node is not None else None
+        if st is not None:
+            st.findings += 1
+        self.emit(lf)
+        return lf
+
+    def _sure(self, st: NodeState | None) -> bool:
+        """Whether the tracker's state of the node is the offline timeline's: its timeouts
+        rest on configured times (as S001 asks)."""
+        return st is None or ((st.timeout_configured() or not st.producer())
+                              and not st.ambiguous)
+
+    def _op_through(self, channel: str, n: int, t0: float) -> bool:
+        """The node is OPERATIONAL now and has been since `t0` (no change out of it, no
+        heartbeat or guarding timeout live saw)."""
+        st = self.tracker.nodes.get((channel, n))
+        if st is None or st.state != OPERATIONAL:
+            return False
+        if st.left_operational is not None and st.left_operational > t0 + EPS:
+            return False
+        w = self.nodes.get((channel, n))
+        return w is None or not (w.offline_at > t0 + EPS)
+
+    def tracker_finding(self, lf: LiveFinding) -> None:
+        """The NMT tracker's H001/G002: the node is OFFLINE from then on."""
+        if lf.rule in ("H001", "G002") and lf.node is not None:
+            self._node(lf.channel, lf.node).offline_at = lf.time
+
+    # -- time ------------------------------------------------------------------------------
+
+    def advance(self, now: float) -> None:
+        """Fire the SYNC and RPDO deadlines that expired by `now` (bus time)."""
+        if now <= self.next_due + EPS:
+            return
+        nxt = float("inf")
+        for ch in self.channels.values():
+            if ch.sync_due is not None:
+                if now > ch.sync_due + EPS:
+                    self._y001(ch)
+                else:
+                    nxt = min(nxt, ch.sync_due)
+            for st in ch.streams.values():
+                for d in st.deadlines:
+                    if d.armed is None or d.fired is not None:
+                        continue
+                    if now > d.due + self.r + EPS:
+                        self._d004(ch, st, d)
+                    else:
+                        nxt = min(nxt, d.due + self.r)
+        self.next_due = nxt
+
+    def _y001(self, ch: _Channel) -> None:
+        due, last, limit = ch.sync_due, ch.last_sync, ch.sync_limit
+        ch.sync_due = None
+        assert due is not None and last is not None and limit is not None
+        self.tracker.advance(due)  # the node states at the deadline
+        others = [st for (c, n), st in self.tracker.nodes.items()
+                  if c == ch.name and n != ch.producer and (st.seen or st.state != STATE_UNKNOWN)]
+        expected = self.network is not None and any(
+            n != ch.producer and c in (None, ch.name) for n, c in self.network.expected())
+        if (others or expected) and not any(st.state in _CONSUMING for st in others):
+            return
+        t_limit, how, configured = limit
+        start = self.tracker.start or 0.0
+        self._find("Y001", ch.name, ch.producer, due,
+                   f"no SYNC for at least {(due - last) * 1000:.3f} ms after "
+                   f"{last - start:.6f} s; timeout {t_limit * 1000:.3f} ms = {self.factor:g} "
+                   f"x {how}", certain=configured and all(self._sure(st) for st in others))
+
+    def _d004(self, ch: _Channel, st: _Stream, d: _Deadline) -> None:
+        assert d.armed is not None
+        c = d.party
+        self.tracker.advance(d.due)
+        if d.voidable or not self._op_through(ch.name, c.node, d.armed):
+            d.armed = None
+            return
+        producer = f"node {st.producer.node}" if st.producer else "unknown"
+        e = float(c.event_timer_ms.value or 0)
+        d.fired = self._find(
+            "D004", ch.name, c.node, d.due,
+            f"no RPDO {st.cob_id:03X}h for node {c.node} for at least "
+            f"{(d.due - d.armed) * 1000:.3f} ms; deadline {c.base_index:04X}h:05 = {e:g} ms "
+            f"({_source(c.event_timer_ms)}); producer {producer}",
+            certain=self._sure(self.tracker.nodes.get((ch.name, c.node))))
+        if d.fired is None:
+            d.armed = None
+
+    def finish(self) -> None:
+        """The end of the input: a deadline finding whose consumer reported another state
+        with no EMCY 8250h after it stands voided (no stream frame follows)."""
+        for ch in self.channels.values():
+            for st in ch.streams.values():
+                for d in st.deadlines:
+                    if d.fired is not None and d.voidable:
+                        self._withdraw(d.fired)
+                        d.fired = None
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def feed(self, f: Any) -> None:
+        """One frame, after the NMT tracker took it."""
+        if f.ts > self.next_due + EPS:
+            self.advance(f.ts)
+        ch = self.channels.get(f.channel) or self._channel(f.channel)
+        recent = ch.recent
+        if recent and f.dlc == 8:
+            gap = f.ts - recent[-1]
+            if gap > 0 and (len(ch.d8) < D8_KEPT or gap < ch.d8[-1]):
+                bisect.insort(ch.d8, gap)
+                del ch.d8[D8_KEPT:]
+        recent.append(f.ts)
+        if f.ext or f.err:
+            return
+        cid = f.can_id
+        if cid == ch.sync_cob:
+            self._sync(ch, f)
+        elif cid == 0:
+            self._nmt(ch, f)
+        elif 0x081 <= cid <= 0x0FF:
+            self._emcy(ch, f, cid - 0x80)
+        elif 0x701 <= cid <= 0x77F:
+            self._report(ch, f, cid - 0x700)
+        elif 0x581 <= cid <= 0x5FF or 0x601 <= cid <= 0x67F:
+            self._sdo(ch, f, cid & 0x7F)
+        st = ch.streams.get(cid)
+        if st is not None and not f.rtr:
+            self._pdo(ch, st, f)
+
+    # segment ends, resets, boot-ups, writes -------------------------------------------------
+
+    def _end_segment(self, ch: _Channel) -> None:
+        ch.segment += 1
+        ch.sync_due = None
+
+    def _clear(self, ch: _Channel, n: int) -> None:
+        """A boot-up of N or a reset command that reaches it: what SDO wrote is void."""
+        w = self._node(ch.name, n)
+        w.epoch += 1
+        for index in list(w.written):
+            w.written[index] = None
+
+    def _nmt(self, ch: _Channel, f: Any) -> None:
+        if f.rtr or f.dlc != 2 or len(f.data) < 2 or f.data[0] not in RESETS:
+            return
+        target = f.data[1]
+        if target > 127:
+            return
+        if not target or target == ch.producer:
+            self._end_segment(ch)
+        if target:
+            self._clear(ch, target)
+        else:
+            master = self.tracker.master(ch.name)
+            for (c, n) in list(self.tracker.nodes):
+                if c == ch.name and n != master:
+                    self._clear(ch, n)
+
+    def _report(self, ch: _Channel, f: Any, n: int) -> None:
+        if f.rtr or f.dlc != 1 or not f.data:
+            return
+        if f.data[0] == 0:  # boot-up
+            self._clear(ch, n)
+            if n == ch.producer:
+                self._end_segment(ch)
+            return
+        # D004: the consumer's first report after the deadline was armed (§9.1.6)
+        st = self.tracker.nodes.get((ch.name, n))
+        reported = STATE_OF_CODE.get(f.data[0] & 0x7F)
+        cmd = st.last_cmd if st is not None else None
+        stale = (cmd is not None and f.ts - cmd[0] <= self.tracker.obey_s + EPS
+                 and reported == cmd[1])
+        if stale:
+            return
+        w = self.nodes.get((ch.name, n))
+        for stream in ch.streams.values():
+            for d in stream.deadlines:
+                if d.party.node != n or not d.watch or d.armed is None:
+                    continue
+                d.watch = False
+                commanded = cmd is not None and cmd[0] > d.armed + EPS
+                if reported == OPERATIONAL or commanded:
+                    continue
+                # it left OPERATIONAL because of this timeout: an 8250h says so
+                d.voidable = d.fired is None or w is None or w.last_8250 < d.due - EPS
+
+    def _withdraw(self, lf: LiveFinding) -> None:
+        if not lf.withdrawn:
+            lf.withdrawn = True
+            if self.tracker.withdraw is not None:
+                self.tracker.withdraw(lf)
+
+    def _sdo(self, ch: _Channel, f: Any, n: int) -> None:
+        """Confirmed expedited downloads of the objects the rules read (§9.1.1)."""
+        if f.dlc < 4 or len(f.data) < 4:
+            return
+        w = self._node(ch.name, n)
+        cmd, index, sub = f.data[0], f.data[1] | f.data[2] << 8, f.data[3]
+        if f.can_id >= 0x601:
+            w.request = None
+            if cmd & 0xE3 == 0x23 and sub == 0 and index in _WRITTEN and len(f.data) >= 8:
+                size = 4 - ((cmd >> 2) & 0x3)
+                w.request = (index, int.from_bytes(bytes(f.data[4:4 + size]), "little"))
+            return
+        req, w.request = w.request, None
+        if cmd != 0x60 or req is None or req[0] != index or sub != 0:
+            return
+        w.written[index] = (req[1], f.ts)
+        if index == 0x1015:
+            w.writes_1015 += 1
+        if index in (0x1005, 0x1006) and (ch.producer is None or ch.producer == n):
+            self._end_segment(ch)
+
+    # SYNC ----------------------------------------------------------------------------------
+
+    def _segment_values(self, ch: _Channel) -> tuple[Value, Value]:
+        """P (Y001) and C (1019h) in force at a segment's first SYNC (§9.1.1)."""
+        net = self.network
+        keys = net.sync_keys(ch.name) if net is not None else None
+        prod = ch.producer
+
+        def of_producer(index: int, net_value: int | None, attr: str) -> Value:
+            if net_value is not None:
+                return Value(net_value, "network")
+            if prod is None:
+                return UNKNOWN
+            dev = self._dev(prod)
+            return self._in_force(ch.name, prod, index,
+                                  getattr(dev, attr) if dev is not None else None,
+                                  "device-file")
+
+        nodes = sorted({n for c, n in self.nodes if c == ch.name}
+                       | {n for c, n in self.tracker.nodes if c == ch.name}
+                       | ({n for n in net.devices if net.node_channel(n) in (None, ch.name)}
+                          if net is not None else set()))
+        period = of_producer(0x1006, keys.period_us if keys else None, "sync_period_us")
+        if not period.known:  # the first consumer to time out
+            periods = [v for n in nodes for dev in (self._dev(n),)
+                       for v in (self._in_force(ch.name, n, 0x1006, dev.sync_period_us
+                                                if dev is not None else None, "device-file"),)
+                       if v.known and v.value]
+            if periods:
+                period = min(periods, key=lambda v: float(v.value or 0))
+        overflow = of_producer(0x1019, keys.counter_overflow if keys else None,
+                               "sync_counter_overflow")
+        if not overflow.known:
+            found = set()
+            first = UNKNOWN
+            for n in nodes:
+                dev = self._dev(n)
+                v = self._in_force(ch.name, n, 0x1019,
+                                   dev.sync_counter_overflow if dev is not None else None,
+                                   "device-file")
+                if v.known:
+                    found.add(v.value)
+                    first = first if first.known else v
+            overflow = first if len(found) == 1 else UNKNOWN
+        return period, overflow
+
+    def _sync(self, ch: _Channel, f: Any) -> None:
+        ts = f.ts
+        if ch.sync_segment != ch.segment:  # a new segment begins at this SYNC
+            ch.sync_segment = ch.segment
+            ch.seg_values = self._segment_values(ch)
+            ch.seg_first_dlc, ch.seg_broken = None, False
+            ch.intervals.clear()
+            ch.syncs, ch.measured, ch.last_counter = 0, None, None
+        else:
+            ch.intervals.append(ts - (ch.last_sync if ch.last_sync is not None else ts))
+        ch.last_sync = ts
+        ch.syncs += 1
+        period, overflow = ch.seg_values
+        c = int(overflow.value or 0) if overflow.known else None
+        defect = self._y002(ch, f, c)
+        if not defect and f.dlc == 1 and f.data:
+            self._y003(ch, f, int(f.data[0]), c)
+        # Y001's deadline from this SYNC
+        ch.sync_due = None
+        if period.known:
+            if not period.value:
+                return
+            p = float(period.value) / 1e6
+            ch.sync_limit = (self.factor * p, f"1006h {p * 1000:.3f} ms ({_source(period)})",
+                             True)
+        else:
+            if ch.syncs <= self.min_intervals:
+                return
+            if ch.measured is None or ch.syncs % SYNC_MEDIAN_EVERY == 0:
+                ch.measured = statistics.median(ch.intervals)
+            p = ch.measured
+            ch.sync_limit = (self.factor * p, f"median SYNC interval {p * 1000:.3f} ms "
+                             "[limit measured so far]", False)
+        ch.sync_due = round(ts + ch.sync_limit[0], 9)
+        self.next_due = min(self.next_due, ch.sync_due)
+
+    def _y002(self, ch: _Channel, f: Any, c: int | None) -> int:
+        """The SYNC frame's defect (checks/sync._defects), one finding per run."""
+        dlc = f.dlc
+        if f.rtr:
+            defect = 1
+        else:
+            first = ch.seg_first_dlc
+            if first is None:
+                ch.seg_first_dlc = first = dlc
+            defect = 0
+            if c is not None:
+                if dlc != (0 if c == 0 else 1):
+                    defect = 2
+            elif dlc > 1 or dlc != first:
+                defect = 3
+            if not defect and dlc == 1 and f.data and (
+                    f.data[0] == 0 or f.data[0] > (c if c else 240)):
+                defect = 4
+        prev = ch.y002_run
+        ch.y002_run = (defect, ch.segment)
+        if not defect or prev == (defect, ch.segment):
+            return defect
+        if defect == 1:
+            text = f"remote frame on the SYNC COB-ID {ch.sync_cob:03X}h"
+        elif defect == 2:
+            text = (f"SYNC with {dlc} data byte(s); 1019h = {c} "
+                    f"({_source(ch.seg_values[1])}) requires {0 if c == 0 else 1}: "
+                    "CANopenNode consumers drop it, CANopenNode and Lely consumers raise "
+                    "EMCY 8240h")
+        elif defect == 3:
+            text = f"SYNC DLC {dlc} after DLC {ch.seg_first_dlc} in the same segment"
+        else:
+            text = f"SYNC counter {f.data[0]} outside 1..{c or 240}"
+        self._find("Y002", ch.name, None, f.ts, text)
+        return defect
+
+    def _y003(self, ch: _Channel, f: Any, v: int, c: int | None) -> None:
+        prev, ch.last_counter = ch.last_counter, v
+        if prev is None or ch.seg_broken:
+            return
+        top = c if c else 240
+        expected = 1 if prev >= top else prev + 1
+        if v in (expected, 1):
+            return
+        ch.seg_broken = True
+        if v == prev:
+            what = "repeated"
+        elif c or v > expected:
+            what = f"{(v - expected) % c if c else v - expected} SYNC(s) missing"
+        else:
+            what = "went back"
+        self._find("Y003", ch.name, ch.producer, f.ts,
+                   f"SYNC counter {v} after {prev} (expected {expected}): {what}")
+
+    # EMCY ----------------------------------------------------------------------------------
+
+    def _emcy(self, ch: _Channel, f: Any, n: int) -> None:
+        w = self._node(ch.name, n)
+        if f.rtr:
+            self._find("E002", ch.name, n, f.ts,
+                       f"remote frame on the EMCY COB-ID {f.can_id:03X}h of node {n}")
+            return
+        code = f.data[0] | f.data[1] << 8 if len(f.data) >= 2 else -1
+        if code == 0x8250:
+            w.last_8250 = f.ts
+            for st in ch.streams.values():
+                for d in st.deadlines:
+                    if d.party.node == n and d.fired is not None and f.ts >= d.due - EPS:
+                        d.voidable = False
+        # E002: one finding per run of EMCYs of one DLC other than 8
+        flag = 0 if f.dlc == 8 else 100 + f.dlc
+        if flag and flag != w.e002_run:
+            self._find("E002", ch.name, n, f.ts,
+                       f"EMCY of node {n} with DLC {f.dlc}, 8 expected (CanFestival "
+                       "consumers drop it)")
+        w.e002_run = flag
+        # E001: consecutive EMCYs closer than 1015h, no reset or write of 1015h between
+        keys = self.network.comm_nodes.get(n) if self.network is not None else None
+        dev = self._dev(n)
+        net_inh = keys.emcy_inhibit_100us if keys is not None else None
+        inhibit = self._in_force(ch.name, n, 0x1015, net_inh if net_inh is not None else (
+            dev.emcy_inhibit_100us if dev is not None else None),
+            "network" if net_inh is not None else "device-file")
+        tag = (w.epoch, w.writes_1015)
+        bad = False
+        if w.emcy_ts is not None and tag == w.emcy_tag and inhibit.known and inhibit.value:
+            limit = float(inhibit.value) * 1e-4
+            dt = f.ts - w.emcy_ts
+            bad = dt < limit - self.r - EPS
+            if bad and not w.e001_run:
+                i = float(inhibit.value)
+                self._find("E001", ch.name, n, f.ts,
+                           f"EMCY {max(code, 0):04X}h of node {n} {dt * 1000:.3f} ms after "
+                           f"the previous one; inhibit time 1015h = {i:g} x 100 us = "
+                           f"{i / 10:g} ms ({_source(inhibit)})",
+                           certain=dt < limit - SURE_MARGIN_S)
+        w.e001_run = bad
+        w.emcy_ts, w.emcy_tag = f.ts, tag
+
+    # PDO -----------------------------------------------------------------------------------
+
+    def _q(self, ch: _Channel) -> tuple[float, bool]:
+        """q(F) of §9.1.6 for the frame just recorded (checks/pdo.bus_wait), with the d8
+        known so far, and whether it is surely that (d8 only shrinks as frames come)."""
+        vals = ch.d8
+        d8 = vals[0] if len(vals) >= 3 and vals[0] > 0 and sum(
+            v <= vals[0] * 1.05 for v in vals) >= 3 else None
+        times = ch.recent
+        if len(times) < 2:
+            return 0.0, True
+        before = times[-1] - times[-2]
+        sure = bool(vals) and before > 1.25 * vals[0] + EPS
+        if d8 is None:
+            return 0.0, sure
+        j = len(times) - 1
+        while j > 0 and times[j] - times[j - 1] <= 1.25 * d8 + EPS:
+            j -= 1
+        q = 0.0 if j == len(times) - 1 else float(times[-1] - times[j]) + d8
+        return q, sure
+
+    def _pdo(self, ch: _Channel, st: _Stream, f: Any) -> None:
+        ts = f.ts
+        p = st.producer
+        # D002: an event-driven TPDO closer to the previous one than its inhibit time
+        if p is not None and p.inhibit_100us.value and p.transmission_type.known and int(
+                p.transmission_type.value or 0) in pdo_stage.EVENT_DRIVEN:
+            bad = False
+            if st.last is not None and self._op_through(ch.name, p.node, st.last):
+                inhibit = float(p.inhibit_100us.value) * 1e-4
+                dt = ts - st.last
+                q, q_sure = st.last_q
+                bad = dt < inhibit - self.r - q - EPS
+                if bad and not st.d002_run:
+                    self._find("D002", ch.name, p.node, ts,
+                               f"TPDO {st.cob_id:03X}h of node {p.node} {dt * 1000:.3f} ms "
+                               f"after the previous one; inhibit time {p.base_index:04X}h:03 "
+                               f"= {p.inhibit_100us.value} x 100 us = {inhibit * 1000:g} ms "
+                               f"({_source(p.inhibit_100us)}), allowance "
+                               f"{(self.r + q) * 1000:.3f} ms",
+                               certain=q_sure and dt < inhibit - SURE_MARGIN_S - q
+                               and self._sure(self.tracker.nodes.get((ch.name, p.node))))
+            st.d002_run = bad
+            st.last, st.last_q = ts, self._q(ch)
+        # D005: the DLC against the producer's (a) and each consumer's (b) mapping
+        for which, party in ([("a", p)] if p is not None else []) + [
+                ("b", c) for c in st.consumers]:
+            want = party.mapping.value
+            if not want or f.dlc == want:
+                continue
+            node = self.tracker.nodes.get((ch.name, party.node))
+            if which == "b" and (node is None or node.state not in _CONSUMING):
+                continue
+            w = self._node(ch.name, party.node)
+            key = (which == "a", party.node, w.epoch, f.dlc)
+            if key in st.d005:
+                continue
+            st.d005.add(key)
+            if which == "a":
+                text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {f.dlc}; its "
+                        f"mapping {party.map_index:04X}h has {want} bytes "
+                        f"({_source(party.mapping)})")
+            else:
+                what = ("discards it and raises EMCY 8210h" if f.dlc < want
+                        else "raises EMCY 8220h")
+                text = (f"RPDO {st.cob_id:03X}h has DLC {f.dlc}; node {party.node} maps "
+                        f"{want} bytes ({party.map_index:04X}h, {_source(party.mapping)}): "
+                        f"node {party.node} {what}")
+            self._find("D005", ch.name, party.node, ts, text,
+                       certain=which == "a" or self._sure(node))
+        # D004: each consumer's deadline, armed by a frame received while OPERATIONAL
+        for d in st.deadlines:
+            c = d.party
+            if not c.event_timer_ms.value or (c.transmission_type.known and int(
+                    c.transmission_type.value or 0) in pdo_stage.SYNCHRONOUS):
+                continue
+            if d.fired is not None and d.voidable:
+                self._withdraw(d.fired)  # no EMCY 8250h before this frame
+            d.fired, d.voidable = None, False
+            node = self.tracker.nodes.get((ch.name, c.node))
+            if node is None or node.state != OPERATIONAL:
+                d.armed, d.watch = None, False
+                continue
+            d.armed, d.watch = ts, True
+            d.due = round(ts + float(c.event_timer_ms.value) / 1000, 9)
+            self.next_due = min(self.next_due, d.due + self.r)

@@ -1,0 +1,272 @@
+"""Live SYNC, PDO and EMCY rules (nmtcheck/live/comm.py) against the offline check, on the
+CANopenNode recordings whose faults the stack itself reported (samples/canopennode/
+sync_emcy/, samples/canopennode/pdo/; the expected offline findings and their ground truth
+are in tests/test_samples_sync_emcy.py and tests/test_samples_pdo.py).
+
+Offline = online: replayed frame by frame (and once on python-can's virtual bus at the
+recording's timing), every offline finding of a rule decided live was reported live with
+the same rule, node and time (within CONFIRM_TOLERANCE_S), every live finding of these
+groups is confirmed by the check of the recording, and the healthy recordings stay silent.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import can
+import pytest
+from conftest import SAMPLES
+from test_live import PROFILE, RULES, frames_of
+
+import nmtcheck
+from nmtcheck.engine import check_input
+from nmtcheck.live.frames import LiveFrame, candump_line
+from nmtcheck.live.session import CONFIRM_TOLERANCE_S, GRACE_S, BusClock, Outcome, Session
+from nmtcheck.live.tracker import LiveFinding
+from nmtcheck.settings.network import Network, load_network
+
+CN = SAMPLES / "canopennode"
+LIVE_COMM = {"Y001", "Y002", "Y003", "D002", "D004", "D005", "E001", "E002"}
+GROUPS = ("Y", "D", "E")
+# recording -> its network file, and the live rules the stack's faults give with it
+RECORDINGS: dict[str, tuple[Path, set[str]]] = {
+    "sync_emcy/sync_producer_stopped": (CN / "sync_emcy/network_sync_stopped.toml", {"Y001"}),
+    "sync_emcy/sync_counter": (CN / "sync_emcy/network_sync_counter.toml", set()),
+    "sync_emcy/sync_counter_skip": (CN / "sync_emcy/network_sync_counter.toml", {"Y003"}),
+    "sync_emcy/emcy_inhibit": (CN / "sync_emcy/network_emcy.toml", set()),
+    "pdo/rpdo_length": (CN / "pdo/network_rpdo_length.toml", {"D005"}),
+    "pdo/rpdo_producer_stopped": (CN / "pdo/network_rpdo_producer_stopped.toml", {"D004"}),
+    "pdo/rpdo_timeout_stale_heartbeat": (
+        CN / "pdo/network_rpdo_timeout_stale_heartbeat.toml", {"D004"}),
+    "pdo/sync_tpdo": (CN / "pdo/network_sync_tpdo.toml", set()),
+    "pdo/tpdo_event_timer": (CN / "pdo/network_tpdo_event_timer.toml", set()),
+    "pdo/tpdo_inhibit_bypass": (CN / "pdo/network_tpdo_inhibit_bypass.toml", {"D002"}),
+    "healthy": (CN / "network.toml", set()),
+    "sync_pdo": (CN / "network.toml", set()),
+}
+
+
+def _replay(log: Path, network: Network | None, frames: list[LiveFrame] | None = None
+            ) -> Outcome:
+    session = Session(PROFILE, RULES, network, timer=False)
+    for f in frames if frames is not None else frames_of(log):
+        session.feed(f)
+    return session.close()
+
+
+def _assert_offline_equals_live(outcome: Outcome, offline_log: Path,
+                                network: Network | None) -> set[str]:
+    """The session's final result is the offline check of the log; every offline Y/D/E
+    finding of a live rule was seen live; every live one is confirmed. The rules seen."""
+    res = outcome.result
+    assert res is not None
+    original = check_input(str(offline_log), 0, PROFILE, RULES, network)
+    assert [(f.rule, f.node, round(f.time, 6)) for f in res.findings] == [
+        (f.rule, f.node, round(f.time, 6)) for f in original.findings]
+    live = [lf for lf in outcome.live if lf.rule[0] in GROUPS]
+    assert [(lf.rule, lf.node, lf.confirmed) for lf in live if lf.confirmed != "confirmed"] == []
+    for f in res.findings:
+        if f.rule in LIVE_COMM:
+            assert any((lf.rule, lf.node) == (f.rule, f.node)
+                       and abs(lf.time - f.time) <= CONFIRM_TOLERANCE_S for lf in live), (
+                f.rule, f.node, f.time, [(lf.rule, lf.node, lf.time) for lf in live])
+    return {f.rule for f in res.findings if f.rule in LIVE_COMM}
+
+
+@pytest.mark.parametrize("with_network", [False, True], ids=["bare", "network"])
+@pytest.mark.parametrize("name", sorted(RECORDINGS))
+def test_replay_gives_the_offline_findings_live(name: str, with_network: bool) -> None:
+    net_path, expected = RECORDINGS[name]
+    log = CN / f"{name}.log"
+    network = load_network(str(net_path)) if with_network else None
+    seen = _assert_offline_equals_live(_replay(log, network), log, network)
+    if with_network:  # what the stack reported, found live (tests/test_samples_*.py)
+        assert seen == expected
+    elif name.endswith(("sync_producer_stopped", "sync_counter_skip")):
+        assert seen == expected  # no configuration needed (Y001 from the written 1006h)
+    else:
+        assert seen == set()
+
+
+def test_y001_is_decided_when_the_deadline_passes() -> None:
+    """sync_producer_stopped.log up to the master's stop of the SYNC producer (3.998 s):
+    no later frame comes, and the SYNC timeout (last SYNC 3.983065 + 1.5 x 20 ms) is
+    reported by the clock once it is GRACE_S old; before that, nothing."""
+    frames = frames_of(CN / "sync_emcy/sync_producer_stopped.log")
+    t0 = frames[0].ts
+    head = [f for f in frames if f.ts - t0 <= 3.998]
+    wall = [0.0]
+    got: list[LiveFinding] = []
+    network = load_network(str(CN / "sync_emcy/network_sync_stopped.toml"))
+    s = Session(PROFILE, RULES, network, timer=False, clock=BusClock(lambda: wall[0]),
+                on_finding=got.append)
+    for f in head:
+        wall[0] = f.ts - t0
+        s.feed(f)
+    due = 3.983065 + 0.030
+    wall[0] = due + GRACE_S - 0.002
+    s.tick()
+    assert [lf.rule for lf in got] == []
+    wall[0] = due + GRACE_S + 0.002
+    s.tick()
+    assert [(lf.rule, lf.node, round(lf.time - t0, 6), lf.certain) for lf in got] == [
+        ("Y001", 2, round(due, 6), True)]
+    outcome = s.close()
+    assert [lf.confirmed for lf in outcome.live] == ["clock-only"]  # after the last frame
+
+
+RPDO_NETWORK = """master = 1
+[nodes.3]
+heartbeat_ms = 1000
+[nodes.3.rpdo.1]
+cob_id = 0x182
+transmission_type = 254
+event_timer_ms = 250
+mapping = [0x20000020]
+"""
+
+
+@pytest.mark.parametrize("with_8250", [False, True], ids=["unexplained", "8250h"])
+def test_d004_and_a_later_report_of_another_state(tmp_path: Path, with_8250: bool) -> None:
+    """Node 3 (heartbeat 1 s) is OPERATIONAL and receives RPDO 182h every 100 ms until
+    1.0 s; its deadline (250 ms) passes at 1.25 s and live fires D004 then. Its next report
+    (1.5 s) says PRE-OPERATIONAL with no command to it: its state in the gap was not
+    supervised (SPEC_COMM §9.1.6) unless its EMCY 8250h at 1.26 s says it left OPERATIONAL
+    because of this timeout. Without the EMCY the offline check has no D004 and the live
+    one is withdrawn; with it both have it."""
+    net = tmp_path / "network.toml"
+    net.write_text(RPDO_NETWORK)
+    network = load_network(str(net))
+    frames = [_frame(0.0, 0x703, b"\x00"), _frame(0.001, 0x000, b"\x01\x03"),
+              _frame(0.5, 0x703, b"\x05")]
+    frames += [_frame(0.1 * k, 0x182, bytes(4)) for k in range(1, 11)]
+    if with_8250:
+        frames.append(_frame(1.26, 0x083, bytes([0x50, 0x82, 0x10, 0x17, 0, 0, 0, 0])))
+    frames.append(_frame(1.5, 0x703, b"\x7f"))
+    frames.sort(key=lambda f: f.ts)
+    log = tmp_path / "rpdo.log"
+    log.write_text("".join(candump_line(f) for f in frames))
+    outcome = _replay(log, network, frames)
+    assert outcome.result is not None
+    offline = [(f.rule, f.node, round(f.time, 6)) for f in outcome.result.findings
+               if f.rule == "D004"]
+    live = [(lf.rule, lf.node, round(lf.time, 6), lf.confirmed) for lf in outcome.live
+            if lf.rule == "D004"]
+    if with_8250:
+        assert offline == [("D004", 3, 1.25)]
+        assert live == [("D004", 3, 1.25, "confirmed")]
+    else:
+        assert offline == []
+        assert live == [("D004", 3, 1.25, "withdrawn")]
+
+
+def _with(tmp_path: Path, path: Path, old: str, new: str) -> Network:
+    text = path.read_text()
+    assert old in text
+    out = tmp_path / path.name
+    out.write_text(text.replace(old, new, 1))
+    return load_network(str(out))
+
+
+def test_e001_live_on_a_tighter_inhibit_time(tmp_path: Path) -> None:
+    """emcy_inhibit.log with node 3's 1015h given as 60 ms (the stack used 50): E001 at
+    node 3's second EMCY, 50.6 ms after the first (tests/test_samples_sync_emcy.py), live
+    and offline; with the stack's own 50 ms, silent (the test above)."""
+    log = CN / "sync_emcy/emcy_inhibit.log"
+    network = _with(tmp_path, CN / "sync_emcy/network_emcy.toml",
+                    "emcy_inhibit_100us = 500", "emcy_inhibit_100us = 600")
+    outcome = _replay(log, network)
+    assert _assert_offline_equals_live(outcome, log, network) == {"E001"}
+    t0 = outcome.result.stats.start if outcome.result else None
+    assert t0 is not None
+    assert [(lf.rule, lf.node, round(lf.time - t0, 6), lf.certain) for lf in outcome.live
+            if lf.rule == "E001"] == [("E001", 3, 3.048707, True)]
+
+
+def test_d002_live_on_a_tighter_inhibit_time(tmp_path: Path) -> None:
+    """tpdo_event_timer.log with node 2's inhibit time given as 11 ms (the stack used 10):
+    the burst at 3.0 s is one D002 run at its second frame, live and offline."""
+    log = CN / "pdo/tpdo_event_timer.log"
+    path = CN / "pdo/network_tpdo_event_timer.toml"
+    text = path.read_text()
+    block = text.index("[nodes.2.tpdo.1]")
+    out = tmp_path / path.name
+    out.write_text(text[:block] + text[block:].replace("inhibit_100us = 100",
+                                                       "inhibit_100us = 110", 1))
+    network = load_network(str(out))
+    outcome = _replay(log, network)
+    assert _assert_offline_equals_live(outcome, log, network) == {"D002"}
+    t0 = outcome.result.stats.start if outcome.result else 0.0
+    assert [(lf.rule, lf.node, round(lf.time - (t0 or 0.0), 6)) for lf in outcome.live
+            if lf.rule == "D002"] == [("D002", 2, 3.00968)]
+
+
+def _frame(ts: float, can_id: int, data: bytes, rtr: bool = False, dlc: int | None = None
+           ) -> LiveFrame:
+    return LiveFrame(ts, "can0", can_id, rtr=rtr, dlc=len(data) if dlc is None else dlc,
+                     data=data)
+
+
+def test_y002_and_e002_fire_live_and_offline(tmp_path: Path) -> None:
+    """The rules that need no configuration, on frames no stack of the samples sends: a
+    SYNC every 10 ms (counter 1..4) with one of DLC 2 and one remote frame among them, and
+    between the SYNCs an EMCY of node 5 of DLC 4 (a run of two) and a remote EMCY. Each
+    defect fires once, live and offline; the well-formed frames around them do not."""
+    frames = [_frame(0.0, 0x705, b"\x00"), _frame(0.001, 0x705, b"\x05")]
+    emcys = {12: bytes([0x10, 0x81, 0x11, 0]), 13: bytes([0x00, 0x00, 0x00, 0]),
+             15: b"", 16: bytes(8)}
+    for k in range(20):
+        t = 0.01 * (k + 1)
+        if k == 10:
+            frames.append(_frame(t, 0x080, b"\x03\x00"))
+        elif k == 11:
+            frames.append(_frame(t, 0x080, b"", rtr=True, dlc=0))
+        else:
+            frames.append(_frame(t, 0x080, bytes([k % 4 + 1])))
+        if k in emcys:
+            frames.append(_frame(t + 0.005, 0x085, emcys[k], rtr=k == 15))
+    log = tmp_path / "bad.log"
+    log.write_text("".join(candump_line(f) for f in frames))
+    outcome = _replay(log, None, frames)
+    _assert_offline_equals_live(outcome, log, None)
+    assert [(lf.rule, lf.node, round(lf.time, 3)) for lf in outcome.live] == [
+        ("Y002", None, 0.11), ("Y002", None, 0.12), ("E002", 5, 0.135), ("E002", 5, 0.165)]
+
+
+def test_sync_recording_replayed_on_a_virtual_bus(tmp_path: Path) -> None:
+    """sync_producer_stopped.log from 3.5 s to 4.3 s sent on a python-can virtual bus at
+    its real timing, through `nmtcheck.Monitor` with the network file: the SYNC timeout is
+    reported live within 100 ms of its expiry and confirmed by the check of the recording."""
+    frames = frames_of(CN / "sync_emcy/sync_producer_stopped.log")
+    t0 = frames[0].ts
+    window = [f for f in frames if 3.5 <= f.ts - t0 <= 4.3]
+    channel = f"sync-{id(tmp_path)}"
+    tx = can.Bus(interface="virtual", channel=channel)
+    rx = can.Bus(interface="virtual", channel=channel)
+    reported: list[tuple[float, LiveFinding]] = []
+    monitor = nmtcheck.Monitor(network=CN / "sync_emcy/network_sync_stopped.toml",
+                               on_finding=lambda lf: reported.append((time.time(), lf)))
+    notifier = can.Notifier(rx, [monitor])
+    try:
+        began = time.perf_counter()
+        for f in window:
+            delay = (f.ts - window[0].ts) - (time.perf_counter() - began)
+            if delay > 0:
+                time.sleep(delay)
+            tx.send(can.Message(arbitration_id=f.can_id, data=f.data, is_remote_frame=f.rtr,
+                                dlc=f.dlc, is_extended_id=False))
+        time.sleep(0.02)
+    finally:
+        notifier.stop()
+        monitor.stop()
+        tx.shutdown()
+        rx.shutdown()
+    y001 = [lf for lf in monitor.live_findings() if lf.rule == "Y001"]
+    assert [(lf.node, lf.confirmed) for lf in y001] == [(2, "confirmed")]
+    at, lf = next((t, lf) for t, lf in reported if lf.rule == "Y001")
+    assert 0 <= at - lf.time < 0.1, at - lf.time
+    res = monitor.result()
+    assert res is not None
+    # (the window ends before the consumers' EMCY resets: E003, decided at the end)
+    assert [f.rule for f in res.findings if f.rule in LIVE_COMM] == ["Y001"]
