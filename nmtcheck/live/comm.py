@@ -84,11 +84,30 @@ class _Stream:
     cob_id: int
     producer: pdo_stage.Party | None
     consumers: list[pdo_stage.Party]
+    inhibit_s: float = 0.0  # D002: the producer's inhibit time (type 254/255), 0: not judged
+    # D005: (producer?, party, mapped length) of each party whose mapping is known
+    mapped: list[tuple[bool, pdo_stage.Party, int]] = field(default_factory=list)
     last: float | None = None  # its previous frame (D002)
     last_q: tuple[float, bool] = (0.0, True)  # q(F1) and whether it is surely that
     d002_run: bool = False
     d005: set[tuple[bool, int, int, int]] = field(default_factory=set)  # party, epoch, DLC
-    deadlines: list[_Deadline] = field(default_factory=list)
+    deadlines: list[_Deadline] = field(default_factory=list)  # D004, judged consumers only
+
+    def __post_init__(self) -> None:
+        p = self.producer
+        if p is not None and p.inhibit_100us.value and _type_in(p, pdo_stage.EVENT_DRIVEN):
+            self.inhibit_s = float(p.inhibit_100us.value) * 1e-4
+        self.mapped = [(which, party, int(party.mapping.value or 0)) for which, party in (
+            [(True, p)] if p is not None else []) + [(False, c) for c in self.consumers]
+            if party.mapping.value]
+        # synchronous RPDOs are left alone (SPEC_COMM §9.2.2 D004)
+        self.deadlines = [_Deadline(c) for c in self.consumers if c.event_timer_ms.value
+                          and not _type_in(c, pdo_stage.SYNCHRONOUS)]
+
+
+def _type_in(party: pdo_stage.Party, types: range | tuple[int, ...]) -> bool:
+    tt = party.transmission_type
+    return tt.known and int(tt.value or 0) in types
 
 
 @dataclass
@@ -96,7 +115,10 @@ class _Channel:
     name: str
     recent: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_FRAMES))
     d8: list[float] = field(default_factory=list)  # the smallest intervals before DLC 8
+    d8_value: float | None = None  # d8 of §9.1.6 from them (None: not established)
     streams: dict[int, _Stream] = field(default_factory=dict)
+    watched: dict[int, list[_Deadline]] = field(default_factory=dict)  # consumer -> D004's
+    needs_q: bool = False  # a D002 stream: the frame times are kept for q (§9.1.6)
     sync_cob: int = 0x80
     producer: int | None = None
     segment: int = 0  # segment ends so far
@@ -156,7 +178,9 @@ class CommTracker:
                 ch.producer = int(prod.value) if prod.known and prod.value else None
                 for cob, producer, consumers, _w in pdo_stage.channel_parties(net, name):
                     st = ch.streams[cob] = _Stream(cob, producer, consumers)
-                    st.deadlines = [_Deadline(c) for c in consumers]
+                    ch.needs_q = ch.needs_q or bool(st.inhibit_s)
+                    for d in st.deadlines:
+                        ch.watched.setdefault(d.party.node, []).append(d)
         return ch
 
     def _node(self, channel: str, n: int) -> _Node:
@@ -286,33 +310,37 @@ class CommTracker:
     # -- frames ----------------------------------------------------------------------------
 
     def feed(self, f: Any) -> None:
-        """One frame, after the NMT tracker took it."""
-        if f.ts > self.next_due + EPS:
-            self.advance(f.ts)
+        """One frame, after the NMT tracker took it (and `advance` to its time, before)."""
         ch = self.channels.get(f.channel) or self._channel(f.channel)
-        recent = ch.recent
-        if recent and f.dlc == 8:
-            gap = f.ts - recent[-1]
-            if gap > 0 and (len(ch.d8) < D8_KEPT or gap < ch.d8[-1]):
-                bisect.insort(ch.d8, gap)
-                del ch.d8[D8_KEPT:]
-        recent.append(f.ts)
+        if ch.needs_q:
+            recent = ch.recent
+            if recent and f.dlc == 8:
+                gap = f.ts - recent[-1]
+                if gap > 0 and (len(ch.d8) < D8_KEPT or gap < ch.d8[-1]):
+                    bisect.insort(ch.d8, gap)
+                    del ch.d8[D8_KEPT:]
+                    vals = ch.d8
+                    ch.d8_value = vals[0] if len(vals) >= 3 and vals[0] > 0 and sum(
+                        v <= vals[0] * 1.05 for v in vals) >= 3 else None
+            recent.append(f.ts)
         if f.ext or f.err:
             return
         cid = f.can_id
-        if cid == ch.sync_cob:
+        st = ch.streams.get(cid)
+        if st is not None:
+            if not f.rtr:
+                self._pdo(ch, st, f)
+        elif cid == ch.sync_cob:
             self._sync(ch, f)
+        elif 0x701 <= cid <= 0x77F:
+            if cid - 0x700 in ch.watched or f.data[:1] == b"\x00":
+                self._report(ch, f, cid - 0x700)
         elif cid == 0:
             self._nmt(ch, f)
         elif 0x081 <= cid <= 0x0FF:
             self._emcy(ch, f, cid - 0x80)
-        elif 0x701 <= cid <= 0x77F:
-            self._report(ch, f, cid - 0x700)
         elif 0x581 <= cid <= 0x5FF or 0x601 <= cid <= 0x67F:
             self._sdo(ch, f, cid & 0x7F)
-        st = ch.streams.get(cid)
-        if st is not None and not f.rtr:
-            self._pdo(ch, st, f)
 
     # segment ends, resets, boot-ups, writes -------------------------------------------------
 
@@ -360,10 +388,8 @@ class CommTracker:
         if stale:
             return
         w = self.nodes.get((ch.name, n))
-        for stream in ch.streams.values():
-            for d in stream.deadlines:
-                if d.party.node != n or not d.watch or d.armed is None:
-                    continue
+        for d in ch.watched.get(n, ()):
+            if d.watch and d.armed is not None:
                 d.watch = False
                 commanded = cmd is not None and cmd[0] > d.armed + EPS
                 if reported == OPERATIONAL or commanded:
@@ -584,31 +610,29 @@ class CommTracker:
     def _q(self, ch: _Channel) -> tuple[float, bool]:
         """q(F) of §9.1.6 for the frame just recorded (checks/pdo.bus_wait), with the d8
         known so far, and whether it is surely that (d8 only shrinks as frames come)."""
-        vals = ch.d8
-        d8 = vals[0] if len(vals) >= 3 and vals[0] > 0 and sum(
-            v <= vals[0] * 1.05 for v in vals) >= 3 else None
         times = ch.recent
         if len(times) < 2:
             return 0.0, True
-        before = times[-1] - times[-2]
-        sure = bool(vals) and before > 1.25 * vals[0] + EPS
+        vals = ch.d8
+        if vals and times[-1] - times[-2] > 1.25 * vals[0] + EPS:
+            return 0.0, True  # not back to back, whatever d8 proves to be
+        d8 = ch.d8_value
         if d8 is None:
-            return 0.0, sure
+            return 0.0, False
         j = len(times) - 1
         while j > 0 and times[j] - times[j - 1] <= 1.25 * d8 + EPS:
             j -= 1
         q = 0.0 if j == len(times) - 1 else float(times[-1] - times[j]) + d8
-        return q, sure
+        return q, False
 
     def _pdo(self, ch: _Channel, st: _Stream, f: Any) -> None:
         ts = f.ts
         p = st.producer
         # D002: an event-driven TPDO closer to the previous one than its inhibit time
-        if p is not None and p.inhibit_100us.value and p.transmission_type.known and int(
-                p.transmission_type.value or 0) in pdo_stage.EVENT_DRIVEN:
+        if st.inhibit_s and p is not None:
             bad = False
             if st.last is not None and self._op_through(ch.name, p.node, st.last):
-                inhibit = float(p.inhibit_100us.value) * 1e-4
+                inhibit = st.inhibit_s
                 dt = ts - st.last
                 q, q_sure = st.last_q
                 bad = dt < inhibit - self.r - q - EPS
@@ -624,44 +648,43 @@ class CommTracker:
             st.d002_run = bad
             st.last, st.last_q = ts, self._q(ch)
         # D005: the DLC against the producer's (a) and each consumer's (b) mapping
-        for which, party in ([("a", p)] if p is not None else []) + [
-                ("b", c) for c in st.consumers]:
-            want = party.mapping.value
-            if not want or f.dlc == want:
-                continue
-            node = self.tracker.nodes.get((ch.name, party.node))
-            if which == "b" and (node is None or node.state not in _CONSUMING):
-                continue
-            w = self._node(ch.name, party.node)
-            key = (which == "a", party.node, w.epoch, f.dlc)
-            if key in st.d005:
-                continue
-            st.d005.add(key)
-            if which == "a":
-                text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {f.dlc}; its "
-                        f"mapping {party.map_index:04X}h has {want} bytes "
-                        f"({_source(party.mapping)})")
-            else:
-                what = ("discards it and raises EMCY 8210h" if f.dlc < want
-                        else "raises EMCY 8220h")
-                text = (f"RPDO {st.cob_id:03X}h has DLC {f.dlc}; node {party.node} maps "
-                        f"{want} bytes ({party.map_index:04X}h, {_source(party.mapping)}): "
-                        f"node {party.node} {what}")
-            self._find("D005", ch.name, party.node, ts, text,
-                       certain=which == "a" or self._sure(node))
+        for producing, party, want in st.mapped:
+            if f.dlc != want:
+                self._d005(ch, st, f, producing, party, want)
         # D004: each consumer's deadline, armed by a frame received while OPERATIONAL
         for d in st.deadlines:
-            c = d.party
-            if not c.event_timer_ms.value or (c.transmission_type.known and int(
-                    c.transmission_type.value or 0) in pdo_stage.SYNCHRONOUS):
-                continue
             if d.fired is not None and d.voidable:
                 self._withdraw(d.fired)  # no EMCY 8250h before this frame
             d.fired, d.voidable = None, False
-            node = self.tracker.nodes.get((ch.name, c.node))
+            node = self.tracker.nodes.get((ch.name, d.party.node))
             if node is None or node.state != OPERATIONAL:
                 d.armed, d.watch = None, False
                 continue
             d.armed, d.watch = ts, True
-            d.due = round(ts + float(c.event_timer_ms.value) / 1000, 9)
+            d.due = round(ts + float(d.party.event_timer_ms.value or 0) / 1000, 9)
             self.next_due = min(self.next_due, d.due + self.r)
+
+    def _d005(self, ch: _Channel, st: _Stream, f: Any, producing: bool,
+              party: pdo_stage.Party, want: int) -> None:
+        """One finding per stream, party and DLC between the party's boot-ups and resets;
+        a consumer judges what it receives while PRE-OPERATIONAL or OPERATIONAL."""
+        node = self.tracker.nodes.get((ch.name, party.node))
+        if not producing and (node is None or node.state not in _CONSUMING):
+            return
+        w = self._node(ch.name, party.node)
+        key = (producing, party.node, w.epoch, f.dlc)
+        if key in st.d005:
+            return
+        st.d005.add(key)
+        if producing:
+            text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {f.dlc}; its "
+                    f"mapping {party.map_index:04X}h has {want} bytes "
+                    f"({_source(party.mapping)})")
+        else:
+            what = ("discards it and raises EMCY 8210h" if f.dlc < want
+                    else "raises EMCY 8220h")
+            text = (f"RPDO {st.cob_id:03X}h has DLC {f.dlc}; node {party.node} maps {want} "
+                    f"bytes ({party.map_index:04X}h, {_source(party.mapping)}): node "
+                    f"{party.node} {what}")
+        self._find("D005", ch.name, party.node, f.ts, text,
+                   certain=producing or self._sure(node))

@@ -210,7 +210,8 @@ class Session:
                 self._pending_lost = 0
             self.last_ts = frame.ts
             self.clock.observe(frame.ts)
-            self.comm.advance(frame.ts)  # its deadlines see the states before this frame
+            if frame.ts > self.comm.next_due:  # its deadlines see the states before it
+                self.comm.advance(frame.ts)
             self.tracker.feed(frame)
             self.comm.feed(frame)
 
