@@ -16,15 +16,17 @@ from pathlib import Path
 
 import can
 import pytest
-from conftest import SAMPLES
+from conftest import SAMPLES, Checker
 from test_live import PROFILE, RULES, frames_of
 
 import nmtcheck
-from nmtcheck.engine import check_input
+from nmtcheck.engine import check_input, select_rules
 from nmtcheck.live.frames import LiveFrame, candump_line
 from nmtcheck.live.session import CONFIRM_TOLERANCE_S, GRACE_S, BusClock, Outcome, Session
 from nmtcheck.live.tracker import LiveFinding
+from nmtcheck.results import InputResult
 from nmtcheck.settings.network import Network, load_network
+from nmtcheck.settings.profiles import load_profile
 
 CN = SAMPLES / "canopennode"
 LIVE_COMM = {"Y001", "Y002", "Y003", "D002", "D004", "D005", "E001", "E002"}
@@ -270,3 +272,82 @@ def test_sync_recording_replayed_on_a_virtual_bus(tmp_path: Path) -> None:
     assert res is not None
     # (the window ends before the consumers' EMCY resets: E003, decided at the end)
     assert [f.rule for f in res.findings if f.rule in LIVE_COMM] == ["Y001"]
+
+
+# -- the SPEC_COMM §9.5 vectors and the rule tests, replayed live -----------------------------
+
+class LiveChecker(Checker):
+    """`Checker` (tests/conftest.py) that also feeds each trace frame by frame to a live
+    session with the same profile and network file, and notes where live and offline
+    disagree: a certain live Y/D/E finding not confirmed, or an offline finding of a rule
+    decided live that live did not report."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        super().__init__(tmp_path)
+        self.disagree: list[tuple[str, str, int | None, float, str]] = []
+        self.compared = 0
+        self.live_found = 0
+        self.test = ""
+
+    def run(self, text: str, select: str = "", ignore: str = "", profile: str = "default",
+            network: str | None = None, suffix: str = ".log") -> InputResult:
+        res = super().run(text, select, ignore, profile, network, suffix)
+        if suffix != ".log" or select or ignore or res.stats.start is None:
+            return res
+        net = load_network(str(self.tmp_path / f"net{self.n}.toml")) if network else None
+        prof = load_profile(profile)
+        log = self.tmp_path / f"trace{self.n}{suffix}"
+        session = Session(prof, select_rules(prof, [], []), net, timer=False)
+        for f in frames_of(log):
+            session.feed(f)
+        outcome = session.close()
+        self.compared += 1
+        start = res.stats.start
+        live = [lf for lf in outcome.live if lf.rule[0] in GROUPS]
+        self.live_found += len(live)
+        for lf in live:
+            if lf.certain and lf.confirmed not in ("confirmed", "clock-only"):
+                self.disagree.append((self.test, lf.rule, lf.node, round(lf.time - start, 6),
+                                      f"live {lf.confirmed}"))
+        for f in res.findings:
+            if f.rule in LIVE_COMM and not any(
+                    (lf.rule, lf.node) == (f.rule, f.node)
+                    and abs(lf.time - f.time) <= CONFIRM_TOLERANCE_S for lf in live):
+                self.disagree.append((self.test, f.rule, f.node, round(f.time - start, 6),
+                                      "offline only"))
+        return res
+
+
+# (test, rule, node, seconds from the first frame, what) where live and offline disagree on
+# the rule tests' traces; each with why
+KNOWN_VECTORS: set[tuple[str, str, int | None, float, str]] = set()
+
+
+def test_rule_vectors_replayed_live(tmp_path: Path) -> None:
+    """Every test of tests/test_rules_sync_emcy.py and tests/test_rules_pdo.py that takes
+    the `checker` fixture (and `tmp_path`): the §9.5 vectors verbatim, and the values from
+    network file, device files and SDO writes; run again with each trace replayed live."""
+    import inspect
+
+    import test_rules_pdo
+    import test_rules_sync_emcy
+
+    checker = LiveChecker(tmp_path)
+    ran = 0
+    for module in (test_rules_sync_emcy, test_rules_pdo):
+        for name, fn in sorted(vars(module).items()):
+            if not name.startswith("test_") or not callable(fn):
+                continue
+            params = list(inspect.signature(fn).parameters)
+            if params not in (["checker"], ["checker", "tmp_path"]):
+                continue
+            checker.test = name
+            if params == ["checker"]:
+                fn(checker)
+            else:
+                own = tmp_path / name
+                own.mkdir()
+                fn(checker, own)
+            ran += 1
+    assert ran > 40 and checker.compared > 80 and checker.live_found > 30
+    assert set(checker.disagree) == KNOWN_VECTORS

@@ -154,6 +154,7 @@ class CommTracker:
         p: dict[str, dict[str, Any]] = {code: s.params for code, s in profile.items()}
         self.factor = float(p["Y001"]["timeout_factor"])
         self.min_intervals = int(p["Y001"]["min_intervals"])
+        self.generic_bit = bool(p["E002"]["require_generic_bit"])
         given = profile.timeline.get("timestamp_resolution_us")
         self.r = float(given) / 1e6 if given else TEXT_RESOLUTION_S
         self.on = {c for c in ("Y001", "Y002", "Y003", "D002", "D004", "D005", "E001", "E002")
@@ -575,10 +576,14 @@ class CommTracker:
                 for d in st.deadlines:
                     if d.party.node == n and d.fired is not None and f.ts >= d.due - EPS:
                         d.voidable = False
-        # E002: one finding per run of EMCYs of one DLC other than 8
-        flag = 0 if f.dlc == 8 else 100 + f.dlc
+        # E002: one finding per run of EMCYs of one defect (a DLC other than 8, or with
+        # `require_generic_bit` an error code without error-register bit 0)
+        flag = 100 + f.dlc if f.dlc != 8 else 2 if (
+            self.generic_bit and code >= 0x100 and not f.data[2] & 1) else 0
         if flag and flag != w.e002_run:
             self._find("E002", ch.name, n, f.ts,
+                       f"EMCY {code:04X}h with error register {f.data[2]:02X}h: bit 0 "
+                       "(generic) clear" if flag == 2 else
                        f"EMCY of node {n} with DLC {f.dlc}, 8 expected (CanFestival "
                        "consumers drop it)")
         w.e002_run = flag
