@@ -298,8 +298,8 @@ class LiveChecker(Checker):
         prof = load_profile(profile)
         log = self.tmp_path / f"trace{self.n}{suffix}"
         session = Session(prof, select_rules(prof, [], []), net, timer=False)
-        for f in frames_of(log):
-            session.feed(f)
+        for frame in frames_of(log):
+            session.feed(frame)
         outcome = session.close()
         self.compared += 1
         start = res.stats.start
