@@ -29,7 +29,7 @@ from nmtcheck.settings.network import Network, load_network
 from nmtcheck.settings.profiles import load_profile
 
 CN = SAMPLES / "canopennode"
-LIVE_COMM = {"Y001", "Y002", "Y003", "D002", "D004", "D005", "E001", "E002"}
+LIVE_COMM = {"Y001", "Y002", "Y003", "Y004", "D002", "D004", "D005", "D006", "E001", "E002"}
 GROUPS = ("Y", "D", "E")
 # recording -> its network file, and the live rules the stack's faults give with it
 RECORDINGS: dict[str, tuple[Path, set[str]]] = {
@@ -287,6 +287,7 @@ class LiveChecker(Checker):
         self.disagree: list[tuple[str, str, int | None, float, str]] = []
         self.compared = 0
         self.live_found = 0
+        self.rules: set[str] = set()
         self.test = ""
 
     def run(self, text: str, select: str = "", ignore: str = "", profile: str = "default",
@@ -305,6 +306,7 @@ class LiveChecker(Checker):
         start = res.stats.start
         live = [lf for lf in outcome.live if lf.rule[0] in GROUPS]
         self.live_found += len(live)
+        self.rules.update(lf.rule for lf in live)
         for lf in live:
             if lf.certain and lf.confirmed not in ("confirmed", "clock-only"):
                 self.disagree.append((self.test, lf.rule, lf.node, round(lf.time - start, 6),
@@ -350,4 +352,5 @@ def test_rule_vectors_replayed_live(tmp_path: Path) -> None:
                 fn(checker, own)
             ran += 1
     assert ran > 40 and checker.compared > 80 and checker.live_found > 30
+    assert checker.rules == LIVE_COMM  # every rule decided live fires on some trace
     assert set(checker.disagree) == KNOWN_VECTORS

@@ -2,13 +2,14 @@
 frames arrive, judged by the values the offline check takes (the network file's §9.1.2
 keys, the device files, confirmed SDO writes in the session, reset rule of §9.1.3).
 
-Decided live: Y001 (when the SYNC deadline passes), Y002, Y003, D002, D004 (when the RPDO
-deadline passes), D005, E001, E002. Left to the check of the recording at the end, as
-every rule that needs the whole trace: Y004, Y005 (a median over the segment), D001 (a gap
-the producer may end by falling silent), D003 (counts over SYNC cycles), D006 (the outcome
-of a download), E003 (the state at the trace end). A finding that rests on something only
-the whole trace settles (a SYNC period measured so far, a node state that a heartbeat
-timeout from a measured period decides, a frame's wait for the bus) is provisional.
+Decided live: Y001 (when the SYNC deadline passes), Y002, Y003, Y004, D002, D004 (when
+the RPDO deadline passes), D005, D006 (expedited downloads, at the request), E001, E002.
+Left to the check of the recording at the end, as every rule that needs the whole trace:
+Y005 (a median over the segment), D001 (a gap the producer may end by falling silent),
+D003 (counts over SYNC cycles), E003 (the state at the trace end). A finding that rests
+on something only the whole trace settles (a SYNC period measured so far, a node state
+that a heartbeat timeout from a measured period decides, a frame's wait for the bus) is
+provisional.
 State is O(nodes + streams): nothing grows with the traffic.
 """
 
@@ -84,7 +85,11 @@ class _Stream:
     cob_id: int
     producer: pdo_stage.Party | None
     consumers: list[pdo_stage.Party]
+    window: Value = UNKNOWN  # W (1007h) of §9.1.1
     inhibit_s: float = 0.0  # D002: the producer's inhibit time (type 254/255), 0: not judged
+    window_s: float = 0.0  # Y004: W of a synchronous stream, 0: not judged
+    tt: int = -1  # the stream's transmission type (§9.1.5), -1: unknown
+    y004_run: tuple[float | None, float] | None = None  # the OPERATIONAL interval of a run
     # D005: (producer?, party, mapped length) of each party whose mapping is known
     mapped: list[tuple[bool, pdo_stage.Party, int]] = field(default_factory=list)
     last: float | None = None  # its previous frame (D002)
@@ -97,6 +102,11 @@ class _Stream:
         p = self.producer
         if p is not None and p.inhibit_100us.value and _type_in(p, pdo_stage.EVENT_DRIVEN):
             self.inhibit_s = float(p.inhibit_100us.value) * 1e-4
+        tt = next((x.transmission_type for x in [p, *self.consumers]
+                   if x is not None and x.transmission_type.known), UNKNOWN)
+        self.tt = int(tt.value or 0) if tt.known else -1
+        if self.tt in pdo_stage.SYNCHRONOUS and self.window.value:
+            self.window_s = float(self.window.value) / 1e6
         self.mapped = [(which, party, int(party.mapping.value or 0)) for which, party in (
             [(True, p)] if p is not None else []) + [(False, c) for c in self.consumers]
             if party.mapping.value]
@@ -157,8 +167,8 @@ class CommTracker:
         self.generic_bit = bool(p["E002"]["require_generic_bit"])
         given = profile.timeline.get("timestamp_resolution_us")
         self.r = float(given) / 1e6 if given else TEXT_RESOLUTION_S
-        self.on = {c for c in ("Y001", "Y002", "Y003", "D002", "D004", "D005", "E001", "E002")
-                   if c in tracker.active}
+        self.on = {c for c in ("Y001", "Y002", "Y003", "Y004", "D002", "D004", "D005", "D006",
+                               "E001", "E002") if c in tracker.active}
         self.channels: dict[str, _Channel] = {}
         self.nodes: dict[tuple[str, int], _Node] = {}
         self.next_due = float("inf")
@@ -177,8 +187,8 @@ class CommTracker:
                 ch.sync_cob = sync_stage._cob_id(keys, devices, [])[0]
                 prod = sync_stage._producer(keys, devices, [])
                 ch.producer = int(prod.value) if prod.known and prod.value else None
-                for cob, producer, consumers, _w in pdo_stage.channel_parties(net, name):
-                    st = ch.streams[cob] = _Stream(cob, producer, consumers)
+                for cob, producer, consumers, w in pdo_stage.channel_parties(net, name):
+                    st = ch.streams[cob] = _Stream(cob, producer, consumers, w)
                     ch.needs_q = ch.needs_q or bool(st.inhibit_s)
                     for d in st.deadlines:
                         ch.watched.setdefault(d.party.node, []).append(d)
@@ -412,9 +422,18 @@ class CommTracker:
         cmd, index, sub = f.data[0], f.data[1] | f.data[2] << 8, f.data[3]
         if f.can_id >= 0x601:
             w.request = None
-            if cmd & 0xE3 == 0x23 and sub == 0 and index in _WRITTEN and len(f.data) >= 8:
-                size = 4 - ((cmd >> 2) & 0x3)
-                w.request = (index, int.from_bytes(bytes(f.data[4:4 + size]), "little"))
+            if cmd & 0xE3 != 0x23 or len(f.data) < 8:
+                return  # an expedited download with its size
+            size = 4 - ((cmd >> 2) & 0x3)
+            value = int.from_bytes(bytes(f.data[4:4 + size]), "little")
+            if sub == 0 and index in _WRITTEN:
+                w.request = (index, value)
+            elif sub == 2 and ((0x1800 <= index <= 0x19FF and 241 <= value <= 251)
+                               or (0x1400 <= index <= 0x15FF and 241 <= value <= 253)):
+                kind = "241–251 (TPDO)" if index >= 0x1800 else "241–253 (RPDO)"
+                self._find("D006", ch.name, n, f.ts,
+                           f"download {index:04X}h:02 = {value} to node {n}: transmission "
+                           f"types {kind} are reserved")
             return
         req, w.request = w.request, None
         if cmd != 0x60 or req is None or req[0] != index or sub != 0:
@@ -652,6 +671,8 @@ class CommTracker:
                                and self._sure(self.tracker.nodes.get((ch.name, p.node))))
             st.d002_run = bad
             st.last, st.last_q = ts, self._q(ch)
+        if st.window_s and ch.last_sync is not None:
+            self._y004(ch, st, f)
         # D005: the DLC against the producer's (a) and each consumer's (b) mapping
         for producing, party, want in st.mapped:
             if f.dlc != want:
@@ -668,6 +689,33 @@ class CommTracker:
             d.armed, d.watch = ts, True
             d.due = round(ts + float(d.party.event_timer_ms.value or 0) / 1000, 9)
             self.next_due = min(self.next_due, d.due + self.r)
+
+    def _y004(self, ch: _Channel, st: _Stream, f: Any) -> None:
+        """A frame of a synchronous stream more than W + r after the latest SYNC, while
+        its producer (when known) is OPERATIONAL; one finding per run of late frames in
+        one OPERATIONAL interval of the producer."""
+        last = ch.last_sync
+        assert last is not None
+        p = st.producer
+        node = self.tracker.nodes.get((ch.name, p.node)) if p is not None else None
+        late = f.ts - last > st.window_s + self.r + EPS
+        interval: tuple[float | None, float] = (None, 0.0)
+        if p is not None:
+            w = self.nodes.get((ch.name, p.node))
+            late = late and node is not None and node.state == OPERATIONAL
+            interval = (node.left_operational if node is not None else None,
+                        w.offline_at if w is not None else float("-inf"))
+        prev, st.y004_run = st.y004_run, interval if late else None
+        if not late or prev == interval:
+            return
+        what, party = ("TPDO", f"node {p.node}") if p is not None else (
+            "RPDO", f"consumer node {st.consumers[0].node}")
+        start = self.tracker.start or 0.0
+        self._find("Y004", ch.name, p.node if p is not None else None, f.ts,
+                   f"{what} {st.cob_id:03X}h ({party}, type {st.tt}) "
+                   f"{(f.ts - last) * 1000:.3f} ms after SYNC at {last - start:.6f} s; "
+                   f"synchronous window 1007h = {st.window_s * 1000:.3f} ms "
+                   f"({_source(st.window)})", certain=self._sure(node))
 
     def _d005(self, ch: _Channel, st: _Stream, f: Any, producing: bool,
               party: pdo_stage.Party, want: int) -> None:
