@@ -29,7 +29,7 @@ from nmtcheck.settings.network import Network, load_network
 from nmtcheck.settings.profiles import load_profile
 
 CN = SAMPLES / "canopennode"
-LIVE_COMM = {"Y001", "Y002", "Y003", "Y004", "D002", "D004", "D005", "D006", "E001", "E002"}
+LIVE_COMM = {"Y001", "Y002", "Y003", "Y004", "D001", "D002", "D004", "D005", "D006", "E001", "E002"}
 GROUPS = ("Y", "D", "E")
 # recording -> its network file, and the live rules the stack's faults give with it
 RECORDINGS: dict[str, tuple[Path, set[str]]] = {

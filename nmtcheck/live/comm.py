@@ -2,14 +2,16 @@
 frames arrive, judged by the values the offline check takes (the network file's §9.1.2
 keys, the device files, confirmed SDO writes in the session, reset rule of §9.1.3).
 
-Decided live: Y001 (when the SYNC deadline passes), Y002, Y003, Y004, D002, D004 (when
-the RPDO deadline passes), D005, D006 (expedited downloads, at the request), E001, E002.
-Left to the check of the recording at the end, as every rule that needs the whole trace:
-Y005 (a median over the segment), D001 (a gap the producer may end by falling silent),
-D003 (counts over SYNC cycles), E003 (the state at the trace end). A finding that rests
-on something only the whole trace settles (a SYNC period measured so far, a node state
-that a heartbeat timeout from a measured period decides, a frame's wait for the bus) is
-provisional.
+Decided live: Y001 (when the SYNC deadline passes), Y002, Y003, Y004, D001 and D004 (when
+the event timer or the RPDO deadline passes; withdrawn when the party's next report or
+its going OFFLINE proves the gap was no fault of the stream, SPEC_COMM §9.1.6, D001),
+D002, D005, D006 (expedited downloads, at the request), E001, E002. Left to the check of
+the recording at the end, as every rule that needs the whole trace: Y005 (a median over
+the segment), D003 (counts over SYNC cycles), E003 (the state at the trace end).
+
+A finding that rests on something only the whole trace settles (a SYNC period measured
+so far, a node state that a heartbeat timeout from a measured period decides, a frame's
+wait for the bus) is provisional.
 State is O(nodes + streams): nothing grows with the traffic.
 """
 
@@ -63,6 +65,14 @@ class _Node:
     e001_run: bool = False
     e002_run: int = 0  # the defect (100 + DLC) of the run of malformed EMCYs, 0: none
     last_8250: float = float("-inf")  # its latest EMCY 8250h (D004)
+    last_ec: float = float("-inf")  # its latest frame on 700h + N, a request too (D001)
+    last_report: float = float("-inf")  # its latest heartbeat or guarding response
+    # findings of gaps that began at t_l, waiting for the node's first report after t_l
+    # (§9.1.6: another state with no command to it voids them): (finding, t_l, the
+    # stream's next frame after the gap (D004: an EMCY 8250h before it keeps it))
+    report_watch: list[tuple[LiveFinding, float, float]] = field(default_factory=list)
+    # D001 findings whose producer sent nothing since t_l: void if it goes OFFLINE first
+    silent_watch: list[tuple[LiveFinding, float, _Stream]] = field(default_factory=list)
 
 
 @dataclass
@@ -82,6 +92,8 @@ class _Deadline:
 
 @dataclass
 class _Stream:
+    """A PDO COB-ID on a channel with its parties (processes/pdo.channel_parties)."""
+
     cob_id: int
     producer: pdo_stage.Party | None
     consumers: list[pdo_stage.Party]
@@ -90,6 +102,9 @@ class _Stream:
     window_s: float = 0.0  # Y004: W of a synchronous stream, 0: not judged
     tt: int = -1  # the stream's transmission type (§9.1.5), -1: unknown
     y004_run: tuple[float | None, float] | None = None  # the OPERATIONAL interval of a run
+    event_limit_s: float = 0.0  # D001: L of the producer's event timer, 0: not judged
+    d001_armed: float | None = None  # t_l of the gap D001 watches
+    d001_due: float = float("inf")
     # D005: (producer?, party, mapped length) of each party whose mapping is known
     mapped: list[tuple[bool, pdo_stage.Party, int]] = field(default_factory=list)
     last: float | None = None  # its previous frame (D002)
@@ -128,6 +143,7 @@ class _Channel:
     d8_value: float | None = None  # d8 of §9.1.6 from them (None: not established)
     streams: dict[int, _Stream] = field(default_factory=dict)
     watched: dict[int, list[_Deadline]] = field(default_factory=dict)  # consumer -> D004's
+    ec_watch: set[int] = field(default_factory=set)  # nodes whose 700h + N frames matter
     needs_q: bool = False  # a D002 stream: the frame times are kept for q (§9.1.6)
     sync_cob: int = 0x80
     producer: int | None = None
@@ -165,10 +181,12 @@ class CommTracker:
         self.factor = float(p["Y001"]["timeout_factor"])
         self.min_intervals = int(p["Y001"]["min_intervals"])
         self.generic_bit = bool(p["E002"]["require_generic_bit"])
+        self.d001_tolerance = float(p["D001"]["tolerance"])
+        self.d001_margin = float(p["D001"]["margin_ms"]) / 1000
         given = profile.timeline.get("timestamp_resolution_us")
         self.r = float(given) / 1e6 if given else TEXT_RESOLUTION_S
-        self.on = {c for c in ("Y001", "Y002", "Y003", "Y004", "D002", "D004", "D005", "D006",
-                               "E001", "E002") if c in tracker.active}
+        self.on = {c for c in ("Y001", "Y002", "Y003", "Y004", "D001", "D002", "D004", "D005",
+                               "D006", "E001", "E002") if c in tracker.active}
         self.channels: dict[str, _Channel] = {}
         self.nodes: dict[tuple[str, int], _Node] = {}
         self.next_due = float("inf")
@@ -192,6 +210,12 @@ class CommTracker:
                     ch.needs_q = ch.needs_q or bool(st.inhibit_s)
                     for d in st.deadlines:
                         ch.watched.setdefault(d.party.node, []).append(d)
+                        ch.ec_watch.add(d.party.node)
+                    if producer is not None and _type_in(producer, pdo_stage.EVENT_DRIVEN) \
+                            and producer.event_timer_ms.value:
+                        st.event_limit_s = (float(producer.event_timer_ms.value) / 1000
+                                            * (1 + self.d001_tolerance) + self.d001_margin)
+                        ch.ec_watch.add(producer.node)
         return ch
 
     def _node(self, channel: str, n: int) -> _Node:
@@ -247,7 +271,14 @@ class CommTracker:
     def tracker_finding(self, lf: LiveFinding) -> None:
         """The NMT tracker's H001/G002: the node is OFFLINE from then on."""
         if lf.rule in ("H001", "G002") and lf.node is not None:
-            self._node(lf.channel, lf.node).offline_at = lf.time
+            w = self._node(lf.channel, lf.node)
+            w.offline_at = lf.time
+            # D001: the producer sent nothing at all until it went OFFLINE: it fell
+            # silent, not its TPDO (H001/G002 say so)
+            for found, t_l, _st in w.silent_watch:
+                if t_l < lf.time:
+                    self._withdraw(found)
+            w.silent_watch.clear()
 
     # -- time ------------------------------------------------------------------------------
 
@@ -263,6 +294,11 @@ class CommTracker:
                 else:
                     nxt = min(nxt, ch.sync_due)
             for st in ch.streams.values():
+                if st.d001_armed is not None:
+                    if now > st.d001_due + EPS:
+                        self._d001(ch, st)
+                    else:
+                        nxt = min(nxt, st.d001_due)
                 for d in st.deadlines:
                     if d.armed is None or d.fired is not None:
                         continue
@@ -290,6 +326,32 @@ class CommTracker:
                    f"{last - start:.6f} s; timeout {t_limit * 1000:.3f} ms = {self.factor:g} "
                    f"x {how}", certain=configured and all(self._sure(st) for st in others))
 
+    def _d001(self, ch: _Channel, st: _Stream) -> None:
+        t_l, due = st.d001_armed, st.d001_due
+        st.d001_armed = None
+        p = st.producer
+        assert t_l is not None and p is not None
+        self.tracker.advance(due)
+        if not self._op_through(ch.name, p.node, t_l):
+            return
+        node = self.tracker.nodes.get((ch.name, p.node))
+        w = self._node(ch.name, p.node)
+        # certain once the producer reported since t_l: its state in the gap is supervised
+        # and it did not fall silent (else its next report or OFFLINE may void it)
+        reported = w.last_report > t_l + EPS
+        e = float(p.event_timer_ms.value or 0)
+        found = self._find("D001", ch.name, p.node, due,
+                           f"no TPDO {st.cob_id:03X}h from node {p.node} for at least "
+                           f"{(due - t_l) * 1000:.3f} ms while OPERATIONAL; event timer "
+                           f"{p.base_index:04X}h:05 = {e:g} ms ({_source(p.event_timer_ms)}),"
+                           f" limit {st.event_limit_s * 1000:.3f} ms",
+                           certain=reported and self._sure(node))
+        if found is None or reported:
+            return
+        w.report_watch.append((found, t_l, float("inf")))
+        if w.last_ec <= t_l + EPS:  # nor any frame on 700h + N
+            w.silent_watch.append((found, t_l, st))
+
     def _d004(self, ch: _Channel, st: _Stream, d: _Deadline) -> None:
         assert d.armed is not None
         c = d.party
@@ -304,7 +366,8 @@ class CommTracker:
             f"no RPDO {st.cob_id:03X}h for node {c.node} for at least "
             f"{(d.due - d.armed) * 1000:.3f} ms; deadline {c.base_index:04X}h:05 = {e:g} ms "
             f"({_source(c.event_timer_ms)}); producer {producer}",
-            certain=self._sure(self.tracker.nodes.get((ch.name, c.node))))
+            # certain once the consumer reported since t_l (its state is supervised)
+            certain=not d.watch and self._sure(self.tracker.nodes.get((ch.name, c.node))))
         if d.fired is None:
             d.armed = None
 
@@ -344,7 +407,7 @@ class CommTracker:
         elif cid == ch.sync_cob:
             self._sync(ch, f)
         elif 0x701 <= cid <= 0x77F:
-            if cid - 0x700 in ch.watched or f.data[:1] == b"\x00":
+            if cid - 0x700 in ch.ec_watch or f.data[:1] == b"\x00":
                 self._report(ch, f, cid - 0x700)
         elif cid == 0:
             self._nmt(ch, f)
@@ -383,6 +446,9 @@ class CommTracker:
                     self._clear(ch, n)
 
     def _report(self, ch: _Channel, f: Any, n: int) -> None:
+        w = self._node(ch.name, n)
+        w.last_ec = f.ts
+        w.silent_watch.clear()  # N did not fall silent
         if f.rtr or f.dlc != 1 or not f.data:
             return
         if f.data[0] == 0:  # boot-up
@@ -398,7 +464,13 @@ class CommTracker:
                  and reported == cmd[1])
         if stale:
             return
-        w = self.nodes.get((ch.name, n))
+        w.last_report = f.ts
+        for found, t_l, nxt in w.report_watch:  # gaps of streams that went on since
+            commanded = cmd is not None and cmd[0] > t_l + EPS
+            if reported != OPERATIONAL and not commanded and not (
+                    found.rule == "D004" and found.time - EPS <= w.last_8250 < nxt):
+                self._withdraw(found)
+        w.report_watch.clear()
         for d in ch.watched.get(n, ()):
             if d.watch and d.armed is not None:
                 d.watch = False
@@ -406,7 +478,7 @@ class CommTracker:
                 if reported == OPERATIONAL or commanded:
                     continue
                 # it left OPERATIONAL because of this timeout: an 8250h says so
-                d.voidable = d.fired is None or w is None or w.last_8250 < d.due - EPS
+                d.voidable = d.fired is None or w.last_8250 < d.due - EPS
 
     def _withdraw(self, lf: LiveFinding) -> None:
         if not lf.withdrawn:
@@ -677,10 +749,23 @@ class CommTracker:
         for producing, party, want in st.mapped:
             if f.dlc != want:
                 self._d005(ch, st, f, producing, party, want)
+        # D001: the producer's event timer, from a frame sent while OPERATIONAL
+        if st.event_limit_s and p is not None:
+            w = self.nodes.get((ch.name, p.node))
+            if w is not None and w.silent_watch:  # the stream went on: not silent
+                w.silent_watch = [x for x in w.silent_watch if x[2] is not st]
+            node = self.tracker.nodes.get((ch.name, p.node))
+            st.d001_armed = ts if node is not None and node.state == OPERATIONAL else None
+            st.d001_due = round(ts + st.event_limit_s, 9)
+            if st.d001_armed is not None:
+                self.next_due = min(self.next_due, st.d001_due)
         # D004: each consumer's deadline, armed by a frame received while OPERATIONAL
         for d in st.deadlines:
             if d.fired is not None and d.voidable:
                 self._withdraw(d.fired)  # no EMCY 8250h before this frame
+            elif d.fired is not None and d.watch:  # its first report is still to come
+                assert d.armed is not None
+                self._node(ch.name, d.party.node).report_watch.append((d.fired, d.armed, ts))
             d.fired, d.voidable = None, False
             node = self.tracker.nodes.get((ch.name, d.party.node))
             if node is None or node.state != OPERATIONAL:
