@@ -727,7 +727,8 @@ class CommTracker:
         # D002: an event-driven TPDO closer to the previous one than its inhibit time
         if st.inhibit_s and p is not None:
             bad = False
-            if st.last is not None and self._op_through(ch.name, p.node, st.last):
+            if st.last is not None and ts - st.last < st.inhibit_s and self._op_through(
+                    ch.name, p.node, st.last):
                 inhibit = st.inhibit_s
                 dt = ts - st.last
                 q, q_sure = st.last_q
