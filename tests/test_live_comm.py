@@ -354,3 +354,30 @@ def test_rule_vectors_replayed_live(tmp_path: Path) -> None:
     assert ran > 40 and checker.compared > 80 and checker.live_found > 30
     assert checker.rules == LIVE_COMM  # every rule decided live fires on some trace
     assert set(checker.disagree) == KNOWN_VECTORS
+
+
+@pytest.mark.parametrize(("name", "rule", "node"), [
+    ("sync_emcy/sync_counter_skip", "Y003", 1), ("pdo/rpdo_producer_stopped", "D004", 3)])
+def test_check_follow_reports_them_live(name: str, rule: str, node: int) -> None:
+    """`nmtcheck check --follow -` (a process) fed the recording through a pipe, with its
+    network file: the live line of the rule is on stderr, the end summary counts it as
+    confirmed, and stdout is the offline check of the same bytes."""
+    import json
+    import subprocess
+    import sys
+
+    log = CN / f"{name}.log"
+    net_path, _expected = RECORDINGS[name]
+    proc = subprocess.run(
+        [sys.executable, "-m", "nmtcheck", "check", "--follow", "-", "--network",
+         str(net_path), "--format", "json", "--fail-on", "never"],
+        input=log.read_bytes(), capture_output=True, timeout=120)
+    err = proc.stderr.decode()
+    assert proc.returncode == 0, err
+    assert any(f" {rule} " in line and f"node {node}" in line for line in err.splitlines()
+               if not line.startswith("nmtcheck:")), err
+    assert "0 not confirmed" in err and "withdrawn" not in err, err
+    offline = check_input(str(log), 0, PROFILE, RULES, load_network(str(net_path)))
+    report = json.loads(proc.stdout)
+    assert [(f["rule"], f["node"], f["time"]) for f in report["findings"]] == [
+        (f.rule, f.node, round(f.time, 6)) for f in offline.findings]
