@@ -42,7 +42,6 @@ from nmtcheck.settings.profiles import Profile
 
 EPS = 1e-9
 TEXT_RESOLUTION_S = 1e-6  # the session's recording is candump text (microseconds)
-SURE_MARGIN_S = 1e-3  # a spacing this far inside a limit holds whatever the resolution
 RECENT_FRAMES = 256  # a channel's recent frame times: a frame's wait for the bus (q)
 D8_KEPT = 16  # the smallest intervals before an 8-byte frame, for d8
 SYNC_MEDIAN_EVERY = 64  # a measured SYNC period is recomputed every this many SYNCs
@@ -110,7 +109,8 @@ class _Stream:
     last: float | None = None  # its previous frame (D002)
     last_q: tuple[float, bool] = (0.0, True)  # q(F1) and whether it is surely that
     d002_run: bool = False
-    d005: set[tuple[bool, int, int, int]] = field(default_factory=set)  # party, epoch, DLC
+    # D005: per (producer?, party) the DLCs reported since its last boot-up or reset
+    d005: dict[tuple[bool, int], tuple[int, set[int]]] = field(default_factory=dict)
     deadlines: list[_Deadline] = field(default_factory=list)  # D004, judged consumers only
 
     def __post_init__(self) -> None:
@@ -696,8 +696,7 @@ class CommTracker:
                 self._find("E001", ch.name, n, f.ts,
                            f"EMCY {max(code, 0):04X}h of node {n} {dt * 1000:.3f} ms after "
                            f"the previous one; inhibit time 1015h = {i:g} x 100 us = "
-                           f"{i / 10:g} ms ({_source(inhibit)})",
-                           certain=dt < limit - SURE_MARGIN_S)
+                           f"{i / 10:g} ms ({_source(inhibit)})")
         w.e001_run = bad
         w.emcy_ts, w.emcy_tag = f.ts, tag
 
@@ -740,8 +739,8 @@ class CommTracker:
                                f"= {p.inhibit_100us.value} x 100 us = {inhibit * 1000:g} ms "
                                f"({_source(p.inhibit_100us)}), allowance "
                                f"{(self.r + q) * 1000:.3f} ms",
-                               certain=q_sure and dt < inhibit - SURE_MARGIN_S - q
-                               and self._sure(self.tracker.nodes.get((ch.name, p.node))))
+                               certain=q_sure and self._sure(
+                                   self.tracker.nodes.get((ch.name, p.node))))
             st.d002_run = bad
             st.last, st.last_q = ts, self._q(ch)
         if st.window_s and ch.last_sync is not None:
@@ -810,11 +809,13 @@ class CommTracker:
         node = self.tracker.nodes.get((ch.name, party.node))
         if not producing and (node is None or node.state not in _CONSUMING):
             return
-        w = self._node(ch.name, party.node)
-        key = (producing, party.node, w.epoch, f.dlc)
-        if key in st.d005:
+        epoch = self._node(ch.name, party.node).epoch
+        seen = st.d005.get((producing, party.node))
+        if seen is None or seen[0] != epoch:
+            seen = st.d005[(producing, party.node)] = (epoch, set())
+        if f.dlc in seen[1]:
             return
-        st.d005.add(key)
+        seen[1].add(f.dlc)
         if producing:
             text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {f.dlc}; its "
                     f"mapping {party.map_index:04X}h has {want} bytes "
