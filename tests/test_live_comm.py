@@ -381,3 +381,71 @@ def test_check_follow_reports_them_live(name: str, rule: str, node: int) -> None
     report = json.loads(proc.stdout)
     assert [(f["rule"], f["node"], f["time"]) for f in report["findings"]] == [
         (f.rule, f.node, round(f.time, 6)) for f in offline.findings]
+
+
+def test_monitor_on_a_canopen_sync_producer_and_emcy(tmp_path: Path) -> None:
+    """A python-canopen master producing SYNC every 50 ms (its SyncProducer) and two
+    LocalNodes on a virtual bus, all OPERATIONAL; node 5 sends two EMCYs 2 ms apart
+    (python-canopen's EmcyProducer has no inhibit time; the network file gives 1015h =
+    10 ms), then the master stops its SYNC. Live: E001 at the second EMCY and Y001 at the
+    last SYNC + 75 ms, reported within 100 ms of its expiry; both confirmed by the check of
+    the recording, which has the same Y/E findings."""
+    import canopen
+    from test_live import _local_node
+
+    net_file = tmp_path / "network.toml"
+    net_file.write_text("[sync]\nperiod_us = 50000\n[nodes.5]\nemcy_inhibit_100us = 100\n")
+    channel = f"cosync-{id(tmp_path)}"
+    master = canopen.Network()
+    master.connect(interface="virtual", channel=channel)
+    slaves = canopen.Network()
+    slaves.connect(interface="virtual", channel=channel)
+    bus = can.Bus(interface="virtual", channel=channel)
+    record = tmp_path / "session.log"
+    reported: list[tuple[float, LiveFinding]] = []
+    monitor = nmtcheck.Monitor(network=net_file, record=record, channel="vcan0",
+                               on_finding=lambda lf: reported.append((time.time(), lf)))
+    notifier = can.Notifier(bus, [monitor])
+    nodes = {n: _local_node(slaves, n) for n in (5, 6)}
+    try:
+        for node in nodes.values():
+            node.nmt.state = "INITIALISING"  # boot-up 70N#00
+            node.nmt.state = "PRE-OPERATIONAL"
+            node.nmt.start_heartbeat(100)
+        time.sleep(0.2)
+        master.nmt.send_command(0x01)  # start all
+        for node in nodes.values():
+            node.nmt.state = "OPERATIONAL"
+        master.sync.start(0.05)
+        time.sleep(0.6)
+        nodes[5].emcy.send(0x8130, 0x11)
+        time.sleep(0.002)
+        nodes[5].emcy.send(0x0000, 0x00)
+        time.sleep(0.4)
+        master.sync.stop()  # the fault: no SYNC while the consumers are OPERATIONAL
+        time.sleep(0.3)
+    finally:
+        notifier.stop()
+        monitor.stop()
+        for node in nodes.values():
+            node.nmt.stop_heartbeat()
+        master.disconnect()
+        slaves.disconnect()
+        bus.shutdown()
+    res = monitor.result()
+    assert res is not None
+    t0 = res.stats.start or 0.0
+    syncs = [f for f in frames_of(record) if f.can_id == 0x080]
+    assert len(syncs) > 15 and all(f.dlc == 0 for f in syncs)
+    # ground truth: what the stack sent; the last SYNC before the stop + 1.5 x 50 ms
+    last = syncs[-1].ts
+    offline = [(f.rule, f.node, round(f.time - t0, 6)) for f in res.findings
+               if f.rule[0] in GROUPS]
+    assert ("Y001", None, round(last + 0.075 - t0, 6)) in offline
+    assert [(r, n) for r, n, _t in offline if r == "E001"] == [("E001", 5)]
+    live = [lf for lf in monitor.live_findings() if lf.rule[0] in GROUPS]
+    assert sorted((lf.rule, lf.node, round(lf.time - t0, 6)) for lf in live) == sorted(offline)
+    assert all(lf.confirmed == "confirmed" for lf in live), live
+    at, y001 = next((t, lf) for t, lf in reported
+                    if lf.rule == "Y001" and abs(lf.time - (last + 0.075)) < 1e-6)
+    assert 0 <= at - y001.time < 0.1, at - y001.time
