@@ -449,3 +449,102 @@ def test_monitor_on_a_canopen_sync_producer_and_emcy(tmp_path: Path) -> None:
     at, y001 = next((t, lf) for t, lf in reported
                     if lf.rule == "Y001" and abs(lf.time - (last + 0.075)) < 1e-6)
     assert 0 <= at - y001.time < 0.1, at - y001.time
+
+
+RANDOM_NETWORK = """master = 1
+[sync]
+period_us = 10000
+window_us = 3000
+producer = 1
+counter_overflow = 4
+[nodes.2]
+heartbeat_ms = 100
+emcy_inhibit_100us = 50
+[nodes.2.tpdo.1]
+cob_id = 0x182
+transmission_type = 254
+inhibit_100us = 20
+event_timer_ms = 30
+mapping = [0x20000020]
+[nodes.2.tpdo.2]
+cob_id = 0x282
+transmission_type = 1
+mapping = [0x20000020]
+[nodes.3]
+heartbeat_ms = 100
+[nodes.3.rpdo.1]
+cob_id = 0x182
+transmission_type = 254
+event_timer_ms = 40
+mapping = [0x20000010]
+"""
+
+
+def _random_trace(seed: int) -> list[LiveFrame]:
+    """Adversarial traffic for every live Y/D/E rule: SYNCs of any length and counter,
+    PDOs of any length on configured streams, reports, NMT commands and resets, EMCYs of
+    any length, confirmed writes of 1006h/1015h/1019h and reserved PDO types, remote
+    frames, frames on the same instant."""
+    import random
+
+    rnd = random.Random(seed)
+    t, out = 100.0, []
+    for _ in range(rnd.randint(50, 400)):
+        t += rnd.choice([0.0, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05])
+        kind = rnd.random()
+        if kind < 0.15:
+            cid, data = 0x080, bytes([rnd.randint(0, 6)])[:rnd.choice([0, 1, 1, 1, 2])]
+        elif kind < 0.35:
+            cid, data = rnd.choice([0x182, 0x282]), bytes(rnd.choice([2, 4, 4, 4, 8]))
+        elif kind < 0.5:
+            cid, data = rnd.choice([0x701, 0x702, 0x703]), bytes([rnd.choice([0, 5, 5, 0x7F, 4])])
+        elif kind < 0.6:
+            cid, data = 0x000, bytes([rnd.choice([1, 2, 0x80, 0x81, 0x82]),
+                                      rnd.choice([0, 1, 2, 3])])
+        elif kind < 0.75:
+            cid = rnd.choice([0x082, 0x083])
+            data = bytes([rnd.choice([0, 0x50, 0x30]), rnd.choice([0, 0x82, 0x81]),
+                          rnd.randint(0, 3), 0, 0, 0, 0, 0])[:rnd.choice([8, 8, 8, 4, 0])]
+        elif kind < 0.85:
+            n = rnd.choice([1, 2, 3])
+            index = rnd.choice([0x1006, 0x1019, 0x1015, 0x1800, 0x1400])
+            sub = 2 if index in (0x1800, 0x1400) else 0
+            value = rnd.choice([5000, 10000, 20000, 4, 0, 100, 245, 1]).to_bytes(4, "little")
+            out.append(_frame(t, 0x600 + n, bytes([0x23, index & 0xFF, index >> 8, sub])
+                              + value))
+            t += 0.0005
+            cid, data = 0x580 + n, bytes([0x60, index & 0xFF, index >> 8, sub, 0, 0, 0, 0])
+        else:
+            cid, data = 0x080, b""
+        if rnd.random() < 0.03:
+            out.append(_frame(t, cid, b"", rtr=True, dlc=0))
+        else:
+            out.append(_frame(t, cid, data))
+    return out
+
+
+def test_random_traces_certain_live_findings_are_confirmed(tmp_path: Path) -> None:
+    """On adversarial random traces, with the network file and without: the session's
+    result is the offline check's, and every certain live Y/D/E finding is confirmed by it
+    (a provisional one may be withdrawn or not confirmed: it says it may)."""
+    net = tmp_path / "network.toml"
+    net.write_text(RANDOM_NETWORK)
+    network = load_network(str(net))
+    counts: dict[tuple[bool, str], int] = {}
+    for seed in range(30):
+        frames = _random_trace(seed)
+        log = tmp_path / f"t{seed}.log"
+        log.write_text("".join(candump_line(f) for f in frames))
+        for used in (network, None):
+            outcome = _replay(log, used, frames)
+            assert outcome.result is not None
+            offline = check_input(str(log), 0, PROFILE, RULES, used)
+            assert [(f.rule, f.node, f.time) for f in outcome.result.findings] == [
+                (f.rule, f.node, f.time) for f in offline.findings]
+            for lf in outcome.live:
+                if lf.rule[0] in GROUPS:
+                    key = (lf.certain, lf.confirmed)
+                    counts[key] = counts.get(key, 0) + 1
+    certain = {c: k for (sure, c), k in counts.items() if sure}
+    assert set(certain) <= {"confirmed", "clock-only"}, counts
+    assert certain["confirmed"] > 500 and counts.get((False, "confirmed"), 0) > 300, counts

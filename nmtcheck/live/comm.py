@@ -257,16 +257,29 @@ class CommTracker:
         return st is None or ((st.timeout_configured() or not st.producer())
                               and not st.ambiguous)
 
-    def _op_through(self, channel: str, n: int, t0: float) -> bool:
+    @staticmethod
+    def _operational(st: NodeState | None, since: float | None = None) -> int:
+        """2: the node is OPERATIONAL; 1: it may be (after its boot-up at or before `since`,
+        before any report or command: it may have started itself, SPEC §2, which only
+        the offline timeline settles); 0: it is not."""
+        if st is None:
+            return 0
+        if st.state == OPERATIONAL:
+            return 2
+        return int(st.self_start_open and st.state == PRE_OPERATIONAL and (
+            since is None or (st.last_boot is not None and st.last_boot <= since + EPS)))
+
+    def _op_through(self, channel: str, n: int, t0: float) -> int:
         """The node is OPERATIONAL now and has been since `t0` (no change out of it, no
-        heartbeat or guarding timeout live saw)."""
+        heartbeat or guarding timeout live saw): 2 yes, 1 maybe (`_operational`), 0 no."""
         st = self.tracker.nodes.get((channel, n))
-        if st is None or st.state != OPERATIONAL:
-            return False
+        level = self._operational(st, t0)
+        if not level or st is None:
+            return 0
         if st.left_operational is not None and st.left_operational > t0 + EPS:
-            return False
+            return 0
         w = self.nodes.get((channel, n))
-        return w is None or not (w.offline_at > t0 + EPS)
+        return 0 if w is not None and w.offline_at > t0 + EPS else level
 
     def tracker_finding(self, lf: LiveFinding) -> None:
         """The NMT tracker's H001/G002: the node is OFFLINE from then on."""
@@ -332,7 +345,8 @@ class CommTracker:
         p = st.producer
         assert t_l is not None and p is not None
         self.tracker.advance(due)
-        if not self._op_through(ch.name, p.node, t_l):
+        level = self._op_through(ch.name, p.node, t_l)
+        if not level:
             return
         node = self.tracker.nodes.get((ch.name, p.node))
         w = self._node(ch.name, p.node)
@@ -345,7 +359,7 @@ class CommTracker:
                            f"{(due - t_l) * 1000:.3f} ms while OPERATIONAL; event timer "
                            f"{p.base_index:04X}h:05 = {e:g} ms ({_source(p.event_timer_ms)}),"
                            f" limit {st.event_limit_s * 1000:.3f} ms",
-                           certain=reported and self._sure(node))
+                           certain=reported and level == 2 and self._sure(node))
         if found is None or reported:
             return
         w.report_watch.append((found, t_l, float("inf")))
@@ -356,7 +370,8 @@ class CommTracker:
         assert d.armed is not None
         c = d.party
         self.tracker.advance(d.due)
-        if d.voidable or not self._op_through(ch.name, c.node, d.armed):
+        level = self._op_through(ch.name, c.node, d.armed)
+        if d.voidable or not level:
             d.armed = None
             return
         producer = f"node {st.producer.node}" if st.producer else "unknown"
@@ -367,7 +382,8 @@ class CommTracker:
             f"{(d.due - d.armed) * 1000:.3f} ms; deadline {c.base_index:04X}h:05 = {e:g} ms "
             f"({_source(c.event_timer_ms)}); producer {producer}",
             # certain once the consumer reported since t_l (its state is supervised)
-            certain=not d.watch and self._sure(self.tracker.nodes.get((ch.name, c.node))))
+            certain=not d.watch and level == 2 and self._sure(
+                self.tracker.nodes.get((ch.name, c.node))))
         if d.fired is None:
             d.armed = None
 
@@ -670,7 +686,7 @@ class CommTracker:
         # E002: one finding per run of EMCYs of one defect (a DLC other than 8, or with
         # `require_generic_bit` an error code without error-register bit 0)
         flag = 100 + f.dlc if f.dlc != 8 else 2 if (
-            self.generic_bit and code >= 0x100 and not f.data[2] & 1) else 0
+            self.generic_bit and code >= 0x100 and len(f.data) > 2 and not f.data[2] & 1) else 0
         if flag and flag != w.e002_run:
             self._find("E002", ch.name, n, f.ts,
                        f"EMCY {code:04X}h with error register {f.data[2]:02X}h: bit 0 "
@@ -726,8 +742,10 @@ class CommTracker:
         # D002: an event-driven TPDO closer to the previous one than its inhibit time
         if st.inhibit_s and p is not None:
             bad = False
-            if st.last is not None and ts - st.last < st.inhibit_s and self._op_through(
-                    ch.name, p.node, st.last):
+            level = 0
+            if st.last is not None and ts - st.last < st.inhibit_s:
+                level = self._op_through(ch.name, p.node, st.last)
+            if level:
                 inhibit = st.inhibit_s
                 dt = ts - st.last
                 q, q_sure = st.last_q
@@ -739,7 +757,7 @@ class CommTracker:
                                f"= {p.inhibit_100us.value} x 100 us = {inhibit * 1000:g} ms "
                                f"({_source(p.inhibit_100us)}), allowance "
                                f"{(self.r + q) * 1000:.3f} ms",
-                               certain=q_sure and self._sure(
+                               certain=q_sure and level == 2 and self._sure(
                                    self.tracker.nodes.get((ch.name, p.node))))
             st.d002_run = bad
             st.last, st.last_q = ts, self._q(ch)
@@ -755,7 +773,7 @@ class CommTracker:
             if w is not None and w.silent_watch:  # the stream went on: not silent
                 w.silent_watch = [x for x in w.silent_watch if x[2] is not st]
             node = self.tracker.nodes.get((ch.name, p.node))
-            st.d001_armed = ts if node is not None and node.state == OPERATIONAL else None
+            st.d001_armed = ts if self._operational(node) else None
             st.d001_due = round(ts + st.event_limit_s, 9)
             if st.d001_armed is not None:
                 self.next_due = min(self.next_due, st.d001_due)
@@ -768,7 +786,7 @@ class CommTracker:
                 self._node(ch.name, d.party.node).report_watch.append((d.fired, d.armed, ts))
             d.fired, d.voidable = None, False
             node = self.tracker.nodes.get((ch.name, d.party.node))
-            if node is None or node.state != OPERATIONAL:
+            if not self._operational(node):
                 d.armed, d.watch = None, False
                 continue
             d.armed, d.watch = ts, True
@@ -783,11 +801,13 @@ class CommTracker:
         assert last is not None
         p = st.producer
         node = self.tracker.nodes.get((ch.name, p.node)) if p is not None else None
+        level = 2
         late = f.ts - last > st.window_s + self.r + EPS
         interval: tuple[float | None, float] = (None, 0.0)
         if p is not None:
             w = self.nodes.get((ch.name, p.node))
-            late = late and node is not None and node.state == OPERATIONAL
+            level = self._operational(node)
+            late = late and level > 0
             interval = (node.left_operational if node is not None else None,
                         w.offline_at if w is not None else float("-inf"))
         prev, st.y004_run = st.y004_run, interval if late else None
@@ -800,7 +820,7 @@ class CommTracker:
                    f"{what} {st.cob_id:03X}h ({party}, type {st.tt}) "
                    f"{(f.ts - last) * 1000:.3f} ms after SYNC at {last - start:.6f} s; "
                    f"synchronous window 1007h = {st.window_s * 1000:.3f} ms "
-                   f"({_source(st.window)})", certain=self._sure(node))
+                   f"({_source(st.window)})", certain=level == 2 and self._sure(node))
 
     def _d005(self, ch: _Channel, st: _Stream, f: Any, producing: bool,
               party: pdo_stage.Party, want: int) -> None:
