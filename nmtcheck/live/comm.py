@@ -56,11 +56,14 @@ class _Node:
 
     written: dict[int, tuple[int, float] | None] = field(default_factory=dict)  # None: voided
     request: tuple[int, int] | None = None  # a pending expedited download: index, value
-    epoch: int = 0  # boot-ups and resets so far (D005 runs, E001 pairs)
+    epoch: int = 0  # boot-ups and resets so far (D005 runs)
+    # the first boot-up or reset after its previous EMCY (E001: one strictly between two
+    # EMCYs separates them; one on either's instant does not, as offline)
+    cleared_at: float | None = None
     writes_1015: int = 0  # confirmed writes of 1015h (E001 pairs)
     offline_at: float = float("-inf")  # the latest H001/G002 live saw for it
     emcy_ts: float | None = None  # its previous EMCY
-    emcy_tag: tuple[int, int] = (0, 0)  # (epoch, writes_1015) at it
+    emcy_writes: int = 0  # writes_1015 at it
     e001_run: bool = False
     e002_run: int = 0  # the defect (100 + DLC) of the run of malformed EMCYs, 0: none
     last_8250: float = float("-inf")  # its latest EMCY 8250h (D004)
@@ -109,8 +112,10 @@ class _Stream:
     last: float | None = None  # its previous frame (D002)
     last_q: tuple[float, bool] = (0.0, True)  # q(F1) and whether it is surely that
     d002_run: bool = False
-    # D005: per (producer?, party) the DLCs reported since its last boot-up or reset
-    d005: dict[tuple[bool, int], tuple[int, set[int]]] = field(default_factory=dict)
+    # D005: per (producer?, party) and run (its boot-ups and resets), each offending DLC's
+    # first and latest frame
+    d005: dict[tuple[bool, int], tuple[int, dict[int, tuple[float, float]]]] = field(
+        default_factory=dict)
     deadlines: list[_Deadline] = field(default_factory=list)  # D004, judged consumers only
 
     def __post_init__(self) -> None:
@@ -159,7 +164,10 @@ class _Channel:
     last_counter: int | None = None  # the latest valid counter (Y003)
     y002_run: tuple[int, int] = (0, -1)  # (defect, segment) of the previous SYNC
     sync_due: float | None = None
-    sync_limit: tuple[float, str, bool] | None = None  # T, how, configured
+    sync_limit: tuple[float, str, bool] | None = None  # T, how, sure (configured by a file)
+    # a confirmed write of 1019h was seen: whether C is known in a segment, and which,
+    # rests on which resets reach which node, which only the offline timeline settles
+    c_written: bool = False
 
 
 def _source(v: Value) -> str:
@@ -438,10 +446,14 @@ class CommTracker:
         ch.segment += 1
         ch.sync_due = None
 
-    def _clear(self, ch: _Channel, n: int) -> None:
-        """A boot-up of N or a reset command that reaches it: what SDO wrote is void."""
+    def _clear(self, ch: _Channel, n: int, ts: float) -> None:
+        """A boot-up of N or a reset command that reaches it at `ts`: what SDO wrote is
+        void, and a new run of D005 and of E001's pairs begins."""
         w = self._node(ch.name, n)
         w.epoch += 1
+        self._d005_new_run(ch, n, ts, w.epoch)
+        if w.emcy_ts is not None and w.cleared_at is None and ts > w.emcy_ts + EPS:
+            w.cleared_at = ts
         for index in list(w.written):
             w.written[index] = None
 
@@ -454,12 +466,12 @@ class CommTracker:
         if not target or target == ch.producer:
             self._end_segment(ch)
         if target:
-            self._clear(ch, target)
+            self._clear(ch, target, f.ts)
         else:
             master = self.tracker.master(ch.name)
             for (c, n) in list(self.tracker.nodes):
                 if c == ch.name and n != master:
-                    self._clear(ch, n)
+                    self._clear(ch, n, f.ts)
 
     def _report(self, ch: _Channel, f: Any, n: int) -> None:
         w = self._node(ch.name, n)
@@ -468,7 +480,7 @@ class CommTracker:
         if f.rtr or f.dlc != 1 or not f.data:
             return
         if f.data[0] == 0:  # boot-up
-            self._clear(ch, n)
+            self._clear(ch, n, f.ts)
             if n == ch.producer:
                 self._end_segment(ch)
             return
@@ -527,6 +539,8 @@ class CommTracker:
         if cmd != 0x60 or req is None or req[0] != index or sub != 0:
             return
         w.written[index] = (req[1], f.ts)
+        if index == 0x1019:
+            ch.c_written = True
         if index == 0x1015:
             w.writes_1015 += 1
         if index in (0x1005, 0x1006) and (ch.producer is None or ch.producer == n):
@@ -601,8 +615,10 @@ class CommTracker:
             if not period.value:
                 return
             p = float(period.value) / 1e6
+            # a period written by SDO holds until a reset reaches its node: which ones do
+            # only the offline timeline settles
             ch.sync_limit = (self.factor * p, f"1006h {p * 1000:.3f} ms ({_source(period)})",
-                             True)
+                             period.source != "sdo")
         else:
             if ch.syncs <= self.min_intervals:
                 return
@@ -647,7 +663,7 @@ class CommTracker:
             text = f"SYNC DLC {dlc} after DLC {ch.seg_first_dlc} in the same segment"
         else:
             text = f"SYNC counter {f.data[0]} outside 1..{c or 240}"
-        self._find("Y002", ch.name, None, f.ts, text)
+        self._find("Y002", ch.name, None, f.ts, text, certain=defect == 1 or not ch.c_written)
         return defect
 
     def _y003(self, ch: _Channel, f: Any, v: int, c: int | None) -> None:
@@ -666,7 +682,8 @@ class CommTracker:
         else:
             what = "went back"
         self._find("Y003", ch.name, ch.producer, f.ts,
-                   f"SYNC counter {v} after {prev} (expected {expected}): {what}")
+                   f"SYNC counter {v} after {prev} (expected {expected}): {what}",
+                   certain=not ch.c_written)
 
     # EMCY ----------------------------------------------------------------------------------
 
@@ -701,9 +718,10 @@ class CommTracker:
         inhibit = self._in_force(ch.name, n, 0x1015, net_inh if net_inh is not None else (
             dev.emcy_inhibit_100us if dev is not None else None),
             "network" if net_inh is not None else "device-file")
-        tag = (w.epoch, w.writes_1015)
+        cleared = w.cleared_at is not None and w.cleared_at < f.ts - EPS
         bad = False
-        if w.emcy_ts is not None and tag == w.emcy_tag and inhibit.known and inhibit.value:
+        if w.emcy_ts is not None and not cleared and w.writes_1015 == w.emcy_writes and (
+                inhibit.known and inhibit.value):
             limit = float(inhibit.value) * 1e-4
             dt = f.ts - w.emcy_ts
             bad = dt < limit - self.r - EPS
@@ -712,9 +730,10 @@ class CommTracker:
                 self._find("E001", ch.name, n, f.ts,
                            f"EMCY {max(code, 0):04X}h of node {n} {dt * 1000:.3f} ms after "
                            f"the previous one; inhibit time 1015h = {i:g} x 100 us = "
-                           f"{i / 10:g} ms ({_source(inhibit)})")
+                           f"{i / 10:g} ms ({_source(inhibit)})",
+                           certain=inhibit.source != "sdo")
         w.e001_run = bad
-        w.emcy_ts, w.emcy_tag = f.ts, tag
+        w.emcy_ts, w.emcy_writes, w.cleared_at = f.ts, w.writes_1015, None
 
     # PDO -----------------------------------------------------------------------------------
 
@@ -829,22 +848,43 @@ class CommTracker:
         node = self.tracker.nodes.get((ch.name, party.node))
         if not producing and (node is None or node.state not in _CONSUMING):
             return
-        epoch = self._node(ch.name, party.node).epoch
+        w = self._node(ch.name, party.node)
         seen = st.d005.get((producing, party.node))
-        if seen is None or seen[0] != epoch:
-            seen = st.d005[(producing, party.node)] = (epoch, set())
-        if f.dlc in seen[1]:
-            return
-        seen[1].add(f.dlc)
+        if seen is None or seen[0] != w.epoch:
+            seen = st.d005[(producing, party.node)] = (w.epoch, {})
+        got = seen[1].get(f.dlc)
+        seen[1][f.dlc] = (got[0] if got is not None else f.ts, f.ts)
+        if got is None:
+            self._d005_find(ch, st, party, producing, want, f.dlc, f.ts, node)
+
+    def _d005_find(self, ch: _Channel, st: _Stream, party: pdo_stage.Party, producing: bool,
+                   want: int, dlc: int, ts: float, node: NodeState | None) -> None:
         if producing:
-            text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {f.dlc}; its "
+            text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {dlc}; its "
                     f"mapping {party.map_index:04X}h has {want} bytes "
                     f"({_source(party.mapping)})")
         else:
-            what = ("discards it and raises EMCY 8210h" if f.dlc < want
-                    else "raises EMCY 8220h")
-            text = (f"RPDO {st.cob_id:03X}h has DLC {f.dlc}; node {party.node} maps {want} "
+            what = "discards it and raises EMCY 8210h" if dlc < want else "raises EMCY 8220h"
+            text = (f"RPDO {st.cob_id:03X}h has DLC {dlc}; node {party.node} maps {want} "
                     f"bytes ({party.map_index:04X}h, {_source(party.mapping)}): node "
                     f"{party.node} {what}")
-        self._find("D005", ch.name, party.node, f.ts, text,
+        self._find("D005", ch.name, party.node, ts, text,
                    certain=producing or self._sure(node))
+
+    def _d005_new_run(self, ch: _Channel, n: int, ts: float, epoch: int) -> None:
+        """N's boot-up or reset at `ts`: D005's runs of N begin anew. An offending frame on
+        the same instant came before it in the log, yet the offline check counts it in the
+        new run: it opens that run (and is reported now if its DLC was known already)."""
+        node = self.tracker.nodes.get((ch.name, n))
+        for st in ch.streams.values():
+            for producing, party, want in st.mapped:
+                seen = st.d005.get((producing, n)) if party.node == n else None
+                if seen is None:
+                    continue
+                kept = {}
+                for dlc, (first, last) in seen[1].items():
+                    if abs(last - ts) <= EPS:
+                        kept[dlc] = (last, last)
+                        if abs(first - ts) > EPS:
+                            self._d005_find(ch, st, party, producing, want, dlc, last, node)
+                st.d005[(producing, n)] = (epoch, kept)
