@@ -19,11 +19,17 @@ from __future__ import annotations
 
 import bisect
 import statistics
-from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
+from nmtcheck.live.comm_state import (
+    CommChannel,
+    CommNode,
+    Deadline,
+    PdoStream,
+    source_text,
+    type_in,
+)
 from nmtcheck.live.tracker import LiveFinding, NodeState, Tracker
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync as sync_stage
@@ -42,140 +48,10 @@ from nmtcheck.settings.profiles import Profile
 
 EPS = 1e-9
 TEXT_RESOLUTION_S = 1e-6  # the session's recording is candump text (microseconds)
-RECENT_FRAMES = 256  # a channel's recent frame times: a frame's wait for the bus (q)
 D8_KEPT = 16  # the smallest intervals before an 8-byte frame, for d8
 SYNC_MEDIAN_EVERY = 64  # a measured SYNC period is recomputed every this many SYNCs
-SYNC_INTERVALS = 1024  # the SYNC intervals of a segment kept for a measured period
 _WRITTEN = (0x1005, 0x1006, 0x1007, 0x1015, 0x1019)  # the sub-0 objects the rules read
 _CONSUMING = (PRE_OPERATIONAL, OPERATIONAL)
-
-
-@dataclass
-class _Node:
-    """What the comm rules keep per (channel, node)."""
-
-    written: dict[int, tuple[int, float] | None] = field(default_factory=dict)  # None: voided
-    request: tuple[int, int] | None = None  # a pending expedited download: index, value
-    epoch: int = 0  # boot-ups and resets so far (D005 runs)
-    # the first boot-up or reset after its previous EMCY (E001: one strictly between two
-    # EMCYs separates them; one on either's instant does not, as offline)
-    cleared_at: float | None = None
-    writes_1015: int = 0  # confirmed writes of 1015h (E001 pairs)
-    offline_at: float = float("-inf")  # the latest H001/G002 live saw for it
-    emcy_ts: float | None = None  # its previous EMCY
-    emcy_writes: int = 0  # writes_1015 at it
-    e001_run: bool = False
-    e002_run: int = 0  # the defect (100 + DLC) of the run of malformed EMCYs, 0: none
-    last_8250: float = float("-inf")  # its latest EMCY 8250h (D004)
-    last_ec: float = float("-inf")  # its latest frame on 700h + N, a request too (D001)
-    last_report: float = float("-inf")  # its latest heartbeat or guarding response
-    # findings of gaps that began at t_l, waiting for the node's first report after t_l
-    # (§9.1.6: another state with no command to it voids them): (finding, t_l, the
-    # stream's next frame after the gap (D004: an EMCY 8250h before it keeps it))
-    report_watch: list[tuple[LiveFinding, float, float]] = field(default_factory=list)
-    # D001 findings whose producer sent nothing since t_l: void if it goes OFFLINE first
-    silent_watch: list[tuple[LiveFinding, float, _Stream]] = field(default_factory=list)
-
-
-@dataclass
-class _Deadline:
-    """An armed RPDO deadline of one consumer (D004)."""
-
-    party: pdo_stage.Party
-    armed: float | None = None  # t_l
-    due: float = float("inf")
-    fired: LiveFinding | None = None
-    watch: bool = False  # the consumer's first report after t_l is still to come
-    # that report showed another state with no command to it (§9.1.6): the finding goes
-    # unless an EMCY 8250h of the consumer comes at or after the deadline, before the
-    # stream's next frame
-    voidable: bool = False
-
-
-@dataclass
-class _Stream:
-    """A PDO COB-ID on a channel with its parties (processes/pdo.channel_parties)."""
-
-    cob_id: int
-    producer: pdo_stage.Party | None
-    consumers: list[pdo_stage.Party]
-    window: Value = UNKNOWN  # W (1007h) of §9.1.1
-    inhibit_s: float = 0.0  # D002: the producer's inhibit time (type 254/255), 0: not judged
-    window_s: float = 0.0  # Y004: W of a synchronous stream, 0: not judged
-    tt: int = -1  # the stream's transmission type (§9.1.5), -1: unknown
-    y004_run: tuple[float | None, float] | None = None  # the OPERATIONAL interval of a run
-    event_limit_s: float = 0.0  # D001: L of the producer's event timer, 0: not judged
-    d001_armed: float | None = None  # t_l of the gap D001 watches
-    d001_due: float = float("inf")
-    # D005: (producer?, party, mapped length) of each party whose mapping is known
-    mapped: list[tuple[bool, pdo_stage.Party, int]] = field(default_factory=list)
-    last: float | None = None  # its previous frame (D002)
-    last_q: tuple[float, bool] = (0.0, True)  # q(F1) and whether it is surely that
-    d002_run: bool = False
-    # D005: per (producer?, party) and run (its boot-ups and resets), each offending DLC's
-    # first and latest frame
-    d005: dict[tuple[bool, int], tuple[int, dict[int, tuple[float, float]]]] = field(
-        default_factory=dict)
-    deadlines: list[_Deadline] = field(default_factory=list)  # D004, judged consumers only
-
-    def __post_init__(self) -> None:
-        p = self.producer
-        if p is not None and p.inhibit_100us.value and _type_in(p, pdo_stage.EVENT_DRIVEN):
-            self.inhibit_s = float(p.inhibit_100us.value) * 1e-4
-        tt = next((x.transmission_type for x in [p, *self.consumers]
-                   if x is not None and x.transmission_type.known), UNKNOWN)
-        self.tt = int(tt.value or 0) if tt.known else -1
-        if self.tt in pdo_stage.SYNCHRONOUS and self.window.value:
-            self.window_s = float(self.window.value) / 1e6
-        self.mapped = [(which, party, int(party.mapping.value or 0)) for which, party in (
-            [(True, p)] if p is not None else []) + [(False, c) for c in self.consumers]
-            if party.mapping.value]
-        # synchronous RPDOs are left alone (SPEC_COMM §9.2.2 D004)
-        self.deadlines = [_Deadline(c) for c in self.consumers if c.event_timer_ms.value
-                          and not _type_in(c, pdo_stage.SYNCHRONOUS)]
-
-
-def _type_in(party: pdo_stage.Party, types: range | tuple[int, ...]) -> bool:
-    tt = party.transmission_type
-    return tt.known and int(tt.value or 0) in types
-
-
-@dataclass
-class _Channel:
-    name: str
-    recent: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_FRAMES))
-    d8: list[float] = field(default_factory=list)  # the smallest intervals before DLC 8
-    d8_value: float | None = None  # d8 of §9.1.6 from them (None: not established)
-    streams: dict[int, _Stream] = field(default_factory=dict)
-    watched: dict[int, list[_Deadline]] = field(default_factory=dict)  # consumer -> D004's
-    ec_watch: set[int] = field(default_factory=set)  # nodes whose 700h + N frames matter
-    needs_q: bool = False  # a D002 stream: the frame times are kept for q (§9.1.6)
-    sync_cob: int = 0x80
-    producer: int | None = None
-    segment: int = 0  # segment ends so far
-    sync_segment: int = -1  # the segment of the latest SYNC
-    seg_first_dlc: int | None = None
-    seg_values: tuple[Value, Value] = (UNKNOWN, UNKNOWN)  # P, C at the segment's start
-    seg_broken: bool = False  # Y003 said in this segment
-    intervals: deque[float] = field(default_factory=lambda: deque(maxlen=SYNC_INTERVALS))
-    syncs: int = 0  # SYNC frames of the segment
-    measured: float | None = None  # the median interval so far
-    last_sync: float | None = None
-    last_counter: int | None = None  # the latest valid counter (Y003)
-    y002_run: tuple[int, int] = (0, -1)  # (defect, segment) of the previous SYNC
-    sync_due: float | None = None
-    sync_limit: tuple[float, str, bool] | None = None  # T, how, sure (configured by a file)
-    # a confirmed write of 1019h was seen: whether C is known in a segment, and which,
-    # rests on which resets reach which node, which only the offline timeline settles
-    c_written: bool = False
-
-
-def _source(v: Value) -> str:
-    if v.source == "sdo":
-        return "written by SDO"
-    if v.source == "device-file" and v.node is not None:
-        return f"node {v.node}'s device file"
-    return str(v.source)
 
 
 class CommTracker:
@@ -195,16 +71,16 @@ class CommTracker:
         self.r = float(given) / 1e6 if given else TEXT_RESOLUTION_S
         self.on = {c for c in ("Y001", "Y002", "Y003", "Y004", "D001", "D002", "D004", "D005",
                                "D006", "E001", "E002") if c in tracker.active}
-        self.channels: dict[str, _Channel] = {}
-        self.nodes: dict[tuple[str, int], _Node] = {}
+        self.channels: dict[str, CommChannel] = {}
+        self.nodes: dict[tuple[str, int], CommNode] = {}
         self.next_due = float("inf")
 
     # -- helpers ---------------------------------------------------------------------------
 
-    def _channel(self, name: str) -> _Channel:
+    def _channel(self, name: str) -> CommChannel:
         ch = self.channels.get(name)
         if ch is None:
-            ch = self.channels[name] = _Channel(name)
+            ch = self.channels[name] = CommChannel(name)
             net = self.network
             if net is not None:
                 keys = net.sync_keys(name)
@@ -214,23 +90,23 @@ class CommTracker:
                 prod = sync_stage._producer(keys, devices, [])
                 ch.producer = int(prod.value) if prod.known and prod.value else None
                 for cob, producer, consumers, w in pdo_stage.channel_parties(net, name):
-                    st = ch.streams[cob] = _Stream(cob, producer, consumers, w)
+                    st = ch.streams[cob] = PdoStream(cob, producer, consumers, w)
                     ch.needs_q = ch.needs_q or bool(st.inhibit_s)
                     for d in st.deadlines:
                         ch.watched.setdefault(d.party.node, []).append(d)
                         ch.ec_watch.add(d.party.node)
-                    if producer is not None and _type_in(producer, pdo_stage.EVENT_DRIVEN) \
+                    if producer is not None and type_in(producer, pdo_stage.EVENT_DRIVEN) \
                             and producer.event_timer_ms.value:
                         st.event_limit_s = (float(producer.event_timer_ms.value) / 1000
                                             * (1 + self.d001_tolerance) + self.d001_margin)
                         ch.ec_watch.add(producer.node)
         return ch
 
-    def _node(self, channel: str, n: int) -> _Node:
+    def _node(self, channel: str, n: int) -> CommNode:
         key = (channel, n)
         got = self.nodes.get(key)
         if got is None:
-            got = self.nodes[key] = _Node()
+            got = self.nodes[key] = CommNode()
         return got
 
     def _in_force(self, channel: str, n: int, index: int, files: int | None,
@@ -329,7 +205,7 @@ class CommTracker:
                         nxt = min(nxt, d.due + self.r)
         self.next_due = nxt
 
-    def _y001(self, ch: _Channel) -> None:
+    def _y001(self, ch: CommChannel) -> None:
         due, last, limit = ch.sync_due, ch.last_sync, ch.sync_limit
         ch.sync_due = None
         assert due is not None and last is not None and limit is not None
@@ -342,12 +218,12 @@ class CommTracker:
             return
         t_limit, how, configured = limit
         start = self.tracker.start or 0.0
-        self._find("Y001", ch.name, ch.producer, due,
+        ch.y001_fired = self._find("Y001", ch.name, ch.producer, due,
                    f"no SYNC for at least {(due - last) * 1000:.3f} ms after "
                    f"{last - start:.6f} s; timeout {t_limit * 1000:.3f} ms = {self.factor:g} "
                    f"x {how}", certain=configured and all(self._sure(st) for st in others))
 
-    def _d001(self, ch: _Channel, st: _Stream) -> None:
+    def _d001(self, ch: CommChannel, st: PdoStream) -> None:
         t_l, due = st.d001_armed, st.d001_due
         st.d001_armed = None
         p = st.producer
@@ -362,10 +238,10 @@ class CommTracker:
         # and it did not fall silent (else its next report or OFFLINE may void it)
         reported = w.last_report > t_l + EPS
         e = float(p.event_timer_ms.value or 0)
-        found = self._find("D001", ch.name, p.node, due,
+        found = st.d001_fired = self._find("D001", ch.name, p.node, due,
                            f"no TPDO {st.cob_id:03X}h from node {p.node} for at least "
                            f"{(due - t_l) * 1000:.3f} ms while OPERATIONAL; event timer "
-                           f"{p.base_index:04X}h:05 = {e:g} ms ({_source(p.event_timer_ms)}),"
+                           f"{p.base_index:04X}h:05 = {e:g} ms ({source_text(p.event_timer_ms)}),"
                            f" limit {st.event_limit_s * 1000:.3f} ms",
                            certain=reported and level == 2 and self._sure(node))
         if found is None or reported:
@@ -374,7 +250,7 @@ class CommTracker:
         if w.last_ec <= t_l + EPS:  # nor any frame on 700h + N
             w.silent_watch.append((found, t_l, st))
 
-    def _d004(self, ch: _Channel, st: _Stream, d: _Deadline) -> None:
+    def _d004(self, ch: CommChannel, st: PdoStream, d: Deadline) -> None:
         assert d.armed is not None
         c = d.party
         self.tracker.advance(d.due)
@@ -388,7 +264,7 @@ class CommTracker:
             "D004", ch.name, c.node, d.due,
             f"no RPDO {st.cob_id:03X}h for node {c.node} for at least "
             f"{(d.due - d.armed) * 1000:.3f} ms; deadline {c.base_index:04X}h:05 = {e:g} ms "
-            f"({_source(c.event_timer_ms)}); producer {producer}",
+            f"({source_text(c.event_timer_ms)}); producer {producer}",
             # certain once the consumer reported since t_l (its state is supervised)
             certain=not d.watch and level == 2 and self._sure(
                 self.tracker.nodes.get((ch.name, c.node))))
@@ -442,11 +318,11 @@ class CommTracker:
 
     # segment ends, resets, boot-ups, writes -------------------------------------------------
 
-    def _end_segment(self, ch: _Channel) -> None:
+    def _end_segment(self, ch: CommChannel) -> None:
         ch.segment += 1
         ch.sync_due = None
 
-    def _clear(self, ch: _Channel, n: int, ts: float) -> None:
+    def _clear(self, ch: CommChannel, n: int, ts: float) -> None:
         """A boot-up of N or a reset command that reaches it at `ts`: what SDO wrote is
         void, and a new run of D005 and of E001's pairs begins."""
         w = self._node(ch.name, n)
@@ -457,7 +333,7 @@ class CommTracker:
         for index in list(w.written):
             w.written[index] = None
 
-    def _nmt(self, ch: _Channel, f: Any) -> None:
+    def _nmt(self, ch: CommChannel, f: Any) -> None:
         if f.rtr or f.dlc != 2 or len(f.data) < 2 or f.data[0] not in RESETS:
             return
         target = f.data[1]
@@ -473,7 +349,7 @@ class CommTracker:
                 if c == ch.name and n != master:
                     self._clear(ch, n, f.ts)
 
-    def _report(self, ch: _Channel, f: Any, n: int) -> None:
+    def _report(self, ch: CommChannel, f: Any, n: int) -> None:
         w = self._node(ch.name, n)
         w.last_ec = f.ts
         w.silent_watch.clear()  # N did not fall silent
@@ -508,13 +384,19 @@ class CommTracker:
                 # it left OPERATIONAL because of this timeout: an 8250h says so
                 d.voidable = d.fired is None or w.last_8250 < d.due - EPS
 
+    def _late(self, lf: LiveFinding | None, ts: float) -> None:
+        """The gap's next frame, stamped at or before the moment the clock fired `lf` at:
+        it reached the session late (a driver queue), and the gap was no gap."""
+        if lf is not None and ts <= lf.time + EPS:
+            self._withdraw(lf)
+
     def _withdraw(self, lf: LiveFinding) -> None:
         if not lf.withdrawn:
             lf.withdrawn = True
             if self.tracker.withdraw is not None:
                 self.tracker.withdraw(lf)
 
-    def _sdo(self, ch: _Channel, f: Any, n: int) -> None:
+    def _sdo(self, ch: CommChannel, f: Any, n: int) -> None:
         """Confirmed expedited downloads of the objects the rules read (§9.1.1)."""
         if f.dlc < 4 or len(f.data) < 4:
             return
@@ -548,7 +430,7 @@ class CommTracker:
 
     # SYNC ----------------------------------------------------------------------------------
 
-    def _segment_values(self, ch: _Channel) -> tuple[Value, Value]:
+    def _segment_values(self, ch: CommChannel) -> tuple[Value, Value]:
         """P (Y001) and C (1019h) in force at a segment's first SYNC (§9.1.1)."""
         net = self.network
         keys = net.sync_keys(ch.name) if net is not None else None
@@ -592,8 +474,10 @@ class CommTracker:
             overflow = first if len(found) == 1 else UNKNOWN
         return period, overflow
 
-    def _sync(self, ch: _Channel, f: Any) -> None:
+    def _sync(self, ch: CommChannel, f: Any) -> None:
         ts = f.ts
+        self._late(ch.y001_fired, ts)
+        ch.y001_fired = None
         if ch.sync_segment != ch.segment:  # a new segment begins at this SYNC
             ch.sync_segment = ch.segment
             ch.seg_values = self._segment_values(ch)
@@ -617,7 +501,7 @@ class CommTracker:
             p = float(period.value) / 1e6
             # a period written by SDO holds until a reset reaches its node: which ones do
             # only the offline timeline settles
-            ch.sync_limit = (self.factor * p, f"1006h {p * 1000:.3f} ms ({_source(period)})",
+            ch.sync_limit = (self.factor * p, f"1006h {p * 1000:.3f} ms ({source_text(period)})",
                              period.source != "sdo")
         else:
             if ch.syncs <= self.min_intervals:
@@ -630,7 +514,7 @@ class CommTracker:
         ch.sync_due = round(ts + ch.sync_limit[0], 9)
         self.next_due = min(self.next_due, ch.sync_due)
 
-    def _y002(self, ch: _Channel, f: Any, c: int | None) -> int:
+    def _y002(self, ch: CommChannel, f: Any, c: int | None) -> int:
         """The SYNC frame's defect (checks/sync._defects), one finding per run."""
         dlc = f.dlc
         if f.rtr:
@@ -656,7 +540,7 @@ class CommTracker:
             text = f"remote frame on the SYNC COB-ID {ch.sync_cob:03X}h"
         elif defect == 2:
             text = (f"SYNC with {dlc} data byte(s); 1019h = {c} "
-                    f"({_source(ch.seg_values[1])}) requires {0 if c == 0 else 1}: "
+                    f"({source_text(ch.seg_values[1])}) requires {0 if c == 0 else 1}: "
                     "CANopenNode consumers drop it, CANopenNode and Lely consumers raise "
                     "EMCY 8240h")
         elif defect == 3:
@@ -666,7 +550,7 @@ class CommTracker:
         self._find("Y002", ch.name, None, f.ts, text, certain=defect == 1 or not ch.c_written)
         return defect
 
-    def _y003(self, ch: _Channel, f: Any, v: int, c: int | None) -> None:
+    def _y003(self, ch: CommChannel, f: Any, v: int, c: int | None) -> None:
         prev, ch.last_counter = ch.last_counter, v
         if prev is None or ch.seg_broken:
             return
@@ -687,7 +571,7 @@ class CommTracker:
 
     # EMCY ----------------------------------------------------------------------------------
 
-    def _emcy(self, ch: _Channel, f: Any, n: int) -> None:
+    def _emcy(self, ch: CommChannel, f: Any, n: int) -> None:
         w = self._node(ch.name, n)
         if f.rtr:
             self._find("E002", ch.name, n, f.ts,
@@ -730,14 +614,14 @@ class CommTracker:
                 self._find("E001", ch.name, n, f.ts,
                            f"EMCY {max(code, 0):04X}h of node {n} {dt * 1000:.3f} ms after "
                            f"the previous one; inhibit time 1015h = {i:g} x 100 us = "
-                           f"{i / 10:g} ms ({_source(inhibit)})",
+                           f"{i / 10:g} ms ({source_text(inhibit)})",
                            certain=inhibit.source != "sdo")
         w.e001_run = bad
         w.emcy_ts, w.emcy_writes, w.cleared_at = f.ts, w.writes_1015, None
 
     # PDO -----------------------------------------------------------------------------------
 
-    def _q(self, ch: _Channel) -> tuple[float, bool]:
+    def _q(self, ch: CommChannel) -> tuple[float, bool]:
         """q(F) of §9.1.6 for the frame just recorded (checks/pdo.bus_wait), with the d8
         known so far, and whether it is surely that (d8 only shrinks as frames come)."""
         times = ch.recent
@@ -755,50 +639,68 @@ class CommTracker:
         q = 0.0 if j == len(times) - 1 else float(times[-1] - times[j]) + d8
         return q, False
 
-    def _pdo(self, ch: _Channel, st: _Stream, f: Any) -> None:
-        ts = f.ts
+    def _pdo(self, ch: CommChannel, st: PdoStream, f: Any) -> None:
         p = st.producer
-        # D002: an event-driven TPDO closer to the previous one than its inhibit time
         if st.inhibit_s and p is not None:
-            bad = False
-            level = 0
-            if st.last is not None and ts - st.last < st.inhibit_s:
-                level = self._op_through(ch.name, p.node, st.last)
-            if level:
-                inhibit = st.inhibit_s
-                dt = ts - st.last
-                q, q_sure = st.last_q
-                bad = dt < inhibit - self.r - q - EPS
-                if bad and not st.d002_run:
-                    self._find("D002", ch.name, p.node, ts,
-                               f"TPDO {st.cob_id:03X}h of node {p.node} {dt * 1000:.3f} ms "
-                               f"after the previous one; inhibit time {p.base_index:04X}h:03 "
-                               f"= {p.inhibit_100us.value} x 100 us = {inhibit * 1000:g} ms "
-                               f"({_source(p.inhibit_100us)}), allowance "
-                               f"{(self.r + q) * 1000:.3f} ms",
-                               certain=q_sure and level == 2 and self._sure(
-                                   self.tracker.nodes.get((ch.name, p.node))))
-            st.d002_run = bad
-            st.last, st.last_q = ts, self._q(ch)
+            self._d002(ch, st, p, f.ts)
         if st.window_s and ch.last_sync is not None:
             self._y004(ch, st, f)
         # D005: the DLC against the producer's (a) and each consumer's (b) mapping
         for producing, party, want in st.mapped:
             if f.dlc != want:
                 self._d005(ch, st, f, producing, party, want)
-        # D001: the producer's event timer, from a frame sent while OPERATIONAL
         if st.event_limit_s and p is not None:
-            w = self.nodes.get((ch.name, p.node))
-            if w is not None and w.silent_watch:  # the stream went on: not silent
-                w.silent_watch = [x for x in w.silent_watch if x[2] is not st]
-            node = self.tracker.nodes.get((ch.name, p.node))
-            st.d001_armed = ts if self._operational(node) else None
-            st.d001_due = round(ts + st.event_limit_s, 9)
-            if st.d001_armed is not None:
-                self.next_due = min(self.next_due, st.d001_due)
-        # D004: each consumer's deadline, armed by a frame received while OPERATIONAL
+            self._d001_arm(ch, st, p, f.ts)
+        if st.deadlines:
+            self._d004_arm(ch, st, f.ts)
+
+    def _d002(self, ch: CommChannel, st: PdoStream, p: pdo_stage.Party, ts: float) -> None:
+        """An event-driven TPDO closer to the previous one than its inhibit time, the
+        producer OPERATIONAL through both; one finding per run of such pairs."""
+        bad = False
+        level = 0
+        if st.last is not None and ts - st.last < st.inhibit_s:
+            level = self._op_through(ch.name, p.node, st.last)
+        if level and st.last is not None:
+            inhibit = st.inhibit_s
+            dt = ts - st.last
+            q, q_sure = st.last_q
+            bad = dt < inhibit - self.r - q - EPS
+            if bad and not st.d002_run:
+                self._find("D002", ch.name, p.node, ts,
+                           f"TPDO {st.cob_id:03X}h of node {p.node} {dt * 1000:.3f} ms "
+                           f"after the previous one; inhibit time {p.base_index:04X}h:03 "
+                           f"= {p.inhibit_100us.value} x 100 us = {inhibit * 1000:g} ms "
+                           f"({source_text(p.inhibit_100us)}), allowance "
+                           f"{(self.r + q) * 1000:.3f} ms",
+                           certain=q_sure and level == 2 and self._sure(
+                               self.tracker.nodes.get((ch.name, p.node))))
+        st.d002_run = bad
+        st.last, st.last_q = ts, self._q(ch)
+
+    def _d001_arm(self, ch: CommChannel, st: PdoStream, p: pdo_stage.Party,
+                  ts: float) -> None:
+        """The producer's event timer runs from a frame sent while OPERATIONAL; the frame
+        ends the previous gap (a D001 the clock fired for it is withdrawn if the frame
+        is stamped before its moment)."""
+        w = self.nodes.get((ch.name, p.node))
+        if w is not None and w.silent_watch:  # the stream went on: not silent
+            w.silent_watch = [x for x in w.silent_watch if x[2] is not st]
+        node = self.tracker.nodes.get((ch.name, p.node))
+        st.d001_armed = ts if self._operational(node) else None
+        st.d001_due = round(ts + st.event_limit_s, 9)
+        if st.d001_armed is not None:
+            self.next_due = min(self.next_due, st.d001_due)
+        self._late(st.d001_fired, ts)
+        st.d001_fired = None
+
+    def _d004_arm(self, ch: CommChannel, st: PdoStream, ts: float) -> None:
+        """Each consumer's RPDO deadline, armed by a frame received while OPERATIONAL;
+        the frame settles the previous gap's finding where it can."""
         for d in st.deadlines:
-            if d.fired is not None and d.voidable:
+            if d.fired is not None and ts <= d.due + self.r + EPS:
+                self._withdraw(d.fired)  # the clock fired it; this frame came late
+            elif d.fired is not None and d.voidable:
                 self._withdraw(d.fired)  # no EMCY 8250h before this frame
             elif d.fired is not None and d.watch:  # its first report is still to come
                 assert d.armed is not None
@@ -812,7 +714,7 @@ class CommTracker:
             d.due = round(ts + float(d.party.event_timer_ms.value or 0) / 1000, 9)
             self.next_due = min(self.next_due, d.due + self.r)
 
-    def _y004(self, ch: _Channel, st: _Stream, f: Any) -> None:
+    def _y004(self, ch: CommChannel, st: PdoStream, f: Any) -> None:
         """A frame of a synchronous stream more than W + r after the latest SYNC, while
         its producer (when known) is OPERATIONAL; one finding per run of late frames in
         one OPERATIONAL interval of the producer."""
@@ -839,9 +741,9 @@ class CommTracker:
                    f"{what} {st.cob_id:03X}h ({party}, type {st.tt}) "
                    f"{(f.ts - last) * 1000:.3f} ms after SYNC at {last - start:.6f} s; "
                    f"synchronous window 1007h = {st.window_s * 1000:.3f} ms "
-                   f"({_source(st.window)})", certain=level == 2 and self._sure(node))
+                   f"({source_text(st.window)})", certain=level == 2 and self._sure(node))
 
-    def _d005(self, ch: _Channel, st: _Stream, f: Any, producing: bool,
+    def _d005(self, ch: CommChannel, st: PdoStream, f: Any, producing: bool,
               party: pdo_stage.Party, want: int) -> None:
         """One finding per stream, party and DLC between the party's boot-ups and resets;
         a consumer judges what it receives while PRE-OPERATIONAL or OPERATIONAL."""
@@ -857,21 +759,21 @@ class CommTracker:
         if got is None:
             self._d005_find(ch, st, party, producing, want, f.dlc, f.ts, node)
 
-    def _d005_find(self, ch: _Channel, st: _Stream, party: pdo_stage.Party, producing: bool,
+    def _d005_find(self, ch: CommChannel, st: PdoStream, party: pdo_stage.Party, producing: bool,
                    want: int, dlc: int, ts: float, node: NodeState | None) -> None:
         if producing:
             text = (f"TPDO {st.cob_id:03X}h of node {party.node} has DLC {dlc}; its "
                     f"mapping {party.map_index:04X}h has {want} bytes "
-                    f"({_source(party.mapping)})")
+                    f"({source_text(party.mapping)})")
         else:
             what = "discards it and raises EMCY 8210h" if dlc < want else "raises EMCY 8220h"
             text = (f"RPDO {st.cob_id:03X}h has DLC {dlc}; node {party.node} maps {want} "
-                    f"bytes ({party.map_index:04X}h, {_source(party.mapping)}): node "
+                    f"bytes ({party.map_index:04X}h, {source_text(party.mapping)}): node "
                     f"{party.node} {what}")
         self._find("D005", ch.name, party.node, ts, text,
                    certain=producing or self._sure(node))
 
-    def _d005_new_run(self, ch: _Channel, n: int, ts: float, epoch: int) -> None:
+    def _d005_new_run(self, ch: CommChannel, n: int, ts: float, epoch: int) -> None:
         """N's boot-up or reset at `ts`: D005's runs of N begin anew. An offending frame on
         the same instant came before it in the log, yet the offline check counts it in the
         new run: it opens that run (and is reported now if its DLC was known already)."""

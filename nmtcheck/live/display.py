@@ -117,8 +117,9 @@ def why_withdrawn(lf: LiveFinding) -> str:
     """What took a live finding back: a late frame (the NMT timeouts), or the party's
     report or silence after a PDO gap (D001, D004: SPEC_COMM §9.1.6)."""
     if lf.rule in ("D001", "D004"):
-        return ("the node's next report showed another state with no command to it, or it "
-                "went OFFLINE without a frame: the gap was not the stream's")
+        return ("a frame stamped before that moment arrived late, or the node's next report "
+                "showed another state with no command to it, or it went OFFLINE without a "
+                "frame: the gap was not the stream's")
     return "a frame stamped before that moment arrived late"
 
 
