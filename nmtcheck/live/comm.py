@@ -177,6 +177,13 @@ class CommTracker:
                     self._withdraw(found)
             w.silent_watch.clear()
 
+    def tracker_withdrawn(self, lf: LiveFinding) -> None:
+        """A heartbeat timeout taken back (a late frame): the node was not OFFLINE."""
+        if lf.rule in ("H001", "G002") and lf.node is not None:
+            w = self.nodes.get((lf.channel, lf.node))
+            if w is not None and w.offline_at == lf.time:
+                w.offline_at = float("-inf")
+
     # -- time ------------------------------------------------------------------------------
 
     def advance(self, now: float) -> None:

@@ -147,7 +147,8 @@ class Session:
         self.on_finding = on_finding
         self.lock = threading.RLock()
         self.clock = clock or BusClock()
-        self.tracker = Tracker(profile, rules, network, self._emit, on_withdraw)
+        self.on_withdraw = on_withdraw
+        self.tracker = Tracker(profile, rules, network, self._emit, self._withdrawn)
         self.comm = CommTracker(profile, self.tracker, network, self._emit)
         self.live: list[LiveFinding] = []
         self.live_dropped = 0
@@ -312,6 +313,11 @@ class Session:
     def _run_timer(self) -> None:
         while not self._stop.wait(TICK_S):
             self.tick()
+
+    def _withdrawn(self, lf: LiveFinding) -> None:
+        self.comm.tracker_withdrawn(lf)
+        if self.on_withdraw is not None:
+            self.on_withdraw(lf)
 
     def _emit(self, lf: LiveFinding) -> None:
         self.comm.tracker_finding(lf)
