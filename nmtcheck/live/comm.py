@@ -628,23 +628,27 @@ class CommTracker:
 
     # PDO -----------------------------------------------------------------------------------
 
-    def _q(self, ch: CommChannel) -> tuple[float, bool]:
-        """q(F) of §9.1.6 for the frame just recorded (checks/pdo.bus_wait), with the d8
-        known so far, and whether it is surely that (d8 only shrinks as frames come)."""
+    def _q(self, ch: CommChannel, t1: float) -> tuple[float, bool]:
+        """q(F1) of §9.1.6 for the channel's frame at `t1` among the recent ones
+        (checks/pdo.bus_wait), with the d8 known so far, and whether it is surely that
+        (d8 only shrinks as frames come). Looked up only for a spacing under the
+        inhibit time."""
         times = ch.recent
-        if len(times) < 2:
-            return 0.0, True
+        k = len(times) - 1
+        while k >= 0 and times[k] > t1 + EPS:
+            k -= 1
+        if k < 1:  # the channel's first frame, or older than the frames kept
+            return 0.0, k == 0 and len(times) < (times.maxlen or 0)
         vals = ch.d8
-        if vals and times[-1] - times[-2] > 1.25 * vals[0] + EPS:
+        if vals and times[k] - times[k - 1] > 1.25 * vals[0] + EPS:
             return 0.0, True  # not back to back, whatever d8 proves to be
         d8 = ch.d8_value
         if d8 is None:
             return 0.0, False
-        j = len(times) - 1
+        j = k
         while j > 0 and times[j] - times[j - 1] <= 1.25 * d8 + EPS:
             j -= 1
-        q = 0.0 if j == len(times) - 1 else float(times[-1] - times[j]) + d8
-        return q, False
+        return (0.0 if j == k else float(times[k] - times[j]) + d8), False
 
     def _pdo(self, ch: CommChannel, st: PdoStream, f: Any) -> None:
         p = st.producer
@@ -671,7 +675,7 @@ class CommTracker:
         if level and st.last is not None:
             inhibit = st.inhibit_s
             dt = ts - st.last
-            q, q_sure = st.last_q
+            q, q_sure = self._q(ch, st.last)
             bad = dt < inhibit - self.r - q - EPS
             if bad and not st.d002_run:
                 self._find("D002", ch.name, p.node, ts,
@@ -683,7 +687,7 @@ class CommTracker:
                            certain=q_sure and level == 2 and self._sure(
                                self.tracker.nodes.get((ch.name, p.node))))
         st.d002_run = bad
-        st.last, st.last_q = ts, self._q(ch)
+        st.last = ts
 
     def _d001_arm(self, ch: CommChannel, st: PdoStream, p: pdo_stage.Party,
                   ts: float) -> None:

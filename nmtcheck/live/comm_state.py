@@ -75,7 +75,6 @@ class PdoStream:
     # D005: (producer?, party, mapped length) of each party whose mapping is known
     mapped: list[tuple[bool, pdo_stage.Party, int]] = field(default_factory=list)
     last: float | None = None  # its previous frame (D002)
-    last_q: tuple[float, bool] = (0.0, True)  # q(F1) and whether it is surely that
     d002_run: bool = False
     # D005: per (producer?, party) and run (its boot-ups and resets), each offending DLC's
     # first and latest frame
