@@ -32,7 +32,9 @@ from nmtcheck.settings.profiles import load_profile
 PROFILE = load_profile("default")
 RULES = select_rules(PROFILE, [], [])
 # rules whose every offline finding the tracker must also have seen live, on these samples
-LIVE_RULES = {"H001", "G001", "G002", "B001", "B002", "B003", "C001", "C002", "C003"}
+LIVE_RULES = {"H001", "G001", "G002", "B001", "B002", "B003", "C001", "C002", "C003",
+              "Y001", "Y002", "Y003", "Y004", "D001", "D002", "D004", "D005", "D006",
+              "E001", "E002"}
 
 
 def frames_of(path: Path) -> list[LiveFrame]:

@@ -79,8 +79,7 @@ class Display:
             self.out.flush()
 
     def withdrawn(self, lf: LiveFinding) -> None:
-        self.note(f"withdrawn: {finding_line(lf, self.start).strip()} (a frame stamped "
-                  f"before that moment arrived late)")
+        self.note(f"withdrawn: {finding_line(lf, self.start).strip()} ({why_withdrawn(lf)})")
 
     def note(self, text: str) -> None:
         with self.lock:
@@ -114,6 +113,16 @@ class Display:
             self._drawn = len(self._rows)
 
 
+def why_withdrawn(lf: LiveFinding) -> str:
+    """What took a live finding back: a late frame (the NMT timeouts), or the party's
+    report or silence after a PDO gap (D001, D004: SPEC_COMM §9.1.6)."""
+    if lf.rule in ("D001", "D004"):
+        return ("a frame stamped before that moment arrived late, or the node's next report "
+                "showed another state with no command to it, or it went OFFLINE without a "
+                "frame: the gap was not the stream's")
+    return "a frame stamped before that moment arrived late"
+
+
 def live_summary(outcome: Outcome, ended: str) -> str:
     """How the live findings compare with the offline check of the recording; the ones
     after the last recorded frame are stated in full (no report can hold them)."""
@@ -127,8 +136,8 @@ def live_summary(outcome: Outcome, ended: str) -> str:
              + (f", {c['withdrawn']} withdrawn" if c["withdrawn"] else "")
              + (f", {c['recording-gap']} inside a recording gap (I007)"
                 if c["recording-gap"] else "")
-             + (f" ({c['provisional']} of them provisional: a heartbeat period measured "
-                f"so far)" if c["provisional"] else "")]
+             + (f" ({c['provisional']} of them provisional: resting on what only the "
+                f"whole trace settles)" if c["provisional"] else "")]
     if outcome.live_dropped:
         lines.append(f"nmtcheck: {outcome.live_dropped} more live findings were not kept")
     if outcome.dropped:
@@ -138,7 +147,7 @@ def live_summary(outcome: Outcome, ended: str) -> str:
     for lf in outcome.live:
         if lf.confirmed != "confirmed":
             what = {"clock-only": "after the last recorded frame",
-                    "withdrawn": "withdrawn (a frame stamped before it came late)",
+                    "withdrawn": f"withdrawn ({why_withdrawn(lf)})",
                     "recording-gap": "inside a silence the offline check reads as a "
                                      "recording gap (I007)"}.get(
                 lf.confirmed, "not confirmed by the offline check")

@@ -24,6 +24,7 @@ from typing import IO, Any
 from nmtcheck.checks.base import Rule
 from nmtcheck.engine import check_input
 from nmtcheck.errors import UsageError
+from nmtcheck.live.comm import CommTracker
 from nmtcheck.live.frames import LiveFrame, candump_line, to_message
 from nmtcheck.live.tracker import LiveFinding, NodeState, Tracker
 from nmtcheck.results import MAX_FINDINGS_PER_RULE, Finding, InputResult
@@ -146,7 +147,9 @@ class Session:
         self.on_finding = on_finding
         self.lock = threading.RLock()
         self.clock = clock or BusClock()
-        self.tracker = Tracker(profile, rules, network, self._emit, on_withdraw)
+        self.on_withdraw = on_withdraw
+        self.tracker = Tracker(profile, rules, network, self._emit, self._withdrawn)
+        self.comm = CommTracker(profile, self.tracker, network, self._emit)
         self.live: list[LiveFinding] = []
         self.live_dropped = 0
         self.frames = 0
@@ -208,7 +211,10 @@ class Session:
                 self._pending_lost = 0
             self.last_ts = frame.ts
             self.clock.observe(frame.ts)
+            if frame.ts > self.comm.next_due:  # its deadlines see the states before it
+                self.comm.advance(frame.ts)
             self.tracker.feed(frame)
+            self.comm.feed(frame)
 
     def frames_lost(self, count: int) -> None:
         """A followed log's logger lost `count` frames here (its DROPCOUNT line, which the
@@ -299,6 +305,7 @@ class Session:
             now = self.clock.now()
             if now is not None and self.frames:
                 self.tracker.advance(now - GRACE_S)
+                self.comm.advance(now - GRACE_S)
             if self._file is not None and time.monotonic() - self._last_flush > FLUSH_S:
                 self._file.flush()
                 self._last_flush = time.monotonic()
@@ -307,7 +314,13 @@ class Session:
         while not self._stop.wait(TICK_S):
             self.tick()
 
+    def _withdrawn(self, lf: LiveFinding) -> None:
+        self.comm.tracker_withdrawn(lf)
+        if self.on_withdraw is not None:
+            self.on_withdraw(lf)
+
     def _emit(self, lf: LiveFinding) -> None:
+        self.comm.tracker_finding(lf)
         if len(self.live) < MAX_LIVE_FINDINGS:
             self.live.append(lf)
         else:
@@ -352,6 +365,7 @@ class Session:
             self._unrecorded_drops = 0
             self.tick()
             self.tracker.finish()
+            self.comm.finish()
             try:
                 result = self.check()
             finally:

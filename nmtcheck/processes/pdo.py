@@ -161,27 +161,7 @@ def streams(model: InputModel, network: Any) -> list[Stream]:
     out: list[Stream] = []
     for cm in model.channels:
         name = cm.network_name
-        nodes = [] if network is None else [
-            n for n in sorted(set(network.nodes) | set(network.comm_nodes))
-            if network.node_channel(n) in (None, name)]
-        parties: dict[int, list[Party]] = {}
-        defaults: dict[int, list[Party]] = {}
-        for n in nodes:
-            for kind in ("tpdo", "rpdo"):
-                for party, cob, configured in _parties(network, n, kind):
-                    (parties if configured else defaults).setdefault(cob, []).append(party)
-        for cob, found in defaults.items():  # a configured COB-ID wins over a default
-            if cob not in parties:
-                parties[cob] = found
-        _written_parties(cm, parties)
-        if network is None and not parties:
-            continue
-        for cob in sorted(parties):
-            found = parties[cob]
-            producer = next((p for p in found if p.kind == "tpdo"), None)
-            consumers = [p for p in found if p.kind == "rpdo"]
-            window = _window(network, name, [p.node for p in found]) if (
-                network is not None) else UNKNOWN
+        for cob, producer, consumers, window in channel_parties(network, name, cm):
             out.append(Stream(name, cm.chan, cob, producer, consumers, window, model))
     return out
 
@@ -198,6 +178,36 @@ def _written_parties(cm: ChannelModel, parties: dict[int, list[Party]]) -> None:
                     there = parties.setdefault(cob, [])
                     if not any((p.node, p.kind, p.pdo) == (n, kind, k) for p in there):
                         there.append(Party(n, k, kind, written_cob=True))
+
+
+def channel_parties(network: Any, name: str, cm: ChannelModel | None = None
+                    ) -> list[tuple[int, Party | None, list[Party], Value]]:
+    """(COB-ID, producer, consumers, W) of each stream the files describe on the channel
+    `name`, by COB-ID: what `streams` builds on, and what live mode judges frames by.
+    With the channel's model `cm`, also the PDOs whose COB-ID the trace writes by SDO."""
+    nodes = [] if network is None else [
+        n for n in sorted(set(network.nodes) | set(network.comm_nodes))
+        if network.node_channel(n) in (None, name)]
+    parties: dict[int, list[Party]] = {}
+    defaults: dict[int, list[Party]] = {}
+    for n in nodes:
+        for kind in ("tpdo", "rpdo"):
+            for party, cob, configured in _parties(network, n, kind):
+                (parties if configured else defaults).setdefault(cob, []).append(party)
+    for cob, found in defaults.items():  # a configured COB-ID wins over a default
+        if cob not in parties:
+            parties[cob] = found
+    if cm is not None:
+        _written_parties(cm, parties)
+    out = []
+    for cob in sorted(parties):
+        found = parties[cob]
+        producer = next((p for p in found if p.kind == "tpdo"), None)
+        consumers = [p for p in found if p.kind == "rpdo"]
+        window = (_window(network, name, [p.node for p in found]) if network is not None
+                  else UNKNOWN)
+        out.append((cob, producer, consumers, window))
+    return out
 
 
 def _parties(network: Any, n: int, kind: str) -> list[tuple[Party, int, bool]]:
