@@ -33,11 +33,11 @@ def exchange_findings(res: InputResult, lc: LssChannel) -> dict[int, list[Findin
     analysis = lss_stage.of(res.model)
     by_frame: dict[int, int] = {}
     by_request: dict[float, int] = {}
-    for k, ex in enumerate(lc.exchanges):
-        by_frame.setdefault(ex.request.idx, k)
+    for j, ex in enumerate(lc.exchanges):
+        by_frame.setdefault(ex.request.idx, j)
         for r in ex.responses:
-            by_frame.setdefault(r.idx, k)
-        by_request.setdefault(_key(ex.request.ts), k)
+            by_frame.setdefault(r.idx, j)
+        by_request.setdefault(_key(ex.request.ts), j)
     out: dict[int, list[Finding]] = {}
     for f in res.findings:
         if not f.rule.startswith("L") or f.channel != lc.channel:
@@ -68,8 +68,8 @@ def exchange_node(lc: LssChannel, ex: Exchange) -> int | None:
     if ex.session is None:
         return None
     slave = lc.sessions[ex.session].slave
-    n = None if slave is None else lc.slaves[slave].active_node_id
-    return n if n is not None and 1 <= n <= 127 else None
+    active = None if slave is None else lc.slaves[slave].active_node_id
+    return active if active is not None and 1 <= active <= 127 else None
 
 
 def exchange_text(ex: Exchange) -> str:
@@ -127,8 +127,9 @@ def lss_lane(res: InputResult, channel: str, begin: float,
     for k, ex in enumerate(lc.exchanges[:limit]):
         found = at.get(k, [])
         failed = [f for f in found if f.rule in FAILURES]
-        first = (failed or found or [None])[0]
-        group = group_of.get(id(first), (None, None)) if first is not None else (None, None)
+        first = (failed or found)[:1]
+        group: tuple[str | None, int | None] = (
+            group_of.get(id(first[0]), (None, None)) if first else (None, None))
         title = (f"{exchange_text(ex)}\n{when(ex.request.ts)} · line {ex.request.line}"
                  + "".join(f"\n{f.rule} {f.name}: {f.message}" for f in found))
         exchanges.append([round(ex.request.ts - begin, 6), round(_end(ex) - begin, 6),
