@@ -145,6 +145,11 @@ def lss_lane(res: InputResult, channel: str, begin: float,
             "omitted": max(len(lc.exchanges) - limit, 0)}
 
 
+def left_out(lane: object) -> int:
+    """How many of a channel's LSS requests its row leaves out (0 without a row)."""
+    return int(lane["omitted"]) if isinstance(lane, dict) else 0
+
+
 def adoptions(res: InputResult, channel: str, node: int, begin: float,
               when: Callable[[float], str]) -> list[list[Any]]:
     """Where node `node` got its node-ID (SPEC §9.4.2): `[boot-up time, configure
