@@ -1,10 +1,11 @@
 """Causes and reactions (SPEC §8.6, §9.3.1-9.3.3): the events that may explain a finding,
 and those that came after it began.
 
-Called by the engine after the rules: H001, G002, B001 (a), B002 and S004 findings get
-`causes` and `reactions` (each possibly empty) with what their caps left out. Each finding
-looks at its node's columns (EMCYs, error-control frames, commands), the channel's NMT
-frames and error frames and the boot analysis, within the finding's window (8.6.2);
+Called by the engine after the rules: H001, G002, B001 (a), B002 and S004 findings (and
+those of §9.3.5: Y001, D001, D003, D004, L001, L006, S005) get `causes` and `reactions`
+(each possibly empty) with what their caps left out. Each finding looks at its node's
+columns (EMCYs, error-control frames, commands), the channel's NMT frames and error
+frames and the boot analysis, within the finding's window (8.6.2);
 nothing is per frame. Causality is strict: an entry is a cause only if it began at or
 before the moment the finding's effect began (t_e, `effect_start`); everything later is a
 reaction with its role (`during`, `report`, `response`, `bus`): the master's reset after a
