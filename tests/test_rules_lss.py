@@ -466,6 +466,22 @@ def test_lss_bit_timing_explains_a_late_event_driven_tpdo(checker: Checker) -> N
     assert [r["role"] for r in d.reactions or () if r["kind"] == "lss_bit_timing"] == []
 
 
+def test_bus_silence_explains_a_late_event_driven_tpdo(checker: Checker) -> None:
+    """D001's other links (§9.3.4 `bus_silence`): node 4's heartbeats (50 ms) and node 3's
+    TPDOs stop together at 10.202 and come back at 10.500: a silence of the whole bus that
+    began at t_l. With node 4's heartbeats going on through the gap: no silence."""
+    beats = [f"({10 + 0.05 * k:.6f}) can0 704#05" for k in range(5)] + [
+        "(10.500000) can0 704#05", "(10.550000) can0 704#05"]
+    [d] = [f for f in checker.run(log(*sorted(D1_LOG + beats)), network=D1_NET).findings
+           if f.rule == "D001"]
+    assert [(c["kind"], c["link"], c["time"], c["end"]) for c in d.causes or ()] == [
+        ("silence", "bus_silence", 10.202, 10.5)]
+    steady = [f"({10 + 0.05 * k:.6f}) can0 704#05" for k in range(12)]
+    [d] = [f for f in checker.run(log(*sorted(D1_LOG + steady)), network=D1_NET).findings
+           if f.rule == "D001"]
+    assert d.causes == []
+
+
 def test_lss_bit_timing_explains_a_missing_synchronous_tpdo(checker: Checker) -> None:
     """D003 (a): t_e is the due SYNC (10.050), the request at 10.0315 comes before it."""
     assert _bit_timing_causes(checker, D3_LOG + SWITCH_LINES, D3_NET, "D003") == [

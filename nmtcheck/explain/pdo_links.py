@@ -73,8 +73,11 @@ def entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float] | None:
         tl = float(ts[k - 1])
     out: list[dict[str, Any]] = []
     if gap:  # SPEC §9.3.4: D001 and D003 (a)/(e) only
-        out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
-                if c["time"] >= tl - EPS]
+        # a stretch that begins in [t_l, t_e]; it ends after t_e (the gap is its part),
+        # so the frames are searched up to the reactions window's end
+        out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None,
+                                                                  [(tl, tf + ctx.after)])
+                if tl - EPS <= c["time"] <= te + EPS]
         out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
         out += lss_link.bit_timing_entries(ctx.model, f.channel, te, ctx.before)
     out += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
