@@ -394,6 +394,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     sync_ticks = comm_lanes.sync_ticks_per_channel(results)
     lss_marks = lss_lane.marks_per_channel(results)
     emcy_texts: dict[str, int] = {}  # each distinct EMCY text once on the page
+    lss_texts: dict[str, int] = {}  # and each distinct LSS exchange text
     for res in results:
         found = group_findings(res.findings)
         res_groups = [_group_view(res, g, f"g{len(groups) + i}") for i, g in enumerate(found)]
@@ -447,7 +448,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                                                            sync_ticks),
                               # and the LSS row: its exchanges and sessions
                               "lss": lss_lane.lss_lane(res, channel, begin, group_of,
-                                                       lss_marks, when),
+                                                       lss_marks, lss_texts),
                               # no timestamps: the axis counts frames, not seconds
                               "frames": res.stats.order_only})
             hidden = left_out.get((res.index, channel), 0)
@@ -475,7 +476,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                                              for o in g["occurrences"]]}
                    for g in groups},
         "emcyClasses": list(comm_lanes.EMCY_CLASSES), "emcyColors": EMCY_COLORS,
-        "emcyTexts": list(emcy_texts),
+        "emcyTexts": list(emcy_texts), "lssTexts": list(lss_texts),
     }
     return {
         "version": __version__,

@@ -19,8 +19,8 @@ from nmtcheck.results import Finding, InputResult
 FAILURES = ("L001", "L002", "L003", "L004", "L005", "L006")  # red on the timeline
 # LSS marks a page draws, shared among the channels with LSS (each at least
 # MIN_LSS_MARKS_PER_CHANNEL); the first ones in file order, the rest counted
-MAX_LSS_MARKS = 20_000
-MIN_LSS_MARKS_PER_CHANNEL = 500
+MAX_LSS_MARKS = 5000
+MIN_LSS_MARKS_PER_CHANNEL = 200
 EPS = 1e-9
 
 
@@ -113,11 +113,13 @@ def marks_per_channel(results: list[InputResult]) -> int:
 
 
 def lss_lane(res: InputResult, channel: str, begin: float,
-             group_of: dict[int, tuple[str, int]], limit: int,
-             when: Callable[[float], str]) -> dict[str, Any] | None:
+             group_of: dict[int, tuple[str, int]], limit: int, texts: dict[str, int]
+             ) -> dict[str, Any] | None:
     """The HTML LSS row of a channel (times from `begin`): `exchanges` as `[start, end,
-    failed, title, group, occurrence]` (the first `limit`, `omitted` the rest), `sessions`
-    as `[start, end, title]`; None for a channel without LSS frames."""
+    failed, text, line, group, occurrence]` with the text (service, result, findings) an
+    index into `texts` (added there when new: a flood of one request costs one text), the
+    first `limit` of them (`omitted` the rest); `sessions` as `[start, end, title]`; None
+    for a channel without LSS frames."""
     analysis = lss_stage.of(res.model)
     lc = analysis.channels.get(channel) if analysis is not None else None
     if lc is None:
@@ -130,10 +132,10 @@ def lss_lane(res: InputResult, channel: str, begin: float,
         first = (failed or found)[:1]
         group: tuple[str | None, int | None] = (
             group_of.get(id(first[0]), (None, None)) if first else (None, None))
-        title = (f"{exchange_text(ex)}\n{when(ex.request.ts)} · line {ex.request.line}"
-                 + "".join(f"\n{f.rule} {f.name}: {f.message}" for f in found))
+        text = exchange_text(ex) + "".join(f"\n{f.rule} {f.name}: {f.message}" for f in found)
         exchanges.append([round(ex.request.ts - begin, 6), round(_end(ex) - begin, 6),
-                          bool(failed), title, *group])
+                          bool(failed), texts.setdefault(text, len(texts)),
+                          ex.request.line or None, *group])
     sessions = []
     for se in lc.sessions:
         end = se.end if se.end is not None else lc.end

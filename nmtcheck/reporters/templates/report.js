@@ -332,8 +332,11 @@
         var mark = el("rect", { "class": "lss-exchange" + (failed ? " failed" : "") + (focused ? " focus" : ""),
                                 x: x0 - 1, y: barY + 3, width: x1 - x0, height: BAR_H - 6,
                                 "data-start": ex[0], "data-end": ex[1], "data-exchange": k,
-                                "data-group": ex[4] === null || ex[4] === undefined ? "" : ex[4] }, lane);
-        last = { x1: x1, more: 0, text: ex[3], title: el("title", {}, mark, ex[3]) };
+                                "data-group": ex[5] === null || ex[5] === undefined ? "" : ex[5] }, lane);
+        var lines = data.lssTexts[ex[3]].split("\n");  // the service, then its findings
+        lines.splice(1, 0, when(spec, ex[0]) + (ex[4] ? " · line " + ex[4] : ""));
+        var text = lines.join("\n");
+        last = { x1: x1, more: 0, text: text, title: el("title", {}, mark, text) };
       });
     });
   };
