@@ -214,3 +214,48 @@ def test_failed_exchange_is_red_in_chromium(browser: Browser, tmp_path: Path,  #
     assert browser.evaluate(f"document.querySelector('tr[data-rule={rule}]').classList"
                             ".contains('flash')") is True
     assert browser.console_errors() == []
+
+
+def test_node_id_not_adopted_is_red_at_its_configure_request() -> None:
+    """Slave C took node-ID 8 (the master: `node 8 -> OK`) but every communication reset
+    it printed starts it as node 3 (it was power-cycled before the reset): L006, drawn
+    red on the configure node-ID 8 request; no badge anywhere (no boot-up as node 8)."""
+    name = "lss_not_adopted"
+    assert "node 8 -> OK" in _master_said(name)
+    resets = [e.text for e in recording.events(_log(name))
+              if e.device == "sC" and e.text.startswith("communication reset")]
+    assert resets == ["communication reset: node-ID 3"] * 3
+    data = _page_data(html_reporter.render([_check(name)], OPTIONS))
+    [tl] = data["timelines"]
+    requests = _requests(name)
+    [k] = [k for k, q in enumerate(requests) if q.data.startswith("1108")]
+    red = [j for j, x in enumerate(tl["lss"]["exchanges"]) if x[2]]
+    assert red == [k]
+    ex = tl["lss"]["exchanges"][k]
+    assert data["groups"][ex[5]]["rule"] == "L006"
+    assert data["lssTexts"][ex[3]].startswith("LSS configure node-ID 8 -> ok\nL006 ")
+    assert all(row["lss"] == [] for row in tl["rows"])
+
+
+def test_lely_fastscan_is_not_red_and_has_its_badge() -> None:
+    """Lely's master finds CANopenNode slave A by fastscan and gives it node 5, stored (the
+    master's own word); A boots as node 5. L007 is information, not a failure: nothing
+    red; node 5's badge at its first boot-up names the configure request."""
+    log = SAMPLES / "lely" / "lss" / "lely_fastscan.log"
+    calls = [e.text.removeprefix("master: ") for e in recording.events(log)
+             if e.device == "master"]
+    assert "node 5 -> cs 11h error 0 spec 0" in calls
+    assert "store -> cs 17h error 0 spec 0" in calls
+    data = _page_data(html_reporter.render([recording.check(log, None)], OPTIONS))
+    [tl] = data["timelines"]
+    frames = recording.frames(log)
+    assert len(tl["lss"]["exchanges"]) == len([f for f in frames if f.can_id == 0x7E5])
+    assert not [x for x in tl["lss"]["exchanges"] if x[2]]
+    assert any(data["lssTexts"][x[3]].split("\n")[1].startswith("L007 ")
+               for x in tl["lss"]["exchanges"] if "\n" in data["lssTexts"][x[3]])
+    boot = next(f for f in frames if (f.can_id, f.data) == (0x705, "00"))
+    configure = next(f for f in frames if f.can_id == 0x7E5 and f.data.startswith("1105"))
+    rows = {row["node"]: row for row in tl["rows"]}
+    [origin] = rows[5]["lss"]
+    assert origin[:2] == pytest.approx([boot.t, configure.t], abs=2e-6)
+    assert ", stored; boot-up as node 5" in origin[2]
