@@ -428,6 +428,20 @@ def test_lss_bit_timing_explains_a_sync_timeout(checker: Checker) -> None:
             if c["kind"] == "lss_bit_timing"] == [("lss_bit_timing", "lss_bit_timing", 8)]
 
 
+def test_lss_bit_timing_ends_the_chain_of_a_sync_timeout_emcy(checker: Checker) -> None:
+    """§9.3.5 depth d + 1: node 5's (OPERATIONAL) EMCY 8100h in the SYNC gap links to Y001
+    (`sync_timeout`), and Y001's only cause, the activate-bit-timing request, explains it
+    in turn (the last link of §9.3.4's table)."""
+    syncs = [f"(10.{k:02d}0000) can0 080#" for k in range(0, 6)]
+    text = log(*sorted([*syncs, "(10.001000) can0 705#05", "(10.052000) can0 7E5#0401000000000000",
+                        "(10.053000) can0 7E5#1500000000000000",
+                        "(10.150000) can0 085#0081100000000000", "(10.200000) can0 080#"]))
+    res = checker.run(text, network="[sync]\nperiod_us = 10000\n")
+    [chain] = [v for k, v in res.event_causes.items() if k[1] == 5]
+    assert [(c["kind"], c["link"], c["depth"], c["line"]) for c in chain] == [
+        ("finding", "sync_timeout", 1, 10), ("lss_bit_timing", "lss_bit_timing", 2, 9)]
+
+
 # SPEC §9.5.2's D001 and D003 (a) vectors (d1.toml, d3.toml) with a switch to
 # configuration and an activate-bit-timing request (frames as CANopenNode's LSS master
 # sends them, samples/canopennode/lss/) concatenated inside the TPDO gap
