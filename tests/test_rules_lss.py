@@ -428,6 +428,92 @@ def test_lss_bit_timing_explains_a_sync_timeout(checker: Checker) -> None:
             if c["kind"] == "lss_bit_timing"] == [("lss_bit_timing", "lss_bit_timing", 8)]
 
 
+def test_lss_bit_timing_ends_the_chain_of_a_sync_timeout_emcy(checker: Checker) -> None:
+    """§9.3.5 depth d + 1: node 5's (OPERATIONAL) EMCY 8100h in the SYNC gap links to Y001
+    (`sync_timeout`), and Y001's only cause, the activate-bit-timing request, explains it
+    in turn (the last link of §9.3.4's table)."""
+    syncs = [f"(10.{k:02d}0000) can0 080#" for k in range(0, 6)]
+    text = log(*sorted([*syncs, "(10.001000) can0 705#05", "(10.052000) can0 7E5#0401000000000000",
+                        "(10.053000) can0 7E5#1500000000000000",
+                        "(10.150000) can0 085#0081100000000000", "(10.200000) can0 080#"]))
+    res = checker.run(text, network="[sync]\nperiod_us = 10000\n")
+    [chain] = [v for k, v in res.event_causes.items() if k[1] == 5]
+    assert [(c["kind"], c["link"], c["depth"], c["line"]) for c in chain] == [
+        ("finding", "sync_timeout", 1, 10), ("lss_bit_timing", "lss_bit_timing", 2, 9)]
+
+
+# SPEC §9.5.2's D001 and D003 (a) vectors (d1.toml, d3.toml) with a switch to
+# configuration and an activate-bit-timing request (frames as CANopenNode's LSS master
+# sends them, samples/canopennode/lss/) concatenated inside the TPDO gap
+D1_NET = "[nodes.3.tpdo.1]\ncob_id = 0x183\ntransmission_type = 254\nevent_timer_ms = 100\n"
+D3_NET = "[nodes.3.tpdo.1]\ncob_id = 0x183\ntransmission_type = 2\n"
+D1_LOG = ["(10.000000) can0 703#00", "(10.001000) can0 000#0103", "(10.002000) can0 183#0100",
+          "(10.102000) can0 183#0200", "(10.202000) can0 183#0300", "(10.500000) can0 183#0400",
+          "(10.600000) can0 183#0500"]
+D3_LOG = ["(10.000000) can0 703#00", "(10.001000) can0 000#0103", "(10.010000) can0 080#",
+          "(10.010500) can0 183#01", "(10.020000) can0 080#", "(10.030000) can0 080#",
+          "(10.030500) can0 183#02", "(10.040000) can0 080#", "(10.050000) can0 080#",
+          "(10.060000) can0 080#", "(10.070000) can0 080#", "(10.070500) can0 183#03"]
+SWITCH_LINES = ["(10.031000) can0 7E5#0401000000000000", "(10.031500) can0 7E5#1564000000000000"]
+
+
+def _bit_timing_causes(checker: Checker, lines: list[str], network: str, rule: str
+                       ) -> list[tuple[str | None, float, int | None]]:
+    [f] = [f for f in checker.run(log(*sorted(lines)), network=network).findings
+           if f.rule == rule]
+    assert f.causes is not None  # D001 and D003 carry causes (§9.3.5 roots)
+    return [(c["link"], c["time"], c["line"]) for c in f.causes
+            if c["kind"] == "lss_bit_timing"]
+
+
+def test_lss_bit_timing_explains_a_late_event_driven_tpdo(checker: Checker) -> None:
+    """§9.3.4 `lss_bit_timing` "as bus_silence": D001's t_e is t_l + E = 10.302; the
+    request at 10.210 lies in [t_e - causes_before_ms, t_e]. Without it: no such cause."""
+    lss_lines = ["(10.205000) can0 7E5#0401000000000000", "(10.210000) can0 7E5#1564000000000000"]
+    assert _bit_timing_causes(checker, D1_LOG + lss_lines, D1_NET, "D001") == [
+        ("lss_bit_timing", 10.21, 7)]
+    assert _bit_timing_causes(checker, D1_LOG, D1_NET, "D001") == []
+    late = ["(10.400000) can0 7E5#0401000000000000", "(10.401000) can0 7E5#1564000000000000"]
+    [d] = [f for f in checker.run(log(*sorted(D1_LOG + late)), network=D1_NET).findings
+           if f.rule == "D001"]
+    assert not [c for c in d.causes or () if c["kind"] == "lss_bit_timing"]
+    assert [r["role"] for r in d.reactions or () if r["kind"] == "lss_bit_timing"] == []
+
+
+def test_bus_silence_explains_a_late_event_driven_tpdo(checker: Checker) -> None:
+    """D001's other links (§9.3.4 `bus_silence`): node 4's heartbeats (50 ms) and node 3's
+    TPDOs stop together at 10.202 and come back at 10.500: a silence of the whole bus that
+    began at t_l. With node 4's heartbeats going on through the gap: no silence."""
+    beats = [f"({10 + 0.05 * k:.6f}) can0 704#05" for k in range(5)] + [
+        "(10.500000) can0 704#05", "(10.550000) can0 704#05"]
+    [d] = [f for f in checker.run(log(*sorted(D1_LOG + beats)), network=D1_NET).findings
+           if f.rule == "D001"]
+    assert [(c["kind"], c["link"], c["time"], c["end"]) for c in d.causes or ()] == [
+        ("silence", "bus_silence", 10.202, 10.5)]
+    steady = [f"({10 + 0.05 * k:.6f}) can0 704#05" for k in range(12)]
+    [d] = [f for f in checker.run(log(*sorted(D1_LOG + steady)), network=D1_NET).findings
+           if f.rule == "D001"]
+    assert d.causes == []
+
+
+def test_lss_bit_timing_explains_a_missing_synchronous_tpdo(checker: Checker) -> None:
+    """D003 (a): t_e is the due SYNC (10.050), the request at 10.0315 comes before it."""
+    assert _bit_timing_causes(checker, D3_LOG + SWITCH_LINES, D3_NET, "D003") == [
+        ("lss_bit_timing", 10.0315, 9)]
+    assert _bit_timing_causes(checker, D3_LOG, D3_NET, "D003") == []
+
+
+def test_lss_bit_timing_does_not_explain_an_extra_synchronous_tpdo(checker: Checker) -> None:
+    """D003 (c), two TPDOs between the same SYNCs: a frame that came is no silence, only
+    `frames_lost` links to it (§9.3.4)."""
+    extra = ["(10.000000) can0 703#00", "(10.001000) can0 000#0103", "(10.010000) can0 080#",
+             "(10.010500) can0 183#01", "(10.020000) can0 080#", "(10.020500) can0 183#02",
+             "(10.021000) can0 183#03", "(10.030000) can0 080#", "(10.030500) can0 183#04",
+             "(10.015000) can0 7E5#0401000000000000", "(10.016000) can0 7E5#1564000000000000"]
+    net = D3_NET.replace("= 2", "= 1")
+    assert _bit_timing_causes(checker, extra, net, "D003") == []
+
+
 def test_a_switch_without_its_mode_byte_changes_no_state(checker: Checker) -> None:
     """`7E5#04` (DLC 1) asks for no known state: the configure request after it is judged
     as at the trace start (state unknown), not as after "switch to waiting"."""

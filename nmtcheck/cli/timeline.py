@@ -15,7 +15,7 @@ from nmtcheck.cli.helptext import LOGS_HELP, DocumentedCommand, complete_paths
 from nmtcheck.cli.inputs import expand_inputs, input_options, named_check_inputs, remote_logs
 from nmtcheck.engine import select_rules
 from nmtcheck.protocol.nmt import SOURCES, STATES
-from nmtcheck.reporters import comm_lanes, lss_report
+from nmtcheck.reporters import comm_lanes, lss_lane, lss_report
 from nmtcheck.reporters.common import moment, reboot_note, reboots, spreadsheet_safe
 from nmtcheck.results import InputResult
 from nmtcheck.safe_text import escape_lines
@@ -41,9 +41,10 @@ def timeline(logs: tuple[str, ...], input_format: str | None, rules_profile: str
                                                    discover(config_file, isolated))
     with remote_logs(logs, storage_options) as (logs, names):
         paths = expand_inputs(logs).logs
-        # the rules whose findings the timeline draws as gaps (SPEC §9.4.2), as the
-        # profile enables them; no other rule runs
-        rules = [r for r in select_rules(profile, [], []) if r.code in comm_lanes.GAP_RULES]
+        # the rules whose findings the timeline draws as gaps, and the L rules its LSS
+        # rows name (SPEC §9.4.2), as the profile enables them; no other rule runs
+        rules = [r for r in select_rules(profile, [], [])
+                 if r.code in comm_lanes.GAP_RULES or r.code.startswith("L")]
         results = named_check_inputs(names, paths, 1, profile, rules, network=network,
                                      input_format=input_format, strict=strict,
                                      channel=channel,
@@ -74,7 +75,8 @@ def render_timelines(results: list[InputResult], fmt: str,
 
 
 # The rows of `--format csv|json`: a node's NMT states (`kind` state), and SPEC §9.4.2's
-# SYNC and PDO gaps of the Y001, D001 and D004 findings and each node's EMCYs
+# SYNC and PDO gaps of the Y001, D001 and D004 findings, each node's EMCYs and each LSS
+# exchange (`kind` lss: `code` its command specifier, `rule` the L findings at it)
 COLUMNS = ("channel", "node", "state", "start", "end", "source", "kind", "rule", "cob_id",
            "code", "error_register", "line", "text", "canopennode")
 
@@ -98,6 +100,7 @@ def timeline_rows(res: InputResult) -> list[dict[str, Any]]:
               "error_register": None if e.register is None else f"{e.register:02X}h",
               "line": e.line or None, "text": e.text, "canopennode": e.canopennode}
              for m in res.nodes() for e in comm_lanes.emcy_rows(res, m.channel, m.node)]
+    rows += lss_lane.timeline_rows(res, blank)
     order = {c: k for k, c in enumerate(res.stats.channels)}
     rows.sort(key=lambda r: (order.get(r["channel"], len(order)), r["node"] is not None,
                              r["node"] or 0, r["start"], r["kind"] != "state"))

@@ -1,10 +1,11 @@
 """Causes and reactions (SPEC §8.6, §9.3.1-9.3.3): the events that may explain a finding,
 and those that came after it began.
 
-Called by the engine after the rules: H001, G002, B001 (a), B002 and S004 findings get
-`causes` and `reactions` (each possibly empty) with what their caps left out. Each finding
-looks at its node's columns (EMCYs, error-control frames, commands), the channel's NMT
-frames and error frames and the boot analysis, within the finding's window (8.6.2);
+Called by the engine after the rules: H001, G002, B001 (a), B002 and S004 findings (and
+those of §9.3.5: Y001, D001, D003, D004, L001, L006, S005) get `causes` and `reactions`
+(each possibly empty) with what their caps left out. Each finding looks at its node's
+columns (EMCYs, error-control frames, commands), the channel's NMT frames and error
+frames and the boot analysis, within the finding's window (8.6.2);
 nothing is per frame. Causality is strict: an entry is a cause only if it began at or
 before the moment the finding's effect began (t_e, `effect_start`); everything later is a
 reaction with its role (`during`, `report`, `response`, `bus`): the master's reset after a
@@ -19,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nmtcheck.explain import lss_link
+from nmtcheck.explain import lss_link, pdo_links
 from nmtcheck.explain.chains import (
     At,
     emcy_chain,
@@ -57,8 +58,8 @@ if TYPE_CHECKING:
     from nmtcheck.results import Finding, InputResult
 
 
-RULES = ("H001", "G002", "B001", "B002", "S004", "Y001", "D004", "L001", "L006",
-         "S005")  # S005 last: it reads
+RULES = ("H001", "G002", "B001", "B002", "S004", "Y001", "D001", "D003", "D004", "L001",
+         "L006", "S005")  # S005 last: it reads
 # the causes of the findings its chain links to (§9.3.5)
 SDO_WRITES = {"H001": (0x1017, 0x1016), "G002": (0x100C, 0x100D, 0x1017),
               "B002": (0x1F51, 0x1011, 0x1010), "S004": (0x1029,), "S005": (0x1029,)}
@@ -99,6 +100,7 @@ def attach(result: InputResult, spool: SdoSpool, profile: Any) -> None:
         found = (sync_gap_entries(ctx, f) if f.rule == "Y001" else
                  pdo_gap_entries(ctx, f) if f.rule == "D004" else
                  lss_link.lss_entries(ctx.model, f, ctx.before) if f.rule in lss_link.ROOTS
+                 else pdo_links.entries(ctx, f) if f.rule in pdo_links.ROOTS
                  else ctx.causes(f))
         if found is None:
             continue

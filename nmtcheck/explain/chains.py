@@ -330,9 +330,13 @@ def emcy_chain(ctx: Any, f: Any, entry: dict[str, Any], findings: list[Finding],
     child.update(rule=found.rule, depth=2, parent=0)
     out = [child]
     if depth_max >= 3:
+        # §9.3.4's `lss_bit_timing` is the last link of the table: it explains the
+        # finding when none of the others does
         first = next((c for c in found.causes or ()
                       if c["kind"] in FINDING_CAUSE_KINDS and c["time"] <= found.time + EPS),
-                     None)
+                     None) or next((c for c in found.causes or ()
+                                    if c["kind"] == "lss_bit_timing"
+                                    and c["time"] <= found.time + EPS), None)
         if first is not None:
             out.append(dict(first, depth=3, parent=1))
     return out

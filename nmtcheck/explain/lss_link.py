@@ -3,8 +3,9 @@
 An LSS "activate bit timing" (15h) request switches every slave in configuration state to
 the bit rate configured before, after the switch delay: a slave that left the master's
 bit rate falls silent, its heartbeat stops and its LSS answers never come. So an entry of
-kind `lss_bit_timing` explains a silence, error frames and the timeouts H001, Y001, D004,
-L001 and L006 whose effect began within `causes_before_ms` after such a request.
+kind `lss_bit_timing` explains a silence, error frames and the timeouts H001, Y001, D001,
+D003 (a)/(e), D004, L001 and L006 whose effect began within `causes_before_ms` after such
+a request (D001 and D003 through `explain/pdo_links.py`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from nmtcheck.protocol.nmt import EPS
 if TYPE_CHECKING:
     from nmtcheck.results import Finding
 
-LINKED = ("H001", "Y001", "D004", "L001", "L006")  # the findings the link explains
+LINKED = ("H001", "Y001", "D001", "D003", "D004", "L001", "L006")  # the findings the link explains
 ROOTS = ("L001", "L006")  # the L findings that carry causes (SPEC §9.3.5)
 
 

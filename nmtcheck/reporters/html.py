@@ -25,7 +25,7 @@ from nmtcheck import __version__
 from nmtcheck.processes.boot_records import LETTERS
 from nmtcheck.protocol.nmt import HEARTBEAT, STATES
 from nmtcheck.protocol.nmt import SOURCES as TIMELINE_SOURCES
-from nmtcheck.reporters import boot_report, comm_lanes, comm_report, lss_report
+from nmtcheck.reporters import boot_report, comm_lanes, comm_report, lss_lane, lss_report
 from nmtcheck.reporters.common import (
     SEVERITY_ORDER,
     FindingGroup,
@@ -392,7 +392,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     timelines = []
     emcy_per_node = comm_lanes.emcy_marks_per_node(results)
     sync_ticks = comm_lanes.sync_ticks_per_channel(results)
+    lss_marks = lss_lane.marks_per_channel(results)
     emcy_texts: dict[str, int] = {}  # each distinct EMCY text once on the page
+    lss_texts: dict[str, int] = {}  # and each distinct LSS exchange text
     for res in results:
         found = group_findings(res.findings)
         res_groups = [_group_view(res, g, f"g{len(groups) + i}") for i, g in enumerate(found)]
@@ -406,6 +408,10 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
             # a later capture's timeline counts from its own first frame
             begin = begins.get(channel, inputs[res.index]["start"])
             shift = begin - inputs[res.index]["start"]
+
+            def when(t: float, begin: float = begin, order_only: bool = res.stats.order_only
+                     ) -> str:
+                return f"frame {int(t) + 1}" if order_only else f"{t - begin:.6f} s"
             emcy_left_out = 0
             for node in channel_nodes:
                 mine = [g for g in res_groups if g["channel"] == channel and g["node"] == node]
@@ -423,7 +429,10 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                              "iv": [] if node is None
                              else intervals.get((res.index, channel, node), []),
                              "boots": [] if node is None
-                             else boots.get((res.index, channel, node), [])})
+                             else boots.get((res.index, channel, node), []),
+                             # SPEC §9.4.2: where an LSS-assigned node-ID came from
+                             "lss": [] if node is None
+                             else lss_lane.adoptions(res, channel, node, begin, when)})
             cm = next((c for c in res.model.channels if c.name == channel), None)
             master = ("no NMT master known" if cm is None or cm.master is None
                       else f"NMT master node {cm.master.node} ({cm.master.source})")
@@ -437,6 +446,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                               # SPEC §9.4.2: the SYNC row above the node rows
                               "sync": comm_lanes.sync_lane(res, channel, begin, gaps, group_of,
                                                            sync_ticks),
+                              # and the LSS row: its exchanges and sessions
+                              "lss": lss_lane.lss_lane(res, channel, begin, group_of,
+                                                       lss_marks, lss_texts),
                               # no timestamps: the axis counts frames, not seconds
                               "frames": res.stats.order_only})
             hidden = left_out.get((res.index, channel), 0)
@@ -444,6 +456,9 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                      "JSON report has all)"] if hidden else []
             notes += [f"{emcy_left_out} EMCYs not drawn (at most {emcy_per_node} per node; "
                       "the JSON report has all)"] if emcy_left_out else []
+            lss_row = lss_lane.left_out(timelines[-1]["lss"])
+            notes += [f"{lss_row} LSS requests not drawn (at most {lss_marks} per "
+                      "channel)"] if lss_row else []
             if notes:
                 timelines[-1]["left_out"] = "; ".join(notes)
     rules = [{"code": r.code, "name": r.name, "severity": sev, "summary": r.summary,
@@ -461,7 +476,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
                                              for o in g["occurrences"]]}
                    for g in groups},
         "emcyClasses": list(comm_lanes.EMCY_CLASSES), "emcyColors": EMCY_COLORS,
-        "emcyTexts": list(emcy_texts),
+        "emcyTexts": list(emcy_texts), "lssTexts": list(lss_texts),
     }
     return {
         "version": __version__,
@@ -472,6 +487,7 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
         "order_only": any(res.stats.order_only for res in results if res.error is None),
         "rebooting": bool(boots),
         "sync_lanes": any(tl["sync"] for tl in timelines),
+        "lss_lanes": any(tl["lss"] for tl in timelines),
         "emcy_marks": bool(emcy_texts), "emcy_colors": EMCY_COLORS,
         "unreadable": [error_line(res) for res in unreadable(results)],
         "not_logs": not_logs_line(options),

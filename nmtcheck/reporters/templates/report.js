@@ -90,7 +90,8 @@
     var spec = this.spec, svg = this.svg, self = this;
     this.plotW = this.plotWidth();
     var width = LABEL_W + this.plotW + PAD_R;
-    var top = AXIS_H + (spec.sync ? ROW_H : 0);  // the SYNC row above the node rows
+    // the SYNC row, then the LSS row, above the node rows
+    var top = AXIS_H + (spec.sync ? ROW_H : 0) + (spec.lss ? ROW_H : 0);
     var height = top + spec.rows.length * ROW_H + BOTTOM;
     while (svg.firstChild) { svg.removeChild(svg.firstChild); }
     svg.setAttribute("viewBox", "0 0 " + width + " " + height);
@@ -124,6 +125,7 @@
                  y2: AXIS_H - 0.5 }, axis);
 
     if (spec.sync) { this.renderSync(spec.sync, width, clipId); }
+    if (spec.lss) { this.renderLss(spec.lss, width, clipId, AXIS_H + (spec.sync ? ROW_H : 0)); }
 
     spec.rows.forEach(function (row, i) {
       var y0 = top + i * ROW_H;
@@ -170,6 +172,16 @@
         var tick = el("line", { "class": "boot-marker", x1: bx, x2: bx, y1: barY - 2,
                                 y2: barY + BAR_H + 2 }, bars);
         el("title", {}, tick, "boot-up (00h) at " + when(spec, t));
+      });
+      // A node-ID assigned by LSS (SPEC §9.4.2): a badge at the boot-up that adopted it;
+      // a click shows the configure request on the LSS row
+      (row.lss || []).forEach(function (a) {
+        if (a[0] < self.v0 || a[0] > self.v1) { return; }
+        var ax = self.x(a[0]);
+        var badge = el("g", { "class": "lss-adopted", "data-time": a[0], "data-request": a[1] }, bars);
+        el("rect", { x: ax, y: barY + 1, width: 22, height: 11, rx: 2 }, badge);
+        el("text", { x: ax + 11, y: barY + 10, "text-anchor": "middle" }, badge, "LSS");
+        el("title", {}, badge, a[2]);
       });
       // The node's EMCYs (SPEC §9.4.2): a dot on the bar's lower edge coloured by code
       // class, at most one per pixel and class
@@ -287,6 +299,48 @@
     });
   };
 
+  /* The LSS row (SPEC §9.4.2): each LSS session as a pale span, each exchange (request to
+     its last answer) as a mark, red where an L001-L006 finding is at it; at the zoom in
+     view one mark per pixel and colour (its hover text counts the others there), the red
+     ones drawn last. */
+  Timeline.prototype.renderLss = function (lss, width, clipId, y0) {
+    var self = this, barY = y0 + MARK_H + 2, spec = this.spec;
+    var g = el("g", { "class": "tl-lss", "data-channel": spec.channel, "data-bar-y": barY,
+                      "data-bar-h": BAR_H }, this.svg);
+    el("rect", { "class": "row-bg alt", x: 0, y: y0, width: width, height: ROW_H }, g);
+    el("title", {}, el("text", { "class": "row-label", x: 10, y: barY + 13 }, g, "LSS"),
+       lss.exchanges.length + " LSS requests drawn" +
+       (lss.omitted ? ", " + lss.omitted + " not drawn" : ""));
+    var lane = el("g", { "clip-path": "url(#" + clipId + ")" }, g);
+    lss.sessions.forEach(function (se) {
+      if (se[1] < self.v0 || se[0] > self.v1) { return; }
+      var x0 = Math.max(self.x(se[0]), LABEL_W - 1), x1 = Math.min(self.x(se[1]), LABEL_W + self.plotW + 1);
+      el("title", {}, el("rect", { "class": "lss-session", x: x0, y: barY, width: Math.max(x1 - x0, 1),
+                                   height: BAR_H, "data-start": se[0], "data-end": se[1] }, lane), se[2]);
+    });
+    [false, true].forEach(function (failed) {
+      var last = null;
+      lss.exchanges.forEach(function (ex, k) {
+        if (ex[2] !== failed || ex[1] < self.v0 || ex[0] > self.v1) { return; }
+        var x0 = self.x(ex[0]), x1 = Math.max(self.x(ex[1]), x0 + 3);
+        var focused = self.lssFocus !== undefined && self.lssFocus === k;  // always drawn
+        if (last && x0 < last.x1 + 1 && !focused) {  // in the mark before: counted there
+          last.more += 1;
+          last.title.textContent = last.text + "\n(+" + last.more + " more LSS requests here; zoom in)";
+          return;
+        }
+        var mark = el("rect", { "class": "lss-exchange" + (failed ? " failed" : "") + (focused ? " focus" : ""),
+                                x: x0 - 1, y: barY + 3, width: x1 - x0, height: BAR_H - 6,
+                                "data-start": ex[0], "data-end": ex[1], "data-exchange": k,
+                                "data-group": ex[5] === null || ex[5] === undefined ? "" : ex[5] }, lane);
+        var lines = data.lssTexts[ex[3]].split("\n");  // the service, then its findings
+        lines.splice(1, 0, when(spec, ex[0]) + (ex[4] ? " · line " + ex[4] : ""));
+        var text = lines.join("\n");
+        last = { x1: x1, more: 0, text: text, title: el("title", {}, mark, text) };
+      });
+    });
+  };
+
   Timeline.prototype.bind = function () {
     var self = this, svg = this.svg, drag = null;
     svg.addEventListener("wheel", function (e) {
@@ -320,7 +374,9 @@
     svg.addEventListener("dblclick", function () { self.setView(0, self.total); });
     svg.addEventListener("click", function (e) {
       if (drag && drag.moved) { return; }
-      var marker = e.target.closest ? e.target.closest(".marker, .cause-marker, .sync-gap") : null;
+      var badge = e.target.closest ? e.target.closest(".lss-adopted") : null;
+      if (badge) { self.showLss(Number(badge.getAttribute("data-request"))); return; }
+      var marker = e.target.closest ? e.target.closest(".marker, .cause-marker, .sync-gap, .lss-exchange") : null;
       if (marker && marker.getAttribute("data-group")) { showFinding(marker.getAttribute("data-group")); }
     });
     this.figure.querySelectorAll("button[data-zoom]").forEach(function (button) {
@@ -340,6 +396,18 @@
     this.focus = { group: groupId, k: k };
     this.setView(t - span / 2, t + span / 2);
     this.figure.scrollIntoView({ block: "center" });
+  };
+
+  /* Zoom to the LSS request at t (a node-ID's origin) and mark it on the LSS row. */
+  Timeline.prototype.showLss = function (t) {
+    var found = -1;
+    (this.spec.lss ? this.spec.lss.exchanges : []).forEach(function (ex, k) {
+      if (found < 0 && Math.abs(ex[0] - t) < 1e-6) { found = k; }
+    });
+    var span = Math.min(this.v1 - this.v0, Math.max(this.total / 8, 0.01));
+    this.focus = null;
+    this.lssFocus = found < 0 ? undefined : found;
+    this.setView(t - span / 2, t + span / 2);
   };
 
   /* Zoom to a moment t (a chain's entry) as showMoment does, without a finding to mark. */
