@@ -1,4 +1,5 @@
-"""The chain links `life_guarding` and `producer_silent` (SPEC_COMM §9.3.4) on CANopenNode
+"""The chain links `life_guarding` and `producer_silent` and the stand-ins `pdo_gap` and
+`sync_gap` (SPEC_COMM §9.3.4) on CANopenNode
 recordings.
 
 `life_guarding`: in `samples/canopennode/master_unplugged.log` the master is unplugged at
@@ -116,3 +117,46 @@ def test_producer_silent_not_for_a_stopped_producer() -> None:
     assert len(d004) == 1
     links = {c["link"] for c in d004[0]["causes"]}
     assert "producer_state" in links and "producer_silent" not in links
+
+
+# -- the measured stand-ins of SPEC_COMM §9.3.4 (`pdo_gap`, `sync_gap`): where D004 or Y001
+# could not judge, the gap that CANopenNode's own EMCY reports still explains it
+
+
+def test_pdo_gap_stands_in_where_d004_has_no_deadline(tmp_path: Path) -> None:
+    """rpdo_producer_stopped's network file without node 3's deadline (1400h:05): D004 is
+    not evaluated, and node 3's EMCY 8250h (line 282) is explained by the measured gap of
+    182h after its last frame (line 265), and that gap by the stop of node 2 (line 268)."""
+    text = (SAMPLES / "pdo" / "network_rpdo_producer_stopped.toml").read_text()
+    network = tmp_path / "network.toml"
+    network.write_text(text.replace("event_timer_ms = 250          # the deadline\n", ""))
+    assert network.read_text() != text
+    report = _report(SAMPLES / "pdo" / "rpdo_producer_stopped.log", network)
+    assert not _findings(report, "D004")
+    [s005] = _findings(report, "S005", 3)
+    chain = [(c["kind"], c["link"], c["depth"], c["basis"], c["line"]) for c in s005["causes"]]
+    assert chain == [("emcy", "error_behaviour", 1, None, 282),
+                     ("pdo_gap", "rpdo_timeout", 2, "measured", 265),
+                     ("nmt", "producer_state", 3, None, 268)]
+
+
+def test_no_pdo_gap_where_d004_judged() -> None:
+    """With the deadline known, D004 is the verdict: the chain names it, no stand-in."""
+    report = _report(SAMPLES / "pdo" / "rpdo_producer_stopped.log",
+                     SAMPLES / "pdo" / "network_rpdo_producer_stopped.toml")
+    [s005] = _findings(report, "S005", 3)
+    kinds = [c["kind"] for c in s005["causes"]]
+    assert "finding" in kinds and "pdo_gap" not in kinds
+
+
+def test_sync_gap_stands_in_where_y001_is_not_run() -> None:
+    """sync_producer_stopped with Y001 left out: each consumer's EMCY 8100h (lines 436,
+    437) is explained by the measured SYNC gap after the last SYNC (line 433)."""
+    report = check([SAMPLES / "sync_emcy" / "sync_producer_stopped.log"],
+                   ignore=["Y001"]).to_dict()
+    s005 = _findings(report, "S005")
+    assert [f["node"] for f in s005] == [3, 4]
+    for f, line in zip(s005, (437, 436), strict=True):
+        chain = [(c["kind"], c["link"], c["depth"], c["basis"], c["line"]) for c in f["causes"]]
+        assert chain == [("emcy", "error_behaviour", 1, None, line),
+                         ("sync_gap", "sync_timeout", 2, "measured", 433)]

@@ -23,6 +23,7 @@ from nmtcheck.explain.entries import cause_entry
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync as sync_stage
+from nmtcheck.processes.comm_values import UNKNOWN
 from nmtcheck.protocol import emcy
 from nmtcheck.protocol.nmt import BOOTUP, EPS, GUARD, HEARTBEAT, STATE_OF_CODE
 from nmtcheck.timeline.moments import at
@@ -305,10 +306,15 @@ def emcy_chain(ctx: Any, f: Any, entry: dict[str, Any], findings: list[Finding],
     t_c = float(entry["time"])
     found: Finding | None = None
     link = ""
+    held = 1
     if code == 0x8100:
-        found, link = _sync_timeout(ctx, f, entry, findings, t_c, delay), "sync_timeout"
+        (found, held), link = _sync_timeout(ctx, f, entry, findings, t_c, delay), "sync_timeout"
+        if found is None:
+            return _sync_gap(ctx, f, entry, t_c, delay, depth_max)
     elif code == 0x8250:
-        found, link = _rpdo_timeout(ctx, f, entry, findings, t_c, delay), "rpdo_timeout"
+        (found, held), link = _rpdo_timeout(ctx, f, entry, findings, t_c, delay), "rpdo_timeout"
+        if found is None:
+            return _pdo_gap(ctx, f, entry, t_c, delay, depth_max)
     elif code == 0x8240:
         found, link = _sync_length(ctx, f, entry, findings, t_c, delay), "sync_length"
     elif code == 0x8130:
@@ -320,11 +326,12 @@ def emcy_chain(ctx: Any, f: Any, entry: dict[str, Any], findings: list[Finding],
         if guard is not None and detail is not None and int(str(detail["info"])) == 0 and (
                 not _consumes(ctx, f, int(entry["node"]), t_c)):
             return [dict(guard, depth=2, parent=0)]  # CN's info 0: the first 1016h entry
-        found, link = _heartbeat_consumer(ctx, f, findings, t_c), "heartbeat_consumer"
+        (found, held), link = _heartbeat_consumer(ctx, f, findings, t_c), "heartbeat_consumer"
         if found is None and guard is not None:
             return [dict(guard, depth=2, parent=0)]
     if found is None:
         return []
+    entry["alternatives"] = max(held - 1, 0)  # the others that held (§9.3.5)
     child = cause_entry("finding", found.time, found.frame_index, found.line,
                         f"{found.rule} {found.name}: {found.message}", found.node, link=link)
     child.update(rule=found.rule, depth=2, parent=0)
@@ -343,18 +350,19 @@ def emcy_chain(ctx: Any, f: Any, entry: dict[str, Any], findings: list[Finding],
 
 
 def _sync_timeout(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Finding],
-                  t_c: float, delay: float) -> Finding | None:
+                  t_c: float, delay: float) -> tuple[Finding | None, int]:
     """`sync_timeout`: the Y001 on the channel whose gap contains t_c, or ended at most
     `delay` before it; with CANopenNode's marker (byte 3 = 18h) the gap whose last SYNC
     lies `info` us before t_c. Another CANopenNode marker never links (8100h/15h is a
     TPDO outside the window)."""
     analysis = sync_stage.of(ctx.model)
     if analysis is None:
-        return None
+        return None, 0
     detail = _cn_detail(ctx, f, entry)
     if detail is not None and detail["error_bit"] != "18h":
-        return None
+        return None, 0
     best = None
+    held = 0  # the candidates that held (one is taken, §9.3.5)
     for y in findings:
         if y.rule != "Y001" or y.channel != f.channel or y.time > t_c + EPS:
             continue
@@ -367,20 +375,22 @@ def _sync_timeout(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Fi
             ok = gap.last_ts < t_c and (gap.next_ts > t_c or gap.next_ts >= t_c - delay)
         if ok:
             best = y
-    return best
+            held += 1
+    return best, held
 
 
 def _rpdo_timeout(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Finding],
-                  t_c: float, delay: float) -> Finding | None:
+                  t_c: float, delay: float) -> tuple[Finding | None, int]:
     """`rpdo_timeout`: a D004 of the EMCY's node whose gap contains t_c, or ended at most
     `delay` before it; with CANopenNode's marker (byte 3 = 17h) the gap whose last RPDO
     lies `info` us before t_c. The D004's time is at or before t_c."""
     analysis = pdo_stage.of(ctx.model)
     if analysis is None:
-        return None
+        return None, 0
     detail = _cn_detail(ctx, f, entry)
     node = int(entry["node"])
     best = None
+    held = 0  # the candidates that held (one is taken, §9.3.5)
     for d in findings:
         if d.rule != "D004" or d.channel != f.channel or d.node != node or (
                 d.time > t_c + EPS):
@@ -394,7 +404,8 @@ def _rpdo_timeout(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Fi
             ok = gap.last_ts < t_c and (gap.next_ts > t_c or d.time >= t_c - delay)
         if ok:
             best = d
-    return best
+            held += 1
+    return best, held
 
 
 def _sync_length(ctx: Any, f: Finding, entry: dict[str, Any], findings: list[Finding],
@@ -472,10 +483,11 @@ def _consumes(ctx: Any, f: Any, node: int, t_c: float) -> bool:
 
 
 def _heartbeat_consumer(ctx: Any, f: Finding, findings: list[Finding], t_c: float
-                        ) -> Finding | None:
+                        ) -> tuple[Finding | None, int]:
     """`heartbeat_consumer`: the H001 of a producer whose gap contains t_c, at or before
     t_c (the latest such H001)."""
     best = None
+    held = 0  # the candidates that held (one is taken, §9.3.5)
     cm = ctx.channels.get(str(f.channel))
     for h in findings:
         if h.rule != "H001" or h.channel != f.channel or h.time > t_c + EPS or cm is None:
@@ -487,7 +499,8 @@ def _heartbeat_consumer(ctx: Any, f: Finding, findings: list[Finding], t_c: floa
             if to.rule == "H001" and abs(to.moment - h.time) < 1e-6 and to.after_ts < t_c and (
                     to.ended_by is None or to.ended_by > t_c):
                 best = h
-    return best
+                held += 1
+    return best, held
 
 
 def _cn_detail(ctx: Any, f: Finding, entry: dict[str, Any]) -> dict[str, object] | None:
@@ -501,3 +514,128 @@ def _cn_detail(ctx: Any, f: Finding, entry: dict[str, Any]) -> dict[str, object]
         return None
     j = int(k[0])
     return emcy.canopennode_detail(e.data_bytes(j), int(e.dlc[j]))
+
+
+# -- the measured stand-ins of §9.3.4: a gap that explains an EMCY where the rule that
+# judges it could not (no deadline, no SYNC period): basis `measured`, never a finding
+
+
+def _pdo_gap(ctx: Any, f: Any, entry: dict[str, Any], t_c: float, delay: float,
+             depth_max: int) -> list[dict[str, Any]]:
+    """`rpdo_timeout`'s stand-in `pdo_gap`, where D004 did not evaluate C's RPDOs: one of
+    C's RPDO streams (configured, else pre-defined) has its last frame t_l < t_c, none in
+    (t_l, t_c], and t_c - t_l > 2 x its median interval over >= 3 intervals; with
+    CANopenNode's marker (17h) the stream whose t_l is nearest t_c - info us, else the
+    latest t_l. Below it, the gap's own first cause (producer_state, producer_silent, a
+    silence, error frames, a logger's drop)."""
+    cm = ctx.channels.get(str(f.channel))
+    analysis = pdo_stage.of(ctx.model)
+    if cm is None or analysis is None:
+        return []
+    node = int(entry["node"])
+    mine = [st for st in analysis.streams if st.channel == cm.network_name
+            and any(c.node == node for c in st.consumers)]
+    if any(c.node == node and c.event_timer_ms.known and c.event_timer_ms.value
+           for st in mine for c in st.consumers):
+        return []  # D004 judged C's RPDOs: its silence is the verdict
+    cobs = {st.cob_id for st in mine}
+    extra = [pdo_stage.Stream(cm.network_name, cm.chan, base + node, None,
+                              [pdo_stage.Party(node, k + 1, "rpdo")], UNKNOWN, ctx.model)
+             for k, base in enumerate(pdo_stage.RPDO_BASES) if base + node not in cobs]
+    pdo_stage.load_frames(extra, ctx.model)
+    detail = _cn_detail(ctx, f, entry)
+    aim = (t_c - int(str(detail["info"])) / 1e6 if detail is not None
+           and detail["error_bit"] == "17h" else None)
+    best: tuple[float, Any, int, float] | None = None
+    for st in [*mine, *extra]:
+        ts, idx, _line = st.frames()
+        before = np.flatnonzero(ts < t_c - EPS)
+        if len(before) < 4:
+            continue
+        k = int(before[-1])
+        median = float(np.median(np.diff(ts[before])))
+        if median <= 0 or t_c - ts[k] <= 2 * median:
+            continue
+        score = abs(float(ts[k]) - aim) if aim is not None else -float(ts[k])
+        if best is None or score < best[0]:
+            best = (score, st, k, median)
+    if best is None:
+        return []
+    _score, st, k, median = best
+    ts, idx, line = st.frames()
+    tl = float(ts[k])
+    nxt = float(ts[k + 1]) if k + 1 < len(ts) else None
+    gap = cause_entry("pdo_gap", tl, int(idx[k]), int(line[k]),
+                      f"no RPDO {st.cob_id:03X}h for node {node} after "
+                      f"{at(tl, cm.start, False)}: {(t_c - tl) * 1000:.3f} ms before the EMCY, "
+                      f"over 2 x its median interval {median * 1000:.3f} ms (measured)", node,
+                      end=nxt, link="rpdo_timeout")
+    gap.update(basis="measured", depth=2, parent=0)
+    out = [gap]
+    if depth_max >= 3:
+        producer = st.producer.node if st.producer is not None else None
+        first = _gap_cause(ctx, cm, producer, (tl, int(idx[k])), min(tl + median, t_c), t_c,
+                           f"producer of {st.cob_id:03X}h", (0x04, 0x7F, 0x00))
+        if first is not None:
+            out.append(dict(first, depth=3, parent=1))
+    return out
+
+
+def _sync_gap(ctx: Any, f: Any, entry: dict[str, Any], t_c: float, delay: float,
+              depth_max: int) -> list[dict[str, Any]]:
+    """`sync_timeout`'s stand-in `sync_gap`, where no Y001 gap holds t_c: the SYNC gap
+    (t_s, t_n) around t_c, t_s < t_c and t_n > t_c - delay, longer than 1.5 x the median
+    SYNC interval before t_s over >= 5 intervals. An 8100h with another CANopenNode
+    marker than 18h never links."""
+    detail = _cn_detail(ctx, f, entry)
+    if detail is not None and detail["error_bit"] != "18h":
+        return []
+    cm = ctx.channels.get(str(f.channel))
+    analysis = sync_stage.of(ctx.model)
+    sc = analysis.channels.get(cm.name) if analysis is not None and cm is not None else None
+    if sc is None or not len(sc):
+        return []
+    data = np.flatnonzero(~sc.rtr)
+    before = data[sc.ts[data] < t_c - EPS]
+    if len(before) < 6:
+        return []
+    k = int(before[-1])
+    after = data[data > k]
+    t_n = float(sc.ts[after[0]]) if len(after) else np.inf
+    median = float(np.median(np.diff(sc.ts[before])))
+    t_s = float(sc.ts[k])
+    if median <= 0 or t_n - t_s <= 1.5 * median or t_n <= t_c - delay:
+        return []
+    span = ("the rest of the log" if not np.isfinite(t_n)
+            else f"{(t_n - t_s) * 1000:.3f} ms")
+    gap = cause_entry("sync_gap", t_s, int(sc.idx[k]), int(sc.line[k]),
+                      f"no SYNC after {at(t_s, cm.start, False)} for {span}: over 1.5 x "
+                      f"the median SYNC interval {median * 1000:.3f} ms (measured)",
+                      None, end=None if not np.isfinite(t_n) else t_n, link="sync_timeout")
+    gap.update(basis="measured", depth=2, parent=0)
+    out = [gap]
+    if depth_max >= 3:
+        producer = (int(sc.producer.value) if sc.producer.known and sc.producer.value
+                    else None)
+        first = _gap_cause(ctx, cm, producer, (t_s, int(sc.idx[k])),
+                           min(t_s + median, t_c), t_c, "producing SYNC", (0x04,))
+        if first is not None:
+            out.append(dict(first, depth=3, parent=1))
+    return out
+
+
+def _gap_cause(ctx: Any, cm: Any, producer: int | None, last: tuple[float, int], te: float,
+               tf: float, role: str, states: tuple[int, ...]) -> dict[str, Any] | None:
+    """A stand-in gap's first cause by §9.3.4's links in their order: the producer's
+    change, its silence, a silence or error frames beginning in the gap, a logger's drop
+    up to the effect."""
+    tl = last[0]
+    found: list[dict[str, Any]] = []
+    if producer is not None:
+        found += [c for c in _producer_changes(cm, producer, tl, te, role, states)]
+        found += producer_silent(ctx, cm, producer, last, te, tf, role)
+    found += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
+              if c["time"] >= tl - EPS]
+    found += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
+    found += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
+    return next((c for c in found if c["time"] <= tf + EPS), None)

@@ -78,7 +78,8 @@ def cause_entry(kind: str, time: float, idx: int | None, line: int | None, text:
     return {"kind": kind, "time": round(float(time), 6),
             "end": None if end is None else round(float(end), 6),
             "frame_index": idx, "line": line or None, "node": node, "count": count,
-            "code": code, "text": text, "link": link, "depth": 1, "parent": None}
+            "code": code, "text": text, "link": link, "depth": 1, "parent": None,
+            "basis": None, "alternatives": 0}
 
 
 def cluster_entry(hits: list[tuple[float, int, int, int]], own: tuple[float, int, int, int],
