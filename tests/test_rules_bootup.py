@@ -6,7 +6,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import Checker, candump
+from conftest import SAMPLES, Checker, candump
+from test_real_stack_stale import live
 from traces import HEALTHY_NET, hb, healthy, profile
 
 
@@ -176,24 +177,68 @@ def test_b003_one_finding_per_run_reset_splits_runs(checker: Checker) -> None:
                                                                  ("B003", 2, 1.0)]
 
 
+def _two_bootups(second: float) -> list[tuple[float, str]]:
+    """Node 2's boot-ups at 0 and `second` with no report between (node 3 heartbeats)."""
+    return sorted([(0.0, "702#00"), (second, "702#00")] + hb(2, second + 0.1, 3.0)
+                  + hb(3, 0.05, 3.0))
+
+
 def test_b003_window_is_inclusive_and_at_least_one_second(checker: Checker) -> None:
-    exactly = [(0.0, "702#00")] + hb(2, 0.1, 1.0) + [(1.0, "702#00")] + hb(2, 1.1, 2.0)
-    beyond = [(0.0, "702#00")] + hb(2, 0.1, 1.2) + [(1.2, "702#00")] + hb(2, 1.3, 2.0)
-    assert checker.findings(candump(exactly), select="B") == [("B003", 2, 1.0)]
-    assert checker.findings(candump(beyond), select="B") == [("B002", 2, 1.2)]
+    assert checker.findings(candump(_two_bootups(1.0)), select="B") == [("B003", 2, 1.0)]
+    assert checker.findings(candump(_two_bootups(1.2)), select="B") == [("B002", 2, 1.2)]
 
 
 def test_b003_window_is_three_heartbeat_periods(checker: Checker) -> None:
     net = "[nodes.2]\nheartbeat_ms = 500\n"  # window 1.5 s
-    fr = [(0.0, "702#00")] + hb(2, 0.5, 1.4, period=0.5) + [(1.4, "702#00")] + hb(
-        2, 1.9, 3.0, period=0.5)
-    assert checker.findings(candump(fr), select="B", network=net) == [("B003", 2, 1.4)]
+    assert checker.findings(candump(_two_bootups(1.4)), select="B", network=net) == [
+        ("B003", 2, 1.4)]
+    assert checker.findings(candump(_two_bootups(1.6)), select="B", network=net) == [
+        ("B002", 2, 1.6)]
 
 
 def test_b003_repeat_window_ms_from_profile(checker: Checker, tmp_path: Path) -> None:
-    fr = [(0.0, "702#00")] + hb(2, 0.1, 1.0) + [(1.0, "702#00")] + hb(2, 1.1, 2.0)
     prof = profile(tmp_path, "[rules.B003]\nrepeat_window_ms = 500\n")
-    assert checker.findings(candump(fr), select="B", profile=prof) == [("B002", 2, 1.0)]
+    assert checker.findings(candump(_two_bootups(1.0)), select="B", profile=prof) == [
+        ("B002", 2, 1.0)]
+    assert checker.findings(candump(_two_bootups(0.5)), select="B", profile=prof) == [
+        ("B003", 2, 0.5)]
+
+
+@pytest.mark.parametrize("between", [
+    [(0.5, "702#7F")],  # a heartbeat: N had come up (a power cycle within the window)
+    [(0.5, "702#R"), (0.502, "702#7F")],  # a guarding response
+], ids=["heartbeat", "guarding-response"])
+def test_b003_not_across_a_report_of_another_state(checker: Checker,
+                                                   between: list[tuple[float, str]]) -> None:
+    """Two boot-ups 0.9 s apart, within the 1 s window, with a report of N between: N
+    did not keep sending 00h, it booted again (B002), however soon."""
+    fr = sorted([(0.0, "702#00"), *between, (0.9, "702#00")] + hb(2, 1.0, 3.0)
+                + hb(3, 0.05, 3.0))
+    assert checker.findings(candump(fr), select="B") == [("B002", 2, 0.9)]
+
+
+def test_b003_run_ends_at_a_report(checker: Checker) -> None:
+    """00h, 00h (a repeat, no report between; a TPDO and an SDO answer are no report of
+    its state), then 7Fh, then 00h: one B003 for the run, B002 for the last boot-up."""
+    fr = sorted([(0.0, "702#00"), (0.1, "182#01"), (0.15, "582#4318100100000000"),
+                 (0.2, "702#00"), (0.3, "702#7F"), (0.6, "702#00")]
+                + hb(2, 0.7, 3.0) + hb(3, 0.05, 3.0))
+    assert checker.findings(candump(fr), select="B") == [("B003", 2, 0.2), ("B002", 2, 0.6)]
+
+
+def test_b003_live_ends_a_run_at_a_report_too(checker: Checker, tmp_path: Path) -> None:
+    """The live tracker judges B003 and B002 as the offline check does: a report of N
+    between two boot-ups ends a run. The CANopenNode slave powered off and on 1.1 s after
+    its boot-up, having sent `703#7F` between (samples/canopennode/lss/), is B002 in both."""
+    reported = [(0.0, "702#00"), (0.5, "702#7F"), (0.9, "702#00")]
+    in_a_row = [(0.0, "702#00"), (0.9, "702#00")]
+    for node2, rule in ((reported, "B002"), (in_a_row, "B003")):
+        text = candump(sorted(node2 + hb(2, 1.0, 3.0) + hb(3, 0.05, 3.0)))
+        assert [r for r, _n, _t in checker.findings(text, select="B")] == [rule]
+        assert [f for f in live(text, tmp_path) if f[0].startswith("B")] == [(rule, 2)]
+    text = (SAMPLES / "canopennode" / "lss" / "lss_not_adopted.log").read_text()
+    assert checker.findings(text, select="B") == [("B002", 3, 1.096)]
+    assert [f for f in live(text, tmp_path) if f[0].startswith("B")] == [("B002", 3)]
 
 
 def test_b001_tpdo_logged_with_the_resets_timestamp_but_after_it(checker: Checker) -> None:

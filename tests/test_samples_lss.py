@@ -200,18 +200,27 @@ def test_node_id_lost_in_a_power_cycle_is_not_adopted() -> None:
     """Configured slave 3 (5Eh answered 3) gets node-ID 8, not stored; it is powered off
     and on before any reset (it boots as 3 again: `communication reset: node-ID 3`), and
     the master's broadcast reset communication brings it up as node 3, not 8: L006 at
-    the reset + 5000 ms. B003 (another group) reports node 3's second power-on boot-up."""
+    the reset + 5000 ms. Node 3's second power-on boot-up, 1.1 s after its first with its
+    heartbeat 7Fh between, is a reboot no reset explains: B002 (a warning), not B003
+    (boot-ups in a row, an error: it did not keep sending 00h)."""
     name = "lss_not_adopted"
     assert _master_calls(name) == [
         "select 300:4644:0:4 -> OK", "inquire_node -> OK, value 00000003", "node 8 -> OK",
         "deselect -> OK", "CO_NMT_sendCommand(82h, node 0)"]
     assert _resets(name, "sC") == ["communication reset: node-ID 3"] * 3
+    # the stack: C reached PRE-OPERATIONAL (127), was powered off, and booted again
+    assert [s for _t, s in recording.states(_log(name), "sC")] == ["0", "127"] * 3
+    hub = [line.split(maxsplit=3)[3] for line in
+           _log(name).with_suffix(".events").read_text().splitlines()
+           if line.startswith("# hub t=")]
+    assert hub[2:4] == ["power off sC", hub[0]], hub  # the same device, spawned again
     frames = _frames(name)
     reset = _first(frames, 0x000, "8200")
     assert not [f for f in frames if f.can_id == 0x708]
+    assert [f.data for f in frames if f.can_id == 0x703 and f.t < reset.t] == ["00", "7F", "00"]
     found = _found(name)
     power_on = [f for f in frames if f.can_id == 0x703 and f.data == "00"][1]
-    assert found == [("B003", 3, power_on.t), ("L006", 8, round(reset.t + 5.0, 6))]
+    assert found == [("B002", 3, power_on.t), ("L006", 8, round(reset.t + 5.0, 6))]
     res = _check(name)
     analysis = lss.of(res.model)
     assert analysis is not None

@@ -201,15 +201,15 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
 
     Each reset command (within B002's `reset_window_ms`) explains one boot-up, as for
     B002: two resets sent back to back (Lely's `000#8100` then `000#8200`) are answered
-    by two boot-ups, no repeat. In a log without timestamps (no window) a repeat is a
-    00h right after N's previous 00h, with no other report of N between: a node that
-    reported another state in between booted again (B002), it did not heartbeat 00h.
+    by two boot-ups, no repeat. A repeat is a 00h right after N's previous 00h, with no
+    heartbeat or guarding response of N between: a node that reported another state in
+    between booted again (a power cycle, a crash: B002), it did not heartbeat 00h. In a
+    log without timestamps (no window) that order is all B003 has.
     A stale power-on boot-up (`_power_on`) is left out: the boot-up after it answers the
     reset it came after, it repeats nothing."""
     runs: list[list[EcFrame]] = []
-    if m.order_only:
-        reports = (m.ec.kind == HEARTBEAT) | (m.ec.kind == GUARD)
-        seen = np.cumsum(reports)  # reports of N up to each row
+    reports = (m.ec.kind == HEARTBEAT) | (m.ec.kind == GUARD)
+    seen = np.cumsum(reports)  # reports of N up to each row
     prev: EcFrame | None = None
     resets = m.commands.reset_idx.tolist()
     reset_ts = m.commands.reset_ts.tolist()
@@ -230,7 +230,7 @@ def _repeats(m: NodeModel, window: float, reset_window: float) -> list[list[EcFr
         # time going back (two captures in one file) makes no repeat: "over -0.102 s",
         # nor "over 0.000 s" where N's frames between the two were later than both
         if (prev is not None and -EPS <= b.ts - prev.ts <= window + EPS and not explained
-                and (not m.order_only or seen[b.pos] == seen[prev.pos])
+                and seen[b.pos] == seen[prev.pos]
                 and not _time_went_back(m.ec.ts[prev.pos + 1:b.pos], b.ts)):
             if runs and runs[-1][-1] is prev:
                 runs[-1].append(b)
@@ -248,7 +248,9 @@ def bootup_repeated(m: NodeModel, ctx: NodeContext, p: Params) -> Iterator[Found
     """A node keeps sending state 00h instead of announcing its boot-up once.
 
     **What it checks.** A second 00h frame from N follows the previous one within
-    `repeat_window_ms` with no reset command to N in between. Each reset command
+    `repeat_window_ms` with neither a reset command to N nor a heartbeat or guarding
+    response of N in between: a node that reported another state between two boot-ups
+    rebooted (a power cycle, a crash), which is B002. Each reset command
     explains one boot-up (as for B002): two resets sent back to back, answered by two
     boot-ups, are no repeat. One finding per run.
 

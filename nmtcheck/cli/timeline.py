@@ -156,7 +156,7 @@ def render_timeline(res: InputResult, fmt: str,
         lines.append(f"{m.channel} node {m.node}:")
         # EMCY, SDO aborts, configuration written: among the states, in time order (an
         # event at a state's start after that state's line); a node's boot-ups inside a
-        # state (it rebooted without a state change, B003) under that state's line; the
+        # state (it rebooted without a state change, B002 or B003) under that state's line; the
         # node's PDO gaps (D001 of a producer, D004 of a consumer) as intervals
         detail = {e.frame_index: e.detail for e in comm_lanes.emcy_rows(res, m.channel, m.node)
                   if e.canopennode is not None}

@@ -111,6 +111,7 @@ class NodeState:
     requests: int = 0  # guarding requests since N's last 700h data frame
     polled: bool = False  # a guarding request to N was seen
     reported: bool = False  # N sent a report (700h data frame) since its boot-up
+    reported_state: bool = False  # a heartbeat or guarding response since its boot-up
     start_frame: tuple[float, int] | None = None  # N's first report, at the session's start
     # the last response came after unanswered requests with toggle 0, or was N's first
     # report at the start (it may have been a heartbeat): the toggle expected before it,
@@ -581,6 +582,7 @@ class Tracker:
         if value == 0:
             self._bootup(st, f.ts, was_seen)
             return
+        st.reported_state = True  # its next boot-up repeats none (B003): N rebooted
         code = value & 0x7F
         toggle = value >> 7
         off = st.written_hb_ms == 0  # 1017h = 0 written: heartbeat disabled
@@ -780,7 +782,7 @@ class Tracker:
                   and -EPS <= ts - st.power_on_boot <= self.obey_s + EPS)
         st.power_on_boot = ts if not was_seen and self._reset_just_before(st, ts) else None
         repeat = (since is not None and since <= window + EPS and not st.reset_since_boot
-                  and not answer)
+                  and not answer and not st.reported_state)
         while st.unanswered_resets and ts - st.unanswered_resets[0] > self.reset_window_s + EPS:
             st.unanswered_resets.popleft()
         own = self.broadcast_reset_on.get(st.channel)
@@ -806,7 +808,7 @@ class Tracker:
         st.last_boot_repeat = repeat
         st.last_boot = ts
         st.boots += 1
-        st.reset_since_boot = False
+        st.reset_since_boot = st.reported_state = False
         st.hb_since_boot = 0
         st.prev_hb = None
         st.class_last_hb = st.class_early = None

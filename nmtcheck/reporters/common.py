@@ -435,8 +435,9 @@ def configured_vs_measured(m: NodeModel, end: float) -> ConfiguredVsMeasured:
 @dataclass
 class Reboots:
     """Boot-ups of a node inside one of its state intervals: it announced a new boot
-    (00h) again and again without changing state (a node stuck rebooting, or one that
-    heartbeats 00h: B003), which a plain bar would hide."""
+    (00h) again and again without changing state (a node stuck rebooting: B002, or B003
+    where no report came between; one that heartbeats 00h: B003), which a plain bar
+    would hide."""
 
     interval: int  # its position in the node's intervals
     ts: np.ndarray  # the boot-ups' times
