@@ -13,6 +13,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import can
 import canopen
@@ -47,6 +48,34 @@ def frames_of(path: Path) -> list[LiveFrame]:
                 ts, iface, cid, ext, rtr, err, fd, dlc, data = row
                 out.append(LiveFrame(ts, iface.decode(), cid, ext, rtr, err, fd, dlc, data))
     return out
+
+
+def replay_at_real_timing(window: list[LiveFrame], channel: str, **monitor_options: Any
+                          ) -> tuple[nmtcheck.Monitor, list[tuple[float, LiveFinding]]]:
+    """Send the frames on a python-can virtual bus at their recorded spacing to a
+    `nmtcheck.Monitor` on the other end; the monitor and each finding with the wall time
+    it was reported at."""
+    tx = can.Bus(interface="virtual", channel=channel)
+    rx = can.Bus(interface="virtual", channel=channel)
+    reported: list[tuple[float, LiveFinding]] = []
+    monitor = nmtcheck.Monitor(on_finding=lambda lf: reported.append((time.time(), lf)),
+                               **monitor_options)
+    notifier = can.Notifier(rx, [monitor])
+    try:
+        began = time.perf_counter()
+        for f in window:
+            delay = (f.ts - window[0].ts) - (time.perf_counter() - began)
+            if delay > 0:
+                time.sleep(delay)
+            tx.send(can.Message(arbitration_id=f.can_id, data=f.data, is_remote_frame=f.rtr,
+                                dlc=f.dlc, is_extended_id=False))
+        time.sleep(0.02)
+    finally:
+        notifier.stop()
+        monitor.stop()
+        tx.shutdown()
+        rx.shutdown()
+    return monitor, reported
 
 
 SAMPLE_LOGS = sorted([*SAMPLES.glob("canopen_master/*.log"), *SAMPLES.glob("lely/*.log"),
@@ -259,26 +288,7 @@ def test_lely_recording_replayed_at_real_timing(tmp_path: Path) -> None:
     frames = frames_of(SAMPLES / "lely" / "unplugged_heartbeat.log")
     t0 = frames[0].ts
     window = [f for f in frames if 4.5 <= f.ts - t0 <= 7.05]
-    channel = f"lely-{id(tmp_path)}"
-    tx = can.Bus(interface="virtual", channel=channel)
-    rx = can.Bus(interface="virtual", channel=channel)
-    reported: list[tuple[float, LiveFinding]] = []
-    monitor = nmtcheck.Monitor(on_finding=lambda lf: reported.append((time.time(), lf)))
-    notifier = can.Notifier(rx, [monitor])
-    try:
-        began = time.perf_counter()
-        for f in window:
-            delay = (f.ts - window[0].ts) - (time.perf_counter() - began)
-            if delay > 0:
-                time.sleep(delay)
-            tx.send(can.Message(arbitration_id=f.can_id, data=f.data, is_remote_frame=f.rtr,
-                                dlc=f.dlc, is_extended_id=False))
-        time.sleep(0.02)
-    finally:
-        notifier.stop()
-        monitor.stop()
-        tx.shutdown()
-        rx.shutdown()
+    monitor, reported = replay_at_real_timing(window, f"lely-{id(tmp_path)}")
     live = [(lf.rule, lf.node, lf.confirmed) for lf in monitor.live_findings()]
     # notifier.stop() takes up to 0.5 s: heartbeats stopped meanwhile are timeouts after
     # the last recorded frame, stated as such (no offline check can see them)

@@ -17,7 +17,7 @@ from pathlib import Path
 import can
 import pytest
 from conftest import SAMPLES, Checker
-from test_live import PROFILE, RULES, frames_of
+from test_live import PROFILE, RULES, frames_of, replay_at_real_timing
 
 import nmtcheck
 from nmtcheck.engine import check_input, select_rules
@@ -243,35 +243,18 @@ def test_sync_recording_replayed_on_a_virtual_bus(tmp_path: Path) -> None:
     frames = frames_of(CN / "sync_emcy/sync_producer_stopped.log")
     t0 = frames[0].ts
     window = [f for f in frames if 3.5 <= f.ts - t0 <= 4.3]
-    channel = f"sync-{id(tmp_path)}"
-    tx = can.Bus(interface="virtual", channel=channel)
-    rx = can.Bus(interface="virtual", channel=channel)
-    reported: list[tuple[float, LiveFinding]] = []
-    monitor = nmtcheck.Monitor(network=CN / "sync_emcy/network_sync_stopped.toml",
-                               on_finding=lambda lf: reported.append((time.time(), lf)))
-    notifier = can.Notifier(rx, [monitor])
-    try:
-        began = time.perf_counter()
-        for f in window:
-            delay = (f.ts - window[0].ts) - (time.perf_counter() - began)
-            if delay > 0:
-                time.sleep(delay)
-            tx.send(can.Message(arbitration_id=f.can_id, data=f.data, is_remote_frame=f.rtr,
-                                dlc=f.dlc, is_extended_id=False))
-        time.sleep(0.02)
-    finally:
-        notifier.stop()
-        monitor.stop()
-        tx.shutdown()
-        rx.shutdown()
+    monitor, reported = replay_at_real_timing(
+        window, f"sync-{id(tmp_path)}", network=CN / "sync_emcy/network_sync_stopped.toml")
     y001 = [lf for lf in monitor.live_findings() if lf.rule == "Y001"]
-    assert [(lf.node, lf.confirmed) for lf in y001] == [(2, "confirmed")]
-    at, lf = next((t, lf) for t, lf in reported if lf.rule == "Y001")
-    assert 0 <= at - lf.time < 0.1, at - lf.time
+    # the stop's timeout, and any stall of a busy test machine during the replay (a real
+    # SYNC gap of the replayed bus): each confirmed by the check of what was replayed
+    assert y001 and all((lf.node, lf.confirmed) == (2, "confirmed") for lf in y001)
+    for at, lf in ((t, lf) for t, lf in reported if lf.rule == "Y001"):
+        assert 0 <= at - lf.time < 0.1, at - lf.time
     res = monitor.result()
     assert res is not None
     # (the window ends before the consumers' EMCY resets: E003, decided at the end)
-    assert [f.rule for f in res.findings if f.rule in LIVE_COMM] == ["Y001"]
+    assert [f.rule for f in res.findings if f.rule in LIVE_COMM] == ["Y001"] * len(y001)
 
 
 # -- the SPEC_COMM §9.5 vectors and the rule tests, replayed live -----------------------------
