@@ -22,7 +22,7 @@ for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit sync_
 done
 mkdir -p "$OUT/pdo"
 for s in rpdo_producer_stopped rpdo_timeout_stale_heartbeat tpdo_event_timer tpdo_inhibit_bypass rpdo_length sync_tpdo \
-         reserved_type tpdo_late; do
+         reserved_type tpdo_late tpdo_late_written; do
   chrt -f 10 python3 hub.py $s "$OUT/pdo/$s.log" --bin "$BIN" --events "$OUT/pdo/$s.events"
 done
 mkdir -p "$OUT/lss"
