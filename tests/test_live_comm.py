@@ -37,6 +37,7 @@ RECORDINGS: dict[str, tuple[Path, set[str]]] = {
     "sync_emcy/sync_counter": (CN / "sync_emcy/network_sync_counter.toml", set()),
     "sync_emcy/sync_counter_skip": (CN / "sync_emcy/network_sync_counter.toml", {"Y003"}),
     "sync_emcy/emcy_inhibit": (CN / "sync_emcy/network_emcy.toml", set()),
+    "sync_emcy/emcy_short": (CN / "sync_emcy/network_emcy_short.toml", {"E002"}),
     "pdo/rpdo_length": (CN / "pdo/network_rpdo_length.toml", {"D005"}),
     "pdo/rpdo_producer_stopped": (CN / "pdo/network_rpdo_producer_stopped.toml", {"D004"}),
     "pdo/rpdo_timeout_stale_heartbeat": (
@@ -44,6 +45,7 @@ RECORDINGS: dict[str, tuple[Path, set[str]]] = {
     "pdo/sync_tpdo": (CN / "pdo/network_sync_tpdo.toml", set()),
     "pdo/tpdo_event_timer": (CN / "pdo/network_tpdo_event_timer.toml", set()),
     "pdo/tpdo_inhibit_bypass": (CN / "pdo/network_tpdo_inhibit_bypass.toml", {"D002"}),
+    "pdo/tpdo_late": (CN / "pdo/network_tpdo_late.toml", {"Y004"}),
     "healthy": (CN / "network.toml", set()),
     "sync_pdo": (CN / "network.toml", set()),
 }
@@ -85,7 +87,7 @@ def test_replay_gives_the_offline_findings_live(name: str, with_network: bool) -
     seen = _assert_offline_equals_live(_replay(log, network), log, network)
     if with_network:  # what the stack reported, found live (tests/test_samples_*.py)
         assert seen == expected
-    elif name.endswith(("sync_producer_stopped", "sync_counter_skip")):
+    elif name.endswith(("sync_producer_stopped", "sync_counter_skip", "emcy_short")):
         assert seen == expected  # no configuration needed (Y001 from the written 1006h)
     else:
         assert seen == set()

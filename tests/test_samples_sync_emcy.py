@@ -7,9 +7,11 @@ the hub's `.events` file beside each log (CLOCK_REALTIME, the clock of the log),
 NMT state change from CANopenNode's `CO_NMT_initCallbackChanged` callback and every EMCY
 the stack sends from `CO_EM_initCallbackRx` (called with ident 0 right after its own
 EMCY went out), plus the application's `status` (NMT state, 1001h, active error bits)
-near the end. The tests below first check that the log holds what the stack says it did,
-then nmtcheck's verdict: each expected finding is derived from the SPEC's text
-(SPEC_COMM §9.2, §9.3.4) and the log's frames, and commented where it is derived.
+near the end, and, from the patched stack of `emcy_short` (emcy_short.patch), every EMCY
+it sent with a DLC other than 8. The tests below first check that the log holds what the
+stack says it did, then nmtcheck's verdict: each expected finding is derived from the
+SPEC's text (SPEC_COMM §9.2, §9.3.4) and the log's frames, and commented where it is
+derived.
 
 Where nmtcheck's verdict differs from the SPEC on these real recordings the test is
 `xfail(strict=True)` with the case in its reason: nmtcheck is not changed here.
@@ -34,6 +36,7 @@ NETWORK = {
     "sync_counter_skip": "network_sync_counter.toml",
     "emcy_inhibit": "network_emcy.toml",
     "sync_length": "network_sync_length.toml",
+    "emcy_short": "network_emcy_short.toml",
 }
 
 
@@ -356,6 +359,61 @@ def test_emcy_inhibit_bare_lists_e001_for_node_3() -> None:
     res = _check(EMCY, None)
     assert "E001" not in res.not_evaluated
     assert res.partly_evaluated["E001"].endswith("(can0 node 3)")
+
+
+# -- emcy_short: a stack that sends EMCYs with DLC 4 (E002) ----------------------------------
+
+SHORT = "emcy_short"
+
+
+def test_emcy_short_ground_truth() -> None:
+    """Node 3 on the patched stack (dev_emcyshort): its application raises manufacturer
+    error 5000h (bit 40h, register 80h) at 3.0 s and resets it at 3.5 s, then the same at
+    5.0 s and 5.5 s. The stack sends four EMCYs, the callback gives each one's eight bytes;
+    the patch says the first two went out with DLC 4, and the bus has exactly that: lines
+    184 and 211 carry the first four of the callback's bytes, lines 292 and 319 all eight.
+    No other EMCY; node 3 stays OPERATIONAL (register bit 7 is not in its NMT control mask)
+    and ends with register 00h."""
+    injected = [e for e in _events(SHORT) if e.text.startswith("injected (patched stack)")]
+    assert [(e.device, e.text) for e in injected] == [
+        ("s3", "injected (patched stack): EMCY 083h sent with DLC 4 instead of 8")] * 2
+    emcys = [f for f in _frames(SHORT) if 0x81 <= f.can_id <= 0xFF]
+    sent = _emcys_sent(SHORT)
+    assert [(f.line, f.t, f.can_id, f.data) for f in emcys] == [
+        (184, 2.997921, 0x083, "00508040"),
+        (211, 3.497895, 0x083, "00000040"),
+        (292, 4.997944, 0x083, "0050804002000000"),
+        (319, 5.497881, 0x083, "0000004000000000")]
+    assert [(node, data) for _, node, data in sent] == [
+        (3, "0050804001000000"), (3, "0000004000000000"),
+        (3, "0050804002000000"), (3, "0000004000000000")]
+    for k, (frame, (t, node, data)) in enumerate(zip(emcys, sent, strict=True)):
+        dlc = 4 if k < len(injected) else 8
+        assert (frame.can_id, frame.data) == (0x80 + node, data[:2 * dlc])
+        assert abs(frame.t - t) < 0.001
+    for frame, e in zip(emcys, injected, strict=False):
+        assert 0 <= frame.t - e.t < 0.001  # the patched code logs right after CO_CANsend()
+    assert _states(SHORT, "s3")[-1:] == [(0.15284, "OPERATIONAL")]
+    assert set(_status(SHORT).values()) == {
+        "status: NMT state OPERATIONAL, error register 00, active error bits: none"}
+
+
+@pytest.mark.parametrize("network", [None, "file"], ids=["bare", "network"])
+def test_emcy_short_is_e002(network: str | None) -> None:
+    """E002 (§9.2.3) (b): lines 184 and 211 are EMCYs of node 3 (on 83h, DLC >= 2, §9.1.7)
+    of DLC 4 with nothing in between on 83h: one run, one finding at the first with its
+    count. The EMCYs of DLC 8 fire nothing; E002 needs no configuration, so the network
+    file changes nothing. E003 is silent: node 3's last EMCY is a reset with register 00h.
+    E001 cannot fire: 1015h is 0 (the file) or unknown (without it: not evaluated)."""
+    res = _check(SHORT, network)
+    assert _found(res) == [("E002", 3, 2.997921)]
+    [e002] = res.findings
+    assert e002.line == 184
+    assert e002.message == (
+        "EMCY of node 3 with DLC 4, 8 expected (CanFestival consumers drop it) (2 frames)")
+    assert "E002" not in res.not_evaluated and "E002" not in res.partly_evaluated
+    if network is None:
+        assert "E001" in res.not_evaluated
 
 
 # -- heartbeat consumer timeouts in the earlier recordings (EMCY 8130h, byte 3 = 1Bh) --------

@@ -39,6 +39,7 @@
  *                      consumer whose timeout (1.5 x 1006h) runs
  *   --sync-ovf N       power-on 1019h (synchronous counter overflow value)
  *   --emcy-inhibit N   power-on 1015h (EMCY inhibit time, 100 us units)
+ *   --sync-window-us US  power-on 1007h (synchronous window length, us)
  *   control `err_set BIT CODE INFO` / `err_reset BIT INFO` (hex): the
  *   application calls CO_errorReport() / CO_errorReset(); `status` prints the
  *   NMT state, the error register 1001h and the active error bits.
@@ -62,7 +63,9 @@
  * every communication reset (read back from the object dictionary, as the
  * stack initialised it), every application request, and, from the patched
  * stack of dev_inhibit (tpdo_inhibit.patch), every TPDO it sent while its
- * inhibit time was still running.
+ * inhibit time was still running, from dev_late (tpdo_late.patch) every synchronous
+ * TPDO it sent after the synchronous window, and from dev_emcyshort (emcy_short.patch) every
+ * EMCY it sent with a DLC other than 8.
  */
 #include <errno.h>
 #include <poll.h>
@@ -94,6 +97,7 @@ static unsigned syncUs = 0; /* SYNC producer period (1006h, --sync-us), 0 = none
 static unsigned syncConsUs = 0; /* SYNC consumer period (1006h, --sync-cons-us), 0 = none */
 static int syncOvf = -1;        /* power-on 1019h (--sync-ovf), -1 = OD default */
 static int emcyInhibit = -1;    /* power-on 1015h (--emcy-inhibit), -1 = OD default */
+static int syncWindowUs = -1;   /* power-on 1007h (--sync-window-us), -1 = OD default */
 static int tpdoType = -1, tpdoInhibit = -1, tpdoEvent = -1; /* power-on 1800h:02/03/05 (--tpdo1) */
 static int rpdoSet = 0;             /* --rpdo1 given */
 static uint32_t rpdoCob = 0;        /* power-on 1400h:01 */
@@ -291,6 +295,23 @@ nmtcheck_inhibit_bypass(unsigned canId, unsigned leftUs, unsigned inhibitUs) {
           inhibitUs);
 }
 
+/* called by the patched stack of dev_late (tpdo_late.patch) when it sends a synchronous TPDO
+ * after the synchronous window */
+void nmtcheck_tpdo_late(unsigned canId, unsigned sinceSyncUs, unsigned windowUs);
+void
+nmtcheck_tpdo_late(unsigned canId, unsigned sinceSyncUs, unsigned windowUs) {
+    logf_("injected (patched stack): TPDO %03Xh sent %u us after the SYNC, %u us after its window 1007h = %u us",
+          canId, sinceSyncUs, sinceSyncUs - windowUs, windowUs);
+}
+
+/* called by the patched stack of dev_emcyshort (emcy_short.patch) after it sent an EMCY with
+ * a DLC other than 8 */
+void nmtcheck_emcy_short(unsigned canId, unsigned dlc);
+void
+nmtcheck_emcy_short(unsigned canId, unsigned dlc) {
+    logf_("injected (patched stack): EMCY %03Xh sent with DLC %u instead of 8", canId, dlc);
+}
+
 /* the valid PDOs as the object dictionary holds them after CO_CANopenInitPDO() */
 static void
 log_pdo_configuration(void) {
@@ -437,6 +458,7 @@ main(int argc, char** argv) {
         else if (!strcmp(o, "--sync-cons-us")) { syncConsUs = (unsigned)atoi(v); i++; }
         else if (!strcmp(o, "--sync-ovf")) { syncOvf = atoi(v); i++; }
         else if (!strcmp(o, "--emcy-inhibit")) { emcyInhibit = atoi(v); i++; }
+        else if (!strcmp(o, "--sync-window-us")) { syncWindowUs = atoi(v); i++; }
         else if (!strcmp(o, "--guard")) { sscanf(v, "%u:%u", &guardPowerOn, &lifePowerOn); i++; }
         else if (!strcmp(o, "--tpdo1")) {
             if (sscanf(v, "%d:%d:%d", &tpdoType, &tpdoInhibit, &tpdoEvent) != 3) {
@@ -501,6 +523,9 @@ main(int argc, char** argv) {
     }
     if (syncOvf >= 0) { /* power-on 1019h */
         OD_PERSIST_COMM.x1019_synchronousCounterOverflowValue = (uint8_t)syncOvf;
+    }
+    if (syncWindowUs >= 0) { /* power-on 1007h */
+        OD_PERSIST_COMM.x1007_synchronousWindowLength = (uint32_t)syncWindowUs;
     }
     if (emcyInhibit >= 0) { /* power-on 1015h */
         OD_PERSIST_COMM.x1015_inhibitTimeEMCY = (uint16_t)emcyInhibit;

@@ -434,6 +434,42 @@ SCENARIOS: dict[str, Scenario] = {
         ctl(6.0, "master", "nmt 01 2"),
         *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
     ]),
+    # as sync_tpdo's node 2 (TPDO1 type 1, SYNC every 20 ms from the master), with a synchronous
+    # window 1007h = 10 ms at power-on, on the patched stack (tpdo_late.patch): from the 100th
+    # SYNC on which its TPDO is due, every 50th, three times, the stack holds the TPDO back and
+    # sends it 4 ms after the window has passed (14 ms after its SYNC)
+    "tpdo_late": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "1:0:0", "--sync-window-us", "10000"), "dev_late"),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "20000"]),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
+    # as tpdo_late, but node 2's power-on 1007h is 0: the master writes 1007h = 10 ms to node
+    # 2 by SDO at 1.0 (CANopenNode takes it at once: CO_SYNC reads 1007h from the OD at every
+    # SYNC), so the window the patched stack passes is one written in the trace
+    "tpdo_late_written": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2, "--tpdo1", "1:0:0"), "dev_late"),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "20000"]),
+        ctl(1.0, "master", "sdo_write 2 1007 0 4 10000"),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
+    # node 3 on the patched stack (emcy_short.patch): the first two EMCYs of its program run go
+    # out with DLC 4. Its application raises a manufacturer error (bit 40h, 5000h) at 3.0 and
+    # resets it at 3.5 (both EMCYs short), then the same again at 5.0 and 5.5 (DLC 8)
+    "emcy_short": Scenario(10.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3), "dev_emcyshort"),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", MASTER),
+        ctl(3.0, "s3", "err_set 40 5000 1"),
+        ctl(3.5, "s3", "err_reset 40 0"),
+        ctl(5.0, "s3", "err_set 40 5000 2"),
+        ctl(5.5, "s3", "err_reset 40 0"),
+        *[ctl(9.8, d, "status") for d in ("s2", "s3", "s4")],
+    ]),
 }
 
 

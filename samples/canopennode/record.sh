@@ -1,7 +1,8 @@
 #!/bin/sh
 # Re-record every scenario (see README.md). Run in this folder after `make`.
 #   ./record.sh [BINDIR] [OUTDIR]
-# BINDIR: where `make` put dev, dev_toggle, dev_syncskip, dev_inhibit and lss_dev (default /work/build/canopennode/bin)
+# BINDIR: where `make` put dev, dev_toggle, dev_syncskip, dev_inhibit, dev_late, dev_emcyshort and lss_dev
+#         (default /work/build/canopennode/bin)
 # OUTDIR: where the logs go (default: this folder); device events go to OUTDIR/*.events.
 # The SYNC and EMCY scenarios go to OUTDIR/sync_emcy/, with their .events (the stack's
 # own callbacks: the ground truth that tests/test_samples_sync_emcy.py reads), the PDO
@@ -16,11 +17,12 @@ for s in healthy late_master write_1017 self_start master_obeys broadcast guard_
   chrt -f 10 python3 hub.py $s "$OUT/$s.log" --bin "$BIN" --events "$OUT/$s.events"
 done
 mkdir -p "$OUT/sync_emcy"
-for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit sync_length; do
+for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit sync_length emcy_short; do
   chrt -f 10 python3 hub.py $s "$OUT/sync_emcy/$s.log" --bin "$BIN" --events "$OUT/sync_emcy/$s.events"
 done
 mkdir -p "$OUT/pdo"
-for s in rpdo_producer_stopped rpdo_timeout_stale_heartbeat tpdo_event_timer tpdo_inhibit_bypass rpdo_length sync_tpdo reserved_type; do
+for s in rpdo_producer_stopped rpdo_timeout_stale_heartbeat tpdo_event_timer tpdo_inhibit_bypass rpdo_length sync_tpdo \
+         reserved_type tpdo_late tpdo_late_written; do
   chrt -f 10 python3 hub.py $s "$OUT/pdo/$s.log" --bin "$BIN" --events "$OUT/pdo/$s.events"
 done
 mkdir -p "$OUT/lss"
