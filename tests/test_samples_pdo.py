@@ -684,14 +684,10 @@ def test_tpdo_late_written_ground_truth() -> None:
     assert len(_status(WRITTEN)) == 3 and _emcys_sent(WRITTEN) == []
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "SPEC_COMM §9.1.1: W is `[sync] window_us`, else the producer's 1007h in force, and a "
-    "confirmed SDO download is the value in force from its confirmation (line 165, 0.998 s); "
-    "nmtcheck takes W for Y004 from the network and device files only "
-    "(processes/pdo.py `_window`) and lists Y004 as not evaluated, `1007h unknown or 0`"))
 def test_tpdo_late_written_with_the_network_file() -> None:
-    """Y004 (§9.2.1) with W = node 2's 1007h written by SDO (10 ms, from 0.998143): the
-    three late frames, each its own run, as in tpdo_late."""
+    """Y004 (§9.2.1) with W = node 2's 1007h written by SDO (10 ms, from 0.998143: the
+    value in force from its confirmation, SPEC_COMM §9.1.1): the three late frames, each
+    its own run, as in tpdo_late."""
     res = _check(WRITTEN, "file")
     assert _found(res) == [("Y004", 2, 2.220826), ("Y004", 2, 3.255112), ("Y004", 2, 4.289718)]
 

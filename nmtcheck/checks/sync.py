@@ -339,12 +339,15 @@ def sync_pdo_outside_window(model: InputModel, params: Params) -> Iterator[Probl
         sc = analysis.channels.get(cm.name) if cm is not None else None
         if cm is None or sc is None or not len(sc) or not st.synchronous:
             continue
-        if not st.window.known or not st.window.value:
+        if not st.window_known:
             continue
-        window = float(st.window.value) / 1e6
         ts, idx, line = st.frames(model, cm)
+        piece, values = st.windows_at(ts)
+        w_us = np.asarray([float(v.value) if v.known and v.value else np.nan for v in values])
+        window = w_us[piece] / 1e6  # W in force at each frame (NaN: unknown or 0)
         k = np.searchsorted(sc.ts, ts, side="right") - 1
-        late = (k >= 0) & (ts - sc.ts[np.maximum(k, 0)] > window + r + EPS)
+        with np.errstate(invalid="ignore"):
+            late = (k >= 0) & (ts - sc.ts[np.maximum(k, 0)] > window + r + EPS)
         producer = cm.nodes.get(st.party) if st.kind == "tpdo" else None
         if producer is not None and len(producer.intervals):
             iv = producer.interval_indices(ts)
@@ -361,6 +364,7 @@ def sync_pdo_outside_window(model: InputModel, params: Params) -> Iterator[Probl
                           f"{what} {st.cob_id:03X}h ({party}, type "
                           f"{st.transmission_type.value}) {(ts[j] - s_at) * 1000:.3f} ms after "
                           f"SYNC at {_at(model, cm, s_at)} (line {int(sc.line[int(k[j])])}); "
-                          f"synchronous window 1007h = {window * 1000:.3f} ms "
-                          f"({_source(st.window)})" + (f" ({n} frames)" if n > 1 else ""),
+                          f"synchronous window 1007h = {window[j] * 1000:.3f} ms "
+                          f"({_source(values[int(piece[j])])})"
+                          + (f" ({n} frames)" if n > 1 else ""),
                           int(idx[j]), int(line[j]))

@@ -198,7 +198,7 @@ def _comm_reasons(model: InputModel, codes: list[str]) -> dict[str, str]:
         pdos = [st for st in found.streams if st.synchronous] if found is not None else []
         if not pdos:
             out["Y004"] = NO_SYNC_PDO
-        elif not any(st.window.known and st.window.value for st in pdos):
+        elif not any(st.window_known for st in pdos):
             out["Y004"] = NO_WINDOW
     if channels and "Y005" in codes and not any(
             sc.producer_period.known and sc.producer_period.value for sc in channels):

@@ -95,6 +95,22 @@ class Stream:
         return tt.known and int(tt.value or 0) in SYNCHRONOUS
 
     loaded: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
+    # W over time where a party's 1007h is written in the trace: (piece starts, values)
+    window_pieces: tuple[np.ndarray, list[Value]] | None = field(default=None, repr=False)
+
+    def windows_at(self, ts: np.ndarray) -> tuple[np.ndarray, list[Value]]:
+        """Per frame time, the index of the W in force (into the list returned)."""
+        if self.window_pieces is None:
+            return np.zeros(len(ts), np.int64), [self.window]
+        starts, values = self.window_pieces
+        out: np.ndarray = np.searchsorted(starts, ts + 1e-9, side="right") - 1
+        return out, values
+
+    @property
+    def window_known(self) -> bool:
+        """Whether a non-zero W is known for some of the stream's frames."""
+        values = [self.window] if self.window_pieces is None else self.window_pieces[1]
+        return any(v.known and v.value for v in values)
 
     @property
     def _frames(self) -> tuple[np.ndarray, ...]:
@@ -327,6 +343,16 @@ def _apply_writes(found: list[Stream]) -> None:
             continue
         ts = s.frames()[0]
         a, b = (float(ts.min()), float(ts.max())) if len(ts) else (-np.inf, np.inf)
+        for p in [s.producer, *s.consumers]:  # W: the producer's 1007h, else a consumer's
+            m = cm.nodes.get(p.node) if p is not None else None
+            if p is not None and pdo_params.written(m, 0x1007, (0,)):
+                own = s.window if s.window.node in (None, p.node) else UNKNOWN
+                points = pdo_params.changes(m, 0x1007, (0,))
+                s.window_pieces = (np.concatenate([[-np.inf], points]), [
+                    pdo_params.value_at(m, 0x1007, 0, own, t if np.isfinite(t) else -1e300)
+                    for t in [-np.inf, *points.tolist()]])
+                s.window = pdo_params.constant_over(m, 0x1007, 0, own, a, b)
+                break
         for p in [s.producer, *s.consumers]:
             if p is None:
                 continue
