@@ -242,10 +242,16 @@ cluster.close()
 
 
 def test_workers_without_nmtcheck_are_a_one_line_usage_error(tmp_path: Path) -> None:
-    """Workers whose Python has Dask but not nmtcheck (started with -S and Dask's
-    site-packages on PYTHONPATH: no .pth file, so no editable nmtcheck): exit 2, one line."""
-    site = str(Path(distributed.__file__).resolve().parent.parent)
-    env = {**os.environ, "PYTHONPATH": site}
+    """Workers whose Python has Dask but not nmtcheck (started with -S and a copy of Dask's
+    site-packages made of links to everything but nmtcheck: no .pth file, no nmtcheck,
+    whether it is installed in place or as a wheel): exit 2, one line."""
+    site = Path(distributed.__file__).resolve().parent.parent
+    without = tmp_path / "site-packages"
+    without.mkdir()
+    for entry in site.iterdir():
+        if not entry.name.lower().startswith(("nmtcheck", "__editable__")):
+            (without / entry.name).symlink_to(entry)
+    env = {**os.environ, "PYTHONPATH": str(without)}
     shutil.copy(SAMPLES / "healthy.log", tmp_path / "healthy.log")
     proc = subprocess.Popen([sys.executable, "-S", "-c", NO_NMTCHECK], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
