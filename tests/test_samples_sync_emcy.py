@@ -37,6 +37,7 @@ NETWORK = {
     "emcy_inhibit": "network_emcy.toml",
     "sync_length": "network_sync_length.toml",
     "emcy_short": "network_emcy_short.toml",
+    "sync_period_fast": "network_sync_period_fast.toml",
 }
 
 
@@ -522,3 +523,56 @@ def test_sync_length_is_y002_with_its_chain(network: str | None) -> None:
     # before the writes (1.0 s) no node's 1019h is known: those SYNCs had only the checks
     # that need no C (§9.1.9)
     assert "Y002" in res.partly_evaluated
+
+
+# -- sync_period_fast: a SYNC slower than the producer's 1006h (Y005) --------------------------
+
+FAST = "sync_period_fast"
+
+
+def _sync_intervals_in_segments(name: str) -> list[float]:
+    """The SYNC intervals, none across the master's broadcast reset (a segment end)."""
+    frames = _frames(name)
+    reset = next(f for f in frames if (f.can_id, f.data) == (0x000, "8200"))
+    syncs = [f for f in frames if f.can_id == 0x080]
+    return [b.t - a.t for a, b in pairwise(syncs) if not a.t < reset.t < b.t]
+
+
+def test_sync_period_fast_ground_truth() -> None:
+    """The master powers on with 1006h = 5300 us (`dev --sync-us 5300`, its command line in
+    the `.events`). Its application calls CO_process() about once a millisecond, and the
+    stack sends the SYNC in the first call at or past 1006h, then counts from 0 again
+    (CO_SYNC.c): every 6th call, about 6.15 ms, never late enough for a consumer's 1.5 x
+    1006h."""
+    spawn = [line for line in (FOLDER / f"{FAST}.events").read_text().splitlines()
+             if line.startswith("# hub t=") and "spawn master:" in line]
+    assert len(spawn) == 1 and spawn[0].endswith("--sync-us 5300")
+    frames = _frames(FAST)
+    assert {f.data for f in frames if f.can_id == 0x080} == {""}
+    iv = sorted(_sync_intervals_in_segments(FAST))
+    assert len(iv) > 900
+    assert 0.0060 < iv[len(iv) // 2] < 0.0063
+    assert iv[-1] < 1.5 * 0.0053
+    assert _emcys_sent(FAST) == []
+
+
+def test_sync_period_fast_is_y005() -> None:
+    """SPEC §9.2.1 Y005: the median interval of each segment (before and after the master's
+    reset of all nodes) is 16 % over the producer's 1006h; one finding per segment, at its
+    last SYNC. Y001 (limit 7.95 ms) stays silent."""
+    res = _check(FAST, "file")
+    found = _found(res)
+    assert [(r, n) for r, n, _t in found] == [("Y005", 1), ("Y005", 1)]
+    first, last = res.findings
+    for f in (first, last):
+        assert "the producer's 1006h = 5.300 ms (network): +16." in f.message
+    assert last.line == len(_frames(FAST))  # the last SYNC is the log's last frame
+    assert "Y001" not in res.not_evaluated
+
+
+def test_sync_period_fast_without_a_network_file() -> None:
+    """Without the producer's 1006h Y005 is not evaluated; Y001 judges by the measured
+    median and stays silent."""
+    res = _check(FAST, None)
+    assert _found(res) == []
+    assert "Y005" in res.not_evaluated

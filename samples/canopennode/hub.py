@@ -308,6 +308,16 @@ SCENARIOS: dict[str, Scenario] = {
         ctl(9.8, "s3", "status"),
         ctl(9.8, "s4", "status"),
     ]),
+    # the master's 1006h asks for a SYNC every 5.3 ms, but its application calls
+    # CO_process() about once a millisecond (dev.c's loop) and the stack sends the SYNC in
+    # the first call at or past 1006h, then counts from 0 again: the bus sees a SYNC
+    # every 6 calls, about every 6.2 ms
+    "sync_period_fast": Scenario(6.0, [
+        spawn(0.0, "s2", slave(2)),
+        spawn(0.0, "s3", slave(3)),
+        spawn(0.0, "s4", slave(4)),
+        spawn(0.0, "master", [*MASTER, "--sync-us", "5300"]),
+    ]),
     # the master writes reserved PDO transmission types by SDO: 1800h:02 = 245 to node 2
     # (TPDO1; 241-251 are reserved) at 2.0 and 1400h:02 = 250 to node 3 (RPDO1; 241-253)
     # at 3.0. CANopenNode refuses both (SDO abort)

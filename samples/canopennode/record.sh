@@ -17,7 +17,8 @@ for s in healthy late_master write_1017 self_start master_obeys broadcast guard_
   chrt -f 10 python3 hub.py $s "$OUT/$s.log" --bin "$BIN" --events "$OUT/$s.events"
 done
 mkdir -p "$OUT/sync_emcy"
-for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit sync_length emcy_short; do
+for s in sync_producer_stopped sync_counter sync_counter_skip emcy_inhibit sync_length emcy_short \
+         sync_period_fast; do
   chrt -f 10 python3 hub.py $s "$OUT/sync_emcy/$s.log" --bin "$BIN" --events "$OUT/sync_emcy/$s.events"
 done
 mkdir -p "$OUT/pdo"
