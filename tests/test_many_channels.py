@@ -83,7 +83,7 @@ def _reference_scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str
     grace_code = STATE_INDEX[grace_from] if grace_from else -2
     wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
     found: dict[tuple[int, int], state._Run] = {}
-    cand = model.sent_while(state._CHECKED_STATES)
+    cand = model.sent_while(states, kinds)  # the cached candidates of the rule run
     sel = np.flatnonzero(np.isin(cand.kind, kinds))
     keys = cand.key[sel]
     order = np.argsort(keys, kind="stable")
