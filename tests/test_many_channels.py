@@ -83,7 +83,7 @@ def _reference_scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str
     grace_code = STATE_INDEX[grace_from] if grace_from else -2
     wanted = np.asarray([STATE_INDEX[s] for s in states], np.int8)
     found: dict[tuple[int, int], state._Run] = {}
-    cand = model.sent_while(state._CHECKED_STATES)
+    cand = model.sent_while(states, kinds)  # the cached candidates of the rule run
     sel = np.flatnonzero(np.isin(cand.kind, kinds))
     keys = cand.key[sel]
     order = np.argsort(keys, kind="stable")
@@ -370,3 +370,40 @@ def test_small_node_lists_match_the_numpy_paths(checker: Checker,
             codes |= {f.rule for f in fast.findings}
     assert small > 300 and fired > 100, (small, fired)
     assert {"H001", "H002", "H003", "C003", "C004", "S005", "S001"} <= codes, codes
+
+
+def test_first_and_last_frames_of_far_channel_codes_are_found_in_small_tables() -> None:
+    """Each node key's first and last transmitted frame of a batch: with keys of high
+    channel codes (chan * 128 + N; 200,000 channels reach 25.6 M) the tables are the
+    batch's distinct keys, not one slot per possible key (two int64 tables of 25.6 M:
+    410 MB for a batch of 200,000 channels); the same frames are found either way."""
+    import tracemalloc
+
+    from nmtcheck.readers.frames import FrameBatch
+    from nmtcheck.timeline.decode import FirstTx, _first_last
+
+    rng = np.random.default_rng(7)
+    for spread in (200, 200_000):  # dense tables, then the distinct keys
+        n = 3000
+        keys = (rng.integers(0, spread, n) * 128 + rng.integers(1, 128, n)).astype(np.int64)
+        rows = np.sort(rng.choice(np.arange(2 * n), n, replace=False))
+        kinds = rng.integers(1, 6, 2 * n)
+        ts = np.sort(rng.random(2 * n)) * 100
+        z = np.zeros(2 * n, bool)
+        b = FrameBatch(ts, np.zeros(2 * n, np.int32), np.zeros(2 * n, np.uint32), z, z, z, z,
+                       np.zeros(2 * n, np.int16), np.zeros((2 * n, 8), np.uint8),
+                       np.arange(2 * n, dtype=np.int64) + 10, np.arange(2 * n, dtype=np.int64))
+        first: dict[int, FirstTx] = {int(keys[0]): FirstTx(-1, -1.0, 0)}  # seen before
+        last: dict[int, float] = {}
+        tracemalloc.start()
+        _first_last(keys, rows, kinds, b, first, last)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert peak < 2_000_000, (spread, peak)
+        want_first: dict[int, FirstTx] = {int(keys[0]): FirstTx(-1, -1.0, 0)}
+        want_last: dict[int, float] = {}
+        for k, row in zip(keys.tolist(), rows.tolist(), strict=True):
+            want_first.setdefault(k, FirstTx(row + 10, float(ts[row]), int(kinds[row])))
+            want_last[k] = float(ts[row])
+        assert first == want_first and last == want_last
+        assert list(first) == [int(keys[0]), *sorted(set(want_first) - {int(keys[0])})]

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from nmtcheck.processes import sdo_transfers as st
+from nmtcheck.readers.frames import FrameBatch
 
 
 def frames(*rows: tuple[float, str, str]) -> np.ndarray:
@@ -103,3 +106,103 @@ def test_spool_spills_per_server_and_reads_back_in_file_order() -> None:
         assert (np.diff(rows["idx"]) > 0).all()
     finally:
         spool.close()
+
+
+def _endless_download(segments: int, server: int = 5) -> Iterator[FrameBatch]:
+    """Batches of 4,096 frames: a segmented download initiate, then `segments` segments
+    (c = 0) each confirmed, never the last one."""
+    from nmtcheck.readers.frames import FrameBatch
+
+    n = 2 + 2 * segments
+    req = np.arange(n) % 2 == 0
+    can_id = np.where(req, 0x600 + server, 0x580 + server).astype(np.uint32)
+    data = np.zeros((n, 8), np.uint8)
+    toggle = ((np.arange(n) // 2 - 1) % 2).astype(np.uint8) << 4
+    data[:, 0] = np.where(req, toggle, 0x20 | toggle)
+    data[2::2, 1:8] = np.random.default_rng(1).integers(0, 256, (segments, 7), np.uint8)
+    data[0, :4], data[1, :4] = (0x21, 0x00, 0x20, 0x01), (0x60, 0x00, 0x20, 0x01)
+    for lo in range(0, n, 4096):
+        sel = slice(lo, min(n, lo + 4096))
+        k = sel.stop - lo
+        yield FrameBatch(np.arange(lo, sel.stop) / 1000.0, np.zeros(k, np.int32), can_id[sel],
+                         np.zeros(k, bool), np.zeros(k, bool), np.zeros(k, bool),
+                         np.zeros(k, bool), np.full(k, 8, np.int16), data[sel],
+                         np.arange(lo, sel.stop, dtype=np.int64),
+                         np.arange(lo + 1, sel.stop + 1, dtype=np.int64))
+
+
+def test_a_transfer_that_never_ends_keeps_a_few_rows_a_batch() -> None:
+    """200,000 segments of a download that never ends (issue 39: 3 M took 519 MB): the
+    spool keeps the initiate and the frames at each batch's edges, and the transfer reads
+    as from every frame (unanswered: its last client frame is the last segment)."""
+    spool = st.SdoSpool()
+    every = []
+    try:
+        for b in _endless_download(200_000):
+            spool.add(b)
+            every.append(b)
+        rows = spool.frames(5)
+        batches = len(every)
+        assert len(rows) <= 2 + 8 * batches < 1000 and spool.steady_dropped == 400_002 - len(
+            rows)
+        whole = np.concatenate([_rows(b) for b in every])
+        assert len(whole) == 400_002
+        _same(st.transfers(rows, 500.0, 1.0), st.transfers(whole, 500.0, 1.0))
+        t = st.transfers(rows, 500.0, 1.0)
+        assert results(t) == [("dl", 0x2000, 1, "unanswered")]
+        assert float(t.last_req_ts[0]) == float(whole["ts"][-2])
+    finally:
+        spool.close()
+
+
+def _rows(b: FrameBatch) -> np.ndarray:
+    """A batch of one server's SDO frames as SDO_DTYPE rows, none dropped."""
+    rows = np.zeros(len(b.ts), st.SDO_DTYPE)
+    rows["ts"], rows["idx"], rows["line"] = b.ts, b.index, b.line
+    rows["req"], rows["dlc"], rows["data"] = b.can_id >= 0x600, b.dlc, b.data
+    return rows
+
+
+def _same(a: st.TransferTable, b: st.TransferTable) -> None:
+    for name in st.TransferTable.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+# frames that start, end, abort or continue transfers, and the steady cycles' frames
+_ODD_FRAMES = [("req", "4000100000000000"), ("resp", "4300100092010200"),
+               ("req", "2B17100064000000"), ("resp", "6017100000000000"),
+               ("req", "2100200108000000"), ("resp", "6000200100000000"),
+               ("req", "4008100000000000"), ("resp", "4108100009000000"),
+               ("req", "0101020304050607"), ("req", "1B08090000000000"),
+               ("resp", "1B48490000000000"), ("resp", "0141424344454647"),
+               ("req", "8000200100000405"), ("resp", "8000200111000906"),
+               ("req", "0301020304050607"), ("resp", "2100000000000000")]
+_CYCLES = [[("req", "00"), ("resp", "20"), ("req", "10"), ("resp", "30")],
+           [("req", "60"), ("resp", "00"), ("req", "70"), ("resp", "10")]]
+
+
+def test_dropping_steady_segments_changes_no_transfer() -> None:
+    """Random mixtures of steady runs (either cycle, any phase, any length) and frames that
+    start, end or abort transfers, cut into random batches: `transfers` gives the same
+    table from the kept frames as from all of them, open or timed out at the end."""
+    rng = np.random.default_rng(39)
+    dropped = 0
+    for _ in range(400):
+        spec: list[tuple[float, str, str]] = []
+        while len(spec) < 120:
+            if rng.random() < 0.5:
+                cycle, phase = _CYCLES[int(rng.integers(2))], int(rng.integers(4))
+                for k in range(int(rng.integers(1, 30))):
+                    who, cmd = cycle[(phase + k) % 4]
+                    body = bytes(rng.integers(0, 256, 7, np.uint8)).hex()
+                    spec.append((len(spec) * 0.01, who, cmd + body))
+            else:
+                who, data = _ODD_FRAMES[int(rng.integers(len(_ODD_FRAMES)))]
+                spec.append((len(spec) * 0.01, who, data))
+        rows = frames(*spec)
+        cuts = np.sort(rng.choice(np.arange(1, len(rows)), 3, replace=False))
+        kept = np.concatenate([p[~st.steady_segments(p)] for p in np.split(rows, cuts)])
+        dropped += len(rows) - len(kept)
+        for end, timeout in ((rows["ts"][-1] + 0.5, 1.0), (rows["ts"][-1] + 5.0, 1.0)):
+            _same(st.transfers(kept, end, timeout), st.transfers(rows, end, timeout))
+    assert dropped > 10_000  # the runs were long enough to drop frames from

@@ -83,8 +83,8 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
     has tens of thousands of nodes with a frame or two each).
     """
     by_key = {m.key: m for cm in model.channels for m in cm.nodes.values()}
-    cand = model.sent_while(_CHECKED_STATES)
-    sel = np.flatnonzero(is_one_of(cand.kind, kinds))
+    cand = model.sent_while(states, kinds)  # only frames this rule may judge
+    sel = np.arange(len(cand.kind))
     keys = cand.key[sel]
     order = np.argsort(keys, kind="stable")  # each node's rows in file order, found once
     uniq, count = np.unique(keys[order], return_counts=True)

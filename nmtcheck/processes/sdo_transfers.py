@@ -12,6 +12,10 @@ initiate to the next). Block transfers are walked frame by frame from their init
 to their end, because inside a sub-block a data byte like 40h is segment 64, not an
 upload request; everything around them stays vectorised.
 
+A transfer that goes on for millions of segments keeps O(1) rows a batch: the spool drops
+the frames in the middle of a steady run of plain segments (`steady_segments`), which
+change no transfer's result, times or value.
+
 Results: `ok`, `refused` (abort on 580h+N), `aborted` (abort on 600h+N, whatever index it
 names; 0504 0000h is a timeout), `unanswered` (the next initiate came first, or the trace
 ended at least `sdo_timeout_s` after the last client frame) and `open` (younger than that
@@ -41,6 +45,35 @@ DOWNLOAD, UPLOAD = 0, 1
 EXPEDITED, SEGMENTED, BLOCK = 0, 1, 2
 TIMEOUT_ABORT = 0x05040000
 
+# the frames of a plain segmented transfer's steady state, as (request, byte 0) -> phase:
+# download segments (c = 0, n = 0) and their confirmations, toggle 0 then 1 (phases 0-3);
+# upload segment requests and the server's segments (c = 0, n = 0) (phases 4-7)
+_PHASE = np.full(512, -1, np.int8)
+for _phase, (_req, _cmd) in enumerate(((1, 0x00), (0, 0x20), (1, 0x10), (0, 0x30),
+                                       (1, 0x60), (0, 0x00), (1, 0x70), (0, 0x10))):
+    _PHASE[_req * 256 + _cmd] = _phase
+_NEXT_PHASE = np.asarray([1, 2, 3, 0, 5, 6, 7, 4], np.int8)
+
+
+def steady_segments(rows: np.ndarray) -> np.ndarray:
+    """The frames of one server's rows (SDO_DTYPE, file order) that `transfers` needs not
+    see: those with 4 frames on each side that all follow the same cycle of plain segments
+    (segment, confirmation, segment with the other toggle, confirmation). None of them
+    starts, ends or aborts a transfer or is the last client frame before one of those,
+    and the cycle's kept first frames hold an upload's first 8 bytes; the frames around
+    them read the same (a c = 0 segment is the latest client frame before each either way)."""
+    n = len(rows)
+    drop = np.zeros(n, bool)
+    if n < 9:
+        return drop
+    phase = _PHASE[rows["req"].astype(np.int64) * 256 + rows["data"][:, 0]]
+    step = (phase[:-1] >= 0) & (phase[1:] >= 0) & (
+        phase[1:] == _NEXT_PHASE[np.maximum(phase[:-1], 0)])  # frame j -> j + 1 in a cycle
+    steps = np.concatenate([[0], np.cumsum(step)])
+    k = np.arange(4, n - 4)
+    drop[4:n - 4] = steps[k + 4] - steps[k - 4] == 8
+    return drop
+
 
 class SdoSpool:
     """The SDO frames of every server, partitioned by node key (chan * 128 + N), and the
@@ -60,6 +93,8 @@ class SdoSpool:
         # servers sent a download to sub-index 2 of a PDO communication parameter (the
         # transmission type, SPEC §9.2.2 D006): only these are read again for it
         self.pdo_type_servers: set[int] = set()
+        self._block_servers: set[int] = set()  # sent a block initiate: every frame is kept
+        self.steady_dropped = 0  # frames `steady_segments` dropped
 
     def add(self, b: FrameBatch) -> None:
         co = ~b.ext & ~b.err & ~b.rtr
@@ -95,8 +130,17 @@ class SdoSpool:
         skeys = keys[order]
         bounds = np.flatnonzero(np.diff(skeys, prepend=-1, append=-1))
         for a, z in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
-            self._parts.setdefault(int(skeys[a]), []).append(rows[order[a:z]])
-        self._size += rows.nbytes
+            key, part = int(skeys[a]), rows[order[a:z]]
+            if key not in self._block_servers and _block_candidate(
+                    part["req"], part["data"][:, 0]).any():
+                self._block_servers.add(key)  # block sub-blocks are walked frame by frame
+            if key not in self._block_servers:
+                drop = steady_segments(part)
+                if drop.any():
+                    self.steady_dropped += int(np.count_nonzero(drop))
+                    part = part[~drop]
+            self._parts.setdefault(key, []).append(part)
+            self._size += part.nbytes
         if self._size > self._budget:
             self._flush()
 

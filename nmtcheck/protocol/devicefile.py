@@ -1,4 +1,4 @@
-"""EDS/DCF files: the few objects NMT checking needs, read with the canopen library.
+"""EDS/DCF files: the few objects nmtcheck uses, read from the INI text.
 
 Read: 1017h producer heartbeat time, 1016h consumer entries, 100Ch guard time,
 100Dh life time factor, the PDO communication parameters (1400h-1403h RPDO,
@@ -9,22 +9,25 @@ overflow, 1014h COB-ID EMCY, 1015h EMCY inhibit time, 1029h:01 error behaviour).
 ParameterValue wins over the DefaultValue; `$NODEID` is the node-ID the file is
 used as (else its [DeviceComissioning] NodeID).
 
-CiA 306 compact storage (`CompactSubObj=N` with a `[xxxxValue]` section, how
-Lely's dcfgen and CANopen editors store 1016h and 1F81h) is read from the INI
-text: canopen 2.4.1 ignores `[xxxxValue]`, and answers every sub-index of such
-an array with a copy of the object section's own default.
+Only the sections of those objects (USED_OBJECTS, with the boot objects of SPEC §8.1.1)
+and the file's non-object sections are parsed: a device file of 100,000 objects costs
+the time to scan its lines, not an object dictionary of all of them. The canopen
+library is not used: its import pulls in python-can and, where installed, asammdf with
+pandas and sympy (about 200 MB before the first line of the file is read), and on every
+EDS/DCF of samples/ and the shared corpus it read the same values as the INI text
+(tests/test_devicefile.py compares them).
 
-Real files are messy and canopen's import raises on some (an empty numeric
-value, a DummyUsage section without all entries, a `[xxxxName]` section keyed
-by sub-index). Then the same objects are read from the INI text directly. What
-still cannot be read is a note naming the object and the reason, never fatal
-and never silently dropped.
+CiA 306 compact storage (`CompactSubObj=N` with a `[xxxxValue]` section, how
+Lely's dcfgen and CANopen editors store 1016h and 1F81h) is read as CiA 306 says: the
+`[xxxxValue]` entries, the object's own value the default of the others.
+
+What cannot be read is a note naming the object and the reason, never fatal and never
+silently dropped.
 """
 
 from __future__ import annotations
 
 import configparser
-import logging
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -37,6 +40,14 @@ COB_ID_INVALID = 0x80000000  # bit 31: the PDO does not exist / is not valid
 _NODEID = re.compile(r"\$NODEID", re.I)
 _OCTAL = re.compile(r"0[0-7]+")
 _VALUE_KEYS = ("ParameterValue", "DefaultValue")  # a DCF's ParameterValue wins
+# the objects nmtcheck reads from a device file: this module's, and the boot objects of
+# SPEC §8.1.1 and §8.2.2 (processes/boot_config.py); only PDOs 1..4 are read
+USED_OBJECTS = frozenset([
+    0x1000, 0x1005, 0x1006, 0x1007, 0x100C, 0x100D, 0x1014, 0x1015, 0x1016, 0x1017,
+    0x1018, 0x1019, 0x1029, *range(0x1400, 0x1404), *range(0x1600, 0x1604),
+    *range(0x1800, 0x1804), *range(0x1A00, 0x1A04), 0x1F80, 0x1F81, *range(0x1F84, 0x1F8A)])
+_HEADER = re.compile(r"\[(?P<header>.+)\]")  # configparser's section header
+_OBJECT_SECTION = re.compile(r"([0-9A-F]{4})(SUB[0-9A-F]+|VALUE|NAME|DENOTATION)?", re.I)
 
 
 @dataclass
@@ -67,7 +78,6 @@ class DeviceValues:
     emcy_cob_id: int | None = None  # 1014h: bits 0-10 CAN-ID, bit 31 no EMCY
     emcy_inhibit_100us: int | None = None  # 1015h
     error_behaviour: int | None = None  # 1029h:01
-    reader: str = "canopen"  # canopen | ini (fallback)
     notes: list[str] = field(default_factory=list)  # what could not be read, and why
 
 
@@ -105,15 +115,31 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def _used_text(path: Path) -> str:
+    """The file's lines less the sections of objects outside USED_OBJECTS (a header at
+    the start of a line begins a section, as configparser reads it)."""
+    keep = True
+    lines: list[str] = []
+    with path.open(encoding="latin-1") as file:
+        for line in file:
+            if line[:1] == "[" and (header := _HEADER.match(line.strip())) is not None:
+                obj = _OBJECT_SECTION.fullmatch(header["header"])
+                keep = obj is None or int(obj[1], 16) in USED_OBJECTS
+            if keep:
+                lines.append(line)
+    return "".join(lines)
+
+
 class _Ini:
-    """Direct INI access to an EDS/DCF: the fallback when canopen's import fails, and
-    the only reader of compact storage. Notes on what it cannot read go to `notes`."""
+    """The sections of an EDS/DCF that nmtcheck uses: the objects of USED_OBJECTS and the
+    non-object sections ([DeviceInfo], [DeviceComissioning], ...). Notes on what it cannot
+    read go to `notes`."""
 
     def __init__(self, path: Path) -> None:
-        # keys are case-insensitive (as canopen reads them); values may end in a `; comment`
+        # keys are case-insensitive; values may end in a `; comment`
         self.cp = configparser.ConfigParser(strict=False, interpolation=None,
                                             inline_comment_prefixes=(";",))
-        self.cp.read_string(path.read_text(encoding="latin-1"))
+        self.cp.read_string(_used_text(path))
         self.sections = {s.upper(): s for s in self.cp.sections()}
         self.notes: list[str] = []
         self._compact: dict[int, tuple[int, dict[int, str]] | None] = {}
@@ -186,6 +212,8 @@ class _Ini:
         return (n, entries)
 
     def value(self, index: int, sub: int | None, node_id: int | None) -> int | None:
+        if index not in USED_OBJECTS:  # its sections were not read: a caller's mistake
+            raise KeyError(f"{index:04X}h is not in devicefile.USED_OBJECTS")
         compact = self.compact(index)
         if compact is not None:
             n, entries = compact
@@ -201,36 +229,6 @@ class _Ini:
         for key in _VALUE_KEYS:
             v = _read(key, sec.get(key), node_id)
             if v is not None:
-                return v
-        return None
-
-
-class _CanopenOD:
-    """Values through canopen's object dictionary import."""
-
-    def __init__(self, path: Path, node_id: int | None) -> None:
-        import canopen
-
-        logging.getLogger("canopen").setLevel(logging.ERROR)
-        self.od = canopen.import_od(str(path), node_id)
-
-    def value(self, index: int, sub: int | None, node_id: int | None) -> int | None:
-        """canopen's value, or None: absent, empty, or one canopen could not convert
-        (it drops those silently; the caller then asks the INI text why). `$NODEID`
-        values are left to the INI text too: canopen substitutes the file's NodeID even
-        when that is no node-ID, and reads only `$NODEID+N` / `N+$NODEID`."""
-        obj: Any = self.od.get(index)
-        if sub is None:
-            entry = None if hasattr(obj, "subindices") else obj
-        else:  # .subindices, not [sub]: an ODArray makes up any missing sub-index from sub 1
-            entry = getattr(obj, "subindices", {}).get(sub)
-        if entry is None:
-            return None
-        for raw_attr, v in (("value_raw", entry.value), ("default_raw", entry.default)):
-            raw = getattr(entry, raw_attr, None)  # set by the import only when the key is there
-            if raw is not None and str(raw).strip():
-                if _NODEID.search(str(raw)) or not isinstance(v, int) or isinstance(v, bool):
-                    return None
                 return v
         return None
 
@@ -325,22 +323,10 @@ def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
                          f"node {node_id}: $NODEID is {node_id}")
     nid = node_id or file_nid
     out.node_id = nid
-    source: _CanopenOD | _Ini = ini
-    first: list[str] = []
-    try:
-        source = _CanopenOD(p, nid)
-    except Exception as exc:  # noqa: BLE001 - canopen raises many kinds on messy files
-        out.reader = "ini"
-        first.append(f"canopen could not import it ({type(exc).__name__}: {exc}); "
-                     f"read the needed objects from the INI text instead")
 
     def get(index: int, sub: int | None = None) -> int | None:
         try:
-            if source is not ini and ini.compact(index) is None:
-                v = source.value(index, sub, nid)
-                if v is not None:
-                    return v
-            return ini.value(index, sub, nid)  # also says why canopen had no value
+            return ini.value(index, sub, nid)
         except ValueError as exc:
             where = f"{index:04X}h" + (f" sub {sub}" if sub is not None else "")
             out.notes.append(f"{where}: {exc}; ignored")
@@ -359,7 +345,7 @@ def load_device_file(path: str, node_id: int | None = None) -> DeviceValues:
     slaves = [n for n in range(1, 128) if (get(0x1F81, n) or 0) & 1]
     out.slaves = slaves or None
     _read_sync_emcy(get, out)
-    # the reader and the file's structure, then the values; one line each (a value in an
-    # INI file may go on over several lines)
-    out.notes = [_one_line(note) for note in first + ini.notes + out.notes]
+    # the file's structure, then the values; one line each (a value in an INI file may
+    # go on over several lines)
+    out.notes = [_one_line(note) for note in ini.notes + out.notes]
     return out

@@ -514,20 +514,29 @@ def _line_at(chunk: dict[str, np.ndarray], pos: int) -> int:
 def _first_last(keys: np.ndarray, rows: np.ndarray, kinds: np.ndarray, b: FrameBatch,
                 first_tx: dict[int, FirstTx], last_tx: dict[int, float]) -> None:
     """Update each node key's first (index, ts, kind) and last ts from one batch's transmitted
-    frames (`rows`, with their `keys`); ufunc.at instead of sorting."""
+    frames (`rows`, with their `keys`); ufunc.at instead of sorting. The keys index a dense
+    table while it is small next to the batch; channel codes spread them (chan * 128 + N:
+    200,000 channels reach 25.6 M), then the batch's distinct keys do."""
     size = int(keys.max()) + 1
+    if size > 4 * keys.shape[0] + 4096:
+        present, slot = np.unique(keys, return_inverse=True)
+        size = present.shape[0]
+    else:
+        present, slot = None, keys
     pos = np.arange(keys.shape[0])
     last = np.full(size, -1)
-    np.maximum.at(last, keys, pos)
-    present = np.flatnonzero(last >= 0)
-    new = [k for k in present.tolist() if k not in first_tx]
+    np.maximum.at(last, slot, pos)
+    at = np.flatnonzero(last >= 0) if present is None else np.arange(size)
+    key_of = at if present is None else present
+    new = [j for j, k in enumerate(key_of.tolist()) if k not in first_tx]
     if new:
         first = np.full(size, keys.shape[0])
-        np.minimum.at(first, keys, pos)
-        for k in new:
-            row = rows[first[k]]
-            first_tx[k] = FirstTx(int(b.index[row]), float(b.ts[row]), int(kinds[row]))
-    last_tx.update(zip(present.tolist(), b.ts[rows[last[present]]].tolist(), strict=True))
+        np.minimum.at(first, slot, pos)
+        for j in new:
+            row = rows[first[at[j]]]
+            first_tx[int(key_of[j])] = FirstTx(int(b.index[row]), float(b.ts[row]),
+                                               int(kinds[row]))
+    last_tx.update(zip(key_of.tolist(), b.ts[rows[last[at]]].tolist(), strict=True))
 
 
 def _written_pdo_cob_ids(ev: np.ndarray) -> set[int]:

@@ -540,8 +540,8 @@ class InputModel:
     timeline: TimelineParams = field(default_factory=TimelineParams)  # what it was built with
     expected: list[tuple[int, str | None]] = field(default_factory=list)  # network file nodes
     stats: Any = None  # the reader's InputStats (the I-rules judge the input itself)
-    # sent_while() by states: one pass over the node-frame store serves S001-S003
-    _sent_while: dict[tuple[str, ...], SentFrames] = field(
+    # sent_while() by states and kinds: one pass over the node-frame store each
+    _sent_while: dict[tuple[tuple[str, ...], tuple[int, ...] | None], SentFrames] = field(
         default_factory=dict, init=False, repr=False, compare=False)
 
     def nodes(self) -> Iterator[NodeModel]:
@@ -610,17 +610,22 @@ class InputModel:
                 at += len(ts)
         return answers
 
-    def sent_while(self, states: tuple[str, ...]) -> SentFrames:
-        """The stored node frames (TPDO, RPDO, SDO response, EMCY) sent while their node
-        was in one of `states`, with the configured PDO COB-IDs applied, in file order.
+    def sent_while(self, states: tuple[str, ...], kinds: tuple[int, ...] | None = None
+                   ) -> SentFrames:
+        """The stored node frames (TPDO, RPDO, SDO response, EMCY; only `kinds` if given)
+        sent while their node was in one of `states`, with the configured PDO COB-IDs
+        applied, in file order.
 
         Usually a tiny set (a node is OPERATIONAL most of the time), so a rule's exact
         test, grace periods included, runs on it alone. A frame at a time covered by
         such a state of any node is kept: a rule tests its own node's state again.
+        `kinds` keeps it tiny where a node talks at length in a state a rule does not
+        look at for those frames (an SDO transfer of millions of segments in
+        PRE-OPERATIONAL: S003 looks for SDO responses in STOPPED only).
         """
-        found = self._sent_while.get(states)
+        found = self._sent_while.get((states, kinds))
         if found is None:
-            found = self._sent_while[states] = _sent_while(self, states)
+            found = self._sent_while[(states, kinds)] = _sent_while(self, states, kinds)
         return found
 
 
@@ -752,7 +757,8 @@ def _windows(model: InputModel, states: tuple[str, ...]) -> tuple[np.ndarray, np
     return lo_s[opens].astype(np.float64), np.maximum.reduceat(hi_s, opens).astype(np.float64)
 
 
-def _sent_while(model: InputModel, states: tuple[str, ...]) -> SentFrames:
+def _sent_while(model: InputModel, states: tuple[str, ...], kinds: tuple[int, ...] | None
+                ) -> SentFrames:
     if not len(model.decoded.node_frames):  # no PDO, SDO or EMCY at all: nothing to test
         return SentFrames(*(np.zeros(0) for _ in range(6)))
     starts, ends = _windows(model, states)
@@ -766,6 +772,9 @@ def _sent_while(model: InputModel, states: tuple[str, ...]) -> SentFrames:
             continue
         key, kind = _attribute(chunk, overrides)
         rows, keys = _other_consumers(chunk, key, kind, sel, overrides)
+        if kinds is not None:
+            wanted = is_one_of(kind[rows], kinds)
+            rows, keys = rows[wanted], keys[wanted]
         order = np.argsort(chunk["idx"][rows], kind="stable")  # file order, each key too
         rows, keys = rows[order], keys[order]
         parts.append({"key": keys, "kind": kind[rows], "can_id": chunk["can_id"][rows],
