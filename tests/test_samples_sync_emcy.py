@@ -13,8 +13,8 @@ stack says it did, then nmtcheck's verdict: each expected finding is derived fro
 SPEC's text (SPEC_COMM §9.2, §9.3.4) and the log's frames, and commented where it is
 derived.
 
-Where nmtcheck's verdict differs from the SPEC on these real recordings the test is
-`xfail(strict=True)` with the case in its reason: nmtcheck is not changed here.
+Where nmtcheck's verdict differed from the SPEC on these real recordings, the case is
+in the recordings' README ("SPEC_COMM vs nmtcheck on these recordings"); none is open.
 """
 
 from __future__ import annotations
