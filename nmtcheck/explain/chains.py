@@ -42,6 +42,8 @@ FINDING_CAUSE_KINDS = ("emcy", "error_frames", "frames_lost", "silence", "nmt", 
 # (bus-off, heartbeat consumer, a monitored node's boot-up: CO_NMT_Heartbeat.c 224-228)
 _CN_NMT_MARKERS = (0x12, 0x1B, 0x1C)
 _PRE_OP, _OPERATIONAL, _STOPPED = "PRE-OPERATIONAL", "OPERATIONAL", "STOPPED"
+# the reports of a PDO producer that stop its TPDOs: STOPPED, PRE-OPERATIONAL, a boot-up
+PDO_STOP_STATES = (0x04, 0x7F, 0x00)
 
 
 # An EMCY sent in the same cycle as the last report of the old state, just before it: a
@@ -118,14 +120,8 @@ def sync_gap_entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float]
     tl, tf = gap.last_ts, f.time
     te = min(tl + gap.period, tf)
     producer = int(sc.producer.value) if sc.producer.known and sc.producer.value else None
-    out: list[dict[str, Any]] = []
-    if producer is not None:
-        out += _producer_changes(cm, producer, tl, tf + ctx.after, "producing SYNC", (0x04,))
-        out += producer_silent(ctx, cm, producer, (tl, gap.last_idx), te, tf, "producing SYNC")
-    out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
-            if c["time"] >= tl - EPS]
-    out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
-    out += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
+    out = gap_links(ctx, cm, producer, (tl, gap.last_idx), te, tf, tf + ctx.after,
+                    "producing SYNC", (0x04,))
     out += ctx._emcy_other(cm, -1 if producer is None else producer, [(te + EPS, tf + ctx.after)])
     return out, te
 
@@ -142,20 +138,32 @@ def pdo_gap_entries(ctx: Any, f: Finding) -> tuple[list[dict[str, Any]], float] 
         return None
     tl, tf = gap.last_ts, f.time
     te = min(tl + gap.period, tf)
-    out: list[dict[str, Any]] = []
-    if gap.producer is not None:
-        role = f"producer of {gap.cob_id:03X}h"
-        out += _producer_changes(cm, gap.producer, tl, tf + ctx.after, role, (0x04, 0x7F, 0x00))
-        out += producer_silent(ctx, cm, gap.producer, (tl, gap.last_idx), te, tf, role)
-    out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
-            if c["time"] >= tl - EPS]
-    out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
-    out += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
+    out = gap_links(ctx, cm, gap.producer, (tl, gap.last_idx), te, tf, tf + ctx.after,
+                    f"producer of {gap.cob_id:03X}h", PDO_STOP_STATES)
     m = cm.nodes.get(int(f.node or 0))
     if m is not None:
         out += ctx._emcy(m, m.node, [(te + EPS, tf + ctx.after)])
         out += _state_report(m, te, tf + ctx.after)
     return out, te
+
+
+def gap_links(ctx: Any, cm: Any, producer: int | None, last: tuple[float, int], te: float,
+              tf: float, reach: float, role: str, states: tuple[int, ...]
+              ) -> list[dict[str, Any]]:
+    """The §9.3.4 links of a stream's gap, in the table's order: the producer's change up to
+    `reach` (`producer_state`; a later one is a reaction) and its silence
+    (`producer_silent`), a silence or error frames beginning in (t_l, t_e], a logger's
+    drop up to t_f. `last`: the gap's last frame (time, frame index)."""
+    tl = last[0]
+    out: list[dict[str, Any]] = []
+    if producer is not None:
+        out += _producer_changes(cm, producer, tl, reach, role, states)
+        out += producer_silent(ctx, cm, producer, last, te, tf, role)
+    out += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
+            if c["time"] >= tl - EPS]
+    out += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
+    out += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
+    return out
 
 
 def producer_silent(ctx: Any, cm: Any, producer: int, last: tuple[float, int], te: float,
@@ -575,7 +583,7 @@ def _pdo_gap(ctx: Any, f: Any, entry: dict[str, Any], t_c: float, delay: float,
     if depth_max >= 3:
         producer = st.producer.node if st.producer is not None else None
         first = _gap_cause(ctx, cm, producer, (tl, int(idx[k])), min(tl + median, t_c), t_c,
-                           f"producer of {st.cob_id:03X}h", (0x04, 0x7F, 0x00))
+                           f"producer of {st.cob_id:03X}h", PDO_STOP_STATES)
         if first is not None:
             out.append(dict(first, depth=3, parent=1))
     return out
@@ -626,16 +634,7 @@ def _sync_gap(ctx: Any, f: Any, entry: dict[str, Any], t_c: float, delay: float,
 
 def _gap_cause(ctx: Any, cm: Any, producer: int | None, last: tuple[float, int], te: float,
                tf: float, role: str, states: tuple[int, ...]) -> dict[str, Any] | None:
-    """A stand-in gap's first cause by §9.3.4's links in their order: the producer's
-    change, its silence, a silence or error frames beginning in the gap, a logger's drop
-    up to the effect."""
-    tl = last[0]
-    found: list[dict[str, Any]] = []
-    if producer is not None:
-        found += [c for c in _producer_changes(cm, producer, tl, te, role, states)]
-        found += producer_silent(ctx, cm, producer, last, te, tf, role)
-    found += [dict(c, link="bus_silence") for c in ctx._silence(cm, None, [(tl, te)])
-              if c["time"] >= tl - EPS]
-    found += [dict(c, link="bus_errors") for c in ctx._error_frames(cm, [(tl, te)])]
-    found += [dict(c, link="frames_lost") for c in ctx._frames_lost(cm, [(tl, tf)])]
+    """A stand-in gap's first cause by §9.3.4's links in their order (`gap_links`, the
+    producer's change only up to t_e)."""
+    found = gap_links(ctx, cm, producer, last, te, tf, te, role, states)
     return next((c for c in found if c["time"] <= tf + EPS), None)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nmtcheck.timeline.model import NodeModel
+from nmtcheck.timeline.node_events import WriteTable
 
 EPS = 1e-9
 
@@ -52,18 +53,25 @@ def in_force(m: NodeModel | None, node: int, index: int, sub: int, t: float,
              network: int | None, device: int | None) -> Value:
     """Object `index`:`sub` of `node` at `t` (`m`: its model, None when the log shows no
     such node; `network`, `device`: the files' values)."""
-    if m is not None and len(m.writes):
-        w = m.writes
-        mine = np.flatnonzero((w.index == index) & (w.sub == sub) & (w.ts <= t + EPS))
-        if len(mine):
-            k = int(mine[-1])
-            if float(w.until[k]) > t + EPS:
-                return Value(int(w.value[k]), "sdo", node, float(w.ts[k]), int(w.line[k]))
-            return UNKNOWN  # written before, then a reset: no known value (§9.1.3)
-    if network is not None:
-        return Value(network, "network", node)
-    if device is not None:
-        return Value(device, "device-file", node)
+    fallback = (Value(network, "network", node) if network is not None
+                else Value(device, "device-file", node) if device is not None else UNKNOWN)
+    if m is None:
+        return fallback
+    return written_value(m.writes, node, index, sub, t, fallback)
+
+
+def written_value(w: WriteTable, node: int, index: int, sub: int, t: float,
+                  fallback: Value) -> Value:
+    """`index`:`sub` at `t` by the confirmed writes `w`: the last one while it holds,
+    unknown after the reset that ended it (§9.1.3), else `fallback` (the files')."""
+    if not len(w):
+        return fallback
+    mine = np.flatnonzero((w.index == index) & (w.sub == sub) & (w.ts <= t + EPS))
+    if not len(mine):
+        return fallback
+    k = int(mine[-1])
+    if float(w.until[k]) > t + EPS:
+        return Value(int(w.value[k]), "sdo", node, float(w.ts[k]), int(w.line[k]))
     return UNKNOWN
 
 

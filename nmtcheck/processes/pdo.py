@@ -347,10 +347,7 @@ def _apply_writes(found: list[Stream]) -> None:
             m = cm.nodes.get(p.node) if p is not None else None
             if p is not None and pdo_params.written(m, 0x1007, (0,)):
                 own = s.window if s.window.node in (None, p.node) else UNKNOWN
-                points = pdo_params.changes(m, 0x1007, (0,))
-                s.window_pieces = (np.concatenate([[-np.inf], points]), [
-                    pdo_params.value_at(m, 0x1007, 0, own, t if np.isfinite(t) else -1e300)
-                    for t in [-np.inf, *points.tolist()]])
+                s.window_pieces = pdo_params.pieces(m, 0x1007, 0, own)
                 s.window = pdo_params.constant_over(m, 0x1007, 0, own, a, b)
                 break
         for p in [s.producer, *s.consumers]:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nmtcheck.processes.comm_values import UNKNOWN, Value
+from nmtcheck.processes.comm_values import UNKNOWN, Value, written_value
 from nmtcheck.protocol import sdo
 from nmtcheck.timeline.model import NodeModel
 from nmtcheck.timeline.node_events import WriteTable
@@ -44,17 +44,9 @@ def _rows(m: NodeModel | None, index: int, sub: int) -> np.ndarray:
 def value_at(m: NodeModel | None, index: int, sub: int, file: Value, t: float) -> Value:
     """`index`:`sub` of the node at `t`: its last confirmed write while it holds, unknown
     after a reset ended it, else the file's value (§9.1.3)."""
-    rows = _rows(m, index, sub)
-    if m is None or not rows.size:
+    if m is None:
         return file
-    w = _table(m, index, sub)
-    before = rows[w.ts[rows] <= t + EPS]
-    if not before.size:
-        return file
-    k = int(before[-1])
-    if float(w.until[k]) > t + EPS:
-        return Value(int(w.value[k]), "sdo", m.node, float(w.ts[k]), int(w.line[k]))
-    return UNKNOWN
+    return written_value(_table(m, index, sub), m.node, index, sub, t, file)
 
 
 def changes(m: NodeModel | None, index: int, subs: range | tuple[int, ...]) -> np.ndarray:
@@ -69,6 +61,15 @@ def changes(m: NodeModel | None, index: int, subs: range | tuple[int, ...]) -> n
             w = _table(m, index, sub)
             out += [w.ts[rows], w.until[rows][np.isfinite(w.until[rows])]]
     return np.unique(np.concatenate(out)) if out else np.zeros(0)
+
+
+def pieces(m: NodeModel | None, index: int, sub: int, file: Value
+           ) -> tuple[np.ndarray, list[Value]]:
+    """`index`:`sub` over time: the moments it may change (the first is -inf) and the
+    value in force from each on; `np.searchsorted(starts, t, "right") - 1` finds t's."""
+    starts = np.concatenate([[-np.inf], changes(m, index, (sub,))])
+    return starts, [value_at(m, index, sub, file, float(t) if np.isfinite(t) else -1e300)
+                    for t in starts.tolist()]
 
 
 def written(m: NodeModel | None, index: int, subs: range | tuple[int, ...]) -> bool:
@@ -147,18 +148,12 @@ def valid_at(m: NodeModel | None, base_index: int, cob_id: int, ts: np.ndarray
              ) -> np.ndarray:
     """Per frame time: whether the party's COB-ID in force is not known to be another
     one or not valid (bit 31; the master clears it while it remaps, §9.1.3)."""
-    out = np.ones(len(ts), bool)
-    points = changes(m, base_index, (1,))
-    if not points.size:
-        return out
-    start = np.concatenate([[-np.inf], points])
-    ok = []
-    for p in start.tolist():
-        v = value_at(m, base_index, 1, UNKNOWN, p if np.isfinite(p) else -1e300)
-        ok.append(not v.known or (not int(v.value or 0) & 0x80000000
-                                  and int(v.value or 0) & 0x7FF == cob_id))
-    piece = np.searchsorted(start, ts + EPS, side="right") - 1
-    result: np.ndarray = np.asarray(ok, bool)[piece]
+    if not written(m, base_index, (1,)):
+        return np.ones(len(ts), bool)
+    starts, values = pieces(m, base_index, 1, UNKNOWN)
+    ok = [not v.known or (not int(v.value or 0) & 0x80000000
+                          and int(v.value or 0) & 0x7FF == cob_id) for v in values]
+    result: np.ndarray = np.asarray(ok, bool)[np.searchsorted(starts, ts + EPS, side="right") - 1]
     return result
 
 
