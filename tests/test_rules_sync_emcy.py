@@ -204,6 +204,19 @@ def test_e001_fires_and_stays_silent(checker: Checker) -> None:
             if f.rule in ("E001", "E003", "B002")] == [("B002", 5, 11.5), ("E003", 5, 11.6)]
 
 
+def test_e001_allows_for_an_emcy_that_waited_for_the_bus(checker: Checker) -> None:
+    """SPEC §9.2.3 (q of §9.1.6): d8 = 130 us; F1 ends a back-to-back run that began at
+    10.008000: q(F1) = 650 us, the limit 9.349 ms < 9.480 ms. Without the run the pair
+    fires."""
+    text = log("(10.000000) can0 705#00",
+               "(10.008000) can0 201#1122334455667788", "(10.008130) can0 202#1122334455667788",
+               "(10.008260) can0 203#1122334455667788", "(10.008390) can0 204#1122334455667788",
+               "(10.008520) can0 085#1023030000000000", "(10.018000) can0 085#0000000000000000")
+    assert found(checker, text, "E", E) == []
+    bare = "".join(line for line in text.splitlines(keepends=True) if "#1122" not in line)
+    assert found(checker, bare, "E", E) == [("E001", 5, 10.018, 2, 3)]
+
+
 def test_e001_inhibit_written_by_sdo(checker: Checker) -> None:
     """1015h = 100 downloaded to node 5 and confirmed: E001 names the write."""
     text = log("(10.000000) can0 705#00", "(10.001000) can0 605#2B15100064000000",

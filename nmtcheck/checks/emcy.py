@@ -9,6 +9,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule
+from nmtcheck.checks.bus_wait import bus_wait
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes.emcy import EmcyNode
 from nmtcheck.protocol import emcy
@@ -37,10 +38,11 @@ def emcy_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
     """Two EMCYs of a node closer than its EMCY inhibit time (1015h).
 
     **What it checks.** Consecutive EMCYs F1, F2 of node N with t(F2) - t(F1) shorter
-    than 1015h x 100 us less the timestamp resolution, with no boot-up or reset of N and
-    no confirmed write of its 1015h between them. 1015h comes from a confirmed SDO write
-    in the trace, else `[nodes.N] emcy_inhibit_100us`, else N's device file. One finding
-    per run of violating pairs, at the first F2.
+    than 1015h x 100 us less the timestamp resolution and less the time F1 may have
+    waited for the bus (a back-to-back run of frames before it), with no boot-up or reset
+    of N and no confirmed write of its 1015h between them. 1015h comes from a confirmed
+    SDO write in the trace, else `[nodes.N] emcy_inhibit_100us`, else N's device file.
+    One finding per run of violating pairs, at the first F2.
 
     **Why it matters.** CANopenNode and Lely queue EMCYs until the inhibit time has
     passed, so a shorter spacing on the bus is the device's own: it floods the bus with
@@ -60,6 +62,11 @@ def emcy_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
             e.clears, e.ts[:-1], side="right")
         rewritten = e.inhibit_line[1:] != e.inhibit_line[:-1]
         bad = (limit > 0) & (dt < limit - r - EPS) & ~cleared & ~rewritten
+        if bad.any():  # less the time F1 may have waited for the bus (q, §9.1.6)
+            cm = next(c for c in model.channels if c.name == e.channel)
+            for k in np.flatnonzero(bad).tolist():
+                q = bus_wait(model, cm, int(e.idx[k]))
+                bad[k] = bool(dt[k] < limit[k] - r - q - EPS)
         flags = np.append(0, bad.astype(np.int8))
         for k, n in _runs(flags):
             i = float(e.inhibit[k])

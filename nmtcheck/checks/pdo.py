@@ -12,6 +12,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule
+from nmtcheck.checks.bus_wait import bus_wait
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import pdo_params
@@ -179,23 +180,6 @@ def tpdo_event_timer_exceeded(model: InputModel, params: Params) -> Iterator[Pro
 
 def _known_in(v: Value, values: range | tuple[int, ...]) -> bool:
     return v.known and int(v.value or 0) in values
-
-
-def bus_wait(model: InputModel, cm: ChannelModel, idx: int) -> float:
-    """q(F) of §9.1.6 for the frame at file position `idx`: how long it may have waited
-    for the bus, from the back-to-back run it ends (0: none, or no d8 on the channel).
-    Read only for an input of one channel (the frame-time store has no channel)."""
-    decoded = model.decoded
-    d8 = decoded.d8(cm.chan)
-    if d8 is None or decoded.channels > 1:
-        return 0.0
-    times = decoded.times_before(idx + 1, 256)
-    if len(times) < 2:
-        return 0.0
-    j = len(times) - 1
-    while j > 0 and times[j] - times[j - 1] <= 1.25 * d8 + EPS:
-        j -= 1
-    return 0.0 if j == len(times) - 1 else float(times[-1] - times[j]) + d8
 
 
 @input_rule("D002", "tpdo-inhibit-violation", "error", exempt_from_unknown=True, scope="node")

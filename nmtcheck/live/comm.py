@@ -81,6 +81,7 @@ class CommTracker:
         ch = self.channels.get(name)
         if ch is None:
             ch = self.channels[name] = CommChannel(name)
+            ch.needs_q = "E001" in self.on  # an EMCY may have waited for the bus too
             net = self.network
             if net is not None:
                 keys = net.sync_keys(name)
@@ -616,13 +617,15 @@ class CommTracker:
             limit = float(inhibit.value) * 1e-4
             dt = f.ts - w.emcy_ts
             bad = dt < limit - self.r - EPS
+            q, q_sure = (self._q(ch, w.emcy_ts) if bad else (0.0, True))
+            bad = bad and dt < limit - self.r - q - EPS
             if bad and not w.e001_run:
                 i = float(inhibit.value)
                 self._find("E001", ch.name, n, f.ts,
                            f"EMCY {max(code, 0):04X}h of node {n} {dt * 1000:.3f} ms after "
                            f"the previous one; inhibit time 1015h = {i:g} x 100 us = "
                            f"{i / 10:g} ms ({source_text(inhibit)})",
-                           certain=inhibit.source != "sdo")
+                           certain=inhibit.source != "sdo" and q_sure)
         w.e001_run = bad
         w.emcy_ts, w.emcy_writes, w.cleared_at = f.ts, w.writes_1015, None
 
@@ -630,7 +633,7 @@ class CommTracker:
 
     def _q(self, ch: CommChannel, t1: float) -> tuple[float, bool]:
         """q(F1) of §9.1.6 for the channel's frame at `t1` among the recent ones
-        (checks/pdo.bus_wait), with the d8 known so far, and whether it is surely that
+        (checks/bus_wait.bus_wait), with the d8 known so far, and whether it is surely that
         (d8 only shrinks as frames come). Looked up only for a spacing under the
         inhibit time."""
         times = ch.recent
