@@ -61,8 +61,11 @@ def find_recording_gaps(decoded: Decoded, channels: list[ChannelModel],
                 (float(before[q]), float(after[q])), (int(after_idx[q]), int(after_line[q])))
     for cm in channels:
         found = by_channel.get(id(cm), {})
+        views: dict[int, _Limits] = {}
         for (a, b), (idx, line) in sorted(found.items()):
-            running = {m.node: lims for m in cm.nodes.values() if (lims := _running(m, a, params))}
+            running = {m.node: lims for m in cm.nodes.values()
+                       if (lims := _running(views.get(m.node) or views.setdefault(
+                           m.node, _Limits(m, params)), a))}
             limits = [lim for lims in running.values() for lim in lims]
             if len(running) < MIN_NODES or b - a <= max(limits) + EPS:
                 continue  # one node's silence (H001), or a limit the silence did not reach
@@ -143,28 +146,46 @@ def _around(decoded: Decoded, moments: np.ndarray, ranges: list[tuple[int, int]]
     return before, after, after_idx, after_line
 
 
-def _running(m: NodeModel, at: float, params: TimelineParams) -> list[float]:
-    """The limits of `m` running at `at`: its heartbeat timeout when a gap opened by a
-    heartbeat has not yet expired there, the guarding response timeout when a request to
-    it is still pending."""
+class _Limits:
+    """What `_running` reads of one node, found once: a channel may have thousands of
+    candidate gaps, each asking every node (a scan of the node's frames for each was
+    quadratic)."""
+
+    def __init__(self, m: NodeModel, params: TimelineParams) -> None:
+        ec = m.ec
+        self.m, self.params = m, params
+        self.beats = np.zeros(0, np.int64)
+        if m.is_producer:
+            self.beats = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
+        self.beat_ts = ec.ts[self.beats]
+        self.beat_is_hb = ec.kind[self.beats] == HEARTBEAT
+        self.resets = np.sort(m.commands.reset_ts)
+        self.requests = np.zeros(0, np.int64)
+        if m.kind_counts()[REQUEST]:
+            self.requests = ec.where(REQUEST, GUARD, BOOTUP)
+        self.request_ts = ec.ts[self.requests]
+        self.is_request = ec.kind[self.requests] == REQUEST
+
+
+def _running(v: _Limits, at: float) -> list[float]:
+    """The limits of the node of `v` running at `at`: its heartbeat timeout when a gap
+    opened by a heartbeat has not yet expired there, the guarding response timeout when
+    a request to it is still pending."""
     out: list[float] = []
-    ec = m.ec
-    if m.is_producer:
-        pos = np.flatnonzero((ec.kind == HEARTBEAT) | (ec.kind == BOOTUP))
-        k = int(np.searchsorted(ec.ts[pos], at + EPS, side="right")) - 1
-        if k >= 0 and ec.kind[pos[k]] == HEARTBEAT:
-            t0 = float(ec.ts[pos[k]])
-            resets = m.commands.reset_ts
-            if not bool(((resets > t0) & (resets <= at + EPS)).any()):
-                limit = float(m.hb_timeouts_at(np.asarray([t0]), params.timeout_factor)[0])
-                if np.isfinite(limit) and limit > 0 and t0 + limit > at - EPS:
-                    out.append(limit)
-    if m.kind_counts()[REQUEST]:
-        pos = ec.where(REQUEST, GUARD, BOOTUP)
-        k = int(np.searchsorted(ec.ts[pos], at + EPS, side="right")) - 1
-        if k >= 0 and ec.kind[pos[k]] == REQUEST and (
-                float(ec.ts[pos[k]]) + params.response_timeout_s > at - EPS):
-            out.append(params.response_timeout_s)
+    params = v.params
+    k = int(np.searchsorted(v.beat_ts, at + EPS, side="right")) - 1
+    if k >= 0 and v.beat_is_hb[k]:
+        t0 = float(v.beat_ts[k])
+        resets = v.resets  # none in (t0, at]
+        if np.searchsorted(resets, t0, side="right") == np.searchsorted(
+                resets, at + EPS, side="right"):
+            limit = float(v.m.hb_timeouts_at(np.asarray([t0]), params.timeout_factor)[0])
+            if np.isfinite(limit) and limit > 0 and t0 + limit > at - EPS:
+                out.append(limit)
+    k = int(np.searchsorted(v.request_ts, at + EPS, side="right")) - 1
+    if k >= 0 and v.is_request[k] and (
+            float(v.request_ts[k]) + params.response_timeout_s > at - EPS):
+        out.append(params.response_timeout_s)
     return out
 
 
