@@ -450,7 +450,7 @@ def test_recording_gaps_scan_each_node_once_whatever_the_candidates(
     log = tmp_path / "wander.log"
     _wandering_heartbeats(log, 24_000)
     scans = 0
-    real = recording_gaps.np
+    real = recording_gaps.np  # type: ignore[attr-defined]
 
     def flatnonzero(a: object) -> object:
         nonlocal scans
