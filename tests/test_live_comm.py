@@ -206,6 +206,35 @@ def test_d002_live_on_a_tighter_inhibit_time(tmp_path: Path) -> None:
             if lf.rule == "D002"] == [("D002", 2, 3.00968)]
 
 
+def test_a_pdo_parameter_written_by_sdo_makes_the_live_finding_provisional(
+        tmp_path: Path) -> None:
+    """The network file gives node 3's TPDO an inhibit time of 10 ms; the master writes
+    1800h:03 = 10 (1 ms) and node 3 confirms: the session's check applies the write (no
+    D002 for TPDOs 3 ms apart). Live takes PDO parameters from the files, so its D002 is
+    provisional, and not confirmed at the end: never a certain finding the check refutes.
+    With an upload of 1800h:03 in the write's place (the same frames' times and lengths)
+    the same D002 is certain and confirmed."""
+    lines = ["(10.000000) can0 703#00", "(10.000500) can0 603#2B0018030A000000",
+             "(10.000700) can0 583#6000180300000000", "(10.001000) can0 000#0103",
+             "(10.010000) can0 183#0100", "(10.013000) can0 183#0200",
+             "(10.030000) can0 183#0300"]
+    net = tmp_path / "net.toml"
+    net.write_text("[nodes.3.tpdo.1]\ncob_id = 0x183\ntransmission_type = 255\n"
+                   "inhibit_100us = 100\n")
+    network = load_network(str(net))
+    for written, want in ((True, [("D002", False, "not-confirmed")]),
+                          (False, [("D002", True, "confirmed")])):
+        log = tmp_path / f"written_{written}.log"
+        read = ["(10.000500) can0 603#4000180300000000", "(10.000700) can0 583#4B00180364000000"]
+        log.write_text("\n".join(lines if written else lines[:1] + read + lines[3:]) + "\n")
+        outcome = _replay(log, network)
+        assert [(lf.rule, lf.certain, lf.confirmed) for lf in outcome.live
+                if lf.rule == "D002"] == want
+        assert outcome.result is not None
+        assert [f.rule for f in outcome.result.findings if f.rule == "D002"] == (
+            [] if written else ["D002"])
+
+
 def _frame(ts: float, can_id: int, data: bytes, rtr: bool = False, dlc: int | None = None
            ) -> LiveFrame:
     return LiveFrame(ts, "can0", can_id, rtr=rtr, dlc=len(data) if dlc is None else dlc,

@@ -51,6 +51,10 @@ TEXT_RESOLUTION_S = 1e-6  # the session's recording is candump text (microsecond
 D8_KEPT = 16  # the smallest intervals before an 8-byte frame, for d8
 SYNC_MEDIAN_EVERY = 64  # a measured SYNC period is recomputed every this many SYNCs
 _WRITTEN = (0x1005, 0x1006, 0x1007, 0x1015, 0x1019)  # the sub-0 objects the rules read
+# Live takes a node's PDO parameters from the files: where SDO wrote one of them
+# (1400h-1BFFh) in the session, its findings of these rules are provisional (the
+# session's check applies the write, processes/pdo_params.py).
+_PDO_JUDGED = frozenset(("D001", "D002", "D004", "D005", "Y004"))
 _CONSUMING = (PRE_OPERATIONAL, OPERATIONAL)
 
 
@@ -128,6 +132,9 @@ class CommTracker:
         if code not in self.on:
             return None
         t = self.tracker
+        if code in _PDO_JUDGED and node is not None and certain:
+            w = self.nodes.get((channel, node))
+            certain = w is None or not w.pdo_written
         lf = LiveFinding(code, t.active[code].name, t.severity[code], channel, node, ts,
                          message, certain=certain)
         st = t.nodes.get((channel, node)) if node is not None else None
@@ -416,19 +423,22 @@ class CommTracker:
                 return  # an expedited download with its size
             size = 4 - ((cmd >> 2) & 0x3)
             value = int.from_bytes(bytes(f.data[4:4 + size]), "little")
-            if sub == 0 and index in _WRITTEN:
-                w.request = (index, value)
-            elif sub == 2 and ((0x1800 <= index <= 0x19FF and 241 <= value <= 251)
-                               or (0x1400 <= index <= 0x15FF and 241 <= value <= 253)):
+            if (sub == 0 and index in _WRITTEN) or 0x1400 <= index <= 0x1BFF:
+                w.request = (index, sub, value)
+            if sub == 2 and ((0x1800 <= index <= 0x19FF and 241 <= value <= 251)
+                             or (0x1400 <= index <= 0x15FF and 241 <= value <= 253)):
                 kind = "241–251 (TPDO)" if index >= 0x1800 else "241–253 (RPDO)"
                 self._find("D006", ch.name, n, f.ts,
                            f"download {index:04X}h:02 = {value} to node {n}: transmission "
                            f"types {kind} are reserved")
             return
         req, w.request = w.request, None
-        if cmd != 0x60 or req is None or req[0] != index or sub != 0:
+        if cmd != 0x60 or req is None or req[:2] != (index, sub):
             return
-        w.written[index] = (req[1], f.ts)
+        if 0x1400 <= index <= 0x1BFF:  # the check of the session applies it (§9.1.3)
+            w.pdo_written = True
+            return
+        w.written[index] = (req[2], f.ts)
         if index == 0x1019:
             ch.c_written = True
         if index == 0x1015:

@@ -19,7 +19,9 @@ class CommNode:
     """What the comm rules keep per (channel, node)."""
 
     written: dict[int, tuple[int, float] | None] = field(default_factory=dict)  # None: voided
-    request: tuple[int, int] | None = None  # a pending expedited download: index, value
+    request: tuple[int, int, int] | None = None  # a pending expedited download: index,
+    # sub-index, value
+    pdo_written: bool = False  # a confirmed write of one of its PDO parameters
     epoch: int = 0  # boot-ups and resets so far (D005 runs)
     # the first boot-up or reset after its previous EMCY (E001: one strictly between two
     # EMCYs separates them; one on either's instant does not, as offline)
