@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule
-from nmtcheck.checks.bus_wait import bus_wait
+from nmtcheck.checks.bus_wait import bus_waits
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes.emcy import EmcyNode
 from nmtcheck.protocol import emcy
@@ -64,9 +64,8 @@ def emcy_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
         bad = (limit > 0) & (dt < limit - r - EPS) & ~cleared & ~rewritten
         if bad.any():  # less the time F1 may have waited for the bus (q, §9.1.6)
             cm = next(c for c in model.channels if c.name == e.channel)
-            for k in np.flatnonzero(bad).tolist():
-                q = bus_wait(model, cm, int(e.idx[k]))
-                bad[k] = bool(dt[k] < limit[k] - r - q - EPS)
+            close = np.flatnonzero(bad)
+            bad[close] = dt[close] < limit[close] - r - bus_waits(model, cm, e.idx[close]) - EPS
         flags = np.append(0, bad.astype(np.int8))
         for k, n in _runs(flags):
             i = float(e.inhibit[k])

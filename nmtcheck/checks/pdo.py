@@ -12,7 +12,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule
-from nmtcheck.checks.bus_wait import bus_wait
+from nmtcheck.checks.bus_wait import bus_waits
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import pdo_params
@@ -207,10 +207,10 @@ def tpdo_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
         dt = np.diff(ts)
         close = np.flatnonzero((dt < inhibit - r - EPS)
                                & operational_through(m, ts[:-1], ts[1:]))
-        q = {int(k): bus_wait(model, cm, int(idx[k])) for k in close.tolist()}
+        q = np.zeros(len(dt))
+        q[close] = bus_waits(model, cm, idx[close])
         bad = np.zeros(len(dt), bool)
-        for k, wait in q.items():
-            bad[k] = dt[k] < inhibit - r - wait - EPS
+        bad[close] = dt[close] < inhibit - r - q[close] - EPS
         join = np.zeros(len(dt), bool)
         join[1:] = bad[1:] & bad[:-1]
         for j, n in flagged_runs(join, bad):
@@ -221,7 +221,7 @@ def tpdo_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
                           f"{int(line[j])}); inhibit time {p.base_index:04X}h:03 = "
                           f"{p.inhibit_100us.value} x 100 us = {inhibit * 1000:g} ms "
                           f"({_source(p.inhibit_100us)}), allowance "
-                          f"{(r + q.get(j, 0.0)) * 1000:.3f} ms"
+                          f"{(r + float(q[j])) * 1000:.3f} ms"
                           + (f" ({n} pairs, the closest {smallest * 1000:.3f} ms)" if n > 1
                              else ""), int(idx[j + 1]), int(line[j + 1]))
 
