@@ -25,12 +25,18 @@ def _one_by_one(times: np.ndarray, i: int, d8: float) -> float:
     return 0.0 if j == len(window) - 1 else float(window[-1] - window[j]) + d8
 
 
-def _model(times: np.ndarray, cuts: list[int], d8: float | None, budget: int
-           ) -> tuple[SimpleNamespace, SimpleNamespace]:
+def _model(times: np.ndarray, cuts: list[int], d8: float | None, budget: int,
+           chans: np.ndarray | None = None) -> tuple[SimpleNamespace, SimpleNamespace]:
+    """A model of what bus_waits reads: the frame-time store (chunks cut at `cuts`, each
+    with its channel codes as the decode stage stores them), d8 and channel 0."""
+    from nmtcheck.timeline.decode import _chans
+
+    chans = np.zeros(len(times), np.int32) if chans is None else chans
     store = ChunkStore(budget)
     for lo, hi in zip([0, *cuts], [*cuts, len(times)], strict=True):
-        store.append(ts=times[lo:hi], base=np.asarray([lo], np.int64))
-    decoded = SimpleNamespace(frame_times=store, channels=1, d8=lambda chan: d8)
+        store.append(ts=times[lo:hi], base=np.asarray([lo], np.int64), **_chans(chans[lo:hi]))
+    decoded = SimpleNamespace(frame_times=store, channels=int(chans.max()) + 1,
+                              d8=lambda chan: d8)
     return SimpleNamespace(decoded=decoded), SimpleNamespace(chan=0)
 
 
@@ -50,6 +56,32 @@ def test_every_frame_gets_the_definitions_q(seed: int) -> None:
     assert sum(w > 0 for w in want) > 100  # many frames did wait
     for budget in (1 << 30, 1000):
         model, cm = _model(times, cuts, d8, budget)
+        got = bus_waits(model, cm, asked)  # type: ignore[arg-type]
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_other_channels_frames_are_left_out(seed: int) -> None:
+    """Channel 0's frames interleaved with another channel's (whole chunks of it too):
+    each channel-0 frame gets the q of channel 0's frames alone."""
+    rng = np.random.default_rng(100 + seed)
+    d8 = 130e-6
+    steps = np.where(rng.random(2000) < 0.7, d8 * rng.uniform(0.95, 1.3, 2000),
+                     rng.uniform(1e-3, 5e-3, 2000))
+    mine = 10.0 + np.cumsum(steps)
+    other = np.sort(rng.uniform(mine[0], mine[-1], 1500))
+    other = np.concatenate([other, np.linspace(mine[-1] + 1, mine[-1] + 2, 400)])
+    times = np.concatenate([mine, other])
+    chans = np.concatenate([np.zeros(len(mine), np.int32), np.ones(len(other), np.int32)])
+    by_time = np.argsort(times, kind="stable")
+    times, chans = times[by_time], chans[by_time]
+    cuts = sorted(rng.choice(np.arange(1, len(times)), 5, replace=False).tolist())
+    asked_mine = rng.choice(len(mine), 400)  # the k-th frame of channel 0
+    asked = np.flatnonzero(chans == 0)[asked_mine]
+    want = [_one_by_one(mine, int(k), d8) for k in asked_mine]
+    assert sum(w > 0 for w in want) > 50
+    for budget in (1 << 30, 1000):
+        model, cm = _model(times, cuts, d8, budget, chans)
         got = bus_waits(model, cm, asked)  # type: ignore[arg-type]
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 

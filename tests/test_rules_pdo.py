@@ -86,6 +86,22 @@ def test_d002_allows_for_a_frame_that_waited_for_the_bus(checker: Checker) -> No
     assert found(checker, bare, D2) == [("D002", 3, 10.018, 3, 4)]
 
 
+def test_d002_allows_for_the_bus_wait_on_one_channel_of_two(checker: Checker) -> None:
+    """The vector above on can0, with can1's frames in between: q(F1) is still 650 us,
+    from can0's frames alone (back to back means on one bus). Without can0's run the
+    pair fires."""
+    text = log("(10.000000) can0 703#00", "(10.001000) can0 000#0103",
+               "(10.008000) can0 201#1122334455667788", "(10.008050) can1 301#01",
+               "(10.008130) can0 202#1122334455667788", "(10.008200) can1 302#0102",
+               "(10.008260) can0 203#1122334455667788", "(10.008390) can0 204#1122334455667788",
+               "(10.008450) can1 303#01", "(10.008520) can0 183#0100",
+               "(10.018000) can0 183#0200")
+    assert found(checker, text, D2) == []
+    bare = "".join(line for line in text.splitlines(keepends=True)
+                   if "can0 20" not in line)
+    assert found(checker, bare, D2) == [("D002", 3, 10.018, 6, 7)]
+
+
 def test_d003_missing_tpdo(checker: Checker) -> None:
     text = log("(10.000000) can0 703#00", "(10.001000) can0 000#0103", "(10.010000) can0 080#",
                "(10.010500) can0 183#01", "(10.020000) can0 080#", "(10.030000) can0 080#",

@@ -15,22 +15,29 @@ def bus_waits(model: InputModel, cm: ChannelModel, idxs: np.ndarray) -> np.ndarr
     """q(F) for the frames at file positions `idxs`: how long each may have waited for
     the bus, from the back-to-back run it ends (0: none, or no d8 on the channel). One
     pass over the input's frame times, however many frames are asked about (a stream
-    that breaks its inhibit time asks for each of its frames). Read only for an input of
-    one channel (the frame-time store has no channel)."""
+    that breaks its inhibit time asks for each of its frames). The frames of the other
+    channels of the input are left out: back to back means on one bus."""
     out = np.zeros(len(idxs))
     decoded = model.decoded
     d8 = decoded.d8(cm.chan)
-    if d8 is None or decoded.channels > 1 or not len(idxs):
+    if d8 is None or not len(idxs):
         return out
     order = np.argsort(idxs, kind="stable")
     wanted = np.asarray(idxs, np.int64)[order]
-    before = np.zeros(0)  # the last WINDOW - 1 frame times before the chunk
+    before = np.zeros(0)  # the channel's last WINDOW - 1 frame times before the chunk
     done = 0
     for chunk in decoded.frame_times:
         if done == len(wanted):
             break
         base, ts = int(chunk["base"][0]), chunk["ts"]
         upto = done + int(np.searchsorted(wanted[done:], base + len(ts), side="left"))
+        rows: np.ndarray | None = None  # the channel's frames in the chunk (None: all)
+        if "chan" in chunk:
+            rows = np.flatnonzero(chunk["chan"] == cm.chan)
+            ts = ts[rows]
+        elif int(chunk["chan_one"][0]) != cm.chan:  # another channel's frames only
+            done = upto  # (none is asked about: q 0 if one were)
+            continue
         times = np.concatenate([before, ts])
         if upto > done:
             # a frame begins a run where it is not back to back with the one before it
@@ -39,7 +46,8 @@ def bus_waits(model: InputModel, cm: ChannelModel, idxs: np.ndarray) -> np.ndarr
             begins[1:] = np.diff(times) > 1.25 * d8 + EPS
             at = np.arange(len(times))
             run_start = np.maximum.accumulate(np.where(begins, at, 0))
-            pos = len(before) + (wanted[done:upto] - base)
+            local = wanted[done:upto] - base
+            pos = len(before) + (local if rows is None else np.searchsorted(rows, local))
             first = np.maximum(np.maximum(run_start[pos], pos - (WINDOW - 1)), 0)
             out[order[done:upto]] = np.where(first == pos, 0.0,
                                              times[pos] - times[first] + d8)

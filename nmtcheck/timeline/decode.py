@@ -145,7 +145,7 @@ class Decoded:
     nmt: dict[str, np.ndarray]  # NMT_COLUMNS, file order: the frames on 000h
     emcy: dict[str, np.ndarray]  # EMCY_COLUMNS, sorted by node key, file order within a key
     ec: dict[str, np.ndarray]  # EC_COLUMNS, sorted by node key, file order within a key
-    frame_times: ChunkStore  # per batch: ts, base index, lines (see _lines)
+    frame_times: ChunkStore  # per batch: ts, base index, lines (_lines), channels (_chans)
     node_frames: ChunkStore  # per batch: key, kind, can_id, ts, idx, dlc, line
     restricted: dict[tuple[int, int], IdUse] = field(default_factory=dict)
     # node key -> (frame index, ts, kind) of the node's first transmitted frame
@@ -478,6 +478,15 @@ def _lines(line: np.ndarray) -> dict[str, np.ndarray]:
     return {"line": line}
 
 
+def _chans(chan: np.ndarray) -> dict[str, np.ndarray]:
+    """A batch's channel codes for the frame-time store: one number when the batch has
+    one channel (a log of one channel always), else a column (q of §9.1.6 looks at one
+    channel's frames)."""
+    if chan.shape[0] and bool((chan == chan[0]).all()):
+        return {"chan_one": chan[:1].copy()}
+    return {"chan": chan.copy()}
+
+
 def _node_lines(line: np.ndarray, idx: np.ndarray) -> dict[str, np.ndarray]:
     """Line numbers for the node-frame store: two numbers instead of a column when lines
     are all 0 (binary logs) or a constant offset from the frame index (text logs
@@ -588,7 +597,8 @@ def decode(batches: Iterable[FrameBatch], pdo_cob_ids: Iterable[int] = (),
 
     for b in batches:
         # (copies of one-element slices: a view would keep the whole column alive)
-        frame_times.append(ts=b.ts, base=b.index[:1].copy(), **_lines(b.line))
+        frame_times.append(ts=b.ts, base=b.index[:1].copy(), **_lines(b.line),
+                           **_chans(b.chan))
         d8.add(b)
         co = ~b.ext & ~b.err
         standard += int(np.count_nonzero(co))
