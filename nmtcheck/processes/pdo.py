@@ -14,6 +14,7 @@ that stream, a mapping holds from its confirmation to the node's next reset.
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -150,8 +151,12 @@ def load_frames(found: list[Stream], model: InputModel) -> None:
             rows = order[a:z]
             parts.setdefault(int(k[a]), []).append(
                 (chunk["ts"][rows], chunk["idx"][rows], lines[a:z], chunk["dlc"][rows]))
-    for s in found:
-        got = parts.get(s.chan * 4096 + s.cob_id)
+    left = Counter(s.chan * 4096 + s.cob_id for s in found)
+    for s in found:  # each stream's parts are let go once joined: the peak is one copy
+        stream_key = s.chan * 4096 + s.cob_id
+        left[stream_key] -= 1
+        got = (parts.pop(stream_key, None) if not left[stream_key]
+               else parts.get(stream_key))
         s.loaded = (tuple(np.concatenate([p[i] for p in got]) for i in range(4)) if got else
                     (np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64),
                      np.zeros(0, np.uint8)))
