@@ -47,6 +47,8 @@ from nmtcheck.results import (
     Finding,
     InputResult,
     Omitted,
+    PackedResult,
+    for_reports,
 )
 from nmtcheck.settings.network import Network
 from nmtcheck.settings.profiles import Profile, RuleSettings
@@ -554,7 +556,7 @@ def error_reason(exc: InputError) -> str:
 
 def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[Rule],
                  progress: Progress | None = None, keep_going: bool = False,
-                 **options: Any) -> list[InputResult]:
+                 reports_only: bool = False, **options: Any) -> list[InputResult]:
     """`check_input` for each path (index = position; `options` are its keyword arguments),
     results in order. With jobs > 1 the inputs are checked in that many processes: checking
     many logs is CPU-bound and scales with the cores. The first input that fails (in order)
@@ -562,7 +564,9 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
     gets a result with its `error` and the others are checked (SPEC §4). A worker that dies
     (a crash in a library, the OOM killer) costs only the logs it was checking, which are
     tried again; a log that kills its worker every time is an input error naming it, never
-    a BrokenProcessPool for every other log."""
+    a BrokenProcessPool for every other log. `reports_only`: each result keeps only what
+    the reports read (results.for_reports), as soon as it is made: `nmtcheck check` on a
+    directory of 100,000 small logs holds every result until the reports are written."""
     if jobs <= 1 or len(paths) <= 1:
         results = []
         for i, path in enumerate(paths):
@@ -571,7 +575,8 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
                 progress.start_input(path)
                 kw["progress"] = progress.frames
             try:
-                results.append(check_input(path, i, profile, rules, **kw))
+                result = check_input(path, i, profile, rules, **kw)
+                results.append(for_reports(result) if reports_only else result)
             except InputError as exc:
                 if not keep_going:
                     raise
@@ -584,12 +589,12 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
         # Rules travel as codes: their decorated check functions do not pickle.
         codes = [r.code for r in rules]
         for i, path in enumerate(paths):
-            pool.submit(i, _check_in_worker, path, i, profile, codes, options)
+            pool.submit(i, _check_in_worker, path, i, profile, codes, options, reports_only)
         outcomes: dict[int, Any] = {}
         while len(outcomes) < len(paths):
             for key, outcome in pool.done():
                 assert isinstance(key, int)
-                outcomes[key] = outcome
+                outcomes[key] = outcome.unpack() if isinstance(outcome, PackedResult) else outcome
                 if progress and isinstance(outcome, InputResult):
                     progress.start_input(paths[key])
                     progress.frames(outcome.stats.frames)
@@ -644,9 +649,11 @@ def _failed(path: str, index: int, outcome: Any) -> Any:
 
 
 def _check_in_worker(path: str, index: int, profile: Profile, codes: list[str],
-                     options: dict[str, Any]) -> InputResult | _Failure:
+                     options: dict[str, Any], reports_only: bool = False
+                     ) -> InputResult | PackedResult | _Failure:
     try:
-        return check_input(path, index, profile, [BY_CODE[c] for c in codes], **options)
+        result = check_input(path, index, profile, [BY_CODE[c] for c in codes], **options)
+        return PackedResult.of(result) if reports_only else result
     except InputError as exc:
         return _Failure("input", (exc.path, exc.message, exc.line))
     except UsageError as exc:
