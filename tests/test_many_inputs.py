@@ -14,6 +14,7 @@ import gc
 import re
 import tracemalloc
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -188,3 +189,31 @@ def test_for_reports_keeps_the_findings_and_the_nodes() -> None:
         (m.channel, m.node) for m in whole.nodes()]
     for mk, mw in zip(kept.nodes(), whole.nodes(), strict=True):
         assert np.array_equal(mk.intervals.state, mw.intervals.state)
+
+
+def test_check_keeps_each_result_for_the_reports(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """`nmtcheck check` hands the reports results kept for them; the Python API, whose
+    `Report.results` gives the model, keeps them whole."""
+    from click.testing import CliRunner
+
+    from nmtcheck import api
+    from nmtcheck.cli import check as check_command
+    from nmtcheck.cli.common import write_reports
+    from nmtcheck.timeline.decode import Decoded
+
+    seen: list[InputResult] = []
+
+    def spy(results: list[InputResult], *args: Any) -> None:
+        seen.extend(results)
+        write_reports(results, *args)
+
+    monkeypatch.setattr(check_command, "write_reports", spy)
+    paths = _two_line_logs(tmp_path, 3)
+    ran = CliRunner().invoke(check_command.check, ["--isolated", str(tmp_path), "-q",
+                                                   "--fail-on", "never"])
+    assert ran.exit_code == 0, ran.output
+    assert len(seen) == 3
+    assert all(vars(res.model)["decoded"] is RELEASED for res in seen)
+    report = api.check(paths)
+    assert all(isinstance(res.model.decoded, Decoded) for res in report.results)
