@@ -594,7 +594,9 @@ def check_inputs(paths: Sequence[str], jobs: int, profile: Profile, rules: list[
         while len(outcomes) < len(paths):
             for key, outcome in pool.done():
                 assert isinstance(key, int)
-                outcomes[key] = outcome.unpack() if isinstance(outcome, PackedResult) else outcome
+                if isinstance(outcome, PackedResult):
+                    outcome = outcome.unpack()
+                outcomes[key] = outcome
                 if progress and isinstance(outcome, InputResult):
                     progress.start_input(paths[key])
                     progress.frames(outcome.stats.frames)

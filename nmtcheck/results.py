@@ -122,9 +122,10 @@ RELEASED = _Released()
 def for_reports(result: InputResult) -> InputResult:
     """`result` with only what the reports read: the decoded frame tables (the spools'
     columns, the per-frame views the rules used) and the model's query caches are
-    released. A directory of 20,000 two-line logs kept 21 KB per input until the reports
-    were written, half of it these (2026-12-08); the reports are the same byte for byte.
-    Not for the Python API, whose `Report.results` gives the whole model."""
+    released. `nmtcheck check` holds every input's result until the reports are written:
+    a two-line log's held 21 KB, 11 KB without these (2026-12-08, tracemalloc); the
+    reports are the same byte for byte. Not for the Python API, whose `Report.results`
+    gives the whole model."""
     model = result.model
     model.decoded = cast(Decoded, RELEASED)
     model._sent_while.clear()  # sent_while(): a rule's query over the frames
@@ -134,8 +135,8 @@ def for_reports(result: InputResult) -> InputResult:
 
 # Values that many results share in the process that checked them, and that a pickle would
 # copy into every result sent back from a worker: zero-length arrays (a node's empty
-# tables, a boot analysis' empty spans: about 90 per two-line log), the timeline's shared
-# empty tables and the short strings every input repeats (rule reasons, channel names).
+# columns, a boot analysis' empty spans), the timeline's shared empty tables and the short
+# strings every input repeats (field names, rule reasons, channel names).
 SHARED_STRING_MAX = 128  # longer strings are rarely repeated (finding messages, paths)
 _EMPTY: dict[tuple[np.dtype[Any], tuple[int, ...]], np.ndarray] = {}
 
@@ -196,8 +197,8 @@ class _SharingUnpickler(pickle.Unpickler):
 class PackedResult:
     """A result for the reports (`for_reports`) as a worker process sends it back: a
     pickle whose shared values (`_SharingPickler`) stay shared in the process that writes
-    the reports, where a plain pickle made a copy of each per result (32 KB a two-line
-    log where the checking process held 11 KB)."""
+    the reports, where a plain pickle made a copy of each per result (a two-line log's
+    result took 32 KB there, 18 KB so, 11 KB in the process that checked it)."""
 
     data: bytes
 
