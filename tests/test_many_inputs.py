@@ -13,6 +13,8 @@ from __future__ import annotations
 import gc
 import pickle
 import re
+import subprocess
+import sys
 import tracemalloc
 from pathlib import Path
 from typing import Any
@@ -242,3 +244,26 @@ def test_check_keeps_each_result_for_the_reports(tmp_path: Path,
     assert all(vars(res.model)["decoded"] is RELEASED for res in seen)
     report = api.check(paths)
     assert all(isinstance(res.model.decoded, Decoded) for res in report.results)
+
+
+POOL_RUN = """
+from nmtcheck.fleet.executors import ResilientPool
+pool = ResilientPool(2)
+for i in range(6000):
+    pool.submit(i, abs, -i)
+got = {}
+while len(got) < 6000:
+    got.update(pool.done())
+pool.close()
+assert got == {i: i for i in range(6000)}, len(got)
+print("ok")
+"""
+
+
+def test_the_worker_pool_runs_thousands_of_inputs() -> None:
+    """Each task tells the pool it started (to know the suspects when a worker dies);
+    unread, those notes filled their pipe after some 2,700 tasks and every worker
+    blocked: `check -j 2` on a directory of 20,000 logs hung (2026-12-08)."""
+    ran = subprocess.run([sys.executable, "-c", POOL_RUN], capture_output=True, text=True,
+                         timeout=300, check=False)
+    assert ran.returncode == 0 and ran.stdout.strip() == "ok", ran.stderr[-2000:]
