@@ -2,7 +2,7 @@
 (results.for_reports), and every report is the same byte for byte as from the whole result.
 
 `nmtcheck check DIR` holds every input's result until the reports are written at the end;
-a directory of 100,000 two-line logs reached 1,039 MB (bench/PATHOLOGICAL.md, "A directory
+a directory of 100,000 two-line logs reached 2.5 GB (bench/PATHOLOGICAL.md, "A directory
 of many two-line logs"). The reports must not change for it: each sample recording below is
 checked twice, once kept whole and once for the reports (in this process, and sent back
 from a worker process as `-j` does), and all nine formats are compared.
