@@ -155,6 +155,7 @@ def _check_logs(logs: tuple[str, ...], names: dict[str, str], profile: Any, rule
             # one unreadable input among several hides none of the others (SPEC §4)
             results = named_check_inputs(names, logs, jobs or os.cpu_count() or 1, profile,
                                          rules, progress=progress, keep_going=len(logs) > 1,
+                                         reports_only=True,
                                          network=network, input_format=input_format,
                                          strict=strict, channel=channel,
                                          reader_options=reader_options,

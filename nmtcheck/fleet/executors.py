@@ -167,6 +167,10 @@ class ResilientPool:
         self._ready: list[tuple[Hashable, Any]] = []
         self._dead_starts = 0
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        # the keys the workers said they started, read off `_queue` as tasks end: each
+        # task writes one before its work, and a pipe nobody reads fills after some
+        # 2,700 of them, when every worker blocks on its write and the pool hangs
+        self._started: set[Hashable] = set()
 
     def _ensure(self) -> ProcessPoolExecutor:
         if self._pool is None:
@@ -226,8 +230,10 @@ class ResilientPool:
             if any(isinstance(f.exception(), BrokenProcessPool) for f in finished):
                 self._recover()
                 continue
+            self._started |= self._started_keys()
             for f in finished:
                 key, _fn, _args = self._tasks.pop(f)
+                self._started.discard(key)
                 exc = f.exception()
                 self._ready.append((key, f.result() if exc is None else exc))
         out, self._ready = self._ready, []
@@ -244,7 +250,7 @@ class ResilientPool:
 
     def _recover(self) -> None:
         wait(list(self._tasks))  # a broken pool fails all its futures: let it finish doing so
-        started = self._started_keys()
+        started = self._started | self._started_keys()
         lost = []
         for f, (key, fn, args) in list(self._tasks.items()):
             exc = f.exception()
@@ -280,6 +286,7 @@ class ResilientPool:
     def _restart(self) -> None:
         self._shutdown()
         self._started_keys()  # drop what the dead pool's workers wrote
+        self._started.clear()
 
     def close(self) -> None:
         self._shutdown()
