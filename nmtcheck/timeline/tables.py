@@ -296,12 +296,17 @@ class EcTable:
              stale: np.ndarray) -> EcTable:
         """Rows `rows` of columns of the constructor's dtypes, with their kinds and stale
         marks, all views: the timeline makes `kind` and `stale` once for every node (a
-        log may have tens of thousands of nodes of a frame or two each)."""
+        log may have tens of thousands of nodes of a frame or two each). A node of a few
+        rows gets a `_FewEcRows`: 8 views held per node were 865 bytes a node."""
+        if rows.stop - rows.start <= FEW_ROWS and cols["kind"] is kind and (
+                cols["stale"] is stale):
+            return _FewEcRows(cols, rows)
         t = blank(cls, cls.empty)
         t.ts, t.idx, t.line = cols["ts"][rows], cols["idx"][rows], cols["line"][rows]
         t.rtr, t.dlc, t.value = cols["rtr"][rows], cols["dlc"][rows], cols["value"][rows]
         t.kind, t.stale = kind[rows], stale[rows]
         return t
+
 
     def __len__(self) -> int:
         return len(self.ts)
@@ -344,6 +349,43 @@ class EcTable:
         return int(np.searchsorted(self.idx, idx, side="right"))
 
 
+FEW_ROWS = 8  # a node's error-control table of at most this many rows is a `_FewEcRows`
+_EC_COLUMNS = frozenset(("ts", "idx", "line", "rtr", "dlc", "value", "kind", "stale"))
+
+
+class _FewEcRows(EcTable):
+    """A node's few rows of the channel-wide error-control columns (`EcTable.view`),
+    each column a view made when it is read and not kept: a log of 200,000 channels has
+    200,000 nodes of a frame or two, and 8 kept views cost 865 bytes a node. A column
+    assigned (`classify` sets `kind`) is kept as assigned; writes into a column's view
+    reach the channel-wide column as they do through a kept view."""
+
+    runs = None  # a small node has no dropped run (`ec_compact` drops long runs only)
+    guard_runs = None
+
+    def __init__(self, cols: dict[str, np.ndarray], rows: slice) -> None:
+        self._cols, self._rows = cols, rows
+
+    def __getattr__(self, name: str) -> Any:
+        # only for what the instance lacks: a column not assigned
+        if name in _EC_COLUMNS:
+            return self.__dict__["_cols"][name][self.__dict__["_rows"]]
+        raise AttributeError(name)
+
+    def __len__(self) -> int:
+        rows = self._rows
+        return int(rows.stop - rows.start)
+
+
+def kind_stamp(ec: EcTable) -> object:
+    """What changes when a table's kinds are replaced (`classify` assigns `kind`): the
+    caches of `NodeModel.kind_counts` and `heartbeat_pairs` hold it. The kinds' array
+    where the table keeps one, else (a `_FewEcRows` not yet classified) the table: a
+    view made on each read is never the same object twice. A dict lookup, not a
+    property: it is asked some 20 times a node."""
+    return ec.__dict__.get("kind", ec)
+
+
 @dataclass
 class Interval:
     start: float
@@ -380,6 +422,41 @@ class IntervalTable:
         for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
                                 self.source.tolist(), strict=True):
             yield Interval(a, b, STATES[st], SOURCES[so])
+
+
+class FewIntervals(IntervalTable):
+    """The one or two intervals of a node whose frames are boot-ups only (`bootups_only`):
+    their bounds as Python floats, the columns made when read and not kept (the state
+    and source columns are shared read-only ones). A log of 200,000 channels has 200,000
+    such nodes, and 4 arrays kept per node were 425 bytes a node."""
+
+    def __init__(self, bounds: tuple[float, ...], state: np.ndarray,
+                 source: np.ndarray) -> None:
+        self._bounds, self.state, self.source = bounds, state, source
+
+    def __getattr__(self, name: str) -> Any:
+        # only for what the instance lacks: the start and end columns
+        if name == "start":
+            return np.array(self.__dict__["_bounds"][:-1], np.float64)
+        if name == "end":
+            return np.array(self.__dict__["_bounds"][1:], np.float64)
+        raise AttributeError(name)
+
+    def __len__(self) -> int:
+        return len(self._bounds) - 1
+
+
+def shared_column(values: list[int], dtype: DTypeLike) -> np.ndarray:
+    """One read-only array per distinct short list of values and dtype."""
+    key = (tuple(values), np.dtype(dtype))
+    found = _SHARED_COLUMNS.get(key)
+    if found is None:
+        found = _SHARED_COLUMNS[key] = np.asarray(values, dtype)
+        found.flags.writeable = False
+    return found
+
+
+_SHARED_COLUMNS: dict[tuple[tuple[int, ...], np.dtype[Any]], np.ndarray] = {}
 
 
 def next_of(marks: np.ndarray, after: np.ndarray, values: np.ndarray | None = None,
