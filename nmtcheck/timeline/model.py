@@ -40,10 +40,12 @@ from nmtcheck.timeline.decode import (
 )
 from nmtcheck.timeline.gaps import Gaps
 from nmtcheck.timeline.node_events import (
+    NO_EVENTS,
     ConfigWrite,
     EmcyTable,
     NodeEvent,
     NodeEvents,
+    NoEvents,
     SdoEventTable,
     WriteTable,
 )
@@ -57,6 +59,7 @@ from nmtcheck.timeline.tables import (
     IntervalTable,
     NmtFrame,
     NmtTable,
+    interval_columns,
     kind_stamp,
     known_cs,
     plain_rows,
@@ -191,7 +194,7 @@ class NodeModel:
         default_factory=lambda: shared_empty(WriteTable))
     pdo_writes: WriteTable = field(  # N's PDO parameters beyond 1400h-1403h/1800h-1803h:01
         default_factory=lambda: shared_empty(WriteTable))
-    events: NodeEvents = field(default_factory=NodeEvents)
+    events: NodeEvents = field(default_factory=lambda: NO_EVENTS)  # see own_events()
     order_only: bool = False  # the input has no timestamps: no period is measured
     self_starts: list[tuple[float, int]] = field(default_factory=list)  # (ts, frame index)
     # after a boot-up, spans where nothing shows whether N started itself (no S001)
@@ -207,6 +210,12 @@ class NodeModel:
     # a small plain node's frames as Python lists (`timeline._small`): the heartbeat
     # stages and rules take their per-node shortcuts on them; None: the numpy paths
     small: SmallEc | None = field(default=None, repr=False, compare=False)
+
+    def own_events(self) -> NodeEvents:
+        """N's events to fill in: its own, not the shared empty ones it starts with."""
+        if isinstance(self.events, NoEvents):
+            self.events = NodeEvents()
+        return self.events
 
     def reported_period(self, end: float) -> tuple[float | None, str]:
         """N's heartbeat period as the reports give it (seconds, and configured | measured |
@@ -744,13 +753,11 @@ def _windows(model: InputModel, states: tuple[str, ...]) -> tuple[np.ndarray, np
     wanted = [STATE_INDEX[s] for s in states]
     tables = [m.intervals for m in model.nodes() if len(m.intervals)]
     if tables:  # every node's intervals as one set of columns: a log may have 40,000 nodes
-        lengths = np.asarray([len(t) for t in tables], np.int64)
-        lo = np.concatenate([t.start for t in tables]).astype(np.float64)
-        hi = np.concatenate([t.end for t in tables]).astype(np.float64)
+        lengths, lo, hi, state = interval_columns(tables)
         ends = np.cumsum(lengths)
         lo[ends - lengths], hi[ends - 1] = -np.inf, np.inf  # the first/last interval of
-        keep = is_one_of(np.concatenate([t.state for t in tables]), wanted)  # each node
-        lo_all, hi_all = lo[keep], hi[keep]  # also take stray times
+        keep = is_one_of(state, wanted)  # each node also take stray times
+        lo_all, hi_all = lo[keep], hi[keep]
     else:
         lo_all = hi_all = np.zeros(0)
     if not lo_all.size:
