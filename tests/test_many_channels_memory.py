@@ -131,6 +131,11 @@ def test_few_rows_read_and_write_as_views_do() -> None:
         for name in names:
             assert np.array_equal(getattr(few, name), getattr(full, name)), name
         assert list(few) == list(full) and few.runs is None and few.guard_runs is None
+        if len(few):  # frames read from the channel-wide columns stay within the rows
+            assert few[-1] == full[-1] and few[-len(few)] == full[-len(full)]
+        for outside in (len(few), -len(few) - 1):
+            with pytest.raises(IndexError):
+                few[outside]
         for kind in (BOOTUP, HEARTBEAT, REQUEST):
             assert np.array_equal(few.where(kind), full.where(kind))
             assert few.count(kind) == full.count(kind)
@@ -148,6 +153,7 @@ def test_few_rows_read_and_write_as_views_do() -> None:
     new = np.full(4, HEARTBEAT, np.int8)
     few.kind = new  # `classify` replaces the kinds
     assert few.kind is new and kind_stamp(few) is new
+    assert [f.kind for f in few] == ["heartbeat"] * 4
     back = pickle.loads(pickle.dumps(few))
     assert np.array_equal(back.ts, few.ts) and np.array_equal(back.kind, new)
     # a table of more rows keeps its views as before

@@ -60,7 +60,6 @@ from nmtcheck.timeline.tables import (
     NmtFrame,
     NmtTable,
     interval_columns,
-    kind_stamp,
     known_cs,
     plain_rows,
     reset_cs,
@@ -341,7 +340,8 @@ class NodeModel:
         as two arrays of positions in `ec`: the intervals the period is measured from
         (SPEC §2), H003 compares and the report summarises."""
         cached = self._pairs
-        stamp = kind_stamp(self.ec)
+        ec = self.ec
+        stamp = ec.__dict__.get("kind", ec)  # kind_stamp(ec), inline: 20 calls a node
         if cached is not None and cached[0] is stamp:
             return cached[1]
         if self.kind_counts()[HEARTBEAT] < 2:  # no pair (most nodes of many channels)
@@ -368,7 +368,8 @@ class NodeModel:
         rule returns at once for a node with none of the kinds it looks at (most nodes of
         a log of many channels have a frame or two)."""
         cached = self._kinds
-        stamp = kind_stamp(self.ec)
+        ec = self.ec
+        stamp = ec.__dict__.get("kind", ec)  # kind_stamp(ec), inline: 20 calls a node
         if cached is not None and cached[0] is stamp:
             return cached[1]
         counts = tuple(np.bincount(self.ec.kind, minlength=len(EC_KIND_NAMES)).tolist())

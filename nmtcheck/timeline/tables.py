@@ -350,7 +350,19 @@ class EcTable:
 
 
 FEW_ROWS = 8  # a node's error-control table of at most this many rows is a `_FewEcRows`
-_EC_COLUMNS = frozenset(("ts", "idx", "line", "rtr", "dlc", "value", "kind", "stale"))
+
+
+class _Rows:
+    """A `_FewEcRows` column: a view of the node's rows of the channel-wide column, made
+    on each read. A non-data descriptor: a column assigned to the table (`classify`
+    sets `kind`) is read from the table's own attributes instead."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, table: _FewEcRows, owner: type | None = None) -> np.ndarray:
+        column: np.ndarray = table._cols[self.name][table._rows]
+        return column
 
 
 class _FewEcRows(EcTable):
@@ -362,19 +374,33 @@ class _FewEcRows(EcTable):
 
     runs = None  # a small node has no dropped run (`ec_compact` drops long runs only)
     guard_runs = None
+    ts = _Rows()
+    idx = _Rows()
+    line = _Rows()
+    rtr = _Rows()
+    dlc = _Rows()
+    value = _Rows()
+    kind = _Rows()
+    stale = _Rows()
 
     def __init__(self, cols: dict[str, np.ndarray], rows: slice) -> None:
         self._cols, self._rows = cols, rows
 
-    def __getattr__(self, name: str) -> Any:
-        # only for what the instance lacks: a column not assigned
-        if name in _EC_COLUMNS:
-            return self.__dict__["_cols"][name][self.__dict__["_rows"]]
-        raise AttributeError(name)
-
     def __len__(self) -> int:
         rows = self._rows
         return int(rows.stop - rows.start)
+
+    def __getitem__(self, pos: int) -> EcFrame:
+        """The frame at `pos`, read from the channel-wide columns (no view made)."""
+        n, p = len(self), int(pos)
+        if not -n <= p < n:
+            raise IndexError(pos)
+        at = self._rows.start + (p if p >= 0 else p + n)
+        cols, own_kind = self._cols, self.__dict__.get("kind")
+        kind = cols["kind"][at] if own_kind is None else own_kind[at - self._rows.start]
+        return EcFrame(p, float(cols["ts"][at]), int(cols["idx"][at]), int(cols["line"][at]),
+                       bool(cols["rtr"][at]), int(cols["dlc"][at]), int(cols["value"][at]),
+                       EC_KIND_NAMES[kind])
 
 
 def kind_stamp(ec: EcTable) -> object:
