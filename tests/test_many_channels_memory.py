@@ -200,6 +200,11 @@ def test_few_intervals_are_the_walks_and_join_in_order(checker: Checker) -> None
     assert np.array_equal(start, np.concatenate([t.start for t in tables]))
     assert np.array_equal(end, np.concatenate([t.end for t in tables]))
     assert np.array_equal(state, np.concatenate([t.state for t in tables]))
+    lengths2, start2, end2, state2 = interval_columns(tables, with_end=False)
+    assert np.array_equal(lengths2, lengths) and np.array_equal(start2, start)
+    assert np.array_equal(state2, state) and not len(end2)
+    start2[:] = -1.0  # the caller's own: no table changes
+    assert np.array_equal(start, np.concatenate([t.start for t in tables]))
 
 
 def test_the_shared_empty_events_and_spans_are_never_written(checker: Checker) -> None:

@@ -131,7 +131,7 @@ class _Intervals:
     (each row's position within its node)."""
 
     def __init__(self, tables: list[IntervalTable]) -> None:
-        lengths, self.start, _end, self.state = interval_columns(tables)
+        lengths, self.start, _no_end, self.state = interval_columns(tables, with_end=False)
         self.node = np.repeat(np.arange(len(tables)), lengths)
         self.first = np.cumsum(lengths) - lengths
         self.local = np.arange(len(self.start)) - self.first[self.node]

@@ -480,12 +480,12 @@ class FewIntervals(IntervalTable):
         return self._bounds
 
 
-def interval_columns(tables: list[IntervalTable]
+def interval_columns(tables: list[IntervalTable], with_end: bool = True
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Several nodes' intervals as one set of columns, node after node: each table's
-    length, and the start, end and state columns. The intervals of `FewIntervals` go
-    in as Python numbers, not as an array per node made and held until the join (a log
-    of 200,000 channels: 200,000 tables)."""
+    length, and the start, end (empty unless `with_end`) and state columns. The
+    intervals of `FewIntervals` go in as Python numbers, not as an array per node made
+    and held until the join (a log of 200,000 channels: 200,000 tables)."""
     lengths = np.fromiter((len(t) for t in tables), np.int64, len(tables))
     pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     starts: list[float] = []
@@ -504,17 +504,22 @@ def interval_columns(tables: list[IntervalTable]
         if isinstance(t, FewIntervals):
             bounds = t.bounds
             starts.extend(bounds[:-1])
-            ends.extend(bounds[1:])
+            if with_end:
+                ends.extend(bounds[1:])
             states.extend(t.state.tolist())
         elif len(t):
             few_to_pieces()
-            pieces.append((t.start, t.end, t.state))
+            pieces.append((t.start, t.end if with_end else _NO_ENDS, t.state))
     few_to_pieces()
     if not pieces:
         return lengths, np.zeros(0), np.zeros(0), np.zeros(0, np.int8)
-    return (lengths, np.concatenate([p[0] for p in pieces]).astype(np.float64),
-            np.concatenate([p[1] for p in pieces]).astype(np.float64),
-            np.concatenate([p[2] for p in pieces]).astype(np.int8))
+    # (a join is a new array: each is the caller's to write into)
+    return (lengths, np.concatenate([p[0] for p in pieces]).astype(np.float64, copy=False),
+            np.concatenate([p[1] for p in pieces]).astype(np.float64, copy=False),
+            np.concatenate([p[2] for p in pieces]).astype(np.int8, copy=False))
+
+
+_NO_ENDS = np.zeros(0)  # interval_columns without the ends
 
 
 def shared_column(values: list[int], dtype: DTypeLike) -> np.ndarray:
