@@ -34,7 +34,14 @@ from nmtcheck.timeline import error_control, intervals
 from nmtcheck.timeline.decode import KIND_EMCY, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
 from nmtcheck.timeline.model import InputModel, NodeConfig, NodeModel
 from nmtcheck.timeline.node_events import EmcyTable, SdoEventTable, WriteTable
-from nmtcheck.timeline.tables import CommandTable, EcTable, IntervalTable, NmtTable, shared_empty
+from nmtcheck.timeline.tables import (
+    CommandTable,
+    EcTable,
+    FewIntervals,
+    IntervalTable,
+    NmtTable,
+    shared_empty,
+)
 
 
 def channels_log(channels: int) -> str:
@@ -165,7 +172,11 @@ def test_grace_since_matches_the_walk_on_every_interval_pattern() -> None:
         n = rng.randint(1, 9)
         starts.append(np.cumsum(np.asarray([rng.random() for _ in range(n)])))
         states.append(np.asarray([rng.choice(pool) for _ in range(n)], np.int8))
-    ivs = state._Intervals(starts, states)
+    # tables of both kinds, as the timeline makes them: the join must not mix them up
+    ivs = state._Intervals([
+        FewIntervals((*st.tolist(), float(st[-1]) + 1.0), codes, codes) if k % 2 else
+        IntervalTable(st, st, codes, codes)
+        for k, (st, codes) in enumerate(zip(starts, states, strict=True))])
     for grace in (None, *pool):
         got = ivs.grace_since(grace)
         want = []

@@ -43,6 +43,7 @@ from nmtcheck.protocol.nmt import (
 )
 from nmtcheck.timeline.decode import KIND_EMCY, KIND_NAMES, KIND_RPDO, KIND_SDO_TX, KIND_TPDO
 from nmtcheck.timeline.model import InputModel, NodeModel
+from nmtcheck.timeline.tables import IntervalTable, interval_columns
 
 _STATE_OF_CODE = np.full(128, -1, np.int8)  # state index of a 7-bit state code, -1 if none
 for _code, _state in STATE_OF_CODE.items():
@@ -97,7 +98,7 @@ def _scan(model: InputModel, kinds: tuple[int, ...], states: tuple[str, ...],
     group = np.repeat(np.cumsum(known) - 1, count)[mine]  # its position in `nodes`
     rows = sel[order][mine]  # node after node, each in file order
     ts = cand.ts[rows]
-    ivs = _Intervals([m.intervals.start for m in nodes], [m.intervals.state for m in nodes])
+    ivs = _Intervals([m.intervals for m in nodes])
     since = ivs.grace_since(STATE_INDEX[grace_from] if grace_from else None)
     iv = _last_at_or_before(ivs.node, ivs.start, group, ts)
     iv = np.where(iv >= 0, iv, ivs.first[group])  # before the first interval: the first
@@ -129,11 +130,9 @@ class _Intervals:
     (the node's position in the list), `first` (per node, its first row), `local`
     (each row's position within its node)."""
 
-    def __init__(self, starts: list[np.ndarray], states: list[np.ndarray]) -> None:
-        lengths = np.asarray([len(s) for s in starts], np.int64)
-        self.start = np.concatenate(starts).astype(np.float64)
-        self.state = np.concatenate(states).astype(np.int8)
-        self.node = np.repeat(np.arange(len(starts)), lengths)
+    def __init__(self, tables: list[IntervalTable]) -> None:
+        lengths, self.start, _no_end, self.state = interval_columns(tables, with_end=False)
+        self.node = np.repeat(np.arange(len(tables)), lengths)
         self.first = np.cumsum(lengths) - lengths
         self.local = np.arange(len(self.start)) - self.first[self.node]
 
@@ -198,12 +197,19 @@ def _unproven(nodes: list[NodeModel], group: np.ndarray, ts: np.ndarray,
     """Per frame (of node `nodes[group]` at `ts`), whether it falls in an unproven
     span of its node (the last span starting at or before it, up to its end); with
     `spans_of`, in one of the spans it gives."""
-    spans = [np.asarray(m.unproven_spans if spans_of is None else spans_of(m),
-                        np.float64).reshape(-1, 2) for m in nodes]
-    node = np.repeat(np.arange(len(nodes)), [len(s) for s in spans])
+    # every node's spans as one set of columns, not an array per node (200,000 nodes)
+    counts = np.zeros(len(nodes), np.int64)
+    flat_spans: list[float] = []
+    for g, m in enumerate(nodes):
+        node_spans = m.unproven_spans if spans_of is None else spans_of(m)
+        if node_spans:
+            counts[g] = len(node_spans)
+            flat_spans.extend(x for span in node_spans for x in span)
+    node = np.repeat(np.arange(len(nodes)), counts)
     if not len(node):
         return np.zeros(len(ts), bool)
-    flat = np.concatenate(spans)
+    flat = np.asarray(flat_spans, np.float64).reshape(-1, 2)
+    first_span = np.cumsum(counts) - counts
     lo, hi = flat[:, 0], flat[:, 1]
     # span starts out of time order (timestamps that go back): that node as before
     unsorted = np.unique(node[1:][(node[1:] == node[:-1]) & (lo[1:] < lo[:-1])])
@@ -213,8 +219,8 @@ def _unproven(nodes: list[NodeModel], group: np.ndarray, ts: np.ndarray,
         k = np.where(k >= 0, np.flatnonzero(sorted_rows)[np.maximum(k, 0)], -1)
     for g in unsorted.tolist():
         mine = np.flatnonzero(group == g)
-        span = np.searchsorted(spans[g][:, 0], ts[mine], side="right") - 1
-        first = int(np.flatnonzero(node == g)[0])
+        first = int(first_span[g])
+        span = np.searchsorted(lo[first:first + counts[g]], ts[mine], side="right") - 1
         k[mine] = np.where(span >= 0, first + span, -1)
     inside: np.ndarray = (k >= 0) & (ts <= hi[np.maximum(k, 0)] + EPS)
     return inside

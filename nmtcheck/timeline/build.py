@@ -206,7 +206,7 @@ def _emcy(decoded: Decoded, groups: list[tuple[int, slice]], nodes: _Nodes) -> N
     """Each node's EMCYs: views into the decoded columns (grouped by node)."""
     cols = decoded.emcy
     for n, r in groups:
-        nodes(n).events.emcy = EmcyTable(cols["ts"][r], cols["idx"][r], cols["line"][r],
+        nodes(n).own_events().emcy = EmcyTable(cols["ts"][r], cols["idx"][r], cols["line"][r],
                                          cols["dlc"][r], cols["data"][r])
 
 

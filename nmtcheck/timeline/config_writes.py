@@ -93,7 +93,7 @@ def _pair_server(rows: np.ndarray, n: int, m: NodeModel) -> None:
     _events(rows, resp, answered, confirmed & ~has_value & known[at], index, sub, m)
     write = confirmed & has_value
     m.writes = _table(rows, resp, req, write & known[at], index, sub, value, n)
-    m.events.writes = m.writes
+    m.own_events().writes = m.writes
     pdo = write & ~known[at]
     if pdo.any():  # PDO parameters: read by the PDO streams only (SPEC §9.1.1)
         m.pdo_writes = _table(rows, resp, req, pdo, index, sub, value, n)
@@ -117,8 +117,8 @@ def _events(rows: np.ndarray, resp: np.ndarray, answered: np.ndarray, segmented:
     r = resp[k]
     code = (data[r, 4].astype(np.int64) | (data[r, 5].astype(np.int64) << 8)
             | (data[r, 6].astype(np.int64) << 16) | (data[r, 7].astype(np.int64) << 24))
-    m.events.sdo = SdoEventTable(rows["ts"][r], rows["idx"][r], rows["line"][r], abort[k],
-                                 index[r], sub[r], code, answered[k])
+    m.own_events().sdo = SdoEventTable(rows["ts"][r], rows["idx"][r], rows["line"][r], abort[k],
+                                       index[r], sub[r], code, answered[k])
 
 
 def write_validity(nodes: dict[int, NodeModel]) -> None:

@@ -35,6 +35,7 @@ from nmtcheck.timeline.model import (
     SmallEc,
     reset_cs,
 )
+from nmtcheck.timeline.tables import FewIntervals, shared_column
 
 # state index a data byte reports, -1 if none (boot-up handled apart)
 _STATE_OF_BYTE = np.full(256, -1, np.int8)
@@ -362,6 +363,5 @@ def bootups_only(ec: EcTable, start: float, end: float) -> IntervalTable:
         else:
             starts, states, sources = [start, first], [unknown, pre_op], [
                 SOURCE_INDEX["start"], _EC_SOURCE[BOOTUP]]
-    begin = np.asarray(starts, np.float64)
-    return IntervalTable(begin, np.append(begin[1:], max(end, starts[-1])),
-                         np.asarray(states, np.int8), np.asarray(sources, np.int8))
+    return FewIntervals((*starts, max(end, starts[-1])), shared_column(states, np.int8),
+                        shared_column(sources, np.int8))

@@ -40,14 +40,17 @@ from nmtcheck.timeline.decode import (
 )
 from nmtcheck.timeline.gaps import Gaps
 from nmtcheck.timeline.node_events import (
+    NO_EVENTS,
     ConfigWrite,
     EmcyTable,
     NodeEvent,
     NodeEvents,
+    NoEvents,
     SdoEventTable,
     WriteTable,
 )
 from nmtcheck.timeline.tables import (
+    FEW_ROWS,
     Command,
     CommandTable,
     EcFrame,
@@ -56,6 +59,7 @@ from nmtcheck.timeline.tables import (
     IntervalTable,
     NmtFrame,
     NmtTable,
+    interval_columns,
     known_cs,
     plain_rows,
     reset_cs,
@@ -137,6 +141,7 @@ class NodeConfig:
 
 
 # a new node's defaults, shared (a log may have tens of thousands of nodes), read only
+_FEW_COUNTS: dict[tuple[int, ...], tuple[int, ...]] = {}  # see kind_counts()
 _NO_BOUNDS, _NO_MEDIAN, _NO_IDX = np.zeros(0), np.full(1, np.nan), np.zeros(0, np.int64)
 for _shared in (_NO_BOUNDS, _NO_MEDIAN, _NO_IDX):
     _shared.flags.writeable = False
@@ -188,7 +193,7 @@ class NodeModel:
         default_factory=lambda: shared_empty(WriteTable))
     pdo_writes: WriteTable = field(  # N's PDO parameters beyond 1400h-1403h/1800h-1803h:01
         default_factory=lambda: shared_empty(WriteTable))
-    events: NodeEvents = field(default_factory=NodeEvents)
+    events: NodeEvents = field(default_factory=lambda: NO_EVENTS)  # see own_events()
     order_only: bool = False  # the input has no timestamps: no period is measured
     self_starts: list[tuple[float, int]] = field(default_factory=list)  # (ts, frame index)
     # after a boot-up, spans where nothing shows whether N started itself (no S001)
@@ -197,13 +202,19 @@ class NodeModel:
     # never a finding for it (B001, B002, B003, S004)
     own_command_idx: np.ndarray = field(default_factory=lambda: _NO_IDX)
     # heartbeat_pairs() and the `ec.kind` it was computed from (classification replaces it)
-    _pairs: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = field(
+    _pairs: tuple[object, tuple[np.ndarray, np.ndarray]] | None = field(
         default=None, init=False, repr=False, compare=False)
-    _kinds: tuple[np.ndarray, list[int]] | None = field(  # kind_counts(), likewise
+    _kinds: tuple[object, tuple[int, ...]] | None = field(  # kind_counts(), likewise
         default=None, init=False, repr=False, compare=False)
     # a small plain node's frames as Python lists (`timeline._small`): the heartbeat
     # stages and rules take their per-node shortcuts on them; None: the numpy paths
     small: SmallEc | None = field(default=None, repr=False, compare=False)
+
+    def own_events(self) -> NodeEvents:
+        """N's events to fill in: its own, not the shared empty ones it starts with."""
+        if isinstance(self.events, NoEvents):
+            self.events = NodeEvents()
+        return self.events
 
     def reported_period(self, end: float) -> tuple[float | None, str]:
         """N's heartbeat period as the reports give it (seconds, and configured | measured |
@@ -329,36 +340,42 @@ class NodeModel:
         as two arrays of positions in `ec`: the intervals the period is measured from
         (SPEC §2), H003 compares and the report summarises."""
         cached = self._pairs
-        if cached is not None and cached[0] is self.ec.kind:
+        ec = self.ec
+        stamp = ec.__dict__.get("kind", ec)  # kind_stamp(ec), inline: 20 calls a node
+        if cached is not None and cached[0] is stamp:
             return cached[1]
-        kind = self.ec.kind
         if self.kind_counts()[HEARTBEAT] < 2:  # no pair (most nodes of many channels)
-            self._pairs = (kind, (_NO_IDX, _NO_IDX))
+            self._pairs = None  # nothing to keep: the test above is as quick
             return _NO_IDX, _NO_IDX
+        kind = self.ec.kind
         if self.small is not None:  # no command: consecutive heartbeats, from the lists
             k = self.small.kind
             first = [i for i in range(len(k) - 1) if k[i] == k[i + 1] == HEARTBEAT]
             a = np.asarray(first, np.int64)
-            self._pairs = (kind, (a, a + 1))
+            self._pairs = (stamp, (a, a + 1))
             return a, a + 1
         pos = np.flatnonzero((kind == HEARTBEAT) | (kind == BOOTUP))
         a, b = pos[:-1], pos[1:]
         ok = (kind[a] == HEARTBEAT) & (kind[b] == HEARTBEAT)
         ok &= ~between(self.commands.reset_idx, self.ec.idx[a], self.ec.idx[b])
         pairs = (a[ok], b[ok])
-        self._pairs = (kind, pairs)
+        self._pairs = (stamp, pairs)
         return pairs
 
-    def kind_counts(self) -> list[int]:
+    def kind_counts(self) -> tuple[int, ...]:
         """How many of N's error-control frames are of each kind (indexed by `REQUEST`,
         `BOOTUP`, ...; dropped runs not counted), computed once per classification: a
         rule returns at once for a node with none of the kinds it looks at (most nodes of
         a log of many channels have a frame or two)."""
         cached = self._kinds
-        if cached is not None and cached[0] is self.ec.kind:
+        ec = self.ec
+        stamp = ec.__dict__.get("kind", ec)  # kind_stamp(ec), inline: 20 calls a node
+        if cached is not None and cached[0] is stamp:
             return cached[1]
-        counts: list[int] = np.bincount(self.ec.kind, minlength=len(EC_KIND_NAMES)).tolist()
-        self._kinds = (self.ec.kind, counts)
+        counts = tuple(np.bincount(self.ec.kind, minlength=len(EC_KIND_NAMES)).tolist())
+        if len(self.ec) <= FEW_ROWS:  # one tuple per distinct count of few frames, shared:
+            counts = _FEW_COUNTS.setdefault(counts, counts)  # nodes of many channels
+        self._kinds = (stamp, counts)
         return counts
 
     def heartbeat_intervals(self) -> np.ndarray:
@@ -737,13 +754,11 @@ def _windows(model: InputModel, states: tuple[str, ...]) -> tuple[np.ndarray, np
     wanted = [STATE_INDEX[s] for s in states]
     tables = [m.intervals for m in model.nodes() if len(m.intervals)]
     if tables:  # every node's intervals as one set of columns: a log may have 40,000 nodes
-        lengths = np.asarray([len(t) for t in tables], np.int64)
-        lo = np.concatenate([t.start for t in tables]).astype(np.float64)
-        hi = np.concatenate([t.end for t in tables]).astype(np.float64)
+        lengths, lo, hi, state = interval_columns(tables)
         ends = np.cumsum(lengths)
         lo[ends - lengths], hi[ends - 1] = -np.inf, np.inf  # the first/last interval of
-        keep = is_one_of(np.concatenate([t.state for t in tables]), wanted)  # each node
-        lo_all, hi_all = lo[keep], hi[keep]  # also take stray times
+        keep = is_one_of(state, wanted)  # each node also take stray times
+        lo_all, hi_all = lo[keep], hi[keep]
     else:
         lo_all = hi_all = np.zeros(0)
     if not lo_all.size:

@@ -15,6 +15,7 @@ import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -215,6 +216,20 @@ class NodeEvents:
 
     def __iter__(self) -> Iterator[NodeEvent]:
         return heapq.merge(self.emcy, self.writes.events(), self.sdo, key=_by_idx)
+
+
+class NoEvents(NodeEvents):
+    """The events of a node that has none: one object shared by every such node (a log
+    of 200,000 channels has 200,000 of them), never written: `NodeModel.own_events()`
+    gives a node events of its own before the timeline fills them in."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in self.__dict__:
+            raise AttributeError(f"the shared empty events: {name} is set on a node's own")
+        super().__setattr__(name, value)
+
+
+NO_EVENTS = NoEvents()
 
 
 def _by_idx(e: NodeEvent) -> int:

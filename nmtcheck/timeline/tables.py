@@ -296,12 +296,17 @@ class EcTable:
              stale: np.ndarray) -> EcTable:
         """Rows `rows` of columns of the constructor's dtypes, with their kinds and stale
         marks, all views: the timeline makes `kind` and `stale` once for every node (a
-        log may have tens of thousands of nodes of a frame or two each)."""
+        log may have tens of thousands of nodes of a frame or two each). A node of a few
+        rows gets a `_FewEcRows`: 8 views held per node were 865 bytes a node."""
+        if rows.stop - rows.start <= FEW_ROWS and cols["kind"] is kind and (
+                cols["stale"] is stale):
+            return _FewEcRows(cols, rows)
         t = blank(cls, cls.empty)
         t.ts, t.idx, t.line = cols["ts"][rows], cols["idx"][rows], cols["line"][rows]
         t.rtr, t.dlc, t.value = cols["rtr"][rows], cols["dlc"][rows], cols["value"][rows]
         t.kind, t.stale = kind[rows], stale[rows]
         return t
+
 
     def __len__(self) -> int:
         return len(self.ts)
@@ -344,6 +349,72 @@ class EcTable:
         return int(np.searchsorted(self.idx, idx, side="right"))
 
 
+FEW_ROWS = 2  # a node of at most this many error-control rows: a `_FewEcRows` (see there)
+
+
+class _Rows:
+    """A `_FewEcRows` column: a view of the node's rows of the channel-wide column, made
+    on each read. A non-data descriptor: a column assigned to the table (`classify`
+    sets `kind`) is read from the table's own attributes instead."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, table: _FewEcRows, owner: type | None = None) -> np.ndarray:
+        column: np.ndarray = table._cols[self.name][table._rows]
+        return column
+
+
+class _FewEcRows(EcTable):
+    """A node's few rows of the channel-wide error-control columns (`EcTable.view`),
+    each column a view made when it is read and not kept: a log of 200,000 channels has
+    200,000 nodes of a frame or two, and 8 kept views cost 865 bytes a node. A column
+    assigned (`classify` sets `kind`) is kept as assigned; writes into a column's view
+    reach the channel-wide column as they do through a kept view. Only for a node of
+    `FEW_ROWS` rows: a view made per read costs about 1,500 instructions, and a node of
+    a boot-up and three heartbeats (40,000 channels) is read some 28 times (4.5 % more
+    instructions for the whole check with up to 8 rows, 2026-12-08)."""
+
+    runs = None  # a small node has no dropped run (`ec_compact` drops long runs only)
+    guard_runs = None
+    ts = _Rows()
+    idx = _Rows()
+    line = _Rows()
+    rtr = _Rows()
+    dlc = _Rows()
+    value = _Rows()
+    kind = _Rows()
+    stale = _Rows()
+
+    def __init__(self, cols: dict[str, np.ndarray], rows: slice) -> None:
+        self._cols, self._rows = cols, rows
+
+    def __len__(self) -> int:
+        rows = self._rows
+        return int(rows.stop - rows.start)
+
+    def __getitem__(self, pos: int) -> EcFrame:
+        """The frame at `pos`, read from the channel-wide columns (no view made)."""
+        n, p = len(self), int(pos)
+        if not -n <= p < n:
+            raise IndexError(pos)
+        at = self._rows.start + (p if p >= 0 else p + n)
+        cols, own_kind = self._cols, self.__dict__.get("kind")
+        kind = cols["kind"][at] if own_kind is None else own_kind[at - self._rows.start]
+        return EcFrame(p, float(cols["ts"][at]), int(cols["idx"][at]), int(cols["line"][at]),
+                       bool(cols["rtr"][at]), int(cols["dlc"][at]), int(cols["value"][at]),
+                       EC_KIND_NAMES[kind])
+
+
+def kind_stamp(ec: EcTable) -> object:
+    """What changes when a table's kinds are replaced (`classify` assigns `kind`): the
+    caches of `NodeModel.kind_counts` and `heartbeat_pairs` hold it. The kinds' array
+    where the table keeps one, else (a `_FewEcRows` not yet classified) the table: a
+    view made on each read is never the same object twice. A dict lookup, not a
+    property: it is asked some 20 times a node."""
+    return ec.__dict__.get("kind", ec)
+
+
 @dataclass
 class Interval:
     start: float
@@ -380,6 +451,88 @@ class IntervalTable:
         for a, b, st, so in zip(self.start.tolist(), self.end.tolist(), self.state.tolist(),
                                 self.source.tolist(), strict=True):
             yield Interval(a, b, STATES[st], SOURCES[so])
+
+
+class FewIntervals(IntervalTable):
+    """The one or two intervals of a node whose frames are boot-ups only (`bootups_only`):
+    their bounds as Python floats, the columns made when read and not kept (the state
+    and source columns are shared read-only ones). A log of 200,000 channels has 200,000
+    such nodes, and 4 arrays kept per node were 425 bytes a node."""
+
+    def __init__(self, bounds: tuple[float, ...], state: np.ndarray,
+                 source: np.ndarray) -> None:
+        self._bounds, self.state, self.source = bounds, state, source
+
+    def __getattr__(self, name: str) -> Any:
+        # only for what the instance lacks: the start and end columns
+        if name == "start":
+            return np.array(self.__dict__["_bounds"][:-1], np.float64)
+        if name == "end":
+            return np.array(self.__dict__["_bounds"][1:], np.float64)
+        raise AttributeError(name)
+
+    def __len__(self) -> int:
+        return len(self._bounds) - 1
+
+    @property
+    def bounds(self) -> tuple[float, ...]:
+        """The first interval's start, each next one's, and the last one's end."""
+        return self._bounds
+
+
+def interval_columns(tables: list[IntervalTable], with_end: bool = True
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Several nodes' intervals as one set of columns, node after node: each table's
+    length, and the start, end (empty unless `with_end`) and state columns. The
+    intervals of `FewIntervals` go in as Python numbers, not as an array per node made
+    and held until the join (a log of 200,000 channels: 200,000 tables)."""
+    lengths = np.fromiter((len(t) for t in tables), np.int64, len(tables))
+    pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    starts: list[float] = []
+    ends: list[float] = []
+    states: list[int] = []
+
+    def few_to_pieces() -> None:
+        if starts:
+            pieces.append((np.asarray(starts, np.float64), np.asarray(ends, np.float64),
+                           np.asarray(states, np.int8)))
+            starts.clear()
+            ends.clear()
+            states.clear()
+
+    for t in tables:
+        if isinstance(t, FewIntervals):
+            bounds = t.bounds
+            starts.extend(bounds[:-1])
+            if with_end:
+                ends.extend(bounds[1:])
+            states.extend(t.state.tolist())
+        elif len(t):
+            few_to_pieces()
+            pieces.append((t.start, t.end if with_end else _NO_ENDS, t.state))
+    few_to_pieces()
+    if not pieces:
+        return lengths, np.zeros(0), np.zeros(0), np.zeros(0, np.int8)
+    # (a join is a new array: each is the caller's to write into)
+    return (lengths, np.concatenate([p[0] for p in pieces]).astype(np.float64, copy=False),
+            np.concatenate([p[1] for p in pieces]).astype(np.float64, copy=False),
+            np.concatenate([p[2] for p in pieces]).astype(np.int8, copy=False))
+
+
+_NO_ENDS = np.zeros(0)  # interval_columns without the ends
+
+
+def shared_column(values: list[int], dtype: DTypeLike) -> np.ndarray:
+    """One read-only array per distinct short list of values and dtype."""
+    key = (tuple(values), np.dtype(dtype))
+    found = _SHARED_COLUMNS.get(key)
+    if found is None:
+        found = _SHARED_COLUMNS[key] = np.asarray(values, dtype)
+        found.flags.writeable = False
+    return found
+
+
+_SHARED_COLUMNS: dict[tuple[tuple[int, ...], np.dtype[Any]], np.ndarray] = {}
 
 
 def next_of(marks: np.ndarray, after: np.ndarray, values: np.ndarray | None = None,
