@@ -32,6 +32,7 @@ from nmtcheck.fleet.prestart import local_context
 
 ALLOWED_FAILURES = 2  # a task on a worker that died is retried this many times
 DRIVER_GONE_EXIT = 75  # a worker's exit status when it ends because its driver died
+RMTREE_TRIES = 10  # passes over the pool's folder by a worker whose driver died
 WATCH_POLL_S = 0.5  # where no pidfd can watch the driver, how often it is looked for
 
 
@@ -75,8 +76,14 @@ def watch_driver(pid: int, tmpdir: str | None = None, mp_tmpdir: str | None = No
 
     def gone() -> None:
         for path in (tmpdir, mp_tmpdir):
-            if path is not None:
+            # again while it is there: another worker (or this one's task, still running
+            # until os._exit) may add a file after a pass listed the folder
+            for _ in range(RMTREE_TRIES):
+                if path is None or not os.path.lexists(path):
+                    break
                 shutil.rmtree(path, ignore_errors=True)
+                if os.path.lexists(path):
+                    time.sleep(0.02)
         os._exit(DRIVER_GONE_EXIT)
 
     def watch() -> None:
