@@ -589,6 +589,19 @@ def test_sync_tpdo_d003_judges_these_frames(tmp_path: Path) -> None:
 LATE = "tpdo_late"
 
 
+def _late_tpdos(name: str, after_sync: str, after_window: str
+                ) -> tuple[list[Frame], list[Frame], list[Any]]:
+    """Node 2's TPDO 182h, those more than 1 ms after their SYNC, and the patched stack's
+    three "injected" events (device s2), whose texts give the delays as patterns."""
+    injected = [e for e in _events(name) if e.text.startswith("injected (patched stack)")]
+    assert [e.device for e in injected] == ["s2"] * 3
+    assert all(re.fullmatch(rf"injected \(patched stack\): TPDO 182h sent {after_sync} us "
+                            rf"after the SYNC, {after_window} us after its window 1007h = "
+                            r"10000 us", e.text) for e in injected)
+    tpdo = _on(name, 0x182)
+    return tpdo, [f for f in tpdo if f.t - _last_sync_before(name, f).t > 0.001], injected
+
+
 def _last_sync_before(name: str, frame: Frame) -> Frame:
     return [s for s in _on(name, 0x080) if s.t < frame.t][-1]
 
@@ -602,13 +615,7 @@ def test_tpdo_late_ground_truth() -> None:
     SYNC (nothing is late but what the patch made late); nodes 3 and 4 keep their
     event-driven TPDO1 (type 254, 500 ms). No EMCY (the hub driver sends at once, so
     CANopenNode's "TPDO outside window" error bit is never set), all OPERATIONAL."""
-    injected = [e for e in _events(LATE) if e.text.startswith("injected (patched stack)")]
-    assert [e.device for e in injected] == ["s2"] * 3
-    assert all(re.fullmatch(r"injected \(patched stack\): TPDO 182h sent 142\d\d us after the "
-                            r"SYNC, 42\d\d us after its window 1007h = 10000 us", e.text)
-               for e in injected)
-    tpdo = _on(LATE, 0x182)
-    late = [f for f in tpdo if f.t - _last_sync_before(LATE, f).t > 0.001]
+    tpdo, late, injected = _late_tpdos(LATE, r"142\d\d", r"42\d\d")
     assert [(f.line, f.t, _last_sync_before(LATE, f).line) for f in late] == [
         (344, 2.227327, 343), (495, 3.259849, 494), (649, 4.290046, 648)]
     for frame, e in zip(late, injected, strict=True):
@@ -669,13 +676,7 @@ def test_tpdo_late_written_ground_truth() -> None:
             and f.t > 0.5] == [(164, 0.998041, 0x602, "2307100010270000"),
                                (165, 0.998143, 0x582, "6007100000000000")]
     assert "SDO write node 2 1007:00 = 10000 ok" in [e.text for e in _events(WRITTEN)]
-    injected = [e for e in _events(WRITTEN) if e.text.startswith("injected (patched stack)")]
-    assert [e.device for e in injected] == ["s2"] * 3
-    assert all(re.fullmatch(r"injected \(patched stack\): TPDO 182h sent 14\d{3} us after the "
-                            r"SYNC, 4\d{3} us after its window 1007h = 10000 us", e.text)
-               for e in injected)
-    tpdo = _on(WRITTEN, 0x182)
-    late = [f for f in tpdo if f.t - _last_sync_before(WRITTEN, f).t > 0.001]
+    tpdo, late, injected = _late_tpdos(WRITTEN, r"14\d{3}", r"4\d{3}")
     assert [(f.line, f.t, _last_sync_before(WRITTEN, f).line) for f in late] == [
         (346, 2.220826, 345), (497, 3.255112, 496), (652, 4.289718, 651)]
     for frame, e in zip(late, injected, strict=True):
