@@ -401,14 +401,15 @@ def test_monitor_on_a_canopen_sync_producer_and_emcy(tmp_path: Path) -> None:
     """A python-canopen master producing SYNC every 50 ms (its SyncProducer) and two
     LocalNodes on a virtual bus, all OPERATIONAL; node 5 sends two EMCYs 2 ms apart
     (python-canopen's EmcyProducer has no inhibit time; the network file gives 1015h =
-    10 ms), then the master stops its SYNC. Live: E001 at the second EMCY and Y001 at the
+    500 ms, far above what a loaded machine can stretch a 2 ms sleep to, and the test
+    reads the EMCYs' spacing from the recording), then the master stops its SYNC. Live: E001 at the second EMCY and Y001 at the
     last SYNC + 75 ms, reported within 100 ms of its expiry; both confirmed by the check of
     the recording, which has the same Y/E findings."""
     import canopen
     from test_live import _local_node
 
     net_file = tmp_path / "network.toml"
-    net_file.write_text("[sync]\nperiod_us = 50000\n[nodes.5]\nemcy_inhibit_100us = 100\n")
+    net_file.write_text("[sync]\nperiod_us = 50000\n[nodes.5]\nemcy_inhibit_100us = 5000\n")
     channel = f"cosync-{id(tmp_path)}"
     master = canopen.Network()
     master.connect(interface="virtual", channel=channel)
@@ -456,6 +457,8 @@ def test_monitor_on_a_canopen_sync_producer_and_emcy(tmp_path: Path) -> None:
     offline = [(f.rule, f.node, round(f.time - t0, 6)) for f in res.findings
                if f.rule[0] in GROUPS]
     assert ("Y001", None, round(last + 0.075 - t0, 6)) in offline
+    emcys = [f.ts for f in frames_of(record) if f.can_id == 0x085]
+    assert len(emcys) == 2 and emcys[1] - emcys[0] < 0.4, emcys  # inside the 500 ms
     assert [(r, n) for r, n, _t in offline if r == "E001"] == [("E001", 5)]
     live = [lf for lf in monitor.live_findings() if lf.rule[0] in GROUPS]
     # the same findings; live times carry the bus's full timestamps, the recording µs
