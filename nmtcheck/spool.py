@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import io
 import os
 import signal
 import tempfile
-from collections.abc import Iterator, Mapping
-from typing import BinaryIO
+import threading
+from collections import OrderedDict
+from collections.abc import Hashable, Iterator, Mapping
+from typing import Any, BinaryIO, cast
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -79,7 +82,8 @@ def signals_deferred() -> Iterator[None]:
             signal.raise_signal(sig)
 
 
-def write_spill(col: np.ndarray, f: BinaryIO | str, directory: str) -> None:
+def write_spill(col: np.ndarray, f: BinaryIO | io.BufferedIOBase | str, directory: str
+                ) -> None:
     """Append a column to a spill file; a full or unwritable temporary directory is the
     user's to fix (TMPDIR), so it ends the run with one line, not an internal error."""
     try:
@@ -231,3 +235,139 @@ class ChunkStore:
             self._tmp = None
         self._chunks.clear()
         self._ts_max.clear()
+
+
+class KeyedColumns:
+    """Rows of columns grouped by key (each PDO stream's frames), appended in any order and
+    read back whole, per key, as often as asked. Up to `budget` bytes stay in memory; past
+    it every key's rows go to one temporary file that has no name (unlinked at once: nothing
+    is left behind, even after kill -9) and come back through a cache of `cache_budget`
+    bytes. So what is held is the budget, the cache and what a caller holds (one key's
+    rows), not every key's: a log of 15 M PDO frames in 32 streams held 374 MB of them.
+    Call `finish` after the last append. A pickle (a worker's result sent back) carries
+    every key's rows."""
+
+    def __init__(self, dtypes: Mapping[str, DTypeLike], budget: int = 2 * STORE_BUDGET_BYTES,
+                 cache_budget: int = 64 << 20) -> None:
+        self._dtypes = {name: np.dtype(t) for name, t in dtypes.items()}
+        self._budget = budget
+        self._cache_budget = cache_budget
+        self._pending: dict[Hashable, list[tuple[np.ndarray, ...]]] = {}
+        self._pending_bytes = 0
+        self._blocks: dict[Hashable, list[tuple[int, int]]] = {}  # (offset, rows) on file
+        self._file: io.BufferedIOBase | None = None
+        self._directory = ""
+        self._end = 0
+        self._whole: dict[Hashable, tuple[np.ndarray, ...]] = {}  # all in memory
+        self._cache: OrderedDict[Hashable, tuple[np.ndarray, ...]] = OrderedDict()
+        self._cache_bytes = 0
+        self._lock = threading.Lock()  # one file position: reads one at a time
+
+    @property
+    def spilled(self) -> bool:
+        """Whether the rows went to the file."""
+        return self._file is not None
+
+    @property
+    def held_bytes(self) -> int:
+        """The bytes of rows the store itself holds now (in memory, cached or pending)."""
+        return self._pending_bytes + self._cache_bytes + sum(
+            a.nbytes for cols in self._whole.values() for a in cols)
+
+    def append(self, key: Hashable, **cols: np.ndarray) -> None:
+        part = tuple(np.asarray(cols[name], dtype) for name, dtype in self._dtypes.items())
+        self._pending.setdefault(key, []).append(part)
+        self._pending_bytes += sum(a.nbytes for a in part)
+        if self._pending_bytes > self._budget:
+            self._flush()
+
+    def finish(self) -> None:
+        """After the last append: everything to the file if any went there, else joined
+        in memory."""
+        if self._file is not None:
+            self._flush()
+            return
+        for key, parts in self._pending.items():
+            self._whole[key] = tuple(np.concatenate([p[i] for p in parts])
+                                     for i in range(len(self._dtypes)))
+        self._pending.clear()
+        self._pending_bytes = 0
+
+    def _flush(self) -> None:
+        if self._file is None:
+            directory = self._directory = SCRATCH.get() or tempfile.gettempdir()
+            try:
+                self._file = cast(io.BufferedIOBase, tempfile.TemporaryFile(  # noqa: SIM115
+                    dir=directory))  # kept open: it has no name, so it goes when closed
+            except OSError as e:
+                raise NmtcheckError(f"cannot write temporary data to {directory} "
+                                    f"({e.strerror or e}); set TMPDIR to another "
+                                    "directory") from None
+        f = self._file
+        f.seek(self._end)
+        for key, parts in self._pending.items():
+            rows = sum(len(p[0]) for p in parts)
+            for i in range(len(self._dtypes)):
+                for p in parts:
+                    write_spill(p[i], f, self._directory)
+            self._blocks.setdefault(key, []).append((self._end, rows))
+            self._end += rows * sum(dt.itemsize for dt in self._dtypes.values())
+        f.flush()
+        self._pending.clear()
+        self._pending_bytes = 0
+
+    def get(self, key: Hashable) -> tuple[np.ndarray, ...]:
+        """Every row of `key` (none: empty columns), one array per column, in order."""
+        found = self._whole.get(key)
+        if found is not None:
+            return found
+        with self._lock:
+            found = self._cache.get(key)
+            if found is not None:
+                self._cache.move_to_end(key)
+                return found
+            found = self._read(key)
+            self._cache[key] = found
+            self._cache_bytes += sum(a.nbytes for a in found)
+            while self._cache_bytes > self._cache_budget and len(self._cache) > 1:
+                _old, cols = self._cache.popitem(last=False)
+                self._cache_bytes -= sum(a.nbytes for a in cols)
+            return found
+
+    def _read(self, key: Hashable) -> tuple[np.ndarray, ...]:
+        blocks = self._blocks.get(key, [])
+        total = sum(n for _off, n in blocks)
+        out = tuple(np.empty(total, dt) for dt in self._dtypes.values())
+        if self._file is None:
+            return out
+        at = 0
+        for offset, rows in blocks:
+            pos = offset
+            for col, dt in zip(out, self._dtypes.values(), strict=True):
+                self._read_into(col[at:at + rows], pos)
+                pos += rows * dt.itemsize
+            at += rows
+        return out
+
+    def _read_into(self, view: np.ndarray, offset: int) -> None:
+        assert self._file is not None
+        self._file.seek(offset)
+        buf = view.data.cast("B")
+        got = 0
+        while got < len(buf):
+            n = self._file.readinto(buf[got:])
+            if not n:
+                raise NmtcheckError("the temporary data file ended early (was it removed?)")
+            got += n
+
+    def __getstate__(self) -> dict[str, Any]:
+        keys = [*self._whole, *self._blocks]
+        with self._lock:
+            return {"dtypes": self._dtypes, "budget": self._budget,
+                    "cache_budget": self._cache_budget,
+                    "whole": {key: (self._whole[key] if key in self._whole
+                                    else self._read(key)) for key in keys}}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["dtypes"], state["budget"], state["cache_budget"])  # type: ignore[misc]
+        self._whole = state["whole"]

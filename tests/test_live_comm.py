@@ -402,9 +402,10 @@ def test_monitor_on_a_canopen_sync_producer_and_emcy(tmp_path: Path) -> None:
     LocalNodes on a virtual bus, all OPERATIONAL; node 5 sends two EMCYs 2 ms apart
     (python-canopen's EmcyProducer has no inhibit time; the network file gives 1015h =
     500 ms, far above what a loaded machine can stretch a 2 ms sleep to, and the test
-    reads the EMCYs' spacing from the recording), then the master stops its SYNC. Live: E001 at the second EMCY and Y001 at the
-    last SYNC + 75 ms, reported within 100 ms of its expiry; both confirmed by the check of
-    the recording, which has the same Y/E findings."""
+    reads the EMCYs' spacing from the recording), then the master stops its SYNC. Live:
+    E001 at the second EMCY and Y001 at the last SYNC + 75 ms, reported within 100 ms of
+    its expiry; both confirmed by the check of the recording, which has the same Y/E
+    findings."""
     import canopen
     from test_live import _local_node
 

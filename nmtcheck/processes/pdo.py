@@ -14,7 +14,6 @@ that stream, a mapping holds from its confirmation to the node's next reset.
 
 from __future__ import annotations
 
-from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,6 +23,7 @@ from nmtcheck.processes import pdo_params
 from nmtcheck.processes import sdo_transfers as st
 from nmtcheck.processes.attached import Attached
 from nmtcheck.processes.comm_values import UNKNOWN, Value
+from nmtcheck.spool import KeyedColumns
 from nmtcheck.timeline.decode import KIND_CONFIGURED, KIND_RPDO, KIND_TPDO, node_frame_lines
 from nmtcheck.timeline.model import ChannelModel, InputModel
 
@@ -32,6 +32,9 @@ RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
 SYNCHRONOUS = range(0, 241)
 EVENT_DRIVEN = (254, 255)
 _PARAMS = ("transmission_type", "inhibit_100us", "event_timer_ms", "sync_start")
+FRAME_COLUMNS = {"ts": np.float64, "idx": np.int64, "line": np.int64, "dlc": np.uint8}
+STREAMS_IN_MEMORY = 16 << 20  # bytes of stream frames held before they go to a file
+STREAMS_CACHED = 64 << 20  # bytes of streams read back from it kept for the next rule
 
 
 @dataclass
@@ -95,7 +98,8 @@ class Stream:
         tt = self.transmission_type
         return tt.known and int(tt.value or 0) in SYNCHRONOUS
 
-    loaded: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
+    # the input's stream frames (load_frames), read back by (chan, COB-ID)
+    store: KeyedColumns | None = field(default=None, repr=False)
     # W over time where a party's 1007h is written in the trace: (piece starts, values)
     window_pieces: tuple[np.ndarray, list[Value]] | None = field(default=None, repr=False)
 
@@ -115,10 +119,10 @@ class Stream:
 
     @property
     def _frames(self) -> tuple[np.ndarray, ...]:
-        if self.loaded is None:
+        if self.store is None:
             load_frames([self], self.model)
-        assert self.loaded is not None
-        return self.loaded
+        assert self.store is not None
+        return self.store.get(self.chan * 4096 + self.cob_id)
 
     def frames(self, model: InputModel | None = None, cm: ChannelModel | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -133,11 +137,14 @@ class Stream:
 
 def load_frames(found: list[Stream], model: InputModel) -> None:
     """Every stream's data frames, read in one pass over the node-frame store (a log of
-    1 M frames a minute holds mostly PDOs; one pass per stream would read it 32 times)."""
+    1 M frames a minute holds mostly PDOs; one pass per stream would read it 32 times),
+    into one store the streams share: past a few MB it is a temporary file read back
+    stream by stream (KeyedColumns), so the rules, which judge one stream at a time, hold
+    one stream's frames, not all."""
     if not found:
         return
+    store = KeyedColumns(FRAME_COLUMNS, STREAMS_IN_MEMORY, STREAMS_CACHED)
     keys = np.asarray(sorted({s.chan * 4096 + s.cob_id for s in found}), np.int64)
-    parts: dict[int, list[tuple[np.ndarray, ...]]] = {}
     for chunk in model.decoded.node_frames:
         key = (chunk["key"].astype(np.int64) // 128) * 4096 + chunk["can_id"].astype(np.int64)
         sel = np.flatnonzero(np.isin(key, keys))
@@ -149,17 +156,11 @@ def load_frames(found: list[Stream], model: InputModel) -> None:
         lines = node_frame_lines(chunk, order)
         for a, z in zip([0, *bounds.tolist()], [*bounds.tolist(), len(order)], strict=True):
             rows = order[a:z]
-            parts.setdefault(int(k[a]), []).append(
-                (chunk["ts"][rows], chunk["idx"][rows], lines[a:z], chunk["dlc"][rows]))
-    left = Counter(s.chan * 4096 + s.cob_id for s in found)
-    for s in found:  # each stream's parts are let go once joined: the peak is one copy
-        stream_key = s.chan * 4096 + s.cob_id
-        left[stream_key] -= 1
-        got = (parts.pop(stream_key, None) if not left[stream_key]
-               else parts.get(stream_key))
-        s.loaded = (tuple(np.concatenate([p[i] for p in got]) for i in range(4)) if got else
-                    (np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64),
-                     np.zeros(0, np.uint8)))
+            store.append(int(k[a]), ts=chunk["ts"][rows], idx=chunk["idx"][rows],
+                         line=lines[a:z].copy(), dlc=chunk["dlc"][rows])
+    store.finish()
+    for s in found:
+        s.store = store
 
 
 def pdo_ids(model: InputModel) -> list[tuple[int, int]]:
