@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import io
 import os
 import signal
 import tempfile
 import threading
 from collections import OrderedDict
 from collections.abc import Hashable, Iterator, Mapping
-from typing import Any, BinaryIO, cast
+from typing import Any, BinaryIO
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -82,8 +81,7 @@ def signals_deferred() -> Iterator[None]:
             signal.raise_signal(sig)
 
 
-def write_spill(col: np.ndarray, f: BinaryIO | io.BufferedIOBase | str, directory: str
-                ) -> None:
+def write_spill(col: np.ndarray, f: BinaryIO | str, directory: str) -> None:
     """Append a column to a spill file; a full or unwritable temporary directory is the
     user's to fix (TMPDIR), so it ends the run with one line, not an internal error."""
     try:
@@ -240,12 +238,14 @@ class ChunkStore:
 class KeyedColumns:
     """Rows of columns grouped by key (each PDO stream's frames), appended in any order and
     read back whole, per key, as often as asked. Up to `budget` bytes stay in memory; past
-    it every key's rows go to one temporary file that has no name (unlinked at once: nothing
-    is left behind, even after kill -9) and come back through a cache of `cache_budget`
-    bytes. So what is held is the budget, the cache and what a caller holds (one key's
-    rows), not every key's: a log of 15 M PDO frames in 32 streams held 374 MB of them.
-    Call `finish` after the last append. A pickle (a worker's result sent back) carries
-    every key's rows."""
+    it every key's rows go to one file in a temporary directory (removed with the store, at
+    exit or on a terminating signal) and come back through a cache of `cache_budget` bytes.
+    So what is held is the budget, the cache and what a caller holds (one key's rows), not
+    every key's: a log of 15 M PDO frames in 32 streams held 374 MB of them. The file is
+    open only while it is written or read: `nmtcheck check` keeps every input's store until
+    its reports are written, and a directory of many long logs would run out of file
+    descriptors. Call `finish` after the last append. A pickle (a worker's result sent
+    back) carries every key's rows."""
 
     def __init__(self, dtypes: Mapping[str, DTypeLike], budget: int = 2 * STORE_BUDGET_BYTES,
                  cache_budget: int = 64 << 20) -> None:
@@ -255,18 +255,17 @@ class KeyedColumns:
         self._pending: dict[Hashable, list[tuple[np.ndarray, ...]]] = {}
         self._pending_bytes = 0
         self._blocks: dict[Hashable, list[tuple[int, int]]] = {}  # (offset, rows) on file
-        self._file: io.BufferedIOBase | None = None
-        self._directory = ""
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
         self._end = 0
         self._whole: dict[Hashable, tuple[np.ndarray, ...]] = {}  # all in memory
         self._cache: OrderedDict[Hashable, tuple[np.ndarray, ...]] = OrderedDict()
         self._cache_bytes = 0
-        self._lock = threading.Lock()  # one file position: reads one at a time
+        self._lock = threading.Lock()  # the cache is shared by whoever reads
 
     @property
     def spilled(self) -> bool:
         """Whether the rows went to the file."""
-        return self._file is not None
+        return self._tmp is not None
 
     @property
     def held_bytes(self) -> int:
@@ -284,7 +283,7 @@ class KeyedColumns:
     def finish(self) -> None:
         """After the last append: everything to the file if any went there, else joined
         in memory."""
-        if self._file is not None:
+        if self._tmp is not None:
             self._flush()
             return
         for key, parts in self._pending.items():
@@ -293,26 +292,22 @@ class KeyedColumns:
         self._pending.clear()
         self._pending_bytes = 0
 
+    @property
+    def _path(self) -> str:
+        assert self._tmp is not None
+        return os.path.join(self._tmp.name, "rows")
+
     def _flush(self) -> None:
-        if self._file is None:
-            directory = self._directory = SCRATCH.get() or tempfile.gettempdir()
-            try:
-                self._file = cast(io.BufferedIOBase, tempfile.TemporaryFile(  # noqa: SIM115
-                    dir=directory))  # kept open: it has no name, so it goes when closed
-            except OSError as e:
-                raise NmtcheckError(f"cannot write temporary data to {directory} "
-                                    f"({e.strerror or e}); set TMPDIR to another "
-                                    "directory") from None
-        f = self._file
-        f.seek(self._end)
-        for key, parts in self._pending.items():
-            rows = sum(len(p[0]) for p in parts)
-            for i in range(len(self._dtypes)):
-                for p in parts:
-                    write_spill(p[i], f, self._directory)
-            self._blocks.setdefault(key, []).append((self._end, rows))
-            self._end += rows * sum(dt.itemsize for dt in self._dtypes.values())
-        f.flush()
+        if self._tmp is None:
+            self._tmp = spill_directory()
+        with open(self._path, "ab") as f:
+            for key, parts in self._pending.items():
+                rows = sum(len(p[0]) for p in parts)
+                for i in range(len(self._dtypes)):
+                    for p in parts:
+                        write_spill(p[i], f, self._tmp.name)
+                self._blocks.setdefault(key, []).append((self._end, rows))
+                self._end += rows * sum(dt.itemsize for dt in self._dtypes.values())
         self._pending.clear()
         self._pending_bytes = 0
 
@@ -336,29 +331,23 @@ class KeyedColumns:
 
     def _read(self, key: Hashable) -> tuple[np.ndarray, ...]:
         blocks = self._blocks.get(key, [])
-        total = sum(n for _off, n in blocks)
-        out = tuple(np.empty(total, dt) for dt in self._dtypes.values())
-        if self._file is None:
+        out = tuple(np.empty(sum(n for _off, n in blocks), dt) for dt in self._dtypes.values())
+        if not blocks:
             return out
-        at = 0
-        for offset, rows in blocks:
-            pos = offset
-            for col, dt in zip(out, self._dtypes.values(), strict=True):
-                self._read_into(col[at:at + rows], pos)
-                pos += rows * dt.itemsize
-            at += rows
+        with open(self._path, "rb") as f:
+            at = 0
+            for offset, rows in blocks:
+                f.seek(offset)
+                for col in out:
+                    buf = col[at:at + rows].data.cast("B")
+                    got = 0
+                    while got < len(buf):
+                        n = f.readinto(buf[got:])
+                        if not n:
+                            raise NmtcheckError(f"{self._path}: temporary data ended early")
+                        got += n
+                at += rows
         return out
-
-    def _read_into(self, view: np.ndarray, offset: int) -> None:
-        assert self._file is not None
-        self._file.seek(offset)
-        buf = view.data.cast("B")
-        got = 0
-        while got < len(buf):
-            n = self._file.readinto(buf[got:])
-            if not n:
-                raise NmtcheckError("the temporary data file ended early (was it removed?)")
-            got += n
 
     def __getstate__(self) -> dict[str, Any]:
         keys = [*self._whole, *self._blocks]

@@ -7,8 +7,10 @@ so (2-core VM, 2026-12-08, docs/status.md)."""
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -41,11 +43,13 @@ def _joined(parts: list[tuple[int, dict[str, np.ndarray]]], key: int) -> list[np
             for name, dtype in COLUMNS.items()]
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/fd")
 @pytest.mark.parametrize("budget", [1 << 30, 1, 5000])
 def test_every_key_reads_back_what_was_appended(budget: int, tmp_path: Path) -> None:
     """In memory, spilled at every append, or now and then: the same rows per key, in
     order, as often as asked, and the same after a pickle; a key never appended reads
-    empty. The spill file has no name: nothing is in the scratch directory."""
+    empty. A spilled store has one directory in the scratch directory, with no file left
+    open, removed with the store."""
     parts = _parts(budget)
     token = SCRATCH.set(str(tmp_path))
     try:
@@ -54,7 +58,9 @@ def test_every_key_reads_back_what_was_appended(budget: int, tmp_path: Path) -> 
             store.append(key, **cols)
         store.finish()
         assert store.spilled == (budget < 1 << 30)
-        assert os.listdir(tmp_path) == []
+        assert len(os.listdir(tmp_path)) == (1 if store.spilled else 0)
+        assert not [fd for fd in os.listdir("/proc/self/fd")
+                    if str(tmp_path) in _link(f"/proc/self/fd/{fd}")]
         for _round in range(2):
             for key in [*range(12), 99]:
                 got = store.get(key)
@@ -67,8 +73,18 @@ def test_every_key_reads_back_what_was_appended(budget: int, tmp_path: Path) -> 
         for key in range(12):
             assert all(np.array_equal(a, b) for a, b in zip(
                 again.get(key), _joined(parts, key), strict=True))
+        del store, again
+        gc.collect()
+        assert os.listdir(tmp_path) == []
     finally:
         SCRATCH.reset(token)
+
+
+def _link(path: str) -> str:
+    try:
+        return os.readlink(path)
+    except OSError:  # the listing's own descriptor, closed since
+        return ""
 
 
 def _log_of_many_streams(path: Path, nodes: int = 8, frames: int = 20_000) -> Path:
