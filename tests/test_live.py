@@ -496,3 +496,24 @@ def test_a_timeout_inside_a_recording_gap_is_named_as_such(tmp_path: Path) -> No
     text = live_summary(outcome, "end of file")
     assert f"{len(gap)} inside a recording gap (I007)" in text
     assert "inside a silence the offline check reads as a recording gap (I007)" in text
+
+
+def test_a_session_never_closed_leaves_no_recording_behind(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    """The temporary recording of a session without `record` goes with the session
+    even when nobody closes it (a program that forgot to, a Monitor refused after its
+    session began): such files piled up in the temporary directory."""
+    import gc
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    s = Session(PROFILE, RULES, None, timer=False)
+    s.feed(LiveFrame(1.0, "can0", 0x705, dlc=1, data=b"\x00"))
+    assert [p.name for p in tmp_path.iterdir()] == [Path(s.path).name]
+    del s
+    gc.collect()
+    assert list(tmp_path.iterdir()) == []
+    closed = Session(PROFILE, RULES, None, timer=False)  # closed: removed at once, once
+    closed.close()
+    assert list(tmp_path.iterdir()) == []

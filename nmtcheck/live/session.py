@@ -15,6 +15,7 @@ import os
 import tempfile
 import threading
 import time
+import weakref
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -128,6 +129,11 @@ class Outcome:
         return out
 
 
+
+def _remove_file(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
 class Session:
     """Thread-safe: frames may come from several reader threads, the timer runs beside."""
 
@@ -163,6 +169,9 @@ class Session:
         if path is None or self._writer is not None:
             fd, path = tempfile.mkstemp(prefix="nmtcheck-live-", suffix=".log")
             os.close(fd)
+            # removed by close(), else when the session is collected or at exit: a session
+            # never closed (a program that forgot to, an error in setting it up) left it
+            self._remove_temporary = weakref.finalize(self, _remove_file, path)
         self.path = path
         # what the reports call the input: the recording kept, else `name`
         self.name = record if record is not None else name or "<live>"
@@ -376,8 +385,7 @@ class Session:
                     self._writer.stop()
                     self._writer = None
                 if self.temporary:
-                    with contextlib.suppress(OSError):
-                        os.unlink(self.path)
+                    self._remove_temporary()
             reconcile(self.live, result)
             return Outcome(result, list(self.live), self.live_dropped, dropped=self.dropped)
 
