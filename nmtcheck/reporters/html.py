@@ -356,8 +356,8 @@ def report_context(results: list[InputResult], options: dict[str, object]) -> di
     """
     threshold = fail_on(options)
     report = report_sections(results, options)
-    for key in ("inputs", "nodes", "channels", "findings"):  # read more than once here
-        report[key] = list(report[key])
+    for section in ("inputs", "nodes", "channels", "findings"):  # read more than once here
+        report[section] = list(report[section])
     inputs = [{**entry, "index": i, "duration": duration(res), "findings": len(res.findings),
                "order_only": res.stats.order_only, "captures_note": captures_note(res)}
               for i, (entry, res) in enumerate(zip(report["inputs"], results, strict=True))]
