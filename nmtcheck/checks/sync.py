@@ -24,6 +24,9 @@ EPS = 1e-9
 _CONSUMING = np.asarray([STATE_INDEX[PRE_OPERATIONAL], STATE_INDEX[OPERATIONAL]])
 
 
+WINDOW = 1 << 18  # SYNCs Y001 judges at once
+
+
 def _channels(model: InputModel) -> Iterator[tuple[ChannelModel, SyncChannel]]:
     analysis = sync.of(model)
     if analysis is None:
@@ -102,24 +105,27 @@ def sync_timeout(model: InputModel, params: Params) -> Iterator[Problem]:
             else:
                 continue
             limit = factor * period
-            ts = sc.ts[pos]
-            nxt = np.append(ts[1:], np.inf)
-            end = sc.end_of(pos)
-            due = np.round(ts + limit, 9)  # 10.05 + 0.05 is not above 10.1
-            fire = (nxt > due + EPS) & (end > due + EPS) & (cm.end >= due - EPS)
-            if others or expected:
-                fire &= _consumers_awake(others, due)
-            for k in np.flatnonzero(fire).tolist():
-                gap = (f"{(nxt[k] - ts[k]) * 1000:.3f}" if np.isfinite(nxt[k])
-                       else f"at least {(cm.end - ts[k]) * 1000:.3f}")
-                if analysis is not None:
-                    analysis.gaps[(cm.name, round(float(due[k]), 9))] = sync.SyncGap(
-                        basis, float(ts[k]), int(sc.idx[pos[k]]), float(nxt[k]), period)
-                yield Problem(cm.name, _node(sc), float(due[k]),
-                              f"no SYNC for {gap} ms after {_at(model, cm, float(ts[k]))} "
-                              f"(line {int(sc.line[pos[k]])}); timeout "
-                              f"{limit * 1000:.3f} ms = {factor:g} x {how}",
-                              after=int(sc.idx[pos[k]]))
+            for a in range(0, len(pos), WINDOW):  # a window at a time: its arrays are
+                b = min(a + WINDOW, len(pos))  # bounded however many SYNCs there are
+                ts = sc.ts[pos[a:b]]
+                nxt = np.append(ts[1:], sc.ts[pos[b]] if b < len(pos) else np.inf)
+                end = sc.end_of(pos[a:b])
+                due = np.round(ts + limit, 9)  # 10.05 + 0.05 is not above 10.1
+                fire = (nxt > due + EPS) & (end > due + EPS) & (cm.end >= due - EPS)
+                if others or expected:
+                    fire &= _consumers_awake(others, due)
+                for k in np.flatnonzero(fire).tolist():
+                    at = int(pos[a + k])
+                    gap = (f"{(nxt[k] - ts[k]) * 1000:.3f}" if np.isfinite(nxt[k])
+                           else f"at least {(cm.end - ts[k]) * 1000:.3f}")
+                    if analysis is not None:
+                        analysis.gaps[(cm.name, round(float(due[k]), 9))] = sync.SyncGap(
+                            basis, float(ts[k]), int(sc.idx[at]), float(nxt[k]), period)
+                    yield Problem(cm.name, _node(sc), float(due[k]),
+                                  f"no SYNC for {gap} ms after "
+                                  f"{_at(model, cm, float(ts[k]))} (line {int(sc.line[at])});"
+                                  f" timeout {limit * 1000:.3f} ms = {factor:g} x {how}",
+                                  after=int(sc.idx[at]))
 
 
 def _consumers_awake(nodes: list[NodeModel], t: np.ndarray) -> np.ndarray:
@@ -133,12 +139,13 @@ def _consumers_awake(nodes: list[NodeModel], t: np.ndarray) -> np.ndarray:
 
 def _overflow(sc: SyncChannel) -> np.ndarray:
     """Per SYNC frame, C (1019h) in force at it; -1: unknown."""
-    if sc.overflow_at is not None:
+    if sc.overflow_at is not None:  # int16 (C <= 240): a SYNC's arrays here are its cost
         values = np.asarray([int(v.value or 0) if v.known else -1 for v in sc.overflows],
-                            np.int64)
-        found: np.ndarray = values[sc.overflow_at] if len(values) else np.full(len(sc), -1)
+                            np.int16)
+        found: np.ndarray = values[sc.overflow_at] if len(values) else np.full(
+            len(sc), -1, np.int16)
         return found
-    out = np.full(len(sc), -1, np.int64)
+    out = np.full(len(sc), -1, np.int16)
     for pos, seg in zip(sc.segments(), sc.by_segment, strict=True):
         if seg.overflow.known:
             out[pos] = int(seg.overflow.value or 0)
@@ -150,15 +157,15 @@ def _defects(sc: SyncChannel) -> np.ndarray:
     segment's first frame's (1019h unknown), 4 a counter outside 1..C (or 1..240)."""
     c = _overflow(sc)
     out = np.zeros(len(sc), np.int8)
-    dlc, counter = sc.dlc.astype(np.int64), sc.counter.astype(np.int64)
+    dlc, counter = sc.dlc.astype(np.int16), sc.counter.astype(np.int16)
     known = c >= 0
-    out[known & (dlc != np.where(c == 0, 0, 1))] = 2
-    first = np.zeros(len(sc), np.int64)
+    out[known & (dlc != (c != 0))] = 2
+    first = np.zeros(len(sc), np.int16)
     for pos in sc.segments():
         data = pos[~sc.rtr[pos]]
         first[pos] = dlc[data[0]] if len(data) else -1
     out[~known & ((dlc > 1) | ((dlc != first) & (first >= 0)))] = 3
-    top = np.where(c > 0, c, 240)
+    top = np.where(c > 0, c, np.int16(240))
     bad_counter = (out == 0) & (dlc == 1) & ((counter == 0) | (counter > top))
     out[bad_counter] = 4
     out[sc.rtr] = 1

@@ -185,11 +185,14 @@ def _channel(model: InputModel, cm: ChannelModel, network: Any,
     notes: list[str] = []
     cob_id, cob_source = _cob_id(keys, devices, notes)
     producer = _producer(keys, devices, notes)
-    rows = np.flatnonzero((cols["chan"] == cm.chan) & (cols["can_id"] == cob_id))
+    found = np.flatnonzero((cols["chan"] == cm.chan) & (cols["can_id"] == cob_id))
     configured = keys is not None or any(
         d.sync_cob_id is not None or d.sync_period_us for d in devices.values())
-    if not len(rows) and not configured:
+    if not len(found) and not configured:
         return None
+    # every SYNC of the input is this channel's (the usual case): its columns are the
+    # decoded ones, not copies of them (a SYNC costs 36 bytes less: 5 M SYNCs, 180 MB)
+    rows: np.ndarray | slice = slice(None) if len(found) == len(cols["ts"]) else found
     ts = cols["ts"][rows]
     idx = cols["idx"][rows]
     p_node = int(producer.value) if producer.known and producer.value is not None else None
