@@ -129,10 +129,10 @@ class Outcome:
         return out
 
 
-
 def _remove_file(path: str) -> None:
     with contextlib.suppress(OSError):
         os.unlink(path)
+
 
 class Session:
     """Thread-safe: frames may come from several reader threads, the timer runs beside."""
