@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 from test_many_inputs import GROUPS, _check, _reports
 
+from nmtcheck.checks import pdo as pdo_rules
 from nmtcheck.processes import pdo as pdo_stage
+from nmtcheck.reporters import comm_report
 from nmtcheck.results import PackedResult
 from nmtcheck.settings.network import load_network
 from nmtcheck.spool import SCRATCH, KeyedColumns
@@ -89,7 +91,9 @@ def _link(path: str) -> str:
 
 def _log_of_many_streams(path: Path, nodes: int = 8, frames: int = 20_000) -> Path:
     """Nodes 1..`nodes` boot, are started, send heartbeats every 100 ms and TPDO1 every
-    10 ms for `frames` frames each; node 3 misses five TPDOs at 100 s (a D001)."""
+    10 ms for `frames` frames each; node 3 misses five TPDOs at 100 s (a D001, and a D004
+    of node 4, which consumes them), node 5 sends one 1 ms after another at 50 s (a
+    D002)."""
     lines = [(0.0, f"{0x700 + n:03X}#00") for n in range(1, nodes + 1)]
     lines.append((0.01, "000#0100"))
     for k in range(frames // 10 + 1):
@@ -99,6 +103,7 @@ def _log_of_many_streams(path: Path, nodes: int = 8, frames: int = 20_000) -> Pa
         t = 0.02 + k * 0.01
         lines += [(t + n * 1e-4, f"{0x180 + n:03X}#{k % 256:02X}{n:02X}")
                   for n in range(1, nodes + 1) if not (n == 3 and 10_000 <= k < 10_005)]
+    lines.append((0.02 + 5000 * 0.01 + 5e-4 + 1e-3, f"{0x185:03X}#FF05"))
     lines.sort()
     path.write_text("".join(f"({t:.6f}) can0 {frame}\n" for t, frame in lines))
     return path
@@ -108,7 +113,10 @@ def _network(path: Path, nodes: int = 8) -> Path:
     text = []
     for n in range(1, nodes + 1):
         text += [f"[nodes.{n}]", "heartbeat_ms = 100", f"[nodes.{n}.tpdo.1]",
-                 "transmission_type = 255", "event_timer_ms = 10", "inhibit_100us = 50", ""]
+                 f"cob_id = 0x{0x180 + n:X}", "transmission_type = 255", "event_timer_ms = 10",
+                 "inhibit_100us = 50", ""]
+    text += ["[nodes.4.rpdo.1]", "cob_id = 0x183", "transmission_type = 255",
+             "event_timer_ms = 20", ""]
     path.write_text("\n".join(text))
     return path
 
@@ -122,7 +130,14 @@ def test_a_spilled_check_holds_its_budgets_and_finds_the_same(
     log = _log_of_many_streams(tmp_path / "pdo.log")
     network = load_network(str(_network(tmp_path / "network.toml")))
     whole = _check([log], network)
-    assert any(f.rule == "D001" and f.node == 3 for f in whole[0].findings)
+    found = {(f.rule, f.node) for f in whole[0].findings}
+    assert {("D001", 3), ("D004", 4), ("D002", 5)} <= found, found
+    for window in (7, 5000, 10_000):  # windows that end at the findings' frames too
+        monkeypatch.setattr(pdo_rules, "WINDOW", window)
+        monkeypatch.setattr(comm_report, "WINDOW", window)
+        assert _reports(_check([log], network)) == _reports(whole)
+    monkeypatch.setattr(pdo_rules, "WINDOW", 1 << 18)
+    monkeypatch.setattr(comm_report, "WINDOW", 1 << 18)
     monkeypatch.setattr(pdo_stage, "STREAMS_IN_MEMORY", 256 << 10)
     monkeypatch.setattr(pdo_stage, "STREAMS_CACHED", 1 << 20)
     spilled = _check([log], network)
@@ -163,3 +178,6 @@ def test_the_real_stacks_recordings_report_the_same_spilled(
     monkeypatch.setattr(pdo_stage, "STREAMS_CACHED", 1)
     assert _reports(_check(logs, network)) == whole
     assert _reports([PackedResult.of(r).unpack() for r in _check(logs, network)]) == whole
+    monkeypatch.setattr(pdo_rules, "WINDOW", 2)  # and the D rules in windows of 2 frames
+    monkeypatch.setattr(comm_report, "WINDOW", 2)
+    assert _reports(_check(logs, network)) == whole

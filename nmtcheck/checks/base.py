@@ -224,10 +224,24 @@ def run_starts(join: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def flagged_runs(join: np.ndarray, flagged: np.ndarray) -> list[tuple[int, int]]:
     """`run_starts`, keeping only the runs whose first item is flagged, as (first, length)
-    pairs: a rule walks its findings, never every run of a long stream."""
-    first, length = run_starts(join)
-    keep = flagged[first] if len(first) else np.zeros(0, bool)
-    return list(zip(first[keep].tolist(), length[keep].tolist(), strict=True))
+    pairs: a rule walks its findings, never every run of a long stream. Where a join never
+    links a flagged item to an unflagged one (every rule's: it joins items of one defect)
+    only the flagged items are looked at: `run_starts` of a clean stream of 5 M frames
+    made two arrays of 5 M run starts and lengths (80 MB) to keep none of them."""
+    join, flagged = np.asarray(join, bool), np.asarray(flagged, bool)
+    if len(join) > 1 and np.any(join[1:] & (flagged[1:] != flagged[:-1])):
+        first, length = run_starts(join)
+        keep = flagged[first] if len(first) else np.zeros(0, bool)
+        return list(zip(first[keep].tolist(), length[keep].tolist(), strict=True))
+    cand = np.flatnonzero(flagged)
+    if not len(cand):
+        return []
+    # a flagged item continues the run before it where it is joined to the item before,
+    # which is then flagged too: the candidate before it
+    cont = join[cand] & (cand > 0)
+    starts = np.flatnonzero(~cont)
+    lengths = np.diff(np.append(starts, len(cand)))
+    return list(zip(cand[starts].tolist(), lengths.tolist(), strict=True))
 
 
 def count_note(n: int, what: str = "frames") -> str:

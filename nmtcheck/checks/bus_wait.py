@@ -18,9 +18,11 @@ def bus_waits(model: InputModel, cm: ChannelModel, idxs: np.ndarray) -> np.ndarr
     that breaks its inhibit time asks for each of its frames). The frames of the other
     channels of the input are left out: back to back means on one bus."""
     out = np.zeros(len(idxs))
+    if not len(idxs):  # before d8, which reads every frame time of the channel
+        return out
     decoded = model.decoded
     d8 = decoded.d8(cm.chan)
-    if d8 is None or not len(idxs):
+    if d8 is None:
         return out
     order = np.argsort(idxs, kind="stable")
     wanted = np.asarray(idxs, np.int64)[order]

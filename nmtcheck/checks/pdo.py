@@ -38,6 +38,7 @@ _OP = STATE_INDEX[OPERATIONAL]
 _OFFLINE = STATE_INDEX[OFFLINE]
 _RECEIVING = np.asarray([STATE_INDEX[PRE_OPERATIONAL], _OP])
 _OP_CODES = np.asarray([c for c, state in STATE_OF_CODE.items() if state == OPERATIONAL])
+WINDOW = 1 << 18  # frames (or pairs) of a stream D001, D002 and D004 judge at once
 
 
 def _streams(model: InputModel) -> Iterator[tuple[ChannelModel, Stream]]:
@@ -159,23 +160,32 @@ def tpdo_event_timer_exceeded(model: InputModel, params: Params) -> Iterator[Pro
     """
     tolerance, margin = float(params["tolerance"]), float(params["margin_ms"]) / 1000
     for cm, st, p, m, event_timer_ms in _event_driven(model, "event_timer_ms"):
-        ts, idx, _line = st.frames()
-        if not len(ts):
-            continue
         e = event_timer_ms / 1000
         limit = e * (1 + tolerance) + margin
-        nxt = np.append(ts[1:], np.inf)
-        due = np.round(ts + limit, 9)  # 10.05 + 0.05 is not above 10.1
-        fire = ((nxt > due + EPS) & (cm.end >= due - EPS) & operational_through(m, ts, due)
-                & ~unsupervised(m, ts) & ~_fell_silent(m, ts, nxt))
-        for k in np.flatnonzero(fire).tolist():
-            gap = (f"{(nxt[k] - ts[k]) * 1000:.3f}" if np.isfinite(nxt[k])
-                   else f"at least {(cm.end - ts[k]) * 1000:.3f}")
-            yield Problem(cm.name, p.node, float(due[k]),
-                          f"no TPDO {st.cob_id:03X}h from node {p.node} for {gap} ms while "
-                          f"OPERATIONAL; event timer {p.base_index:04X}h:05 = {e * 1000:g} ms "
-                          f"({_source(p.event_timer_ms)}), limit {limit * 1000:.3f} ms",
-                          after=int(idx[k]))
+        for ts, nxt, idx in _windows(st):
+            due = np.round(ts + limit, 9)  # 10.05 + 0.05 is not above 10.1
+            fire = ((nxt > due + EPS) & (cm.end >= due - EPS)
+                    & operational_through(m, ts, due) & ~unsupervised(m, ts)
+                    & ~_fell_silent(m, ts, nxt))
+            for k in np.flatnonzero(fire).tolist():
+                gap = (f"{(nxt[k] - ts[k]) * 1000:.3f}" if np.isfinite(nxt[k])
+                       else f"at least {(cm.end - ts[k]) * 1000:.3f}")
+                yield Problem(cm.name, p.node, float(due[k]),
+                              f"no TPDO {st.cob_id:03X}h from node {p.node} for {gap} ms "
+                              f"while OPERATIONAL; event timer {p.base_index:04X}h:05 = "
+                              f"{e * 1000:g} ms ({_source(p.event_timer_ms)}), limit "
+                              f"{limit * 1000:.3f} ms", after=int(idx[k]))
+
+
+def _windows(st: Stream) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The stream's frames `WINDOW` at a time: (ts, the next frame's ts (inf after the
+    last), frame index); views of the stream's columns. A rule's working arrays over
+    one window, not the whole stream (a 5 M-frame stream's D001 took 240 MB)."""
+    ts, idx, _line = st.frames()
+    n = len(ts)
+    for a in range(0, n, WINDOW):
+        b = min(a + WINDOW, n)
+        yield ts[a:b], np.append(ts[a + 1:b], ts[b] if b < n else np.inf), idx[a:b]
 
 
 def _known_in(v: Value, values: range | tuple[int, ...]) -> bool:
@@ -204,26 +214,37 @@ def tpdo_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
         if len(ts) < 2:
             continue
         inhibit = inhibit_100us * 1e-4
-        dt = np.diff(ts)
-        close = np.flatnonzero((dt < inhibit - r - EPS)
-                               & operational_through(m, ts[:-1], ts[1:]))
-        q = np.zeros(len(dt))
-        q[close] = bus_waits(model, cm, idx[close])
-        bad = np.zeros(len(dt), bool)
-        bad[close] = dt[close] < inhibit - r - q[close] - EPS
-        join = np.zeros(len(dt), bool)
+        # the pairs (by their first frame) closer than I less r, a window at a time: a
+        # stream that keeps its inhibit time has few, and the working arrays stay small
+        found = [a + np.flatnonzero((t1 - t0 < inhibit - r - EPS)
+                                    & operational_through(m, t0, t1))
+                 for a, t0, t1 in _pairs(ts)]
+        close = np.concatenate(found) if found else np.zeros(0, np.int64)
+        q = bus_waits(model, cm, idx[close])  # one pass over the frame times
+        bad = np.zeros(len(ts) - 1, bool)
+        bad[close] = ts[close + 1] - ts[close] < inhibit - r - q - EPS
+        join = np.zeros(len(bad), bool)
         join[1:] = bad[1:] & bad[:-1]
         for j, n in flagged_runs(join, bad):
-            smallest = float(dt[j:j + n].min())
+            dt = np.diff(ts[j:j + n + 1])
+            qj = float(q[int(np.searchsorted(close, j))])
             yield Problem(cm.name, p.node, float(ts[j + 1]),
                           f"TPDO {st.cob_id:03X}h of node {p.node} "
-                          f"{dt[j] * 1000:.3f} ms after the previous one (line "
+                          f"{dt[0] * 1000:.3f} ms after the previous one (line "
                           f"{int(line[j])}); inhibit time {p.base_index:04X}h:03 = "
                           f"{p.inhibit_100us.value} x 100 us = {inhibit * 1000:g} ms "
                           f"({_source(p.inhibit_100us)}), allowance "
-                          f"{(r + float(q[j])) * 1000:.3f} ms"
-                          + (f" ({n} pairs, the closest {smallest * 1000:.3f} ms)" if n > 1
-                             else ""), int(idx[j + 1]), int(line[j + 1]))
+                          f"{(r + qj) * 1000:.3f} ms"
+                          + (f" ({n} pairs, the closest {float(dt.min()) * 1000:.3f} ms)"
+                             if n > 1 else ""), int(idx[j + 1]), int(line[j + 1]))
+
+
+def _pairs(ts: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Consecutive frames `WINDOW` pairs at a time: (the first pair's position, the
+    pairs' first times, their second times), views of `ts`."""
+    for a in range(0, len(ts) - 1, WINDOW):
+        b = min(a + WINDOW, len(ts) - 1)
+        yield a, ts[a:b], ts[a + 1:b + 1]
 
 
 @input_rule("D003", "sync-tpdo-count", "warning", exempt_from_unknown=True, scope="node")
@@ -343,10 +364,7 @@ def rpdo_deadline_missed(model: InputModel, params: Params) -> Iterator[Problem]
     emcy = emcy_stage.of(model)
     analysis = pdo_stage.of(model)
     for cm, st in _streams(model):
-        ts, idx, _line = st.frames()
-        if not len(ts):
-            continue
-        period = _stream_period(st, ts)
+        period: list[float | None] = []  # the stream's, found at its first gap
         for c in st.consumers:
             if _known_in(c.transmission_type, SYNCHRONOUS):
                 continue
@@ -356,31 +374,35 @@ def rpdo_deadline_missed(model: InputModel, params: Params) -> Iterator[Problem]
             if m is None:
                 continue
             e = float(c.event_timer_ms.value) / 1000
-            nxt = np.append(ts[1:], np.inf)
-            due = np.round(ts + e, 9)  # 10.05 + 0.05 is not above 10.1
-            armed = operational_through(m, ts, ts)
-            fire = (armed & (nxt > due + r + EPS) & (cm.end >= due - EPS)
-                    & operational_through(m, ts, due))
-            confirm = _emcy_8250(emcy, cm.name, c.node, due, nxt)
-            fire &= ~unsupervised(m, ts) | (confirm >= 0)
             producer = f"node {st.producer.node}" if st.producer else "unknown"
             e_node = emcy.nodes.get((cm.name, c.node)) if emcy is not None else None
-            for k in np.flatnonzero(fire).tolist():
-                gap = (f"{(nxt[k] - ts[k]) * 1000:.3f}" if np.isfinite(nxt[k])
-                       else f"at least {(cm.end - ts[k]) * 1000:.3f}")
-                text = (f"no RPDO {st.cob_id:03X}h for node {c.node} for {gap} ms; deadline "
-                        f"{c.base_index:04X}h:05 = {e * 1000:g} ms ({_source(c.event_timer_ms)})"
-                        f"; producer {producer}")
-                j = int(confirm[k])
-                if j >= 0 and e_node is not None:
-                    text += (f"; confirmed by EMCY 8250h of node {c.node} at "
-                             f"{_at(cm, float(e_node.ts[j]))} (line {int(e_node.line[j])})")
-                if analysis is not None:
-                    analysis.gaps[(cm.name, c.node, round(float(due[k]), 9))] = (
-                        pdo_stage.PdoGap(st.cob_id, float(ts[k]), int(idx[k]), float(nxt[k]),
-                                         st.producer.node if st.producer else None,
-                                         period or e))
-                yield Problem(cm.name, c.node, float(due[k]), text, after=int(idx[k]))
+            for ts, nxt, idx in _windows(st):
+                due = np.round(ts + e, 9)  # 10.05 + 0.05 is not above 10.1
+                armed = operational_through(m, ts, ts)
+                fire = (armed & (nxt > due + r + EPS) & (cm.end >= due - EPS)
+                        & operational_through(m, ts, due))
+                confirm = _emcy_8250(emcy, cm.name, c.node, due, nxt)
+                fire &= ~unsupervised(m, ts) | (confirm >= 0)
+                for k in np.flatnonzero(fire).tolist():
+                    gap = (f"{(nxt[k] - ts[k]) * 1000:.3f}" if np.isfinite(nxt[k])
+                           else f"at least {(cm.end - ts[k]) * 1000:.3f}")
+                    text = (f"no RPDO {st.cob_id:03X}h for node {c.node} for {gap} ms; "
+                            f"deadline {c.base_index:04X}h:05 = {e * 1000:g} ms "
+                            f"({_source(c.event_timer_ms)}); producer {producer}")
+                    j = int(confirm[k])
+                    if j >= 0 and e_node is not None:
+                        text += (f"; confirmed by EMCY 8250h of node {c.node} at "
+                                 f"{_at(cm, float(e_node.ts[j]))} (line "
+                                 f"{int(e_node.line[j])})")
+                    if analysis is not None:
+                        if not period:
+                            period.append(_stream_period(st, st.frames()[0]))
+                        analysis.gaps[(cm.name, c.node, round(float(due[k]), 9))] = (
+                            pdo_stage.PdoGap(st.cob_id, float(ts[k]), int(idx[k]),
+                                             float(nxt[k]),
+                                             st.producer.node if st.producer else None,
+                                             period[0] or e))
+                    yield Problem(cm.name, c.node, float(due[k]), text, after=int(idx[k]))
 
 
 def _stream_period(st: Stream, ts: np.ndarray) -> float | None:

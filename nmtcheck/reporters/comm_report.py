@@ -18,6 +18,7 @@ from nmtcheck.results import Finding, InputResult
 
 SYNC_RULES = ("Y001", "Y002", "Y003", "Y004", "Y005")
 _OPERATIONAL = STATE_INDEX[OPERATIONAL]
+WINDOW = 1 << 18  # frames whose interval indices are looked up at once
 
 
 def channel_sync(res: InputResult, channel: str) -> dict[str, Any] | None:
@@ -134,8 +135,12 @@ def stream_intervals(st: pdo_stage.Stream, ts: Any, model: Any) -> np.ndarray:
         cm = next((c for c in model.channels if c.network_name == st.channel), None)
         m = cm.nodes.get(st.producer.node) if cm is not None else None
         if m is not None and len(m.intervals):
-            a, b = m.interval_indices(ts[:-1]), m.interval_indices(ts[1:])
-            iv = iv[(a == b) & (m.intervals.state[a] == _OPERATIONAL)]
+            inside = np.zeros(len(iv), bool)
+            for a in range(0, len(iv), WINDOW):  # the index arrays a window at a time
+                b = min(a + WINDOW, len(iv))
+                i, j = m.interval_indices(ts[a:b]), m.interval_indices(ts[a + 1:b + 1])
+                inside[a:b] = (i == j) & (m.intervals.state[i] == _OPERATIONAL)
+            iv = iv[inside]
     return iv
 
 
