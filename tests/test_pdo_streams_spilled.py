@@ -17,9 +17,8 @@ import numpy as np
 import pytest
 from test_many_inputs import GROUPS, _check, _reports
 
-from nmtcheck.checks import pdo as pdo_rules
+from nmtcheck.checks import base as rules_base
 from nmtcheck.processes import pdo as pdo_stage
-from nmtcheck.reporters import comm_report
 from nmtcheck.results import PackedResult
 from nmtcheck.settings.network import load_network
 from nmtcheck.spool import SCRATCH, KeyedColumns
@@ -133,11 +132,9 @@ def test_a_spilled_check_holds_its_budgets_and_finds_the_same(
     found = {(f.rule, f.node) for f in whole[0].findings}
     assert {("D001", 3), ("D004", 4), ("D002", 5)} <= found, found
     for window in (7, 5000, 10_000):  # windows that end at the findings' frames too
-        monkeypatch.setattr(pdo_rules, "WINDOW", window)
-        monkeypatch.setattr(comm_report, "WINDOW", window)
+        monkeypatch.setattr(rules_base, "WINDOW", window)
         assert _reports(_check([log], network)) == _reports(whole)
-    monkeypatch.setattr(pdo_rules, "WINDOW", 1 << 18)
-    monkeypatch.setattr(comm_report, "WINDOW", 1 << 18)
+    monkeypatch.setattr(rules_base, "WINDOW", 1 << 18)
     monkeypatch.setattr(pdo_stage, "STREAMS_IN_MEMORY", 256 << 10)
     monkeypatch.setattr(pdo_stage, "STREAMS_CACHED", 1 << 20)
     spilled = _check([log], network)
@@ -178,6 +175,5 @@ def test_the_real_stacks_recordings_report_the_same_spilled(
     monkeypatch.setattr(pdo_stage, "STREAMS_CACHED", 1)
     assert _reports(_check(logs, network)) == whole
     assert _reports([PackedResult.of(r).unpack() for r in _check(logs, network)]) == whole
-    monkeypatch.setattr(pdo_rules, "WINDOW", 2)  # and the D rules in windows of 2 frames
-    monkeypatch.setattr(comm_report, "WINDOW", 2)
+    monkeypatch.setattr(rules_base, "WINDOW", 2)  # and the D rules in windows of 2 frames
     assert _reports(_check(logs, network)) == whole

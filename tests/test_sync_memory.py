@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_many_inputs import GROUPS, _check, _reports
 
-from nmtcheck.checks import sync as sync_rules
+from nmtcheck.checks import base as rules_base
 from nmtcheck.processes import sync as sync_stage
 from nmtcheck.settings.network import load_network
 
@@ -52,7 +52,7 @@ def test_y001_judges_windows_as_it_judged_the_whole(tmp_path: Path,
     rules = sorted(f.rule for f in whole[0].findings if f.rule.startswith("Y"))
     assert rules.count("Y001") == 3 and "Y002" in rules and "Y003" in rules, rules
     for window in (1, 2, 3):
-        monkeypatch.setattr(sync_rules, "WINDOW", window)
+        monkeypatch.setattr(rules_base, "WINDOW", window)
         got = _check([log], network)
         assert [(f.rule, f.time, f.message) for f in got[0].findings] == [
             (f.rule, f.time, f.message) for f in whole[0].findings]
@@ -70,7 +70,7 @@ def test_the_real_stacks_sync_reports_the_same_in_windows(
     assert net_path is not None
     network = load_network(str(net_path))
     whole = _reports(_check(logs, network))
-    monkeypatch.setattr(sync_rules, "WINDOW", 2)
+    monkeypatch.setattr(rules_base, "WINDOW", 2)
     assert _reports(_check(logs, network)) == whole
 
 

@@ -7,11 +7,12 @@ before the limit (its state is not supervised, §9.1.6).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule
+from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule, windows
 from nmtcheck.checks.bus_wait import bus_waits
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
@@ -38,7 +39,6 @@ _OP = STATE_INDEX[OPERATIONAL]
 _OFFLINE = STATE_INDEX[OFFLINE]
 _RECEIVING = np.asarray([STATE_INDEX[PRE_OPERATIONAL], _OP])
 _OP_CODES = np.asarray([c for c, state in STATE_OF_CODE.items() if state == OPERATIONAL])
-WINDOW = 1 << 18  # frames (or pairs) of a stream D001, D002 and D004 judge at once
 
 
 def _streams(model: InputModel) -> Iterator[tuple[ChannelModel, Stream]]:
@@ -162,7 +162,7 @@ def tpdo_event_timer_exceeded(model: InputModel, params: Params) -> Iterator[Pro
     for cm, st, p, m, event_timer_ms in _event_driven(model, "event_timer_ms"):
         e = event_timer_ms / 1000
         limit = e * (1 + tolerance) + margin
-        for ts, nxt, idx in _windows(st):
+        for _a, ts, nxt, idx in _windows(st):
             due = np.round(ts + limit, 9)  # 10.05 + 0.05 is not above 10.1
             fire = ((nxt > due + EPS) & (cm.end >= due - EPS)
                     & operational_through(m, ts, due) & ~unsupervised(m, ts)
@@ -177,15 +177,13 @@ def tpdo_event_timer_exceeded(model: InputModel, params: Params) -> Iterator[Pro
                               f"{limit * 1000:.3f} ms", after=int(idx[k]))
 
 
-def _windows(st: Stream) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The stream's frames `WINDOW` at a time: (ts, the next frame's ts (inf after the
-    last), frame index); views of the stream's columns. A rule's working arrays over
-    one window, not the whole stream (a 5 M-frame stream's D001 took 240 MB)."""
+def _windows(st: Stream) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    """The stream's frames a window at a time (base.windows): (the first one's position,
+    their ts, the next frame's ts (inf after the last), frame index)."""
     ts, idx, _line = st.frames()
     n = len(ts)
-    for a in range(0, n, WINDOW):
-        b = min(a + WINDOW, n)
-        yield ts[a:b], np.append(ts[a + 1:b], ts[b] if b < n else np.inf), idx[a:b]
+    for a, b in windows(n):
+        yield a, ts[a:b], np.append(ts[a + 1:b], ts[b] if b < n else np.inf), idx[a:b]
 
 
 def _known_in(v: Value, values: range | tuple[int, ...]) -> bool:
@@ -215,10 +213,10 @@ def tpdo_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
             continue
         inhibit = inhibit_100us * 1e-4
         # the pairs (by their first frame) closer than I less r, a window at a time: a
-        # stream that keeps its inhibit time has few, and the working arrays stay small
+        # stream that keeps its inhibit time has few (the last frame's next is inf)
         found = [a + np.flatnonzero((t1 - t0 < inhibit - r - EPS)
                                     & operational_through(m, t0, t1))
-                 for a, t0, t1 in _pairs(ts)]
+                 for a, t0, t1, _idx in _windows(st)]
         close = np.concatenate(found) if found else np.zeros(0, np.int64)
         q = bus_waits(model, cm, idx[close])  # one pass over the frame times
         bad = np.zeros(len(ts) - 1, bool)
@@ -237,14 +235,6 @@ def tpdo_inhibit_violation(model: InputModel, params: Params) -> Iterator[Proble
                           f"{(r + qj) * 1000:.3f} ms"
                           + (f" ({n} pairs, the closest {float(dt.min()) * 1000:.3f} ms)"
                              if n > 1 else ""), int(idx[j + 1]), int(line[j + 1]))
-
-
-def _pairs(ts: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-    """Consecutive frames `WINDOW` pairs at a time: (the first pair's position, the
-    pairs' first times, their second times), views of `ts`."""
-    for a in range(0, len(ts) - 1, WINDOW):
-        b = min(a + WINDOW, len(ts) - 1)
-        yield a, ts[a:b], ts[a + 1:b + 1]
 
 
 @input_rule("D003", "sync-tpdo-count", "warning", exempt_from_unknown=True, scope="node")
@@ -364,7 +354,10 @@ def rpdo_deadline_missed(model: InputModel, params: Params) -> Iterator[Problem]
     emcy = emcy_stage.of(model)
     analysis = pdo_stage.of(model)
     for cm, st in _streams(model):
-        period: list[float | None] = []  # the stream's, found at its first gap
+        @functools.cache
+        def period(st: Stream = st) -> float | None:  # the stream's, found at its first gap
+            return _stream_period(st, st.frames()[0])
+
         for c in st.consumers:
             if _known_in(c.transmission_type, SYNCHRONOUS):
                 continue
@@ -376,7 +369,7 @@ def rpdo_deadline_missed(model: InputModel, params: Params) -> Iterator[Problem]
             e = float(c.event_timer_ms.value) / 1000
             producer = f"node {st.producer.node}" if st.producer else "unknown"
             e_node = emcy.nodes.get((cm.name, c.node)) if emcy is not None else None
-            for ts, nxt, idx in _windows(st):
+            for _a, ts, nxt, idx in _windows(st):
                 due = np.round(ts + e, 9)  # 10.05 + 0.05 is not above 10.1
                 armed = operational_through(m, ts, ts)
                 fire = (armed & (nxt > due + r + EPS) & (cm.end >= due - EPS)
@@ -395,13 +388,11 @@ def rpdo_deadline_missed(model: InputModel, params: Params) -> Iterator[Problem]
                                  f"{_at(cm, float(e_node.ts[j]))} (line "
                                  f"{int(e_node.line[j])})")
                     if analysis is not None:
-                        if not period:
-                            period.append(_stream_period(st, st.frames()[0]))
                         analysis.gaps[(cm.name, c.node, round(float(due[k]), 9))] = (
                             pdo_stage.PdoGap(st.cob_id, float(ts[k]), int(idx[k]),
                                              float(nxt[k]),
                                              st.producer.node if st.producer else None,
-                                             period[0] or e))
+                                             period() or e))
                     yield Problem(cm.name, c.node, float(due[k]), text, after=int(idx[k]))
 
 

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule
+from nmtcheck.checks.base import Param, Params, Problem, flagged_runs, input_rule, windows
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync
@@ -22,9 +22,6 @@ from nmtcheck.timeline.moments import at
 
 EPS = 1e-9
 _CONSUMING = np.asarray([STATE_INDEX[PRE_OPERATIONAL], STATE_INDEX[OPERATIONAL]])
-
-
-WINDOW = 1 << 18  # SYNCs Y001 judges at once
 
 
 def _channels(model: InputModel) -> Iterator[tuple[ChannelModel, SyncChannel]]:
@@ -105,8 +102,7 @@ def sync_timeout(model: InputModel, params: Params) -> Iterator[Problem]:
             else:
                 continue
             limit = factor * period
-            for a in range(0, len(pos), WINDOW):  # a window at a time: its arrays are
-                b = min(a + WINDOW, len(pos))  # bounded however many SYNCs there are
+            for a, b in windows(len(pos)):  # bounded however many SYNCs there are
                 ts = sc.ts[pos[a:b]]
                 nxt = np.append(ts[1:], sc.ts[pos[b]] if b < len(pos) else np.inf)
                 end = sc.end_of(pos[a:b])

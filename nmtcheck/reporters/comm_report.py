@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from nmtcheck.checks.base import windows
 from nmtcheck.processes import emcy as emcy_stage
 from nmtcheck.processes import pdo as pdo_stage
 from nmtcheck.processes import sync as sync_stage
@@ -18,7 +19,6 @@ from nmtcheck.results import Finding, InputResult
 
 SYNC_RULES = ("Y001", "Y002", "Y003", "Y004", "Y005")
 _OPERATIONAL = STATE_INDEX[OPERATIONAL]
-WINDOW = 1 << 18  # frames whose interval indices are looked up at once
 
 
 def channel_sync(res: InputResult, channel: str) -> dict[str, Any] | None:
@@ -136,8 +136,7 @@ def stream_intervals(st: pdo_stage.Stream, ts: Any, model: Any) -> np.ndarray:
         m = cm.nodes.get(st.producer.node) if cm is not None else None
         if m is not None and len(m.intervals):
             inside = np.zeros(len(iv), bool)
-            for a in range(0, len(iv), WINDOW):  # the index arrays a window at a time
-                b = min(a + WINDOW, len(iv))
+            for a, b in windows(len(iv)):  # the index arrays a window at a time
                 i, j = m.interval_indices(ts[a:b]), m.interval_indices(ts[a + 1:b + 1])
                 inside[a:b] = (i == j) & (m.intervals.state[i] == _OPERATIONAL)
             iv = iv[inside]
